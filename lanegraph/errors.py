@@ -1,0 +1,102 @@
+"""One exception hierarchy for everything lanegraph reports to a user.
+
+Every error says *where* (file, node id, field or port, frame) and *what* was
+expected versus found. :class:`GraphError` carries all problems of one graph
+file at once so a user can fix them in one go.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+class LanegraphError(Exception):
+    """Base class of every error lanegraph raises on purpose."""
+
+    exit_code = 1
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One located problem in a graph file.
+
+    Rendered as ``FILE: node 'ID' (TYPE): FIELD: MESSAGE [hint: HINT]``.
+    """
+
+    message: str
+    file: str | None = None
+    node: str | None = None
+    node_type: str | None = None
+    field: str | None = None
+    hint: str | None = None
+
+    def __str__(self) -> str:
+        parts = []
+        if self.file:
+            parts.append(self.file)
+        if self.node:
+            where = f"node '{self.node}'"
+            if self.node_type:
+                where += f" ({self.node_type})"
+            parts.append(where)
+        if self.field:
+            parts.append(self.field)
+        text = ": ".join([*parts, self.message])
+        if self.hint:
+            text += f" (hint: {self.hint})"
+        return text
+
+
+@dataclass
+class GraphError(LanegraphError):
+    """A graph file (or ``--set`` override) is invalid; lists every problem found."""
+
+    problems: list[Problem] = field(default_factory=list)
+    exit_code = 2
+
+    def __post_init__(self) -> None:
+        super().__init__(str(self))
+
+    def __str__(self) -> str:
+        if len(self.problems) == 1:
+            return str(self.problems[0])
+        lines = [f"{len(self.problems)} problems:"]
+        lines += [f"  - {p}" for p in self.problems]
+        return "\n".join(lines)
+
+
+class UsageError(LanegraphError):
+    """Bad command-line usage (exit code 2)."""
+
+    exit_code = 2
+
+
+class InputError(LanegraphError):
+    """Bad input data: a missing, truncated or inconsistent file.
+
+    ``path`` and ``frame`` locate it.
+    """
+
+    def __init__(self, message: str, *, path: str | None = None, frame: str | None = None):
+        self.path = path
+        self.frame = frame
+        where = []
+        if path:
+            where.append(str(path))
+        if frame is not None:
+            where.append(f"frame {frame}")
+        super().__init__(": ".join([*where, message]))
+
+
+class NodeError(LanegraphError):
+    """A node raised while processing a frame."""
+
+    def __init__(self, node_id: str, node_type: str, frame: str | None, cause: BaseException):
+        self.node_id = node_id
+        self.node_type = node_type
+        self.frame = frame
+        self.cause = cause
+        super().__init__(
+            f"node '{node_id}' ({node_type}) failed on frame {frame}: "
+            f"{type(cause).__name__}: {cause}"
+        )

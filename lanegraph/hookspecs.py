@@ -1,0 +1,47 @@
+"""The lanegraph hook contract: every hook a plugin may implement.
+
+Implementations may accept any subset of a hook's arguments, so hooks can gain
+arguments without breaking plugins. Mark implementations with
+``lanegraph.hookimpl``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pluggy
+
+hookspec = pluggy.HookspecMarker("lanegraph")
+hookimpl = pluggy.HookimplMarker("lanegraph")
+
+
+@hookspec
+def lanegraph_node_types() -> list[Any]:
+    """Return the node types (:class:`lanegraph.nodes.NodeType`) this plugin provides."""
+
+
+@hookspec
+def lanegraph_before_node(node_id: str, node_type: str, frame: str | None, inputs: dict[str, Any]) -> None:
+    """Called right before a node processes a frame (for tracing and profiling)."""
+
+
+@hookspec
+def lanegraph_after_node(
+    node_id: str, node_type: str, frame: str | None, outputs: dict[str, Any] | None, elapsed_ms: float
+) -> None:
+    """Called right after a node processed a frame, with its outputs and wall time in ms."""
+
+
+@hookspec
+def lanegraph_run_start(graph: Any, context: Any) -> None:
+    """Called once when a run starts, with the compiled graph and the run context."""
+
+
+@hookspec
+def lanegraph_run_end(graph: Any, context: Any, frames: int) -> None:
+    """Called once when a run ends (also after a failure), with the number of frames processed."""
+
+
+@hookspec(firstresult=True)
+def lanegraph_render(node_type: str, port: str, value: Any) -> Any:
+    """Render a node output as a BGR uint8 image for debugging; return None to decline."""

@@ -1,0 +1,158 @@
+"""How a node type is declared.
+
+A node type is a plain function plus a pydantic params model::
+
+    class BlurParams(NodeParams):
+        ksize: int = Field(5, ge=1, le=99, description="Gaussian kernel size, pixels (odd)")
+
+    @node_type("image.blur", inputs={"image": "image"}, outputs={"image": "image"})
+    def blur(params: BlurParams, image):
+        return {"image": cv2.GaussianBlur(image, (params.ksize,) * 2, 0)}
+
+Plugins return such objects from the ``lanegraph_node_types`` hook.
+
+A *stateless* node function is called as ``func(params, **inputs)`` and returns a
+dict mapping output port names to values. A *stateful* node (``stateful=True``)
+is a class: ``cls(params, context)`` once per run, then ``obj(**inputs)`` per frame
+and ``obj.close()`` (if defined) at the end. A *source* is stateful and produces
+frames: ``obj.constants()`` returns its constant outputs (e.g. calibration),
+``iter(obj)`` yields one dict of per-frame outputs per frame.
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict
+
+from .types import PORT_TYPES
+
+
+class NodeParams(BaseModel):
+    """Base of every params model: unknown keys are rejected, values are validated on assignment."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, frozen=False)
+
+
+class NoParams(NodeParams):
+    """A node type without params."""
+
+
+@dataclass(frozen=True)
+class Port:
+    """A typed input or output port.
+
+    ``rate`` is ``"frame"`` (a new value every frame) or ``"constant"`` (one value for
+    the whole run, e.g. calibration). ``optional`` inputs may be left unconnected
+    (the node then receives ``None``).
+    """
+
+    type: str
+    doc: str = ""
+    optional: bool = False
+    rate: str = "frame"
+
+    def __post_init__(self) -> None:
+        if self.type not in PORT_TYPES:
+            raise ValueError(f"unknown port type {self.type!r}; known: {', '.join(sorted(PORT_TYPES))}")
+        if self.rate not in ("frame", "constant"):
+            raise ValueError(f"port rate must be 'frame' or 'constant', got {self.rate!r}")
+
+
+def _as_ports(spec: Mapping[str, str | Port] | None) -> dict[str, Port]:
+    return {k: (v if isinstance(v, Port) else Port(v)) for k, v in (spec or {}).items()}
+
+
+@dataclass
+class RunContext:
+    """What a stateful node (source, sink) may know about the run."""
+
+    input_path: Path | None = None
+    out_dir: Path | None = None
+    frames: slice | None = None
+    graph_file: str | None = None
+    node_id: str = ""
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class NodeType:
+    """The declaration of one node type."""
+
+    name: str
+    func: Callable[..., Any]
+    params: type[NodeParams] = NoParams
+    inputs: dict[str, Port] = field(default_factory=dict)
+    outputs: dict[str, Port] = field(default_factory=dict)
+    doc: str = ""
+    stateful: bool = False
+    source: bool = False
+    sink: bool = False
+    plugin: str = ""  # filled in by the registry: the distribution / module providing it
+
+    def __post_init__(self) -> None:
+        parts = self.name.split(".")
+        if len(parts) != 2 or not all(p and p.replace("_", "").isalnum() and p[0].isalpha() for p in parts):
+            raise ValueError(f"node type name must be 'family.name' (lower-case identifiers), got {self.name!r}")
+        self.inputs = _as_ports(self.inputs)
+        self.outputs = _as_ports(self.outputs)
+        if not (isinstance(self.params, type) and issubclass(self.params, BaseModel)):
+            raise TypeError(f"{self.name}: params must be a pydantic model class")
+        if self.source:
+            self.stateful = True
+        if not self.doc:
+            self.doc = inspect.cleandoc(self.func.__doc__ or "")
+
+    @property
+    def family(self) -> str:
+        return self.name.split(".")[0]
+
+    @property
+    def summary(self) -> str:
+        return self.doc.strip().splitlines()[0] if self.doc.strip() else ""
+
+
+def node_type(
+    name: str,
+    *,
+    inputs: Mapping[str, str | Port] | None = None,
+    outputs: Mapping[str, str | Port] | None = None,
+    params: type[NodeParams] | None = None,
+    stateful: bool = False,
+    source: bool = False,
+    sink: bool = False,
+    doc: str = "",
+) -> Callable[[Callable[..., Any]], NodeType]:
+    """Decorator turning a function (or, for stateful nodes, a class) into a :class:`NodeType`.
+
+    When ``params`` is omitted it is taken from the annotation of the function's
+    first parameter.
+    """
+
+    def wrap(func: Callable[..., Any]) -> NodeType:
+        p = params
+        if p is None and not inspect.isclass(func):
+            sig = inspect.signature(func)
+            first = next(iter(sig.parameters.values()), None)
+            ann = first.annotation if first is not None else None
+            if isinstance(ann, str):
+                ann = func.__globals__.get(ann)
+            if isinstance(ann, type) and issubclass(ann, BaseModel):
+                p = ann
+        return NodeType(
+            name=name,
+            func=func,
+            params=p or NoParams,
+            inputs=dict(inputs or {}),
+            outputs=dict(outputs or {}),
+            doc=doc,
+            stateful=stateful or source or inspect.isclass(func),
+            source=source,
+            sink=sink,
+        )
+
+    return wrap

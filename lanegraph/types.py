@@ -1,0 +1,212 @@
+"""Port types and the value types that travel along graph edges.
+
+Ports are typed so that a whole graph can be checked before any frame runs.
+A port type is a short name (``"disparity"``, ``"bev_image"`` ...). A value of
+a *sub*-type may feed a port of its parent type (a ``gray`` image may feed an
+``image`` port); ``any`` accepts everything.
+
+Coordinates: arrays are indexed ``(row, col)``; points are ``(x, y)`` pixels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+#: port type name -> (description, parent type or None)
+PORT_TYPES: dict[str, tuple[str, str | None]] = {
+    "any": ("any value", None),
+    "frame_id": ("frame identifier: the left image's file stem (str)", None),
+    "image": ("image, HxW or HxWx3 uint8 (BGR)", None),
+    "gray": ("gray image, HxW uint8 or float32", "image"),
+    "disparity": ("disparity map, HxW float32 pixels; invalid pixels <= 0", None),
+    "mask": ("binary mask in image pixels, HxW bool", None),
+    "calibration": ("rectified stereo calibration (lanegraph.types.Calibration)", None),
+    "vdisparity": ("v-disparity accumulator, H x D float32", None),
+    "road_model": ("road profile d(v), roll, pitch, height (lanegraph.types.RoadModel)", None),
+    "bev_geometry": ("bird's-eye-view grid and its mapping (lanegraph.types.BevGeometry)", None),
+    "bev_image": ("bird's-eye-view image, Hb x Wb uint8", None),
+    "bev_mask": ("bird's-eye-view binary mask, Hb x Wb bool", None),
+    "features": ("lane feature map with orientation (lanegraph.types.FeatureMap)", None),
+    "orientation": ("global lane orientation in the BEV, radians (float)", None),
+    "lines": ("straight BEV lines (list of lanegraph.types.Line)", None),
+    "lanes": ("fitted lanes (list of lanegraph.types.Lane)", None),
+    "number": ("a scalar", None),
+}
+
+
+def is_port_type(name: str) -> bool:
+    return name in PORT_TYPES
+
+
+def port_compatible(produced: str, expected: str) -> bool:
+    """Whether a value of port type ``produced`` may feed a port of type ``expected``."""
+    if expected == "any" or produced == "any":
+        return True
+    t: str | None = produced
+    while t is not None:
+        if t == expected:
+            return True
+        t = PORT_TYPES.get(t, ("", None))[1]
+    return False
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Rectified stereo calibration of the left camera.
+
+    Attributes
+    ----------
+    f : float
+        Focal length in pixels (fx; rectified images have fx == fy).
+    cx, cy : float
+        Principal point in pixels.
+    baseline : float
+        Distance between the two optical centres, metres (> 0).
+    width, height : int
+        Image size in pixels (0 when unknown).
+    fy : float or None
+        Vertical focal length if different from ``f``.
+    """
+
+    f: float
+    cx: float
+    cy: float
+    baseline: float
+    width: int = 0
+    height: int = 0
+    fy: float | None = None
+
+    @property
+    def f_y(self) -> float:
+        return self.fy if self.fy is not None else self.f
+
+    def scaled(self, s: float) -> Calibration:
+        """Calibration for the image resized by factor ``s``."""
+        return Calibration(
+            f=self.f * s,
+            cx=(self.cx + 0.5) * s - 0.5,
+            cy=(self.cy + 0.5) * s - 0.5,
+            baseline=self.baseline,
+            width=int(round(self.width * s)),
+            height=int(round(self.height * s)),
+            fy=None if self.fy is None else self.fy * s,
+        )
+
+
+@dataclass
+class RoadModel:
+    """Road profile in the v-disparity domain and the camera pose it implies.
+
+    ``d(v) = a0 + a1*v + a2*v**2`` (disparity in pixels at image row ``v``), valid
+    for rows ``v >= v_min``. Angles in radians, height in metres.
+    ``profile`` holds the DP path: one disparity per row (``-1`` where none).
+    """
+
+    a0: float
+    a1: float
+    a2: float = 0.0
+    roll: float = 0.0
+    pitch: float = 0.0
+    height: float = 0.0
+    v_min: int = 0
+    valid: bool = True
+    profile: np.ndarray | None = None
+
+    def disparity_at(self, v: np.ndarray | float) -> np.ndarray | float:
+        v = np.asarray(v, dtype=np.float64)
+        return self.a0 + self.a1 * v + self.a2 * v * v
+
+
+@dataclass
+class BevGeometry:
+    """A metric bird's-eye-view grid on the road plane and its link to the image.
+
+    The BEV image has ``rows x cols`` pixels; column ``c`` is lateral ``x`` (metres,
+    right positive), row ``r`` is distance ``z`` (metres ahead; row 0 is the far end
+    ``z_max``, the bottom row is ``z_min``). ``H_img_from_bev`` is the 3x3
+    homography mapping BEV pixel ``(c, r, 1)`` to left-image pixel ``(x, y, 1)``.
+    """
+
+    x_min: float
+    x_max: float
+    z_min: float
+    z_max: float
+    resolution: float
+    H_img_from_bev: np.ndarray
+
+    @property
+    def cols(self) -> int:
+        return int(round((self.x_max - self.x_min) / self.resolution))
+
+    @property
+    def rows(self) -> int:
+        return int(round((self.z_max - self.z_min) / self.resolution))
+
+    def bev_to_metric(self, c: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """BEV pixel (col, row) -> metric (x, z) on the road plane."""
+        x = self.x_min + (np.asarray(c, float) + 0.5) * self.resolution
+        z = self.z_max - (np.asarray(r, float) + 0.5) * self.resolution
+        return x, z
+
+    def metric_to_bev(self, x: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        c = (np.asarray(x, float) - self.x_min) / self.resolution - 0.5
+        r = (self.z_max - np.asarray(z, float)) / self.resolution - 0.5
+        return c, r
+
+    def bev_to_image(self, c: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """BEV pixels (col, row) -> left-image pixels, an N x 2 array of (x, y)."""
+        pts = np.stack([np.asarray(c, float), np.asarray(r, float), np.ones(np.size(c))])
+        q = self.H_img_from_bev @ pts.reshape(3, -1)
+        return (q[:2] / q[2]).T
+
+
+@dataclass
+class FeatureMap:
+    """Lane feature points in the BEV.
+
+    ``mask``: Hb x Wb bool, True on a feature. ``orientation``: Hb x Wb float32, the
+    feature's direction in radians in ``[0, pi)`` measured from the BEV's +x axis
+    (image columns) towards -y (up the BEV); NaN-free, ``-1`` where unknown (SLT).
+    """
+
+    mask: np.ndarray
+    orientation: np.ndarray | None = None
+
+
+@dataclass
+class Line:
+    """A straight line in the BEV: it crosses the bottom row at column ``rho`` with
+    direction ``theta`` (radians, from +x towards up; pi/2 is vertical)."""
+
+    rho: float
+    theta: float
+    votes: float = 0.0
+    side: str = ""  # "left" | "right" | ""
+
+
+@dataclass
+class Lane:
+    """A fitted lane marking.
+
+    ``coeffs``: the BEV model ``col = c0 + c1*t + c2*t**2`` with ``t = rows - 1 - row``
+    (BEV pixels from the bottom row). ``bev_rows``: the (first, last) BEV rows it
+    covers. ``points``: N x 2 left-image pixels (x, y), filled by the projection
+    step. ``side``: "left" or "right" of the vehicle. ``score``: support in [0, 1].
+    """
+
+    coeffs: tuple[float, float, float]
+    bev_rows: tuple[int, int]
+    side: str
+    score: float
+    points: np.ndarray | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        pts = [] if self.points is None else [[round(float(x), 1), round(float(y), 1)] for x, y in self.points]
+        out: dict[str, Any] = {"points": pts, "side": self.side, "score": round(float(self.score), 4)}
+        out["bev_coeffs"] = [float(c) for c in self.coeffs]
+        out.update(self.extra)
+        return out

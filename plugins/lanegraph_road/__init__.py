@@ -1,0 +1,8 @@
+"""lanegraph_road node plugin."""
+
+from lanegraph import hookimpl
+
+
+@hookimpl
+def lanegraph_node_types():
+    return []

@@ -1,0 +1,28 @@
+"""Shared fixtures: the real KITTI data (skipped with a reason when absent) and a clean plugin manager."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = Path(os.environ.get("LANEGRAPH_SHARED_DATA", ROOT.parent / "shared" / "data"))
+KITTI_DRIVE = SHARED / "kitti_raw" / "2011_09_26" / "2011_09_26_drive_0001_sync"
+
+
+@pytest.fixture(scope="session")
+def kitti_drive() -> Path:
+    """The real KITTI raw drive 0001 folder; the test is skipped when ../shared/data is absent."""
+    if not (KITTI_DRIVE / "image_02" / "data").is_dir():
+        pytest.skip(f"real KITTI data not found at {KITTI_DRIVE} (a fresh clone has no ../shared/data)")
+    return KITTI_DRIVE
+
+
+@pytest.fixture(scope="session")
+def kitti_calib():
+    """Calibration of the KITTI colour pair (P_rect_02 / P_rect_03)."""
+    from lanegraph.types import Calibration
+
+    return Calibration(f=721.5377, cx=609.5593, cy=172.8540, baseline=0.5327, width=1242, height=375)
