@@ -45,3 +45,8 @@ def lanegraph_run_end(graph: Any, context: Any, frames: int) -> None:
 @hookspec(firstresult=True)
 def lanegraph_render(node_type: str, port: str, value: Any) -> Any:
     """Render a node output as a BGR uint8 image for debugging; return None to decline."""
+
+
+@hookspec(firstresult=True)
+def lanegraph_detect_source(path: Any) -> str | None:
+    """Return the name of the source node type that reads ``path`` (a folder or file), or None."""
