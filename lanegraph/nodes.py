@@ -22,6 +22,7 @@ frames: ``obj.constants()`` returns its constant outputs (e.g. calibration),
 from __future__ import annotations
 
 import inspect
+import typing
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -116,6 +117,24 @@ class NodeType:
         return self.doc.strip().splitlines()[0] if self.doc.strip() else ""
 
 
+def _params_from_annotation(func: Callable[..., Any]) -> type[NodeParams] | None:
+    """The params model named by the annotation of the first parameter (after ``self`` for a class)."""
+    target = func.__init__ if inspect.isclass(func) else func
+    names = list(inspect.signature(target).parameters)
+    if inspect.isclass(func):
+        names = names[1:]
+    if not names:
+        return None
+    try:
+        hints = typing.get_type_hints(target)
+    except Exception:  # noqa: BLE001 - unresolvable annotations: fall back to the raw one
+        hints = {}
+    ann = hints.get(names[0], inspect.signature(target).parameters[names[0]].annotation)
+    if isinstance(ann, str):
+        ann = getattr(inspect.getmodule(func), ann, None)
+    return ann if isinstance(ann, type) and issubclass(ann, BaseModel) else None
+
+
 def node_type(
     name: str,
     *,
@@ -134,15 +153,7 @@ def node_type(
     """
 
     def wrap(func: Callable[..., Any]) -> NodeType:
-        p = params
-        if p is None and not inspect.isclass(func):
-            sig = inspect.signature(func)
-            first = next(iter(sig.parameters.values()), None)
-            ann = first.annotation if first is not None else None
-            if isinstance(ann, str):
-                ann = func.__globals__.get(ann)
-            if isinstance(ann, type) and issubclass(ann, BaseModel):
-                p = ann
+        p = params if params is not None else _params_from_annotation(func)
         return NodeType(
             name=name,
             func=func,

@@ -1,0 +1,263 @@
+"""The ``lanegraph`` command line.
+
+Exit codes: 0 ok, 1 failure while running (or frames that failed), 2 invalid graph or usage.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import click
+import yaml
+
+from . import __version__
+from .errors import GraphError, LanegraphError
+from .graph import Graph, graph_json_schema, load_graph
+from .nodes import RunContext
+from .plugins import get_plugin_manager
+
+REPO_GRAPHS = Path(__file__).resolve().parents[1] / "graphs"
+
+
+def resolve_graph_path(name: str) -> Path:
+    """A graph argument is a file path, or the name of a graph under ``graphs/`` (``paper``,
+    ``ablations/slt``), looked up in the current folder and then beside the installed package."""
+    p = Path(name)
+    if p.is_file():
+        return p
+    for base in (Path("graphs"), REPO_GRAPHS):
+        for cand in (base / name, base / f"{name}.yaml"):
+            if cand.is_file():
+                return cand
+    return p  # reported as "graph file not found" by the loader
+
+
+def parse_frames(text: str | None) -> slice | None:
+    """``A:B`` or ``A:B:S`` (Python slice semantics over the frame list) or a single index ``A``."""
+    if not text:
+        return None
+    try:
+        parts = [int(x) if x.strip() else None for x in text.split(":")]
+    except ValueError:
+        raise click.BadParameter(f"expected A:B, A:B:S or A with integers, got {text!r}", param_hint="--frames") from None
+    if len(parts) == 1:
+        return slice(parts[0], None if parts[0] is None else parts[0] + 1)
+    if len(parts) > 3:
+        raise click.BadParameter(f"expected A:B or A:B:S, got {text!r}", param_hint="--frames")
+    return slice(*parts)
+
+
+def _fail(exc: LanegraphError) -> None:
+    click.echo(f"error: {exc}", err=True)
+    sys.exit(exc.exit_code)
+
+
+def _load(graph: str, sets: tuple[str, ...] = ()) -> Graph:
+    pm = get_plugin_manager()
+    for err in pm.load_errors:
+        click.echo(f"warning: {err}", err=True)
+    return load_graph(resolve_graph_path(graph), list(sets), pm)
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="lanegraph")
+def main() -> None:
+    """lanegraph: stereo lane-marking detection as validated, plugin-based processing graphs."""
+
+
+@main.command()
+@click.argument("graph", default="paper")
+@click.option("--input", "input_path", type=click.Path(path_type=Path), help="input folder (KITTI raw drive, KITTI odometry sequence, folder of pairs); default: the built-in synthetic scene")
+@click.option("--out", "out_dir", type=click.Path(path_type=Path), default=Path("out"), show_default=True, help="output folder")
+@click.option("--set", "sets", multiple=True, metavar="NODE.PARAM=VALUE", help="override a param (repeatable)")
+@click.option("--frames", help="frame selection A:B or A:B:S (indices into the input's frames)")
+@click.option("--quiet", is_flag=True, help="no progress bar")
+def run(graph: str, input_path: Path | None, out_dir: Path, sets: tuple[str, ...], frames: str | None, quiet: bool) -> None:
+    """Run GRAPH (a file or a name under graphs/, default: paper) and write OUT/lanes.jsonl and OUT/timings.json."""
+    from tqdm import tqdm
+
+    from .executor import Executor
+
+    try:
+        g = _load(graph, sets)
+        if input_path is not None and not input_path.exists():
+            raise GraphError([])  # replaced below
+    except GraphError as exc:
+        if not exc.problems:
+            click.echo(f"error: --input {input_path}: no such file or folder", err=True)
+            sys.exit(2)
+        _fail(exc)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    ctx = RunContext(input_path=input_path, out_dir=out_dir, frames=parse_frames(frames), graph_file=g.file)
+    bar = None
+    status = 0
+    result = None
+    try:
+        ex = Executor(g, ctx)
+        ex.open()
+        bar = tqdm(total=len(ex) or None, unit="frame", disable=quiet, desc=g.name, file=sys.stderr)
+
+        def tick(index: int, frame: str | None) -> None:
+            bar.update(1)
+            bar.set_postfix_str(str(frame))
+
+        result = ex.run(on_frame=tick)
+    except LanegraphError as exc:
+        if bar is not None:
+            bar.close()
+        _fail(exc)
+    finally:
+        if bar is not None:
+            bar.close()
+    assert result is not None
+    (out_dir / "timings.json").write_text(json.dumps(result.timings_json(), indent=2) + "\n")
+    (out_dir / "run.json").write_text(
+        json.dumps(
+            {
+                "graph": g.file,
+                "input": str(input_path) if input_path else None,
+                "frames_ok": result.frames,
+                "failures": [f.to_json() for f in result.failures],
+            },
+            indent=2,
+        )
+        + "\n"
+    )
+    if result.failures:
+        click.echo(f"{len(result.failures)} frame(s) failed:", err=True)
+        for f in result.failures:
+            click.echo(f"  frame {f.frame} (#{f.index}): node '{f.node_id}' ({f.node_type}): {f.error}", err=True)
+        status = 1
+    total = result.timings_json().get("total", {})
+    click.echo(
+        f"{result.frames} frame(s) processed -> {out_dir}/lanes.jsonl, {out_dir}/timings.json"
+        + (f" (median {total['median_ms']:.1f} ms/frame)" if total else "")
+    )
+    sys.exit(status)
+
+
+@main.command()
+@click.argument("graph")
+@click.option("--set", "sets", multiple=True, metavar="NODE.PARAM=VALUE", help="override a param (repeatable)")
+def validate(graph: str, sets: tuple[str, ...]) -> None:
+    """Validate GRAPH (exit 2 with every problem listed when invalid)."""
+    try:
+        g = _load(graph, sets)
+    except GraphError as exc:
+        _fail(exc)
+    click.echo(f"{g.file}: ok ({len(g.nodes)} nodes, {sum(e.previous for e in g.edges)} feedback edge(s))")
+
+
+@main.command()
+@click.option("--json", "as_json", is_flag=True, help="machine-readable listing")
+def nodes(as_json: bool) -> None:
+    """List the installed node types with their ports and params."""
+    pm = get_plugin_manager()
+    types = pm.node_types
+    if as_json:
+        out = []
+        for name, nt in types.items():
+            out.append(
+                {
+                    "name": name,
+                    "plugin": nt.plugin,
+                    "doc": nt.doc,
+                    "stateful": nt.stateful,
+                    "source": nt.source,
+                    "sink": nt.sink,
+                    "inputs": {p: {"type": x.type, "optional": x.optional, "rate": x.rate, "doc": x.doc} for p, x in nt.inputs.items()},
+                    "outputs": {p: {"type": x.type, "rate": x.rate, "doc": x.doc} for p, x in nt.outputs.items()},
+                    "params": nt.params.model_json_schema(),
+                }
+            )
+        click.echo(json.dumps({"node_types": out, "plugin_errors": [str(e) for e in pm.load_errors]}, indent=2))
+        return
+    for name, nt in types.items():
+        flags = ",".join(f for f, on in (("source", nt.source), ("sink", nt.sink), ("stateful", nt.stateful and not nt.source)) if on)
+        click.echo(f"{name}  [{nt.plugin}]{' (' + flags + ')' if flags else ''}")
+        if nt.summary:
+            click.echo(f"    {nt.summary}")
+        ins = ", ".join(f"{p}: {x.type}{'?' if x.optional else ''}" for p, x in nt.inputs.items())
+        outs = ", ".join(f"{p}: {x.type}" for p, x in nt.outputs.items())
+        click.echo(f"    in({ins}) -> out({outs})")
+        for fname, f in nt.params.model_fields.items():
+            click.echo(f"    - {fname} = {f.default!r}: {f.description or ''}")
+    for err in pm.load_errors + pm.registry_errors:
+        click.echo(f"warning: {err}", err=True)
+
+
+@main.command()
+def schema() -> None:
+    """Print the JSON Schema of the graph format, with every installed node type's params."""
+    click.echo(json.dumps(graph_json_schema(), indent=2))
+
+
+@main.command()
+@click.argument("graph")
+@click.option("--format", "fmt", type=click.Choice(["yaml", "dot", "mermaid"]), default="yaml", show_default=True)
+@click.option("--set", "sets", multiple=True, metavar="NODE.PARAM=VALUE")
+def show(graph: str, fmt: str, sets: tuple[str, ...]) -> None:
+    """Print the resolved graph (after extends and overrides) as YAML, Graphviz dot or Mermaid."""
+    try:
+        g = _load(graph, sets)
+    except GraphError as exc:
+        _fail(exc)
+    if fmt == "yaml":
+        click.echo(yaml.safe_dump(g.resolved_dict(), sort_keys=False), nl=False)
+    elif fmt == "dot":
+        lines = [f'digraph "{g.name}" {{', "  rankdir=TB;", "  node [shape=box, fontname=Helvetica];"]
+        for nid in g.order:
+            lines.append(f'  "{nid}" [label="{nid}\\n{g.nodes[nid].type.name}"];')
+        for e in g.edges:
+            style = ', style=dashed, constraint=false, label="' + e.src_port + ' (prev)"' if e.previous else f', label="{e.src_port}"'
+            lines.append(f'  "{e.src_node}" -> "{e.dst_node}" [headlabel="{e.dst_port}"{style}];')
+        lines.append("}")
+        click.echo("\n".join(lines))
+    else:
+        lines = ["flowchart TD"]
+        for nid in g.order:
+            lines.append(f'  {nid}["{nid}<br/>{g.nodes[nid].type.name}"]')
+        for e in g.edges:
+            arrow = "-.->" if e.previous else "-->"
+            label = f"{e.src_port}→{e.dst_port}" + (" (prev)" if e.previous else "")
+            lines.append(f"  {e.src_node} {arrow}|{label}| {e.dst_node}")
+        click.echo("\n".join(lines))
+
+
+@main.command(name="eval")
+@click.argument("pred", type=click.Path(path_type=Path))
+@click.argument("gt", type=click.Path(path_type=Path))
+@click.option("--json", "as_json", is_flag=True, help="print one JSON object")
+def eval_cmd(pred: Path, gt: Path, as_json: bool) -> None:
+    """Evaluate PRED lanes.jsonl against GT lanes_gt.jsonl with the lane metric of the data README."""
+    from .metrics import evaluate, read_jsonl
+
+    try:
+        res = evaluate(read_jsonl(pred), read_jsonl(gt))
+    except LanegraphError as exc:
+        click.echo(f"error: {exc}", err=True)
+        sys.exit(2)
+    res.pop("per_frame")
+    if as_json:
+        click.echo(json.dumps(res))
+        return
+
+    def pct(x: float | None) -> str:
+        return "n/a" if x is None else f"{100 * x:.1f} %"
+
+    click.echo(f"frames:          {res['frames']}")
+    click.echo(f"detection ratio: {pct(res['detection_ratio'])}")
+    click.echo(f"precision:       {pct(res['precision'])}")
+    click.echo(f"ego recall:      {pct(res['ego_recall'])}")
+    dx = res["mean_abs_dx_px"]
+    click.echo(f"mean |dx|:       {'n/a' if dx is None else f'{dx:.2f} px'}")
+    if res["failed_frames"]:
+        click.echo(f"failed frames ({len(res['failed_frames'])}):")
+        for f in res["failed_frames"]:
+            click.echo(f"  {f['frame']}: {'; '.join(f['reasons'])}")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

@@ -1,0 +1,280 @@
+"""The streaming executor: validate and compile once, then stream frames through the plan.
+
+- Stateful nodes (sources, sinks, trackers) are instantiated once per run with their params and a
+  :class:`~lanegraph.nodes.RunContext`.
+- Nodes whose inputs are all constant-rate (e.g. computed from the calibration only) run once.
+- Feedback edges (``@prev``) deliver the previous frame's value, ``None`` on the first frame.
+- Every node is timed on every frame; ``lanegraph_before_node`` / ``lanegraph_after_node`` hooks
+  fire around each call (tracing, profiling).
+- Error policy per node: ``fail`` stops the run, ``skip`` drops the frame (sinks do not see it),
+  ``empty`` passes ``None`` on for the node's outputs.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .errors import GraphError, LanegraphError, NodeError, Problem
+from .graph import Graph, GraphNode
+from .nodes import RunContext
+from .plugins import PluginManager, get_plugin_manager
+
+
+@dataclass
+class FrameFailure:
+    """A frame that failed: which node, and why."""
+
+    frame: str | None
+    index: int
+    node_id: str
+    node_type: str
+    error: str
+
+    def to_json(self) -> dict[str, Any]:
+        return {"frame": self.frame, "index": self.index, "node": self.node_id, "type": self.node_type, "error": self.error}
+
+
+@dataclass
+class RunResult:
+    """What a run did: frames processed, per-node timings and failures."""
+
+    frames: int = 0
+    timings_ms: dict[str, list[float]] = field(default_factory=dict)
+    node_types: dict[str, str] = field(default_factory=dict)
+    failures: list[FrameFailure] = field(default_factory=list)
+    frame_ms: list[float] = field(default_factory=list)
+
+    def timings_json(self) -> dict[str, Any]:
+        nodes = {}
+        for nid, ts in self.timings_ms.items():
+            arr = np.asarray(ts, dtype=np.float64)
+            nodes[nid] = {
+                "type": self.node_types.get(nid, "?"),
+                "median_ms": round(float(np.median(arr)), 3) if arr.size else None,
+                "p90_ms": round(float(np.percentile(arr, 90)), 3) if arr.size else None,
+                "calls": int(arr.size),
+            }
+        out: dict[str, Any] = {"frames": self.frames, "nodes": nodes}
+        if self.frame_ms:
+            total = np.asarray(self.frame_ms)
+            out["total"] = {"median_ms": round(float(np.median(total)), 3), "p90_ms": round(float(np.percentile(total, 90)), 3)}
+        return out
+
+
+class _SkipFrame(Exception):
+    pass
+
+
+class Executor:
+    """Runs a validated :class:`~lanegraph.graph.Graph` over the frames of its source node."""
+
+    def __init__(self, graph: Graph, context: RunContext | None = None, pm: PluginManager | None = None):
+        self.graph = graph
+        self.pm = pm or get_plugin_manager()
+        self.context = context or RunContext()
+        self._resolve_auto_source()
+        self.instances: dict[str, Any] = {}
+        self.constant_nodes: set[str] = self._constant_nodes()
+
+    # -- compile -------------------------------------------------------------
+    def _resolve_auto_source(self) -> None:
+        """Replace an ``io.auto`` source by the source type that reads the input path."""
+        src = self.graph.source
+        if src.type.name != "io.auto":
+            return
+        path = self.context.input_path
+        if path is None:
+            name = getattr(src.params, "default", "io.synthetic")
+        else:
+            name = self.pm.hook.lanegraph_detect_source(path=path)
+            if name is None:
+                raise GraphError(
+                    [
+                        Problem(
+                            f"no installed source node type recognises the input {str(path)!r}",
+                            file=self.graph.file,
+                            node=src.id,
+                            node_type=src.type.name,
+                            hint="expected a KITTI raw drive folder, a KITTI odometry sequence or a folder of left/right pairs",
+                        )
+                    ]
+                )
+        nt = self.pm.get_node_type(name)
+        if nt is None:
+            raise GraphError([Problem(f"source node type {name!r} is not installed", file=self.graph.file, node=src.id)])
+        src.type = nt
+        src.params = nt.params()
+
+    def _constant_nodes(self) -> set[str]:
+        const: set[str] = set()
+        for nid in self.graph.order:
+            n = self.graph.nodes[nid]
+            if n.type.stateful or not n.type.outputs:
+                continue
+            ok = True
+            for e in n.inputs.values():
+                src = self.graph.nodes[e.src_node]
+                port_const = src.type.outputs[e.src_port].rate == "constant"
+                if e.previous or not (port_const or e.src_node in const):
+                    ok = False
+                    break
+            if ok:
+                const.add(nid)
+        return const
+
+    # -- run -------------------------------------------------------------------
+    def _call(self, node: GraphNode, inputs: dict[str, Any], frame: str | None, index: int, result: RunResult) -> dict:
+        hook = self.pm.hook
+        hook.lanegraph_before_node(node_id=node.id, node_type=node.type.name, frame=frame, inputs=inputs)
+        t0 = time.perf_counter()
+        try:
+            if node.type.stateful:
+                out = self.instances[node.id](**inputs)
+            else:
+                out = node.type.func(node.params, **inputs)
+            if out is None:
+                out = {}
+            if not isinstance(out, dict):
+                raise TypeError(f"node function returned {type(out).__name__}, expected a dict of output ports")
+            missing = set(node.type.outputs) - set(out)
+            if missing and not node.type.sink:
+                raise TypeError(f"node function did not return output port(s) {sorted(missing)}")
+        except LanegraphError as exc:
+            err = exc
+        except Exception as exc:  # noqa: BLE001 - reported with node id and frame
+            err = exc
+        else:
+            err = None
+        elapsed = (time.perf_counter() - t0) * 1000.0
+        result.timings_ms.setdefault(node.id, []).append(elapsed)
+        if err is not None:
+            hook.lanegraph_after_node(node_id=node.id, node_type=node.type.name, frame=frame, outputs=None, elapsed_ms=elapsed)
+            if node.on_error == "fail":
+                raise NodeError(node.id, node.type.name, frame, err) from err
+            result.failures.append(FrameFailure(frame, index, node.id, node.type.name, f"{type(err).__name__}: {err}"))
+            if node.on_error == "skip":
+                raise _SkipFrame()
+            return {p: None for p in node.type.outputs}
+        hook.lanegraph_after_node(node_id=node.id, node_type=node.type.name, frame=frame, outputs=out, elapsed_ms=elapsed)
+        return out
+
+    def open(self) -> None:
+        """Instantiate the stateful nodes (sources, sinks); done by :meth:`run` if not yet done."""
+        if self.instances:
+            return
+        g = self.graph
+        for nid in g.order:
+            n = g.nodes[nid]
+            if n.type.stateful:
+                ctx = RunContext(**{**self.context.__dict__, "node_id": nid, "graph_file": g.file})
+                try:
+                    self.instances[nid] = n.type.func(n.params, ctx)
+                except LanegraphError:
+                    raise
+                except Exception as exc:  # noqa: BLE001
+                    raise NodeError(nid, n.type.name, None, exc) from exc
+
+    def run(self, on_frame: Callable[[int, str | None], None] | None = None) -> RunResult:
+        """Stream every frame of the source through the graph."""
+        g = self.graph
+        result = RunResult(node_types={nid: n.type.name for nid, n in g.nodes.items()})
+        self.open()
+        self.pm.hook.lanegraph_run_start(graph=g, context=self.context)
+        src_id = g.source.id
+        source = self.instances[src_id]
+        values: dict[tuple[str, str], Any] = {}
+        try:
+            consts = source.constants() if hasattr(source, "constants") else {}
+            for port, v in consts.items():
+                values[(src_id, port)] = v
+            for nid in g.order:
+                if nid in self.constant_nodes:
+                    n = g.nodes[nid]
+                    ins = {p: values.get((e.src_node, e.src_port)) for p, e in n.inputs.items()}
+                    out = self._call(n, ins, None, -1, result)
+                    for port, v in out.items():
+                        values[(nid, port)] = v
+            previous: dict[tuple[str, str], Any] = {}
+            for index, frame_out in enumerate(self._frames(source, src_id, result)):
+                if frame_out is None:
+                    continue
+                frame = frame_out.get("frame")
+                t_frame = time.perf_counter()
+                cur = dict(values)
+                for port, v in frame_out.items():
+                    cur[(src_id, port)] = v
+                try:
+                    for nid in g.order:
+                        if nid == src_id or nid in self.constant_nodes:
+                            continue
+                        n = g.nodes[nid]
+                        ins = {
+                            p: (previous.get((e.src_node, e.src_port)) if e.previous else cur.get((e.src_node, e.src_port)))
+                            for p, e in n.inputs.items()
+                        }
+                        for p, port in n.type.inputs.items():
+                            if p not in ins and port.optional:
+                                ins[p] = None
+                        out = self._call(n, ins, frame, index, result)
+                        for port, v in out.items():
+                            cur[(nid, port)] = v
+                except _SkipFrame:
+                    previous = {}
+                    if on_frame:
+                        on_frame(index, frame)
+                    continue
+                previous = cur
+                result.frames += 1
+                result.frame_ms.append((time.perf_counter() - t_frame) * 1000.0)
+                if on_frame:
+                    on_frame(index, frame)
+        finally:
+            for nid, inst in self.instances.items():
+                close = getattr(inst, "close", None)
+                if close is not None:
+                    try:
+                        close()
+                    except Exception:  # noqa: BLE001 - closing must not hide the real error
+                        pass
+            self.pm.hook.lanegraph_run_end(graph=g, context=self.context, frames=result.frames)
+        return result
+
+    def _frames(self, source: Any, src_id: str, result: RunResult) -> Iterator[dict[str, Any] | None]:
+        """Iterate the source, recording per-frame read errors according to the source's policy."""
+        node = self.graph.nodes[src_id]
+        it = iter(source)
+        index = 0
+        while True:
+            t0 = time.perf_counter()
+            try:
+                item = next(it)
+            except StopIteration:
+                return
+            except LanegraphError as exc:
+                frame = getattr(exc, "frame", None)
+                if node.on_error == "fail":
+                    raise NodeError(src_id, node.type.name, frame, exc) from exc
+                result.failures.append(FrameFailure(frame, index, src_id, node.type.name, str(exc)))
+                index += 1
+                yield None
+                continue
+            result.timings_ms.setdefault(src_id, []).append((time.perf_counter() - t0) * 1000.0)
+            index += 1
+            yield item
+
+    def __len__(self) -> int:
+        src = self.instances.get(self.graph.source.id)
+        try:
+            return len(src)  # type: ignore[arg-type]
+        except TypeError:
+            return 0
+
+
+def run_graph(graph: Graph, context: RunContext | None = None, pm: PluginManager | None = None) -> RunResult:
+    """Run a validated graph once (convenience wrapper around :class:`Executor`)."""
+    return Executor(graph, context, pm).run()

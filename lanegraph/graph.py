@@ -1,0 +1,613 @@
+"""Graph files: the pydantic format, ``extends`` resolution, ``--set`` overrides and whole-graph validation.
+
+A graph file (YAML, JSON or TOML)::
+
+    name: paper
+    description: The paper's pipeline.
+    nodes:
+      src:   {type: io.auto}
+      gray:  {type: image.gray, inputs: {image: src.left}}
+      tmask:
+        type: lanes.temporal_mask
+        inputs: {previous: fit.lanes@prev}     # a feedback edge: the previous frame's value
+
+An ablation variant extends a base and overrides a few nodes::
+
+    extends: ../paper.yaml
+    nodes:
+      features: {type: features.slt}           # another type: its params start from defaults
+      fit: {params: {iterations: 3}}           # the same type: params are merged
+      tmask: null                              # remove a node
+      mask: {inputs: {temporal: null}}         # unwire an (optional) input
+
+Everything is checked before any frame runs; every problem names the file, node id and field.
+"""
+
+from __future__ import annotations
+
+import copy
+import difflib
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from .errors import GraphError, Problem
+from .loader import read_graph_file
+from .nodes import NodeParams, NodeType
+from .plugins import PluginManager, get_plugin_manager
+from .types import port_compatible
+
+_REF = re.compile(r"^(?P<node>[A-Za-z_][\w-]*)\.(?P<port>[A-Za-z_]\w*)(?P<prev>@prev)?$")
+_ID = r"^[A-Za-z_][\w-]*$"
+
+
+class InputSpec(BaseModel):
+    """The long form of an input wiring: ``{from: node.port, previous: true}``."""
+
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+
+    from_: str = Field(alias="from", description="the producing node's output: 'node_id.port'")
+    previous: bool = Field(
+        False, description="a feedback edge: deliver the previous frame's value (None on the first frame)"
+    )
+
+
+class NodeSpec(BaseModel):
+    """One node of a graph."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    type: str = Field(description="node type name, 'family.name' (see `lanegraph nodes`)")
+    params: dict[str, Any] = Field(default_factory=dict, description="the node type's params (validated by its model)")
+    inputs: dict[str, str | InputSpec | None] = Field(
+        default_factory=dict,
+        description="input port -> 'node_id.port' (append '@prev' for the previous frame's value) or the long form",
+    )
+    doc: str = Field("", description="free text: why this node is here")
+    on_error: str | None = Field(
+        None, pattern="^(fail|skip|empty)$", description="error policy for this node: fail | skip | empty"
+    )
+
+
+class GraphSpec(BaseModel):
+    """A graph file."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    version: int = Field(1, ge=1, le=1, description="graph format version")
+    name: str = Field("", description="short name of the graph")
+    description: str = Field("", description="what the graph does")
+    extends: str | None = Field(None, description="base graph file, relative to this file")
+    on_error: str = Field("fail", pattern="^(fail|skip|empty)$", description="default error policy of every node")
+    nodes: dict[str, NodeSpec | None] = Field(default_factory=dict, description="node id -> node")
+    remove: list[str] = Field(default_factory=list, description="ids of base-graph nodes to remove")
+
+    @field_validator("nodes")
+    @classmethod
+    def _ids(cls, v: dict[str, Any]) -> dict[str, Any]:
+        for k in v:
+            if not re.match(_ID, k):
+                raise ValueError(f"node id {k!r} must start with a letter or '_' and contain only letters, digits, '_', '-'")
+        return v
+
+
+@dataclass(frozen=True)
+class Edge:
+    """``src_node.src_port -> dst_node.dst_port``; ``previous`` marks a feedback edge."""
+
+    src_node: str
+    src_port: str
+    dst_node: str
+    dst_port: str
+    previous: bool = False
+
+
+@dataclass
+class GraphNode:
+    """A validated node: its type, params instance and where it was defined."""
+
+    id: str
+    type: NodeType
+    params: NodeParams
+    inputs: dict[str, Edge]
+    file: str
+    doc: str = ""
+    on_error: str = "fail"
+
+
+@dataclass
+class Graph:
+    """A validated, resolved graph, in execution (topological) order."""
+
+    name: str
+    description: str
+    file: str
+    nodes: dict[str, GraphNode]
+    order: list[str]
+    raw: dict[str, Any] = field(default_factory=dict)
+    on_error: str = "fail"
+
+    @property
+    def edges(self) -> list[Edge]:
+        return [e for n in self.nodes.values() for e in n.inputs.values()]
+
+    @property
+    def source(self) -> GraphNode:
+        return next(n for n in self.nodes.values() if n.type.source)
+
+    def resolved_dict(self) -> dict[str, Any]:
+        """The graph after extends/overrides, as a plain dict with every param spelt out."""
+        nodes: dict[str, Any] = {}
+        for nid in self.order:
+            n = self.nodes[nid]
+            spec: dict[str, Any] = {"type": n.type.name}
+            params = n.params.model_dump(mode="json")
+            if params:
+                spec["params"] = params
+            if n.inputs:
+                spec["inputs"] = {
+                    p: f"{e.src_node}.{e.src_port}" + ("@prev" if e.previous else "") for p, e in n.inputs.items()
+                }
+            if n.on_error != self.on_error:
+                spec["on_error"] = n.on_error
+            if n.doc:
+                spec["doc"] = n.doc
+            nodes[nid] = spec
+        out: dict[str, Any] = {"name": self.name}
+        if self.description:
+            out["description"] = self.description
+        if self.on_error != "fail":
+            out["on_error"] = self.on_error
+        out["nodes"] = nodes
+        return out
+
+
+# --------------------------------------------------------------------------- loading
+def _merge_node(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = copy.deepcopy(base)
+    if "type" in over and over["type"] != base.get("type"):
+        out["type"] = over["type"]
+        out["params"] = {}  # another node type: its own params, from its defaults
+    for key, value in over.items():
+        if key == "type":
+            continue
+        if key in ("params", "inputs") and isinstance(value, dict) and isinstance(out.get(key), dict):
+            merged = dict(out[key])
+            for k, v in value.items():
+                if key == "inputs" and v is None:
+                    merged.pop(k, None)
+                else:
+                    merged[k] = v
+            out[key] = merged
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def _resolve(
+    path: Path, display: str, chain: tuple[Path, ...], roots: list[Path] | None
+) -> tuple[dict[str, Any], dict[str, str]]:
+    """Return (merged raw graph dict, node id -> file that last defined it)."""
+    data = read_graph_file(path, display)
+    origin: dict[str, str] = {}
+    base_raw: dict[str, Any] = {"nodes": {}}
+    ext = data.get("extends")
+    if ext is not None:
+        if not isinstance(ext, str):
+            raise GraphError([Problem(f"expected a file path, got {ext!r}", file=display, field="extends")])
+        base_path = (path.parent / ext).resolve()
+        if base_path in chain or base_path == path.resolve():
+            cyc = " -> ".join(str(p) for p in (*chain, path.resolve(), base_path))
+            raise GraphError([Problem(f"extends cycle: {cyc}", file=display, field="extends")])
+        if roots is not None and not any(base_path.is_relative_to(r) for r in roots):
+            raise GraphError(
+                [
+                    Problem(
+                        f"{ext!r} resolves to {base_path}, outside the allowed roots "
+                        f"({', '.join(map(str, roots))})",
+                        file=display,
+                        field="extends",
+                    )
+                ]
+            )
+        base_display = str(Path(display).parent / ext) if display else str(base_path)
+        base_raw, origin = _resolve(base_path, base_display, (*chain, path.resolve()), roots)
+    merged = {k: v for k, v in base_raw.items() if k not in ("extends", "remove")}
+    for key, value in data.items():
+        if key in ("nodes", "extends", "remove"):
+            continue
+        merged[key] = value
+    nodes = dict(merged.get("nodes") or {})
+    own_nodes = data.get("nodes") or {}
+    if not isinstance(own_nodes, dict):
+        raise GraphError(
+            [Problem(f"expected a mapping of node id -> node, got {type(own_nodes).__name__}", file=display, field="nodes")]
+        )
+    problems = []
+    for nid, spec in own_nodes.items():
+        if spec is None:
+            if nid not in nodes:
+                problems.append(Problem("cannot remove: no such node in the base graph", file=display, node=str(nid)))
+            nodes.pop(nid, None)
+            origin.pop(nid, None)
+        elif isinstance(spec, dict) and isinstance(nodes.get(nid), dict):
+            nodes[nid] = _merge_node(nodes[nid], spec)
+            origin[nid] = display
+        else:
+            nodes[nid] = spec
+            origin[nid] = display
+    removes = data.get("remove") or []
+    if not isinstance(removes, list):
+        problems.append(Problem(f"expected a list of node ids, got {removes!r}", file=display, field="remove"))
+        removes = []
+    for nid in removes:
+        if nid not in nodes:
+            problems.append(Problem("cannot remove: no such node", file=display, node=str(nid), field="remove"))
+        nodes.pop(nid, None)
+        origin.pop(nid, None)
+    if problems:
+        raise GraphError(problems)
+    merged["nodes"] = nodes
+    return merged, origin
+
+
+def parse_set(item: str) -> tuple[str, list[str], Any]:
+    """Parse ``node.param=value`` (nested params with more dots); the value is read as YAML."""
+    if "=" not in item:
+        raise GraphError([Problem(f"--set {item!r}: expected node.param=value", field="--set")])
+    key, _, value = item.partition("=")
+    parts = key.strip().split(".")
+    if len(parts) < 2 or not all(parts):
+        raise GraphError([Problem(f"--set {item!r}: expected node.param=value", field="--set")])
+    try:
+        parsed = yaml.safe_load(value) if value.strip() else ""
+    except yaml.YAMLError:
+        parsed = value
+    return parts[0], parts[1:], parsed
+
+
+def _apply_sets(raw: dict[str, Any], sets: list[str], origin: dict[str, str]) -> None:
+    problems = []
+    nodes = raw.setdefault("nodes", {})
+    for item in sets:
+        nid, path, value = parse_set(item)
+        spec = nodes.get(nid)
+        if not isinstance(spec, dict):
+            hint = difflib.get_close_matches(nid, list(nodes), n=1)
+            problems.append(
+                Problem(
+                    f"--set {item!r}: no node with this id",
+                    node=nid,
+                    field="--set",
+                    hint=f"did you mean '{hint[0]}'?" if hint else f"nodes: {', '.join(nodes)}",
+                )
+            )
+            continue
+        if path == ["type"]:
+            spec.update(_merge_node(spec, {"type": value}))
+            continue
+        target = spec.setdefault("params", {})
+        for p in path[:-1]:
+            target = target.setdefault(p, {})
+        target[path[-1]] = value
+        origin[nid] = "--set"
+    if problems:
+        raise GraphError(problems)
+
+
+def load_raw(
+    path: str | Path, sets: list[str] | None = None, roots: list[Path] | None = None
+) -> tuple[dict[str, Any], dict[str, str], str]:
+    """Load a graph file with ``extends`` and ``--set`` applied, not yet validated."""
+    p = Path(path)
+    display = str(path)
+    raw, origin = _resolve(p, display, (), roots)
+    _apply_sets(raw, list(sets or []), origin)
+    return raw, origin, display
+
+
+# --------------------------------------------------------------------------- validation
+def _loc_str(loc: tuple[Any, ...]) -> str:
+    return ".".join(str(x) for x in loc)
+
+
+def _pydantic_problems(exc: ValidationError, file: str, node: str | None, ntype: str | None, prefix: str) -> list[Problem]:
+    out = []
+    for err in exc.errors():
+        loc = _loc_str(err["loc"])
+        field_ = f"{prefix}.{loc}" if prefix and loc else (prefix or loc)
+        got = err.get("input")
+        msg = err["msg"]
+        if err["type"] == "extra_forbidden":
+            msg = "unknown key"
+        elif err["type"] != "missing":
+            msg = f"expected: {msg[0].lower() + msg[1:]}; got {got!r}"
+        out.append(Problem(msg, file=file, node=node, node_type=ntype, field=field_))
+    return out
+
+
+def _param_hint(model: type[NodeParams], problems: list[Problem]) -> list[Problem]:
+    fields = list(model.model_fields)
+    out = []
+    for p in problems:
+        if p.message == "unknown key" and p.field:
+            key = p.field.split(".")[-1]
+            close = difflib.get_close_matches(key, fields, n=1)
+            hint = f"did you mean '{close[0]}'?" if close else f"known params: {', '.join(fields) or '(none)'}"
+            p = Problem(p.message, p.file, p.node, p.node_type, p.field, hint)
+        out.append(p)
+    return out
+
+
+def validate_raw(
+    raw: dict[str, Any], origin: dict[str, str], file: str, pm: PluginManager | None = None
+) -> Graph:
+    """Validate a resolved graph dict against the installed node types; raise one :class:`GraphError`
+    listing every problem."""
+    pm = pm or get_plugin_manager()
+    try:
+        spec = GraphSpec.model_validate(raw)
+    except ValidationError as exc:
+        problems = []
+        for err in exc.errors():
+            loc = err["loc"]
+            node = str(loc[1]) if len(loc) >= 2 and loc[0] == "nodes" else None
+            rest = loc[2:] if node else loc
+            # pydantic reports union branches; keep the informative one for inputs
+            if node and len(rest) >= 1 and rest[0] == "NodeSpec":
+                rest = rest[1:]
+            nfile = origin.get(node, file) if node else file
+            msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
+            if err["type"] not in ("extra_forbidden", "missing"):
+                msg = f"expected: {msg[0].lower() + msg[1:]}; got {err.get('input')!r}"
+            problems.append(Problem(msg, file=nfile, node=node, field=_loc_str(rest) or None))
+        raise GraphError(_dedupe(problems)) from None
+
+    problems: list[Problem] = []
+    nodes: dict[str, GraphNode] = {}
+    specs = {k: v for k, v in spec.nodes.items() if v is not None}
+    types: dict[str, NodeType] = {}
+    for nid, ns in specs.items():
+        nfile = origin.get(nid, file)
+        nt = pm.get_node_type(ns.type)
+        if nt is None:
+            sug = pm.suggest(ns.type)
+            problems.append(
+                Problem(
+                    f"unknown node type {ns.type!r}",
+                    file=nfile,
+                    node=nid,
+                    field="type",
+                    hint=(f"did you mean '{sug}'?" if sug else "run `lanegraph nodes` to list the installed types"),
+                )
+            )
+            continue
+        types[nid] = nt
+        try:
+            params = nt.params.model_validate(ns.params)
+        except ValidationError as exc:
+            problems += _param_hint(nt.params, _pydantic_problems(exc, nfile, nid, nt.name, "params"))
+            params = None
+        nodes[nid] = GraphNode(nid, nt, params, {}, nfile, ns.doc, ns.on_error or spec.on_error)  # type: ignore[arg-type]
+
+    # wiring
+    for nid, ns in specs.items():
+        if nid not in types:
+            continue
+        nt = types[nid]
+        nfile = origin.get(nid, file)
+        for port, ref in ns.inputs.items():
+            fld = f"inputs.{port}"
+            if port not in nt.inputs:
+                close = difflib.get_close_matches(port, list(nt.inputs), n=1)
+                problems.append(
+                    Problem(
+                        f"unknown input port {port!r}",
+                        file=nfile,
+                        node=nid,
+                        node_type=nt.name,
+                        field=fld,
+                        hint=(f"did you mean '{close[0]}'?" if close else f"inputs: {', '.join(nt.inputs) or '(none)'}"),
+                    )
+                )
+                continue
+            if ref is None:
+                continue
+            text, previous = (ref.from_, ref.previous) if isinstance(ref, InputSpec) else (ref, False)
+            m = _REF.match(text.strip())
+            if not m:
+                problems.append(
+                    Problem(
+                        f"expected 'node_id.port' or 'node_id.port@prev', got {text!r}",
+                        file=nfile,
+                        node=nid,
+                        node_type=nt.name,
+                        field=fld,
+                    )
+                )
+                continue
+            src, sport, previous = m["node"], m["port"], previous or bool(m["prev"])
+            if src not in specs:
+                close = difflib.get_close_matches(src, list(specs), n=1)
+                problems.append(
+                    Problem(
+                        f"refers to unknown node {src!r}",
+                        file=nfile,
+                        node=nid,
+                        node_type=nt.name,
+                        field=fld,
+                        hint=f"did you mean '{close[0]}'?" if close else None,
+                    )
+                )
+                continue
+            if src not in types:
+                continue  # already reported: unknown type
+            st = types[src]
+            if sport not in st.outputs:
+                close = difflib.get_close_matches(sport, list(st.outputs), n=1)
+                problems.append(
+                    Problem(
+                        f"node {src!r} ({st.name}) has no output port {sport!r}",
+                        file=nfile,
+                        node=nid,
+                        node_type=nt.name,
+                        field=fld,
+                        hint=(f"did you mean '{close[0]}'?" if close else f"outputs: {', '.join(st.outputs) or '(none)'}"),
+                    )
+                )
+                continue
+            produced, expected = st.outputs[sport].type, nt.inputs[port].type
+            if not port_compatible(produced, expected):
+                problems.append(
+                    Problem(
+                        f"port type mismatch: expected {expected!r}, got {produced!r} from {src}.{sport}",
+                        file=nfile,
+                        node=nid,
+                        node_type=nt.name,
+                        field=fld,
+                    )
+                )
+                continue
+            if nid in nodes:
+                nodes[nid].inputs[port] = Edge(src, sport, nid, port, previous)
+        for port, p in nt.inputs.items():
+            if not p.optional and port not in ns.inputs:
+                problems.append(
+                    Problem(
+                        f"required input port {port!r} ({p.type}) is not connected",
+                        file=nfile,
+                        node=nid,
+                        node_type=nt.name,
+                        field=f"inputs.{port}",
+                    )
+                )
+            elif not p.optional and ns.inputs.get(port) is None and port in ns.inputs:
+                problems.append(
+                    Problem(
+                        f"required input port {port!r} ({p.type}) cannot be unwired",
+                        file=nfile,
+                        node=nid,
+                        node_type=nt.name,
+                        field=f"inputs.{port}",
+                    )
+                )
+
+    sources = [nid for nid, t in types.items() if t.source]
+    if len(sources) != 1 and not any(p.field == "type" for p in problems):
+        problems.append(
+            Problem(
+                f"a graph needs exactly one source node (an io.* node type that produces frames), found "
+                f"{len(sources)}" + (f": {', '.join(sources)}" if sources else ""),
+                file=file,
+                field="nodes",
+                hint="add e.g. `src: {type: io.auto}`" if not sources else None,
+            )
+        )
+
+    order, cycle = _toposort(nodes)
+    if cycle:
+        problems.append(
+            Problem(
+                "cycle without a feedback edge: " + " -> ".join(cycle),
+                file=origin.get(cycle[0], file),
+                node=cycle[0],
+                field="inputs",
+                hint="mark an edge that carries the previous frame's value with '@prev'",
+            )
+        )
+    if problems:
+        raise GraphError(_dedupe(problems))
+    return Graph(spec.name or Path(file).stem, spec.description, file, nodes, order, raw, spec.on_error)
+
+
+def _dedupe(problems: list[Problem]) -> list[Problem]:
+    seen, out = set(), []
+    for p in problems:
+        if str(p) not in seen:
+            seen.add(str(p))
+            out.append(p)
+    return out
+
+
+def _toposort(nodes: dict[str, GraphNode]) -> tuple[list[str], list[str] | None]:
+    """Kahn's algorithm over same-frame edges; returns (order, a cycle or None)."""
+    deps = {nid: {e.src_node for e in n.inputs.values() if not e.previous and e.src_node in nodes} for nid, n in nodes.items()}
+    order: list[str] = []
+    ready = [nid for nid in nodes if not deps[nid]]
+    remaining = {nid: set(d) for nid, d in deps.items()}
+    while ready:
+        nid = ready.pop(0)
+        order.append(nid)
+        for other, d in remaining.items():
+            if nid in d:
+                d.discard(nid)
+                if not d and other not in order and other not in ready:
+                    ready.append(other)
+    if len(order) == len(nodes):
+        return order, None
+    # find one cycle among the rest
+    rest = {nid for nid in nodes if nid not in order}
+    start = sorted(rest)[0]
+    path, seen = [start], {start}
+    cur = start
+    while True:
+        nxt = sorted(d for d in deps[cur] if d in rest)[0]
+        if nxt in seen:
+            cyc = path[path.index(nxt) :] + [nxt]
+            return order, cyc
+        path.append(nxt)
+        seen.add(nxt)
+        cur = nxt
+
+
+def load_graph(
+    path: str | Path,
+    sets: list[str] | None = None,
+    pm: PluginManager | None = None,
+    roots: list[Path] | None = None,
+) -> Graph:
+    """Load, resolve (``extends``, ``--set``) and validate a graph file."""
+    raw, origin, display = load_raw(path, sets, roots)
+    return validate_raw(raw, origin, display, pm)
+
+
+def graph_json_schema(pm: PluginManager | None = None) -> dict[str, Any]:
+    """JSON Schema of the graph format, with every installed node type's params."""
+    pm = pm or get_plugin_manager()
+    schema = GraphSpec.model_json_schema()
+    defs = schema.setdefault("$defs", {})
+    variants = []
+    for name, nt in pm.node_types.items():
+        pschema = nt.params.model_json_schema(ref_template="#/$defs/{model}")
+        for k, v in pschema.pop("$defs", {}).items():
+            defs.setdefault(k, v)
+        key = "node_" + name.replace(".", "_")
+        defs[key] = {
+            "type": "object",
+            "description": nt.summary,
+            "properties": {
+                "type": {"const": name},
+                "params": pschema,
+                "inputs": {
+                    "type": "object",
+                    "properties": {p: {"type": ["string", "object", "null"], "description": f"{port.type}: {port.doc}"} for p, port in nt.inputs.items()},
+                    "additionalProperties": False,
+                },
+                "doc": {"type": "string"},
+                "on_error": {"enum": ["fail", "skip", "empty"]},
+            },
+            "required": ["type"],
+            "additionalProperties": False,
+        }
+        variants.append({"$ref": f"#/$defs/{key}"})
+    schema["properties"]["nodes"] = {
+        "type": "object",
+        "description": "node id -> node (null removes a base graph's node)",
+        "additionalProperties": {"anyOf": [*variants, {"type": "null"}, {"$ref": "#/$defs/NodeSpec"}]},
+    }
+    schema["title"] = "lanegraph graph file"
+    return schema

@@ -1,0 +1,97 @@
+"""Safe loading of graph files: YAML (safe loader, duplicate keys rejected), JSON and TOML.
+
+Loading never executes code: YAML is read with a safe loader (no ``!!python`` tags), files are
+bounded in size and nesting depth, and ``extends`` may only point inside the allowed roots.
+"""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from .errors import GraphError, Problem
+
+MAX_FILE_BYTES = 1_000_000
+MAX_DEPTH = 32
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """A safe YAML loader that rejects duplicate mapping keys (a duplicate node id, say)."""
+
+
+def _construct_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = False) -> dict:
+    seen: dict[Any, int] = {}
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=True)
+        if key in seen:
+            raise yaml.constructor.ConstructorError(
+                None,
+                None,
+                f"duplicate key {key!r} (first at line {seen[key] + 1}); "
+                "every key, node ids included, must be unique",
+                key_node.start_mark,
+            )
+        seen[key] = key_node.start_mark.line
+    return yaml.SafeLoader.construct_mapping(loader, node, deep=deep)
+
+
+_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
+
+
+def _depth(obj: Any, level: int = 0) -> int:
+    if level > MAX_DEPTH:
+        return level
+    if isinstance(obj, dict):
+        return max([_depth(v, level + 1) for v in obj.values()] or [level + 1])
+    if isinstance(obj, list):
+        return max([_depth(v, level + 1) for v in obj] or [level + 1])
+    return level
+
+
+def parse_text(text: str, fmt: str, source: str) -> Any:
+    """Parse graph text of format ``yaml`` | ``json`` | ``toml``; errors name the source and line."""
+    try:
+        if fmt == "json":
+            data = json.loads(text)
+        elif fmt == "toml":
+            data = tomllib.loads(text)
+        else:
+            data = yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "?"
+        raise GraphError([Problem(f"invalid YAML at {where}: {exc.problem or exc}", file=source)]) from None
+    except yaml.YAMLError as exc:
+        raise GraphError([Problem(f"invalid YAML: {exc}", file=source)]) from None
+    except json.JSONDecodeError as exc:
+        raise GraphError([Problem(f"invalid JSON at line {exc.lineno}: {exc.msg}", file=source)]) from None
+    except tomllib.TOMLDecodeError as exc:
+        raise GraphError([Problem(f"invalid TOML: {exc}", file=source)]) from None
+    if _depth(data) > MAX_DEPTH:
+        raise GraphError([Problem(f"nesting deeper than {MAX_DEPTH} levels", file=source)])
+    return data
+
+
+def read_graph_file(path: Path, display: str | None = None) -> dict[str, Any]:
+    """Read one graph file into a plain dict (no ``extends`` resolution)."""
+    shown = display or str(path)
+    if not path.is_file():
+        raise GraphError([Problem("graph file not found", file=shown, hint="check the path")])
+    size = path.stat().st_size
+    if size > MAX_FILE_BYTES:
+        raise GraphError([Problem(f"file is {size} bytes; graph files are limited to {MAX_FILE_BYTES}", file=shown)])
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise GraphError([Problem("not a UTF-8 text file", file=shown)]) from None
+    fmt = {".json": "json", ".toml": "toml"}.get(path.suffix.lower(), "yaml")
+    data = parse_text(text, fmt, shown)
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise GraphError([Problem(f"expected a mapping at the top level, got {type(data).__name__}", file=shown)])
+    return data

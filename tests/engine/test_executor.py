@@ -1,0 +1,99 @@
+"""The streaming executor: order, feedback edges, constant nodes, timings, hooks, error policies."""
+
+from __future__ import annotations
+
+import pytest
+import yaml
+
+from lanegraph import hookimpl
+from lanegraph.errors import NodeError
+from lanegraph.executor import Executor
+from lanegraph.graph import load_graph
+from lanegraph.nodes import RunContext
+
+from . import toyplugin
+from .test_graph import VALID
+
+
+def load(tmp_path, pm, data=VALID, sets=()):
+    p = tmp_path / "g.yaml"
+    p.write_text(yaml.safe_dump(data))
+    return load_graph(p, sets=list(sets), pm=pm)
+
+
+def test_feedback_edge_delivers_previous_frame(tmp_path, pm):
+    res = Executor(load(tmp_path, pm), RunContext(), pm).run()
+    # acc = 2*value + acc(prev): 0, 2, 6, 12
+    assert toyplugin.Collect.out == [("0000", 0.0), ("0001", 2.0), ("0002", 6.0), ("0003", 12.0)]
+    assert res.frames == 4
+
+
+def test_constant_node_runs_once(tmp_path, pm):
+    toyplugin.CALLS["const"] = 0
+    ex = Executor(load(tmp_path, pm), RunContext(), pm)
+    assert "k" in ex.constant_nodes and "double" not in ex.constant_nodes
+    ex.run()
+    assert toyplugin.CALLS["const"] == 1
+
+
+def test_frame_selection_and_len(tmp_path, pm):
+    ex = Executor(load(tmp_path, pm), RunContext(frames=slice(1, 3)), pm)
+    ex.open()
+    assert len(ex) == 2
+    ex.run()
+    assert [f for f, _ in toyplugin.Collect.out] == ["0001", "0002"]
+
+
+def test_timings_per_node(tmp_path, pm):
+    res = Executor(load(tmp_path, pm), RunContext(), pm).run()
+    t = res.timings_json()
+    assert t["frames"] == 4
+    assert set(t["nodes"]) == {"src", "k", "double", "acc", "sink"}
+    assert t["nodes"]["double"]["type"] == "toy.scale"
+    assert t["nodes"]["double"]["calls"] == 4 and t["nodes"]["k"]["calls"] == 1
+    assert t["nodes"]["acc"]["p90_ms"] >= t["nodes"]["acc"]["median_ms"] >= 0
+
+
+def test_hooks_fire_around_every_node(tmp_path, pm):
+    seen = []
+
+    class Tracer:
+        @hookimpl
+        def lanegraph_before_node(self, node_id, frame):
+            seen.append(("before", node_id, frame))
+
+        @hookimpl
+        def lanegraph_after_node(self, node_id, elapsed_ms):
+            seen.append(("after", node_id, elapsed_ms >= 0))
+
+    pm.register(Tracer())
+    Executor(load(tmp_path, pm), RunContext(), pm).run()
+    befores = [s for s in seen if s[0] == "before"]
+    assert ("before", "double", "0002") in befores
+    assert len(befores) == 1 + 4 * 3  # constant node once, three per-frame nodes (sink included) x 4
+    assert all(s[2] for s in seen if s[0] == "after")
+
+
+def test_failure_policy_fail_names_node_and_frame(tmp_path, pm):
+    g = load(tmp_path, pm, sets=["double.fail_on=2"])
+    with pytest.raises(NodeError) as info:
+        Executor(g, RunContext(), pm).run()
+    assert "node 'double' (toy.scale)" in str(info.value) and "frame 0002" in str(info.value)
+    assert "boom" in str(info.value)
+    assert [f for f, _ in toyplugin.Collect.out] == ["0000", "0001"]  # earlier frames were delivered
+
+
+def test_failure_policy_skip_and_empty(tmp_path, pm):
+    import copy
+
+    d = copy.deepcopy(VALID)
+    d["nodes"]["double"]["on_error"] = "skip"
+    res = Executor(load(tmp_path, pm, d, sets=["double.fail_on=2"]), RunContext(), pm).run()
+    assert [f for f, _ in toyplugin.Collect.out] == ["0000", "0001", "0003"]
+    assert [(f.frame, f.node_id) for f in res.failures] == [("0002", "double")]
+    assert res.frames == 3
+
+    d["nodes"]["double"]["on_error"] = "empty"
+    d["nodes"]["acc"]["type"] = "toy.add"
+    with pytest.raises(NodeError):  # acc receives None and fails: policy fail
+        Executor(load(tmp_path, pm, d, sets=["double.fail_on=2"]), RunContext(), pm).run()

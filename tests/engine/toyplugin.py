@@ -1,0 +1,89 @@
+"""A tiny plugin of toy node types, so engine tests do not depend on the real plugins."""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from lanegraph import NodeParams, Port, RunContext, hookimpl, node_type
+
+
+class CountParams(NodeParams):
+    n: int = Field(3, ge=1, le=1000, description="number of frames")
+    fail_at: int = Field(-1, ge=-1, description="raise on this frame index (-1: never)")
+
+
+@node_type(
+    "toy.count",
+    source=True,
+    outputs={"frame": "frame_id", "value": "number", "calib": Port("calibration", rate="constant")},
+)
+class Count:
+    """Yields frames 0..n-1 with value = index."""
+
+    def __init__(self, params: CountParams, context: RunContext):
+        self.p = params
+        self.sel = context.frames or slice(None)
+
+    def constants(self):
+        return {"calib": "CAL"}
+
+    def __len__(self):
+        return len(range(self.p.n)[self.sel])
+
+    def __iter__(self):
+        for i in range(self.p.n)[self.sel]:
+            yield {"frame": f"{i:04d}", "value": float(i)}
+
+
+class ScaleParams(NodeParams):
+    factor: float = Field(2.0, ge=-100, le=100, description="multiplier")
+    fail_on: float = Field(-1.0, description="raise when the input equals this value")
+
+
+@node_type("toy.scale", inputs={"x": "number"}, outputs={"y": "number"})
+def scale(params: ScaleParams, x):
+    """y = factor * x."""
+    if x == params.fail_on:
+        raise ValueError(f"boom on {x}")
+    return {"y": params.factor * x}
+
+
+@node_type("toy.add", inputs={"a": "number", "b": Port("number", optional=True)}, outputs={"y": "number"})
+def add(params: NodeParams, a, b):
+    """y = a + b (b = 0 when unconnected or None)."""
+    return {"y": a + (b or 0.0)}
+
+
+CALLS = {"const": 0}
+
+
+@node_type("toy.from_calib", inputs={"calib": "calibration"}, outputs={"y": "number"})
+def from_calib(params: NodeParams, calib):
+    """Depends on a constant only: runs once per run."""
+    CALLS["const"] += 1
+    return {"y": 100.0}
+
+
+@node_type("toy.image", inputs={"image": "image"}, outputs={"y": "number"})
+def image_in(params: NodeParams, image):
+    """Takes an image (for port-type mismatch tests)."""
+    return {"y": 0.0}
+
+
+@node_type("toy.collect", inputs={"frame": "frame_id", "x": "number"}, sink=True)
+class Collect:
+    """Records (frame, x) pairs in a list shared by the test."""
+
+    out: list = []
+
+    def __init__(self, params: NodeParams, context: RunContext):
+        Collect.out = []
+
+    def __call__(self, frame, x):
+        Collect.out.append((frame, x))
+        return {}
+
+
+@hookimpl
+def lanegraph_node_types():
+    return [Count, scale, add, from_calib, image_in, Collect]
