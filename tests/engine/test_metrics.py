@@ -1,0 +1,70 @@
+"""The lane metric of the data README, on tiny hand-made cases."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lanegraph.metrics import evaluate, evaluate_frame, match_score, polyline_x_at
+
+GT_ROWS = [[100.0 + (300 - y) * 0.5, float(y)] for y in range(300, 190, -10)]  # 11 rows, 300..200
+
+
+def shifted(dx, rows=None):
+    pts = [[x + dx, y] for x, y in GT_ROWS]
+    return pts if rows is None else [p for p in pts if p[1] in rows]
+
+
+def test_interpolation_only_inside_range():
+    xs = polyline_x_at([[0, 10], [10, 20]], np.array([5, 10, 15, 20, 25]))
+    assert np.isnan(xs[0]) and np.isnan(xs[4])
+    np.testing.assert_allclose(xs[1:4], [0, 5, 10])
+
+
+def test_match_requires_half_coverage():
+    six = [300, 290, 280, 270, 260, 250]  # 6 of 11 rows -> covered
+    five = [300, 290, 280, 270, 260]  # 5 of 11 -> not enough
+    assert match_score(shifted(0, six), GT_ROWS) == 0.0
+    assert match_score(shifted(0, five), GT_ROWS) is None
+
+
+def test_match_requires_85_percent_within_20px():
+    pts = shifted(5)
+    assert match_score(pts, GT_ROWS) == 5.0
+    assert match_score(shifted(21), GT_ROWS) is None
+    # one row of 11 off by 40 px: 10/11 = 91 % ok -> still a match
+    bad_one = [list(p) for p in shifted(0)]
+    bad_one[5][0] += 40
+    assert match_score(bad_one, GT_ROWS) is not None
+    bad_two = [list(p) for p in bad_one]
+    bad_two[6][0] += 40
+    assert match_score(bad_two, GT_ROWS) is None  # 9/11 = 82 %
+
+
+def test_one_to_one_greedy_by_mean_dx():
+    gt = {"frame": "a", "markings": [{"id": 1, "points": GT_ROWS}], "ego": {"left": 1, "right": None}}
+    r = evaluate_frame([{"points": shifted(10)}, {"points": shifted(2)}], gt)
+    assert r.matched == 1 and r.dx == [2.0] and not r.correct  # the second lane is false
+
+
+def test_frame_correctness_rules():
+    gt = {"frame": "a", "markings": [{"id": 1, "points": GT_ROWS}, {"id": 2, "points": shifted(200)}],
+          "ego": {"left": 1, "right": None}}
+    assert evaluate_frame([{"points": shifted(0)}], gt).correct  # non-ego marking need not be reported
+    assert evaluate_frame([{"points": shifted(0)}, {"points": shifted(200)}], gt).correct
+    assert not evaluate_frame([{"points": shifted(200)}], gt).correct  # ego boundary missed
+    empty = {"frame": "b", "markings": [], "ego": {"left": None, "right": None}}
+    assert evaluate_frame([], empty).correct
+    assert not evaluate_frame([{"points": shifted(0)}], empty).correct
+
+
+def test_aggregate_and_missing_frames():
+    gt = [
+        {"frame": "a", "markings": [{"id": 1, "points": GT_ROWS}], "ego": {"left": 1, "right": None}},
+        {"frame": "b", "markings": [{"id": 1, "points": GT_ROWS}], "ego": {"left": 1, "right": None}},
+    ]
+    pred = [{"frame": "a", "lanes": [{"points": shifted(4)}, {"points": shifted(100)}]}]
+    res = evaluate(pred, gt)
+    assert res["frames"] == 2
+    assert res["detection_ratio"] == 0.0  # a has a false lane, b is missing
+    assert res["precision"] == 0.5 and res["ego_recall"] == 0.5 and res["mean_abs_dx_px"] == 4.0
+    assert [f["frame"] for f in res["failed_frames"]] == ["a", "b"]
