@@ -1,15 +1,33 @@
 """The one place numba flags come from.
 
-Use :func:`jit` for every kernel. Kernels are cached on disk (``cache=True``), so
-only the first run on a machine pays the compilation. ``NUMBA_DISABLE_JIT=1`` turns
+Use :func:`jit` for every kernel. Kernels are cached on disk in a *user* cache directory
+(``$LANEGRAPH_CACHE_DIR/numba``, default ``~/.cache/lanegraph/numba``; ``NUMBA_CACHE_DIR`` wins when
+set), so only the first run on a machine pays the compilation, also when the install directory
+is read-only. ``LANEGRAPH_NUMBA_CACHE=0`` turns the disk cache off; ``NUMBA_DISABLE_JIT=1`` turns
 every kernel into plain Python (for coverage and debugging).
 """
 
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
-import numba
+
+def cache_root() -> Path:
+    """lanegraph's user cache directory."""
+    base = os.environ.get("LANEGRAPH_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "lanegraph"
+    )
+    return Path(base)
+
+
+if not os.environ.get("NUMBA_CACHE_DIR"):
+    os.environ["NUMBA_CACHE_DIR"] = str(cache_root() / "numba")
+
+import numba  # noqa: E402 - after NUMBA_CACHE_DIR is set
+
+if not numba.config.CACHE_DIR:
+    numba.config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]
 
 #: flags shared by every lanegraph kernel
 JIT_OPTIONS = {
