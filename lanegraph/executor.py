@@ -73,8 +73,11 @@ class _SkipFrame(Exception):
 class Executor:
     """Runs a validated :class:`~lanegraph.graph.Graph` over the frames of its source node."""
 
-    def __init__(self, graph: Graph, context: RunContext | None = None, pm: PluginManager | None = None):
+    def __init__(
+        self, graph: Graph, context: RunContext | None = None, pm: PluginManager | None = None, prefetch: int = 1
+    ):
         self.graph = graph
+        self.prefetch = prefetch
         self.pm = pm or get_plugin_manager()
         self.context = context or RunContext()
         self._resolve_auto_source()
@@ -245,17 +248,20 @@ class Executor:
         return result
 
     def _frames(self, source: Any, src_id: str, result: RunResult) -> Iterator[dict[str, Any] | None]:
-        """Iterate the source, recording per-frame read errors according to the source's policy."""
+        """Iterate the source, recording per-frame read errors according to the source's policy.
+
+        With ``prefetch > 0`` the source is read by a background thread that stays up to
+        ``prefetch`` frames ahead, so decoding the next images overlaps computing this frame
+        (image decoding releases the GIL).
+        """
         node = self.graph.nodes[src_id]
-        it = iter(source)
+        items = _prefetched(iter(source), self.prefetch) if self.prefetch > 0 else _timed(iter(source))
         index = 0
-        while True:
-            t0 = time.perf_counter()
-            try:
-                item = next(it)
-            except StopIteration:
-                return
-            except LanegraphError as exc:
+        for kind, item, elapsed in items:
+            if kind == "error":
+                exc = item
+                if not isinstance(exc, LanegraphError):
+                    raise NodeError(src_id, node.type.name, None, exc) from exc
                 frame = getattr(exc, "frame", None)
                 if node.on_error == "fail":
                     raise NodeError(src_id, node.type.name, frame, exc) from exc
@@ -263,7 +269,7 @@ class Executor:
                 index += 1
                 yield None
                 continue
-            result.timings_ms.setdefault(src_id, []).append((time.perf_counter() - t0) * 1000.0)
+            result.timings_ms.setdefault(src_id, []).append(elapsed)
             index += 1
             yield item
 
@@ -273,6 +279,63 @@ class Executor:
             return len(src)  # type: ignore[arg-type]
         except TypeError:
             return 0
+
+
+def _timed(it: Iterator[Any]) -> Iterator[tuple[str, Any, float]]:
+    """(kind, item, ms) for each item of ``it``; an error ends nothing but that item."""
+    while True:
+        t0 = time.perf_counter()
+        try:
+            item = next(it)
+        except StopIteration:
+            return
+        except Exception as exc:  # noqa: BLE001 - handed to the caller with its frame
+            yield "error", exc, 0.0
+            if not isinstance(exc, LanegraphError):
+                return
+            continue
+        yield "item", item, (time.perf_counter() - t0) * 1000.0
+
+
+def _prefetched(it: Iterator[Any], depth: int) -> Iterator[tuple[str, Any, float]]:
+    """:func:`_timed` run by a background thread, ``depth`` items ahead."""
+    import queue
+    import threading
+
+    q: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+    done = object()
+
+    def work() -> None:
+        try:
+            for entry in _timed(it):
+                while not stop.is_set():
+                    try:
+                        q.put(entry, timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    return
+        finally:
+            while not stop.is_set():
+                try:
+                    q.put(done, timeout=0.1)
+                    break
+                except queue.Full:
+                    continue
+
+    th = threading.Thread(target=work, name="lanegraph-prefetch", daemon=True)
+    th.start()
+    try:
+        while True:
+            entry = q.get()
+            if entry is done:
+                return
+            yield entry
+    finally:
+        stop.set()
+        th.join(timeout=5)
 
 
 def run_graph(graph: Graph, context: RunContext | None = None, pm: PluginManager | None = None) -> RunResult:
