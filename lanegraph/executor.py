@@ -6,6 +6,8 @@
 - Feedback edges (``@prev``) deliver the previous frame's value, ``None`` on the first frame.
 - Every node is timed on every frame; ``lanegraph_before_node`` / ``lanegraph_after_node`` hooks
   fire around each call (tracing, profiling).
+- A source that cannot read one frame raises (ending the stream) or *yields* an
+  :class:`~lanegraph.errors.InputError` for it and goes on with the next frame.
 - Error policy per node: ``fail`` stops the run, ``skip`` drops the frame (sinks do not see it),
   ``empty`` passes ``None`` on for the node's outputs.
 """
@@ -293,6 +295,9 @@ def _timed(it: Iterator[Any]) -> Iterator[tuple[str, Any, float]]:
             yield "error", exc, 0.0
             if not isinstance(exc, LanegraphError):
                 return
+            continue
+        if isinstance(item, BaseException):  # a source may yield the error of one frame and go on
+            yield "error", item, 0.0
             continue
         yield "item", item, (time.perf_counter() - t0) * 1000.0
 

@@ -97,3 +97,38 @@ def test_failure_policy_skip_and_empty(tmp_path, pm):
     d["nodes"]["acc"]["type"] = "toy.add"
     with pytest.raises(NodeError):  # acc receives None and fails: policy fail
         Executor(load(tmp_path, pm, d, sets=["double.fail_on=2"]), RunContext(), pm).run()
+
+
+@pytest.mark.parametrize("prefetch", [0, 1, 3])
+def test_prefetch_gives_the_same_frames(tmp_path, pm, prefetch):
+    Executor(load(tmp_path, pm), RunContext(), pm, prefetch=prefetch).run()
+    assert [x for _, x in toyplugin.Collect.out] == [0.0, 2.0, 6.0, 12.0]
+
+
+@pytest.mark.parametrize("prefetch", [0, 1])
+def test_source_read_error_located_and_policy(tmp_path, pm, prefetch):
+    import copy
+
+    d = copy.deepcopy(VALID)
+    d["nodes"]["src"] = {"type": "toy.flaky", "params": {"n": 4, "bad": 1}}
+    d["nodes"].pop("k")
+    with pytest.raises(NodeError) as info:
+        Executor(load(tmp_path, pm, d), RunContext(), pm, prefetch=prefetch).run()
+    assert "frame 0001" in str(info.value) and "/data/0001.png" in str(info.value)
+    # a generator cannot resume after raising: later frames are lost, the failure is recorded
+    d["nodes"]["src"]["on_error"] = "skip"
+    res = Executor(load(tmp_path, pm, d), RunContext(), pm, prefetch=prefetch).run()
+    assert [(f.frame, f.node_id) for f in res.failures] == [("0001", "src")]
+    assert [f for f, _ in toyplugin.Collect.out] == ["0000"]
+
+
+@pytest.mark.parametrize("prefetch", [0, 1])
+def test_source_yielding_an_error_goes_on(tmp_path, pm, prefetch):
+    import copy
+
+    d = copy.deepcopy(VALID)
+    d["nodes"]["src"] = {"type": "toy.flaky", "params": {"n": 4, "bad": 1, "resume": True}, "on_error": "skip"}
+    d["nodes"].pop("k")
+    res = Executor(load(tmp_path, pm, d), RunContext(), pm, prefetch=prefetch).run()
+    assert [f for f, _ in toyplugin.Collect.out] == ["0000", "0002", "0003"]
+    assert res.failures[0].frame == "0001" and res.frames == 3

@@ -86,4 +86,29 @@ class Collect:
 
 @hookimpl
 def lanegraph_node_types():
-    return [Count, scale, add, from_calib, image_in, Collect]
+    return [Count, Flaky, scale, add, from_calib, image_in, Collect]
+
+
+class FlakyParams(NodeParams):
+    n: int = Field(4, ge=1, description="number of frames")
+    bad: int = Field(1, ge=-1, description="index of the frame that cannot be read")
+    resume: bool = Field(False, description="yield the error and go on instead of raising")
+
+
+@node_type("toy.flaky", source=True, outputs={"frame": "frame_id", "value": "number"})
+class Flaky:
+    """Like toy.count, but frame ``bad`` raises an InputError when read."""
+
+    def __init__(self, params: FlakyParams, context: RunContext):
+        self.p = params
+
+    def __iter__(self):
+        from lanegraph.errors import InputError
+
+        for i in range(self.p.n):
+            if i == self.p.bad and self.p.resume:
+                yield InputError("truncated image", path=f"/data/{i:04d}.png", frame=f"{i:04d}")
+                continue
+            if i == self.p.bad:
+                raise InputError("truncated image", path=f"/data/{i:04d}.png", frame=f"{i:04d}")
+            yield {"frame": f"{i:04d}", "value": float(i)}
