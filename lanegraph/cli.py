@@ -183,7 +183,8 @@ def nodes(as_json: bool) -> None:
         outs = ", ".join(f"{p}: {x.type}" for p, x in nt.outputs.items())
         click.echo(f"    in({ins}) -> out({outs})")
         for fname, f in nt.params.model_fields.items():
-            click.echo(f"    - {fname} = {f.default!r}: {f.description or ''}")
+            default = "(required)" if f.is_required() else f"= {f.default!r}"
+            click.echo(f"    - {fname} {default}: {f.description or ''}")
     for err in pm.load_errors + pm.registry_errors:
         click.echo(f"warning: {err}", err=True)
 

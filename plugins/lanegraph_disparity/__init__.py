@@ -1,8 +1,37 @@
-"""lanegraph_disparity node plugin."""
+"""Disparity backends (family ``disparity``): a rectified pair in, a float32 disparity map out.
+
+=====================  =========================================================
+``disparity.sgbm``     OpenCV StereoSGBM
+``disparity.bm``       OpenCV StereoBM
+``disparity.sgm``      census + semi-global matching, own numba kernels
+``disparity.file``     precomputed maps (KITTI 16-bit PNG or .npy), e.g. PSMNet
+=====================  =========================================================
+
+Every map is HxW float32 at the input resolution, in pixels; invalid pixels are 0.
+The computing backends share :class:`DisparityParams` (``scale``, ``lr_check`` ...).
+"""
 
 from lanegraph import hookimpl
+
+from ._common import DisparityParams
+from ._file import FileParams, file
+from ._opencv import BmParams, OpenCVDisparityParams, SgbmParams, bm, sgbm
+from ._sgm import SgmParams, sgm
+
+__all__ = [
+    "BmParams",
+    "DisparityParams",
+    "FileParams",
+    "OpenCVDisparityParams",
+    "SgbmParams",
+    "SgmParams",
+    "bm",
+    "file",
+    "sgbm",
+    "sgm",
+]
 
 
 @hookimpl
 def lanegraph_node_types():
-    return []
+    return [sgbm, bm, sgm, file]

@@ -1,0 +1,96 @@
+"""Speed of a lane graph on real frames, per node and end to end.
+
+    python benchmarks/bench_pipeline.py [GRAPH ...] [--input DRIVE] [--frames 0:54] [--cold-start]
+
+For each graph prints, over the selected frames (after one warm-up frame):
+- median ms per node;
+- "after disparity": the median per-frame sum of every node downstream of the disparity node;
+- frames/s counting every node but image reading (the source);
+- frames/s end to end, image reading included (the executor overlaps reading the next frame);
+- with --cold-start: the wall time of a fresh `lanegraph run --frames 0:1` process, twice (the
+  second one must find the numba kernels in the on-disk cache).
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from lanegraph.executor import Executor
+from lanegraph.graph import load_graph
+from lanegraph.nodes import RunContext
+
+ROOT = Path(__file__).resolve().parents[1]
+DRIVE = ROOT.parent / "shared/data/kitti_raw/2011_09_26/2011_09_26_drive_0001_sync"
+
+
+def downstream_of(graph, start: str) -> set[str]:
+    out, frontier = set(), {start}
+    while frontier:
+        nxt = {e.dst_node for e in graph.edges if e.src_node in frontier and not e.previous} - out
+        out |= nxt
+        frontier = nxt
+    return out
+
+
+def bench(graph_path: str, drive: Path, frames: str) -> None:
+    g = load_graph(graph_path)
+    a, _, b = frames.partition(":")
+    ctx = RunContext(input_path=drive, out_dir=Path(tempfile.mkdtemp()), frames=slice(int(a or 0), int(b) if b else None))
+    # warm-up: compile kernels, fill caches
+    Executor(load_graph(graph_path), RunContext(input_path=drive, out_dir=ctx.out_dir, frames=slice(0, 1))).run()
+    ex = Executor(g, ctx)
+    t0 = time.perf_counter()
+    res = ex.run()
+    wall = time.perf_counter() - t0
+    n = res.frames
+    src = g.source.id
+    disp = [nid for nid, nd in g.nodes.items() if nd.type.family == "disparity"]
+    after = downstream_of(g, disp[0]) if disp else set(g.nodes) - {src}
+    per_frame = lambda ids: np.sum([np.asarray(res.timings_ms[i][-n:]) for i in ids if i in res.timings_ms and len(res.timings_ms[i]) >= n], axis=0)  # noqa: E731
+    print(f"\n== {graph_path}: {n} frames of {drive.name}")
+    for nid in g.order:
+        ts = res.timings_ms.get(nid)
+        if ts:
+            print(f"  {nid:14s} {g.nodes[nid].type.name:22s} median {np.median(ts):8.2f} ms   p90 {np.percentile(ts, 90):8.2f} ms")
+    no_src = per_frame([i for i in g.nodes if i != src])
+    print(f"  after disparity (median of per-frame sum): {np.median(per_frame(after)):.2f} ms")
+    print(f"  every node but image reading: {1000.0 / np.median(no_src):.1f} frames/s")
+    print(f"  end to end, reading included: {n / wall:.1f} frames/s ({1000 * wall / n:.1f} ms/frame)")
+
+
+def cold_start(graph_path: str, drive: Path) -> None:
+    for label in ("first process", "second process"):
+        with tempfile.TemporaryDirectory() as out:
+            t0 = time.perf_counter()
+            subprocess.run(
+                [sys.executable, "-m", "lanegraph.cli", "run", graph_path, "--input", str(drive), "--out", out, "--frames", "0:1", "--quiet"],
+                check=True,
+                capture_output=True,
+            )
+            print(f"  cold start to first frame ({label}): {time.perf_counter() - t0:.2f} s")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("graphs", nargs="*", default=[str(ROOT / "graphs/paper.yaml")])
+    ap.add_argument("--input", type=Path, default=DRIVE)
+    ap.add_argument("--frames", default="0:54")
+    ap.add_argument("--cold-start", action="store_true")
+    a = ap.parse_args()
+    if not a.input.is_dir():
+        sys.exit(f"input folder not found: {a.input}")
+    for gp in a.graphs:
+        bench(gp, a.input, a.frames)
+        if a.cold_start:
+            cold_start(gp, a.input)
+
+
+if __name__ == "__main__":
+    main()
