@@ -1,0 +1,156 @@
+"""``bev.ipm``: inverse perspective mapping of the left image (and the road mask) onto a metric
+bird's-eye-view grid of the road plane.
+
+The mapping is the road-plane homography of :func:`.geometry.homography_img_from_road` built from
+the calibration and the estimated pitch, roll and height (the paper's eqs. 1-2, Bertozzi & Broggi,
+yaw 0, written exactly for a pinhole camera), composed with the BEV grid: BEV pixel ``(c, r)`` is
+the road point ``x = x_min + (c + 0.5) res``, ``z = z_max - (r + 0.5) res`` (row 0 is the far end).
+Every BEV pixel is looked up in the image (``cv2.remap``); pixels that fall outside the image or
+beyond the horizon are 0 in the image and False in the mask.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import cv2
+import numpy as np
+from pydantic import Field, model_validator
+
+from lanegraph import NodeParams, Port, node_type
+from lanegraph.types import BevGeometry, Calibration, RoadModel
+
+from . import geometry
+
+_INTERP = {"nearest": cv2.INTER_NEAREST, "linear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC}
+
+
+class IpmParams(NodeParams):
+    """Params of ``bev.ipm``."""
+
+    x_min: float = Field(-10.0, ge=-200.0, le=200.0, description="left edge of the BEV, metres (x right)")
+    x_max: float = Field(10.0, ge=-200.0, le=200.0, description="right edge of the BEV, metres")
+    z_min: float = Field(5.0, gt=0.0, le=500.0, description="nearest distance ahead (bottom row), metres")
+    z_max: float = Field(45.0, gt=0.0, le=500.0, description="farthest distance ahead (top row), metres")
+    resolution: float = Field(0.05, gt=0.001, le=10.0, description="BEV pixel size, metres per pixel")
+    interpolation: Literal["nearest", "linear", "cubic"] = Field("linear", description="image interpolation")
+    color: Literal["gray", "keep"] = Field(
+        "gray", description="BEV of a BGR input: gray (Hb x Wb, the bev_image type) or keep the 3 channels"
+    )
+    use_roll: bool = Field(True, description="use the estimated roll (False: roll 0)")
+    fallback_pitch_deg: float = Field(
+        0.0,
+        ge=-30.0,
+        le=30.0,
+        description="pitch used when the road model is invalid, degrees (positive = nose down)",
+    )
+    fallback_height_m: float = Field(
+        1.65, gt=0.05, le=20.0, description="camera height used when the road model is invalid, metres"
+    )
+
+    @model_validator(mode="after")
+    def _check_ranges(self) -> IpmParams:
+        if not self.x_max > self.x_min:
+            raise ValueError(f"x_max ({self.x_max}) must be greater than x_min ({self.x_min})")
+        if not self.z_max > self.z_min:
+            raise ValueError(f"z_max ({self.z_max}) must be greater than z_min ({self.z_min})")
+        cells = (self.x_max - self.x_min) / self.resolution * (self.z_max - self.z_min) / self.resolution
+        if cells > 50e6:
+            raise ValueError(f"the BEV grid would have {cells:.3g} pixels (> 5e7); raise the resolution")
+        return self
+
+
+def bev_pose(params: IpmParams, road: RoadModel | None) -> tuple[float, float, float]:
+    """``(pitch, roll, height)`` used for the BEV: the road model's, or the fallback when invalid."""
+    if road is None or not road.valid or not road.height > 0:
+        return math.radians(params.fallback_pitch_deg), 0.0, params.fallback_height_m
+    return road.pitch, (road.roll if params.use_roll else 0.0), road.height
+
+
+def bev_geometry(
+    params: IpmParams, calib: Calibration, pitch: float, roll: float, height: float
+) -> BevGeometry:
+    """The BEV grid and its homography ``H_img_from_bev`` (BEV pixel (c, r, 1) -> image (x, y, 1))."""
+    res = params.resolution
+    grid = np.array(
+        [[res, 0.0, params.x_min + 0.5 * res], [0.0, -res, params.z_max - 0.5 * res], [0.0, 0.0, 1.0]]
+    )
+    H = geometry.homography_img_from_road(calib, pitch, roll, height) @ grid
+    return BevGeometry(params.x_min, params.x_max, params.z_min, params.z_max, res, H)
+
+
+def bev_maps(geom: BevGeometry, width: int, height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(map_x, map_y, inside)`` for ``cv2.remap``: the image pixel of every BEV pixel, and whether it
+    lies inside the ``width x height`` image and in front of the camera (elsewhere the maps are -1)."""
+    r, c = np.mgrid[0 : geom.rows, 0 : geom.cols].astype(np.float64)
+    Hm = geom.H_img_from_bev
+    w = Hm[2, 0] * c + Hm[2, 1] * r + Hm[2, 2]
+    ahead = w > 1e-9
+    safe_w = np.where(ahead, w, 1.0)
+    x = (Hm[0, 0] * c + Hm[0, 1] * r + Hm[0, 2]) / safe_w
+    y = (Hm[1, 0] * c + Hm[1, 1] * r + Hm[1, 2]) / safe_w
+    inside = ahead & (x >= 0) & (x <= width - 1) & (y >= 0) & (y <= height - 1)
+    map_x = np.where(inside, x, -1.0).astype(np.float32)
+    map_y = np.where(inside, y, -1.0).astype(np.float32)
+    return map_x, map_y, inside
+
+
+def warp_to_bev(
+    params: IpmParams,
+    image: np.ndarray,
+    road: RoadModel | None,
+    calib: Calibration,
+    mask: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, BevGeometry]:
+    """The work of ``bev.ipm``: ``(bev image, bev mask, geometry)``."""
+    image = np.asarray(image)
+    if image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] not in (1, 3)):
+        raise ValueError(f"image: expected HxW or HxWx3, got shape {image.shape}")
+    if image.ndim == 3 and image.shape[2] == 1:
+        image = image[:, :, 0]
+    if image.ndim == 3 and params.color == "gray":
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    h_img, w_img = image.shape[:2]
+    if mask is not None and np.asarray(mask).shape != (h_img, w_img):
+        raise ValueError(f"mask: expected shape {(h_img, w_img)} (the image's), got {np.asarray(mask).shape}")
+    pitch, roll, height = bev_pose(params, road)
+    geom = bev_geometry(params, calib, pitch, roll, height)
+    map_x, map_y, inside = bev_maps(geom, w_img, h_img)
+    bev = cv2.remap(
+        image, map_x, map_y, _INTERP[params.interpolation], borderMode=cv2.BORDER_CONSTANT, borderValue=0
+    )
+    if mask is not None:
+        m = cv2.remap(
+            np.asarray(mask, dtype=np.uint8),
+            map_x,
+            map_y,
+            cv2.INTER_NEAREST,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=0,
+        )
+        bev_mask = inside & (m > 0)
+    else:
+        bev_mask = inside
+    return bev, bev_mask, geom
+
+
+@node_type(
+    "bev.ipm",
+    inputs={
+        "image": Port("image", "left image (gray or BGR)"),
+        "mask": Port("mask", "road mask in the left image (road.mask)", optional=True),
+        "road": Port("road_model", "road model with pitch, roll and height (road.profile)"),
+        "calib": Port("calibration", "stereo calibration", rate="constant"),
+    },
+    outputs={
+        "image": Port("bev_image", "the bird's-eye view of the image"),
+        "mask": Port("bev_mask", "BEV pixels inside the image (and on the road mask when given)"),
+        "geometry": Port("bev_geometry", "the BEV grid and H_img_from_bev"),
+    },
+)
+def bev_ipm(params: IpmParams, image: np.ndarray, road: RoadModel, calib: Calibration, mask=None) -> dict:
+    """Inverse perspective mapping onto a metric road-plane grid using the estimated pitch, roll and
+    camera height (fallback pitch / height when the road model is invalid)."""
+    bev, bev_mask, geom = warp_to_bev(params, image, road, calib, mask)
+    return {"image": bev, "mask": bev_mask, "geometry": geom}

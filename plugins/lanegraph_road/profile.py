@@ -1,0 +1,495 @@
+"""``road.vdisparity`` and ``road.profile``: the v-disparity road profile and the camera pose.
+
+Method (the paper's section on IPM, after Fan et al.'s road-surface papers):
+
+1. v-disparity: a histogram of the disparities of each image row (``H x D``, bins of ``bin_size``
+   pixels; invalid ``<= 0`` and ``>= max_disparity`` disparities are left out).
+2. Dynamic programming: the best path through the accumulator, one disparity bin per row from the
+   bottom row up, disparity non-increasing upwards by at most ``max_step`` bins per row, maximising
+   the accumulated support minus ``smoothness * step**2`` (a convex step cost, so that an evenly
+   slanted road line beats an obstacle's vertical segment followed by a jump).
+3. Each row's disparity is refined to sub-bin accuracy (mean of the row's disparities within
+   ``refine_radius_px`` of the path) and a line ``d = a0 + a1 v`` is fitted robustly (RANSAC over
+   rows weighted by their support, then least squares on the inliers).
+4. Roll: the road pixels (within ``roll_tolerance_px`` of the profile) are fitted with a plane
+   ``d = b0 + b1 u + b2 v`` (re-selecting the pixels near the plane a few times);
+   ``roll = atan(b1 fy / (b2 f))``. The disparity map is rotated by the roll about the principal
+   point (each pixel is accumulated at its roll-corrected row ``v'``, see :mod:`.geometry`) and
+   steps 1-3 are run again.
+5. Pitch and height from the final line (see :mod:`.geometry`, eq. 3)::
+
+       pitch = arctan((cy + a0/a1) / fy),   height = f B cos(pitch) / (fy a1).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import numpy as np
+from pydantic import Field
+
+from lanegraph import NodeParams, Port, node_type
+from lanegraph._numba import jit
+from lanegraph.types import Calibration, RoadModel
+
+from . import geometry
+
+# --------------------------------------------------------------------------- kernels
+
+
+@jit
+def _vdisparity_kernel(disp, keep, n_bins, bin_size, max_disp, cx, cy, s, c):
+    """Count the disparities of the ``keep`` pixels per (roll-corrected row, bin).
+    ``v' = cy + s (u - cx) + c (v - cy)``, rounded to the nearest row; rows outside ``[0, H)``,
+    ``d <= 0`` and ``d >= max_disp`` are dropped."""
+    H, W = disp.shape
+    out = np.zeros((H, n_bins), np.float32)
+    for v in range(H):
+        for u in range(W):
+            d = disp[v, u]
+            if not keep[v, u] or d <= 0.0 or d >= max_disp:
+                continue
+            r = int(math.floor(cy + s * (u - cx) + c * (v - cy) + 0.5))
+            if r < 0 or r >= H:
+                continue
+            k = int(d / bin_size)
+            if k >= n_bins:
+                continue
+            out[r, k] += 1.0
+    return out
+
+
+@jit
+def _dp_path_kernel(score, max_step, smoothness):
+    """Best non-increasing-upwards path: ``path[v]`` is a bin per row, ``path[v] <= path[v+1] <=
+    path[v] + max_step``; maximises ``sum score[v, path[v]] - smoothness * sum step**2``."""
+    H, D = score.shape
+    acc = np.empty((H, D), np.float64)
+    back = np.zeros((H, D), np.int32)
+    for k in range(D):
+        acc[H - 1, k] = score[H - 1, k]
+    for v in range(H - 2, -1, -1):
+        for k in range(D):
+            best = -1e300
+            arg = k
+            hi = min(D, k + max_step + 1)
+            for j in range(k, hi):
+                step = j - k
+                val = acc[v + 1, j] - smoothness * step * step
+                if val > best:
+                    best = val
+                    arg = j
+            acc[v, k] = score[v, k] + best
+            back[v, k] = arg
+    path = np.zeros(H, np.int32)
+    k = 0
+    best = -1e300
+    for j in range(D):
+        if acc[0, j] > best:
+            best = acc[0, j]
+            k = j
+    path[0] = k
+    for v in range(1, H):
+        path[v] = back[v - 1, path[v - 1]]
+    return path
+
+
+@jit
+def _row_refine_kernel(disp, keep, centre, radius, cx, cy, s, c):
+    """Per roll-corrected row: sum and count of the disparities of the ``keep`` pixels within
+    ``radius[row]`` of ``centre[row]``."""
+    H, W = disp.shape
+    total = np.zeros(H, np.float64)
+    count = np.zeros(H, np.float64)
+    for v in range(H):
+        for u in range(W):
+            d = disp[v, u]
+            if not keep[v, u] or d <= 0.0:
+                continue
+            r = int(math.floor(cy + s * (u - cx) + c * (v - cy) + 0.5))
+            if r < 0 or r >= H:
+                continue
+            if abs(d - centre[r]) <= radius[r]:
+                total[r] += d
+                count[r] += 1.0
+    return total, count
+
+
+@jit
+def _plane_band_kernel(disp, b0, b1, b2, height, band):
+    """Pixels within ``band`` metres (eq. 4) of the road plane ``d = b0 + b1 u + b2 v`` (disparity
+    space) seen from ``height`` metres: ``|d - d_plane| <= band * d / height``, ``d > 0``."""
+    H, W = disp.shape
+    out = np.zeros((H, W), np.bool_)
+    k = band / height
+    for v in range(H):
+        for u in range(W):
+            d = disp[v, u]
+            if d <= 0.0:
+                continue
+            if abs(d - (b0 + b1 * u + b2 * v)) <= k * d:
+                out[v, u] = True
+    return out
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def as_disparity(disparity: np.ndarray) -> np.ndarray:
+    """Validate a disparity map and return it as C-contiguous float32 with non-finite values set to 0."""
+    disparity = np.asarray(disparity)
+    if disparity.ndim != 2 or disparity.shape[0] < 1 or disparity.shape[1] < 1:
+        raise ValueError(f"disparity: expected an HxW array, got shape {disparity.shape}")
+    d = np.ascontiguousarray(disparity, dtype=np.float32)
+    if not np.isfinite(d).all():
+        d = np.where(np.isfinite(d), d, 0.0).astype(np.float32)
+    return d
+
+
+def n_bins(max_disparity: float, bin_size: float) -> int:
+    return max(1, int(math.ceil(max_disparity / bin_size)))
+
+
+def compute_vdisparity(
+    disp: np.ndarray,
+    max_disparity: float,
+    bin_size: float,
+    roll: float = 0.0,
+    calib: Calibration | None = None,
+    keep: np.ndarray | None = None,
+) -> np.ndarray:
+    """``H x D`` v-disparity of a validated disparity map, optionally in roll-corrected rows and
+    over the ``keep`` pixels only."""
+    if roll != 0.0 and calib is None:
+        raise ValueError("a roll needs the calibration (principal point)")
+    s, c = geometry.roll_row_coeffs(roll, calib) if calib is not None else (0.0, 1.0)
+    cx, cy = (calib.cx, calib.cy) if calib is not None else (0.0, 0.0)
+    keep = np.ones(disp.shape, np.bool_) if keep is None else keep
+    return _vdisparity_kernel(
+        disp,
+        keep,
+        n_bins(max_disparity, bin_size),
+        float(bin_size),
+        float(max_disparity),
+        float(cx),
+        float(cy),
+        s,
+        c,
+    )
+
+
+# --------------------------------------------------------------------------- road.vdisparity
+
+
+class VDisparityParams(NodeParams):
+    """Params of ``road.vdisparity``."""
+
+    max_disparity: float = Field(
+        128.0, gt=0.0, le=1024.0, description="disparities >= this are left out, pixels; D = ceil(max / bin)"
+    )
+    bin_size: float = Field(1.0, gt=0.0, le=16.0, description="width of a disparity bin, pixels")
+
+
+@node_type(
+    "road.vdisparity",
+    inputs={"disparity": Port("disparity", "left disparity map")},
+    outputs={"vdisparity": Port("vdisparity", "H x D count of disparities per row")},
+)
+def road_vdisparity(params: VDisparityParams, disparity: np.ndarray) -> dict:
+    """The v-disparity image: per image row, a histogram of its valid disparities (H x D float32)."""
+    disp = as_disparity(disparity)
+    return {"vdisparity": compute_vdisparity(disp, params.max_disparity, params.bin_size)}
+
+
+# --------------------------------------------------------------------------- road.profile
+
+
+class ProfileParams(NodeParams):
+    """Params of ``road.profile``."""
+
+    max_disparity: float = Field(128.0, gt=0.0, le=1024.0, description="v-disparity range, pixels")
+    bin_size: float = Field(1.0, gt=0.0, le=16.0, description="v-disparity bin width, pixels")
+    smoothness: float = Field(
+        0.02,
+        ge=0.0,
+        le=100.0,
+        description="DP cost of a step of k bins between rows: smoothness * k**2, in units of a full "
+        "image row of support (the score is the count divided by the image width)",
+    )
+    max_step: int = Field(3, ge=1, le=64, description="largest disparity decrease between rows, bins")
+    refine_radius_px: float = Field(
+        1.0,
+        gt=0.0,
+        le=16.0,
+        description="sub-bin refinement: a row's disparities within this of the path, pixels",
+    )
+    model: Literal["linear", "quadratic"] = Field(
+        "linear", description="road profile d(v): linear (flat road) or quadratic; pose always from the line"
+    )
+    fit_tolerance_px: float = Field(1.0, gt=0.0, le=16.0, description="RANSAC inlier tolerance, pixels")
+    ransac_iterations: int = Field(300, ge=1, le=100000, description="RANSAC samples (fixed seed)")
+    min_row_count: int = Field(
+        10, ge=1, le=100000, description="rows with fewer path pixels are left out of the fit, pixels"
+    )
+    min_fit_disparity_px: float = Field(
+        3.0, ge=0.0, le=1024.0, description="rows whose path disparity is below this are left out, pixels"
+    )
+    min_fit_rows: int = Field(10, ge=2, le=100000, description="fewer inlier rows make the model invalid")
+    estimate_roll: bool = Field(
+        True, description="estimate the roll and redo the profile in roll-corrected rows"
+    )
+    roll_tolerance_px: float = Field(
+        1.0,
+        gt=0.0,
+        le=16.0,
+        description="road pixels for the roll plane: within this of the profile/plane, pixels",
+    )
+    road_band_m: float = Field(
+        1.0,
+        ge=0.0,
+        le=100.0,
+        description="pass 2 keeps only pixels within this height of the pass-1 road plane, metres; 0 = off",
+    )
+    plane_tolerance_m: float = Field(
+        0.05,
+        gt=0.0,
+        le=10.0,
+        description="pass 2 row refinement and roll-plane re-selection keep disparities within this height "
+        "of the road, metres",
+    )
+    min_plane_tolerance_px: float = Field(
+        0.25, gt=0.0, le=16.0, description="floor of the metric tolerance above (far-away noise), pixels"
+    )
+    roll_iterations: int = Field(3, ge=1, le=20, description="plane fit / pixel re-selection rounds")
+    roll_subsample: int = Field(
+        2, ge=1, le=16, description="use every n-th row and column for the roll plane"
+    )
+    max_abs_roll_deg: float = Field(
+        10.0, gt=0.0, le=45.0, description="a larger roll estimate is discarded (roll 0 is used), degrees"
+    )
+    min_height_m: float = Field(
+        0.2, gt=0.0, le=100.0, description="a smaller height estimate is invalid, metres"
+    )
+    max_height_m: float = Field(
+        6.0, gt=0.0, le=100.0, description="a larger height estimate is invalid, metres"
+    )
+
+
+def _ransac_line(
+    v: np.ndarray, d: np.ndarray, w: np.ndarray, tol: float, iterations: int, seed: int = 0
+) -> np.ndarray | None:
+    """Robust line ``d = a0 + a1 v`` (a1 > 0) over weighted points: inlier mask, or None."""
+    n = v.size
+    if n < 2:
+        return None
+    rng = np.random.default_rng(seed)
+    i = rng.integers(0, n, iterations)
+    j = rng.integers(0, n, iterations)
+    ok = v[i] != v[j]
+    i, j = i[ok], j[ok]
+    if i.size == 0:
+        return None
+    a1 = (d[i] - d[j]) / (v[i] - v[j])
+    a0 = d[i] - a1 * v[i]
+    good = a1 > 0
+    if not good.any():
+        return None
+    a0, a1 = a0[good], a1[good]
+    best_score, best = -1.0, None
+    for start in range(0, a0.size, 256):  # bounded memory: 256 x n residuals at a time
+        res = np.abs(
+            d[None, :] - (a0[start : start + 256, None] + a1[start : start + 256, None] * v[None, :])
+        )
+        score = ((res < tol) * w[None, :]).sum(axis=1)
+        k = int(np.argmax(score))
+        if score[k] > best_score:
+            best_score, best = float(score[k]), res[k] < tol
+    return best
+
+
+def _weighted_polyfit(v: np.ndarray, d: np.ndarray, w: np.ndarray, deg: int) -> np.ndarray | None:
+    """Weighted least squares, coefficients lowest power first."""
+    if np.count_nonzero(w > 0) < deg + 1:
+        return None
+    A = np.stack([v**k for k in range(deg + 1)], axis=1)
+    sw = np.sqrt(w)
+    coef, *_ = np.linalg.lstsq(A * sw[:, None], d * sw, rcond=None)
+    return coef if np.all(np.isfinite(coef)) else None
+
+
+def _robust_fit(v, d, w, deg, tol, iterations, init: np.ndarray | None):
+    """RANSAC (for the line) then least squares with inlier re-selection. Returns (coef, inliers)."""
+    inl = init if init is not None else _ransac_line(v, d, w, tol, iterations)
+    if inl is None or np.count_nonzero(inl) < deg + 1:
+        return None, None
+    coef = None
+    for _ in range(4):
+        c = _weighted_polyfit(v[inl], d[inl], w[inl], deg)
+        if c is None:
+            break
+        coef = c
+        new = np.abs(d - np.polynomial.polynomial.polyval(v, coef)) < tol
+        if np.count_nonzero(new) < deg + 1 or np.array_equal(new, inl):
+            break
+        inl = new
+    return coef, inl
+
+
+def _profile_pass(disp, keep, vd, calib, params: ProfileParams, roll: float, height: float | None = None):
+    """DP + refinement + robust fit in (roll-corrected) rows.
+
+    With a ``height`` estimate (pass 2) the row disparities are refined once more, keeping only the
+    disparities within ``plane_tolerance_m`` (metric, eq. 4) of the first mean, so that a kerb or
+    a low object next to the road does not pull the far rows.
+
+    Returns ``((line, coef), profile, inlier_rows)``, coefficients lowest power first; the first
+    item is None when there is no fit.
+    """
+    H, W = disp.shape
+    score = np.ascontiguousarray(vd, dtype=np.float64) / float(W)
+    path = _dp_path_kernel(score, int(params.max_step), float(params.smoothness))
+    centre = (path.astype(np.float64) + 0.5) * params.bin_size
+    s, c = geometry.roll_row_coeffs(roll, calib)
+    radius = np.full(H, max(params.refine_radius_px, 0.5 * params.bin_size))
+    cx, cy = float(calib.cx), float(calib.cy)
+    total, count = _row_refine_kernel(disp, keep, centre, radius, cx, cy, s, c)
+    if height is not None and height > 0:
+        for _ in range(2):
+            ok = count > 0
+            centre = np.where(ok, total / np.maximum(count, 1.0), centre)
+            radius = np.maximum(params.plane_tolerance_m * centre / height, params.min_plane_tolerance_px)
+            total, count = _row_refine_kernel(disp, keep, centre, radius, cx, cy, s, c)
+    profile = np.full(H, -1.0, np.float32)
+    have = count >= params.min_row_count
+    profile[have] = (total[have] / count[have]).astype(np.float32)
+    use = have & (profile >= params.min_fit_disparity_px)
+    rows = np.flatnonzero(use).astype(np.float64)
+    if rows.size < params.min_fit_rows:
+        return None, profile, None
+    dv, wv = profile[use].astype(np.float64), count[use]
+    line, inl = _robust_fit(rows, dv, wv, 1, params.fit_tolerance_px, params.ransac_iterations, None)
+    if line is None or np.count_nonzero(inl) < params.min_fit_rows or not line[1] > 0:
+        return None, profile, None
+    coef = line
+    if params.model == "quadratic":
+        quad, _ = _robust_fit(rows, dv, wv, 2, params.fit_tolerance_px, 0, inl)
+        if quad is not None:
+            coef = quad
+    return (line, coef), profile, rows[inl].astype(int)
+
+
+def _fit_road_plane(disp, line, v_top: int, params: ProfileParams, calib: Calibration) -> np.ndarray | None:
+    """The road plane ``d = b0 + b1 u + b2 v`` (disparity space) fitted over the pixels within
+    ``roll_tolerance_px`` of the profile line, then re-fitted ``roll_iterations`` times over the
+    pixels within ``plane_tolerance_m`` (metric, eq. 4) of the plane."""
+    st = params.roll_subsample
+    sub = disp[::st, ::st].astype(np.float64)
+    vv, uu = np.mgrid[0 : disp.shape[0] : st, 0 : disp.shape[1] : st]
+    vv = vv.astype(np.float64)
+    uu = uu.astype(np.float64)
+    valid = (sub > params.min_fit_disparity_px) & (vv >= v_top)
+    sel = valid & (np.abs(sub - (line[0] + line[1] * vv)) < params.roll_tolerance_px)
+    _, h1 = geometry.pose_from_line(float(line[0]), float(line[1]), calib)
+    tol = np.maximum(params.plane_tolerance_m * sub / h1, params.min_plane_tolerance_px)
+    b = None
+    for _ in range(params.roll_iterations):
+        if np.count_nonzero(sel) < 50:
+            return None
+        A = np.stack([np.ones(np.count_nonzero(sel)), uu[sel], vv[sel]], axis=1)
+        b, *_ = np.linalg.lstsq(A, sub[sel], rcond=None)
+        if not np.all(np.isfinite(b)):
+            return None
+        sel = valid & (np.abs(sub - (b[0] + b[1] * uu + b[2] * vv)) < tol)
+    if b is None or not b[2] > 0:
+        return None
+    return b
+
+
+def _invalid(profile: np.ndarray | None, roll: float = 0.0) -> RoadModel:
+    return RoadModel(
+        a0=0.0, a1=0.0, a2=0.0, roll=roll, pitch=0.0, height=0.0, v_min=0, valid=False, profile=profile
+    )
+
+
+def estimate_road(
+    params: ProfileParams, disparity: np.ndarray, calib: Calibration, vdisparity: np.ndarray | None = None
+) -> tuple[RoadModel, np.ndarray]:
+    """The work of ``road.profile``: ``(road model, v-disparity used in the final pass)``.
+
+    Pass 1 runs on the whole v-disparity (or the one given). Its line gives a first road plane
+    (with the roll when ``estimate_roll``); pass 2 accumulates, in roll-corrected rows, only the
+    pixels within ``road_band_m`` of that plane, so that walls, trees and the upper part of
+    vehicles no longer compete with the far road in the DP.
+    """
+    disp = as_disparity(disparity)
+    H, _ = disp.shape
+    D = n_bins(params.max_disparity, params.bin_size)
+    if vdisparity is not None:
+        vd = np.asarray(vdisparity, dtype=np.float32)
+        if vd.shape != (H, D):
+            raise ValueError(
+                f"vdisparity: expected shape {(H, D)} (rows of the disparity x ceil(max_disparity / bin_size)), "
+                f"got {vd.shape} (hint: give road.vdisparity the same max_disparity and bin_size)"
+            )
+    else:
+        vd = compute_vdisparity(disp, params.max_disparity, params.bin_size)
+
+    keep = np.ones(disp.shape, np.bool_)
+    fit, profile, inl = _profile_pass(disp, keep, vd, calib, params, 0.0)
+    if fit is None:
+        return _invalid(profile), vd
+    line = fit[0]
+    roll = 0.0
+    plane = np.array([line[0], 0.0, line[1]])
+    if params.estimate_roll:
+        b = _fit_road_plane(disp, line, int(inl.min()), params, calib)
+        if b is not None:
+            est = geometry.roll_from_plane(float(b[1]), float(b[2]), calib)
+            if abs(est) <= math.radians(params.max_abs_roll_deg):
+                roll, plane = est, b
+    _, h1 = geometry.pose_from_line(float(line[0]), float(line[1]), calib)
+    if params.road_band_m > 0:
+        keep = _plane_band_kernel(
+            disp, float(plane[0]), float(plane[1]), float(plane[2]), h1, params.road_band_m
+        )
+    vd = compute_vdisparity(disp, params.max_disparity, params.bin_size, roll, calib, keep)
+    fit, profile, inl = _profile_pass(disp, keep, vd, calib, params, roll, h1)
+    if fit is None:
+        return _invalid(profile, roll), vd
+    line, coef = fit
+    pitch, height = geometry.pose_from_line(float(line[0]), float(line[1]), calib)
+    valid = params.min_height_m <= height <= params.max_height_m and math.isfinite(pitch)
+    road = RoadModel(
+        a0=float(coef[0]),
+        a1=float(coef[1]),
+        a2=float(coef[2]) if coef.size > 2 else 0.0,
+        roll=float(roll),
+        pitch=float(pitch),
+        height=float(height),
+        v_min=int(inl.min()),
+        valid=bool(valid),
+        profile=profile,
+    )
+    return road, vd
+
+
+@node_type(
+    "road.profile",
+    inputs={
+        "disparity": Port("disparity", "left disparity map"),
+        "calib": Port("calibration", "stereo calibration", rate="constant"),
+        "vdisparity": Port(
+            "vdisparity", "a precomputed v-disparity (same max_disparity / bin_size)", optional=True
+        ),
+    },
+    outputs={
+        "road": Port("road_model", "road profile and camera pitch, roll, height"),
+        "vdisparity": Port("vdisparity", "the v-disparity of the final pass (roll-corrected rows)"),
+    },
+)
+def road_profile(params: ProfileParams, disparity: np.ndarray, calib: Calibration, vdisparity=None) -> dict:
+    """Road profile by dynamic programming on the v-disparity, roll from the road plane, then pitch
+    and camera height from the roll-corrected profile (``RoadModel.valid`` False when no road)."""
+    road, vd = estimate_road(params, disparity, calib, vdisparity)
+    return {"road": road, "vdisparity": vd}

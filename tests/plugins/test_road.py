@@ -1,0 +1,530 @@
+"""Tests of the road stage (``lanegraph_road``): kernels against NumPy twins, pose recovery,
+road mask and IPM on analytic synthetic scenes, and the real KITTI frame when available."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import cv2
+import lanegraph_road as rd
+import numpy as np
+import pytest
+from lanegraph_road import geometry, ipm, mask, profile
+
+from lanegraph.types import BevGeometry, Calibration, RoadModel
+
+CALIB = Calibration(f=500.0, cx=318.3, cy=96.7, baseline=0.5, width=640, height=240)
+PITCH, ROLL, HEIGHT = math.radians(1.5), math.radians(1.0), 1.6
+
+
+# --------------------------------------------------------------------------- NumPy twins
+
+
+def vdisparity_np(disp, keep, n_bins, bin_size, max_disp, cx, cy, s, c):
+    H, W = disp.shape
+    v, u = np.mgrid[0:H, 0:W]
+    r = np.floor(cy + s * (u - cx) + c * (v - cy) + 0.5).astype(int)
+    k = np.floor(np.where(disp > 0, disp, 0) / bin_size).astype(int)
+    ok = keep & (disp > 0) & (disp < max_disp) & (r >= 0) & (r < H) & (k < n_bins)
+    out = np.zeros((H, n_bins), np.float32)
+    np.add.at(out, (r[ok], k[ok]), 1.0)
+    return out
+
+
+def dp_objective(score, path, smoothness):
+    steps = path[1:] - path[:-1]  # path[v+1] - path[v] >= 0
+    return score[np.arange(len(path)), path].sum() - smoothness * float((steps**2).sum())
+
+
+def dp_best_brute(score, max_step, smoothness):
+    """Best objective over every admissible path (exhaustive; tiny inputs only)."""
+    H, D = score.shape
+    best = -np.inf
+    for path in itertools.product(range(D), repeat=H):
+        p = np.array(path)
+        steps = p[1:] - p[:-1]
+        if np.all(steps >= 0) and np.all(steps <= max_step):
+            best = max(best, dp_objective(score, p, smoothness))
+    return best
+
+
+def row_refine_np(disp, keep, centre, radius, cx, cy, s, c):
+    H, W = disp.shape
+    v, u = np.mgrid[0:H, 0:W]
+    r = np.floor(cy + s * (u - cx) + c * (v - cy) + 0.5).astype(int)
+    ok = keep & (disp > 0) & (r >= 0) & (r < H)
+    rc = np.clip(r, 0, H - 1)
+    ok &= np.abs(disp - centre[rc]) <= radius[rc]
+    return (
+        np.bincount(r[ok], weights=disp[ok].astype(np.float64), minlength=H),
+        np.bincount(r[ok], minlength=H).astype(np.float64),
+    )
+
+
+def plane_band_np(disp, b0, b1, b2, height, band):
+    H, W = disp.shape
+    v, u = np.mgrid[0:H, 0:W]
+    return (disp > 0) & (np.abs(disp - (b0 + b1 * u + b2 * v)) <= band / height * disp)
+
+
+def height_class_np(disp, a0, a1, a2, cx, cy, s, c, height, height_tol, min_tol, min_road):
+    H, W = disp.shape
+    v, u = np.mgrid[0:H, 0:W]
+    r = cy + s * (u - cx) + c * (v - cy)
+    dr = a0 + a1 * r + a2 * r * r
+    tol = np.maximum(height_tol * disp / height, min_tol)
+    out = np.where(disp - dr > tol, 2, np.where(dr - disp > tol, 3, 1)).astype(np.uint8)
+    out[(disp <= 0) | (dr < min_road)] = 0
+    return out
+
+
+def free_space_np(labels, min_run):
+    H, W = labels.shape
+    out = np.zeros((H, W), bool)
+    for u in range(W):
+        run = 0
+        for v in range(H - 1, -1, -1):
+            if labels[v, u] == 1:
+                run = 0
+                out[v, u] = True
+            elif labels[v, u] == 2:
+                run += 1
+                if run >= min_run:
+                    break
+    return out
+
+
+def random_disparity(rng, shape, max_d=40.0, invalid=0.2):
+    d = rng.uniform(-2.0, max_d * 1.2, shape).astype(np.float32)
+    d[rng.random(shape) < invalid] = 0.0
+    return d
+
+
+EDGE_SHAPES = [(1, 7), (9, 1), (13, 17)]
+
+
+@pytest.mark.parametrize("shape", EDGE_SHAPES)
+@pytest.mark.parametrize("roll", [0.0, 0.05, -0.2])
+def test_vdisparity_kernel_matches_numpy(shape, roll):
+    rng = np.random.default_rng(1)
+    disp = random_disparity(rng, shape)
+    keep = rng.random(shape) < 0.8
+    s, c = math.sin(roll), math.cos(roll)
+    for bin_size, max_d in ((1.0, 32.0), (0.5, 40.0), (3.0, 10.0)):
+        nb = profile.n_bins(max_d, bin_size)
+        got = profile._vdisparity_kernel(disp, keep, nb, bin_size, max_d, 6.3, 4.1, s, c)
+        exp = vdisparity_np(disp, keep, nb, bin_size, max_d, 6.3, 4.1, s, c)
+        np.testing.assert_array_equal(got, exp)
+
+
+def test_vdisparity_edge_cases():
+    disp = np.zeros((5, 6), np.float32)
+    vd = rd.road_vdisparity.func(rd.VDisparityParams(max_disparity=16), disparity=disp)["vdisparity"]
+    assert vd.shape == (5, 16) and vd.dtype == np.float32 and vd.sum() == 0
+    disp[:] = 16.0  # exactly max: left out
+    disp[0, 0] = 100.0
+    disp[1, 1] = np.nan  # sanitised to invalid
+    disp[2, 2] = 15.99
+    vd = rd.road_vdisparity.func(rd.VDisparityParams(max_disparity=16), disparity=disp)["vdisparity"]
+    assert vd.sum() == 1 and vd[2, 15] == 1
+
+
+@pytest.mark.parametrize("max_step", [1, 2])
+@pytest.mark.parametrize("smoothness", [0.0, 0.3])
+def test_dp_kernel_is_optimal(max_step, smoothness):
+    rng = np.random.default_rng(2)
+    for shape in ((1, 4), (4, 1), (5, 4), (6, 3)):
+        score = rng.random(shape)
+        path = profile._dp_path_kernel(score, max_step, smoothness)
+        steps = np.diff(path)
+        assert np.all(steps >= 0) and np.all(steps <= max_step), "disparity must not increase upwards"
+        assert dp_objective(score, path, smoothness) == pytest.approx(
+            dp_best_brute(score, max_step, smoothness)
+        )
+
+
+def test_dp_follows_a_slanted_line_not_a_vertical_obstacle():
+    H, D = 60, 40
+    score = np.zeros((H, D))
+    line = np.clip((np.arange(H) * 0.5).astype(int), 0, D - 1)  # road: d grows downwards
+    score[np.arange(H), line] = 1.0
+    score[10:45, 22] = 0.9  # an obstacle: a vertical segment at d = 22 (stands on the road at row 44)
+    path = profile._dp_path_kernel(score, 3, 0.05)
+    assert np.mean(path == line) > 0.9
+
+
+@pytest.mark.parametrize("shape", EDGE_SHAPES)
+def test_row_refine_kernel_matches_numpy(shape):
+    rng = np.random.default_rng(3)
+    disp = random_disparity(rng, shape)
+    keep = rng.random(shape) < 0.9
+    centre = rng.uniform(0, 40, shape[0])
+    radius = rng.uniform(0.5, 8.0, shape[0])
+    for s, c in ((0.0, 1.0), (0.1, 0.99)):
+        t1, n1 = profile._row_refine_kernel(disp, keep, centre, radius, 3.0, 2.0, s, c)
+        t2, n2 = row_refine_np(disp, keep, centre, radius, 3.0, 2.0, s, c)
+        np.testing.assert_allclose(t1, t2, rtol=1e-9, atol=1e-6)
+        np.testing.assert_array_equal(n1, n2)
+
+
+@pytest.mark.parametrize("shape", EDGE_SHAPES)
+def test_plane_band_kernel_matches_numpy(shape):
+    rng = np.random.default_rng(4)
+    disp = random_disparity(rng, shape)
+    got = profile._plane_band_kernel(disp, 1.0, 0.3, 1.2, 1.6, 1.0)
+    np.testing.assert_array_equal(got, plane_band_np(disp, 1.0, 0.3, 1.2, 1.6, 1.0))
+
+
+@pytest.mark.parametrize("shape", EDGE_SHAPES)
+def test_mask_kernels_match_numpy(shape):
+    rng = np.random.default_rng(5)
+    disp = random_disparity(rng, shape)
+    args = (-5.0, 0.4, 0.001, 3.0, 2.0, 0.02, 0.999, 1.6, 0.08, 0.5, 2.0)
+    labels = mask._height_class_kernel(disp, *args)
+    np.testing.assert_array_equal(labels, height_class_np(disp, *args))
+    for min_run in (1, 2, 4):
+        np.testing.assert_array_equal(
+            mask._free_space_kernel(labels, min_run), free_space_np(labels, min_run)
+        )
+
+
+# --------------------------------------------------------------------------- geometry
+
+
+def test_pose_line_round_trip_and_plane_disparity():
+    for pitch, height in ((0.0, 1.65), (math.radians(-2.0), 1.2), (math.radians(4.0), 2.5)):
+        a0, a1 = geometry.line_from_pose(pitch, height, CALIB)
+        p2, h2 = geometry.pose_from_line(a0, a1, CALIB)
+        assert p2 == pytest.approx(pitch, abs=1e-12) and h2 == pytest.approx(height, rel=1e-12)
+    # the homography's road points, triangulated, have the road model's disparity
+    a0, a1 = geometry.line_from_pose(PITCH, HEIGHT, CALIB)
+    road = RoadModel(a0=a0, a1=a1, roll=ROLL, pitch=PITCH, height=HEIGHT)
+    Hm = geometry.homography_img_from_road(CALIB, PITCH, ROLL, HEIGHT)
+    x, z = np.meshgrid([-4.0, 0.0, 3.0], [6.0, 15.0, 40.0])
+    q = Hm @ np.stack([x.ravel(), z.ravel(), np.ones(x.size)])
+    u, v = q[0] / q[2], q[1] / q[2]
+    P = geometry.camera_rotation(PITCH, ROLL) @ np.stack([x.ravel(), np.full(x.size, HEIGHT), z.ravel()])
+    d_true = CALIB.f * CALIB.baseline / P[2]
+    np.testing.assert_allclose(geometry.road_disparity(road, CALIB, u, v), d_true, rtol=1e-9)
+    np.testing.assert_allclose(geometry.height_above_road(road, CALIB, u, v, d_true), 0.0, atol=1e-9)
+
+
+# --------------------------------------------------------------------------- synthetic scenes
+
+
+def render_scene(calib=CALIB, pitch=PITCH, roll=ROLL, height=HEIGHT, box=None, kerb=None, marks=()):
+    """Ray-cast a planar road (plus a box and a kerb) seen by a camera at ``height`` with the given
+    pitch (nose down) and roll (clockwise as seen by the camera).
+
+    Returns (disparity, labels, image): labels 0 nothing, 1 road, 2 kerb top, 3 kerb face, 4 box;
+    the image is 200 on the ``marks`` (lateral positions, 0.2 m wide) and 80 elsewhere on the road.
+    ``box = (x0, x1, z0, z1, box_height)``; ``kerb = (x_edge, step)``: the ground is ``step`` higher
+    for ``x > x_edge``.
+    """
+    cp, sp, cr, sr = math.cos(pitch), math.sin(pitch), math.cos(roll), math.sin(roll)
+    rx = np.array([[1, 0, 0], [0, cp, sp], [0, -sp, cp]])
+    rz = np.array([[cr, -sr, 0], [sr, cr, 0], [0, 0, 1]])
+    R_cw = rx @ rz  # camera-to-world
+    v, u = np.mgrid[0 : calib.height, 0 : calib.width].astype(np.float64)
+    ray = np.stack([(u - calib.cx) / calib.f, (v - calib.cy) / calib.f_y, np.ones_like(u)])
+    rw = np.tensordot(R_cw, ray, axes=1)  # world direction per unit camera depth
+    best = np.full(u.shape, np.inf)
+    label = np.zeros(u.shape, np.uint8)
+    X_hit = np.zeros(u.shape)
+
+    def consider(t, ok, lab):
+        ok = ok & (t > 0) & (t < best)
+        best[ok] = t[ok]
+        label[ok] = lab
+        X_hit[ok] = (t * rw[0])[ok]
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = height / rw[1]
+        ok = rw[1] > 0
+        if kerb is not None:
+            ok &= t * rw[0] <= kerb[0]
+        consider(t, ok, 1)
+        if kerb is not None:
+            xe, step = kerb
+            t = (height - step) / rw[1]
+            consider(t, (rw[1] > 0) & (t * rw[0] > xe), 2)
+            t = xe / rw[0]
+            y = t * rw[1]
+            consider(t, (rw[0] > 0) & (y >= height - step) & (y <= height), 3)
+        if box is not None:
+            x0, x1, z0, z1, bh = box
+            for t, coord, lo, hi in (
+                (z0 / rw[2], 0, x0, x1),  # front face z = z0, x in [x0, x1]
+                (x0 / rw[0], 2, z0, z1),  # left face x = x0
+                (x1 / rw[0], 2, z0, z1),  # right face x = x1
+            ):
+                p = t * rw[coord]
+                y = t * rw[1]
+                consider(t, (p >= lo) & (p <= hi) & (y >= height - bh) & (y <= height), 4)
+    hit = np.isfinite(best) & (best < 1e4)
+    disp = np.where(hit, calib.f * calib.baseline / np.where(hit, best, 1.0), 0.0).astype(np.float32)
+    label[~hit] = 0
+    img = np.where(label > 0, 80, 0).astype(np.uint8)
+    for x in marks:
+        img[(label == 1) & (np.abs(X_hit - x) < 0.1)] = 200
+    return disp, label, img
+
+
+def noisy(disp, seed=0, sigma=0.05, invalid=0.02):
+    rng = np.random.default_rng(seed)
+    d = disp + rng.normal(0, sigma, disp.shape).astype(np.float32)
+    d[(disp <= 0) | (rng.random(disp.shape) < invalid)] = 0.0
+    return d.astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return render_scene(box=(-1.0, 0.6, 14.0, 16.0, 2.0), kerb=(3.5, 0.12))
+
+
+def test_profile_recovers_pitch_roll_height(scene):
+    disp, _, _ = scene
+    out = rd.road_profile.func(rd.ProfileParams(), disparity=noisy(disp), calib=CALIB)
+    road = out["road"]
+    assert road.valid
+    assert math.degrees(abs(road.pitch - PITCH)) < 0.2
+    assert math.degrees(abs(road.roll - ROLL)) < 0.2
+    assert abs(road.height - HEIGHT) < 0.02
+    assert out["vdisparity"].shape == (CALIB.height, 128)
+    assert road.profile.shape == (CALIB.height,)
+
+
+@pytest.mark.parametrize("pitch_deg, roll_deg, height", [(-1.0, -1.5, 1.3), (2.5, 0.0, 2.0)])
+def test_profile_other_poses_and_quadratic(pitch_deg, roll_deg, height):
+    disp, _, _ = render_scene(pitch=math.radians(pitch_deg), roll=math.radians(roll_deg), height=height)
+    for model in ("linear", "quadratic"):
+        road = rd.road_profile.func(rd.ProfileParams(model=model), disparity=noisy(disp, 1), calib=CALIB)[
+            "road"
+        ]
+        assert road.valid
+        assert math.degrees(road.pitch) == pytest.approx(pitch_deg, abs=0.2)
+        assert math.degrees(road.roll) == pytest.approx(roll_deg, abs=0.2)
+        assert road.height == pytest.approx(height, abs=0.02)
+        if model == "quadratic":
+            assert abs(road.a2) < 1e-3  # a flat road has no curvature
+
+
+def test_profile_without_roll_estimation_is_biased_by_roll(scene):
+    disp, _, _ = scene
+    road = rd.road_profile.func(rd.ProfileParams(estimate_roll=False), disparity=noisy(disp), calib=CALIB)[
+        "road"
+    ]
+    assert road.roll == 0.0 and road.valid
+
+
+@pytest.mark.parametrize("shape", [(40, 50), (1, 50), (30, 1)])
+def test_profile_all_invalid_disparity(shape):
+    disp = np.zeros(shape, np.float32)
+    out = rd.road_profile.func(rd.ProfileParams(), disparity=disp, calib=CALIB)
+    assert out["road"].valid is False
+    m = rd.road_mask.func(rd.MaskParams(), disparity=disp, road=out["road"], calib=CALIB)["mask"]
+    assert m.shape == shape and m.all()
+    m = rd.road_mask.func(rd.MaskParams(invalid_road="none"), disparity=disp, road=out["road"], calib=CALIB)[
+        "mask"
+    ]
+    assert not m.any()
+
+
+def test_profile_rejects_a_mismatched_vdisparity(scene):
+    with pytest.raises(ValueError, match="vdisparity: expected shape"):
+        rd.road_profile.func(rd.ProfileParams(), disparity=scene[0], calib=CALIB, vdisparity=np.zeros((3, 3)))
+
+
+def test_profile_accepts_the_vdisparity_node_output(scene):
+    disp = noisy(scene[0])
+    vd = rd.road_vdisparity.func(rd.VDisparityParams(), disparity=disp)["vdisparity"]
+    a = rd.road_profile.func(rd.ProfileParams(), disparity=disp, calib=CALIB, vdisparity=vd)["road"]
+    b = rd.road_profile.func(rd.ProfileParams(), disparity=disp, calib=CALIB)["road"]
+    assert (a.pitch, a.roll, a.height) == (b.pitch, b.roll, b.height)
+
+
+def test_mask_removes_box_and_kerb_keeps_road(scene):
+    disp, label, _ = scene
+    d = noisy(disp)
+    road = rd.road_profile.func(rd.ProfileParams(), disparity=d, calib=CALIB)["road"]
+    m = rd.road_mask.func(rd.MaskParams(), disparity=d, road=road, calib=CALIB)["mask"]
+    near = disp > CALIB.f * CALIB.baseline / 40.0  # within 40 m
+    box, kerb_top, road_px = label == 4, (label == 2) & near, (label == 1) & near
+    assert box.sum() > 500 and kerb_top.sum() > 500
+    assert m[box].mean() <= 0.05, "the box standing on the road must be removed"
+    assert m[kerb_top].mean() <= 0.05, "a 12 cm kerb must be rejected"
+    assert m[road_px].mean() >= 0.95, "the road must be kept"
+    # the raw height test alone (no morphology / free space) rejects the kerb too, as far as the
+    # stereo resolves it: 12 cm is 0.75 px of disparity at 25 m with f = 500 px (tolerance 0.5 px)
+    resolvable = disp > CALIB.f * CALIB.baseline / 25.0
+    kerb_top &= resolvable
+    road_px &= resolvable
+    raw = rd.road_mask.func(
+        rd.MaskParams(free_space=False, open_px=0, close_px=0, keep="all", fill_holes_max_above=0),
+        disparity=d,
+        road=road,
+        calib=CALIB,
+    )["mask"]
+    assert raw[kerb_top].mean() <= 0.05 and raw[road_px].mean() >= 0.95
+
+
+def test_mask_height_tolerance_is_metric():
+    # a kerb of 5 cm passes a 8 cm tolerance, a 12 cm one does not
+    for step, rejected in ((0.05, False), (0.12, True)):
+        disp, label, _ = render_scene(kerb=(2.0, step))
+        road = RoadModel(
+            *geometry.line_from_pose(PITCH, HEIGHT, CALIB), roll=ROLL, pitch=PITCH, height=HEIGHT
+        )
+        p = rd.MaskParams(free_space=False, open_px=0, close_px=0, keep="all", fill_holes_max_above=0)
+        m = rd.road_mask.func(p, disparity=disp, road=road, calib=CALIB)["mask"]
+        top = (label == 2) & (disp > CALIB.f * CALIB.baseline / 25.0)
+        assert (m[top].mean() < 0.05) == rejected
+
+
+# --------------------------------------------------------------------------- IPM
+
+
+IPM_PARAMS = dict(x_min=-4.0, x_max=4.0, z_min=6.0, z_max=30.0, resolution=0.05)
+
+
+def _line_columns(bev, mask):
+    """Per BEV row: the centroid column of the bright pixels in the left and the right half."""
+    cols = np.arange(bev.shape[1])
+    out = []
+    for half in (cols < bev.shape[1] // 2, cols >= bev.shape[1] // 2):
+        w = ((bev > 140) & mask)[:, half].astype(float)
+        n = w.sum(1)
+        out.append(np.where(n > 0, (w * cols[half]).sum(1) / np.maximum(n, 1), np.nan))
+    return out
+
+
+@pytest.mark.parametrize("interp", ["linear", "nearest"])
+def test_ipm_maps_lane_lines_to_vertical_columns(interp):
+    _, _, img = render_scene(marks=(-1.8, 1.8))
+    road = RoadModel(*geometry.line_from_pose(PITCH, HEIGHT, CALIB), roll=ROLL, pitch=PITCH, height=HEIGHT)
+    out = rd.bev_ipm.func(rd.IpmParams(**IPM_PARAMS, interpolation=interp), image=img, road=road, calib=CALIB)
+    geom: BevGeometry = out["geometry"]
+    assert out["image"].shape == (geom.rows, geom.cols) == (480, 160)
+    left, right = _line_columns(out["image"], out["mask"])
+    exp_l, exp_r = geom.metric_to_bev(np.array([-1.8, 1.8]), np.array([10.0, 10.0]))[0]
+    assert np.isfinite(left).mean() > 0.95 and np.isfinite(right).mean() > 0.95
+    err = np.abs(np.concatenate([left - exp_l, right - exp_r]))
+    assert np.nanmax(err) <= 1.0 + 1e-9 and np.nanmean(err) < 0.3  # within a BEV pixel (5 cm) everywhere
+
+
+def test_ipm_with_estimated_pose(scene):
+    disp, _, _ = render_scene()
+    _, _, img = render_scene(marks=(-1.8, 1.8))
+    road = rd.road_profile.func(rd.ProfileParams(), disparity=noisy(disp, 3), calib=CALIB)["road"]
+    out = rd.bev_ipm.func(rd.IpmParams(**IPM_PARAMS), image=img, road=road, calib=CALIB)
+    left, right = _line_columns(out["image"], out["mask"])
+    exp_l, exp_r = out["geometry"].metric_to_bev(np.array([-1.8, 1.8]), np.array([10.0, 10.0]))[0]
+    assert np.nanmax(np.abs(left - exp_l)) < 2.0 and np.nanmax(np.abs(right - exp_r)) < 2.0
+
+
+def test_ipm_mask_geometry_and_fallback():
+    img = np.full((CALIB.height, CALIB.width, 3), 120, np.uint8)
+    road = RoadModel(*geometry.line_from_pose(PITCH, HEIGHT, CALIB), roll=ROLL, pitch=PITCH, height=HEIGHT)
+    p = rd.IpmParams(x_min=-20.0, x_max=20.0, z_min=2.0, z_max=60.0, resolution=0.1)
+    out = rd.bev_ipm.func(p, image=img, road=road, calib=CALIB)
+    bev, m, geom = out["image"], out["mask"], out["geometry"]
+    assert bev.ndim == 2 and bev.dtype == np.uint8 and m.dtype == bool
+    assert 0.05 < m.mean() < 0.95  # wide grid: part of it is outside the image
+    assert np.all(bev[m] == 120) and np.all(bev[~m] == 0)
+    # the mask says exactly which BEV pixels map inside the image
+    r, c = np.nonzero(np.ones_like(m))
+    xy = geom.bev_to_image(c, r)
+    inside = (
+        (xy[:, 0] >= 0) & (xy[:, 0] <= CALIB.width - 1) & (xy[:, 1] >= 0) & (xy[:, 1] <= CALIB.height - 1)
+    )
+    assert np.array_equal(inside.reshape(m.shape), m)
+    # an image mask is carried over
+    half = np.zeros(img.shape[:2], bool)
+    half[:, : CALIB.width // 2] = True
+    m2 = rd.bev_ipm.func(p, image=img, road=road, calib=CALIB, mask=half)["mask"]
+    assert m2.sum() < m.sum() and not (m2 & ~m).any()
+    # invalid road: the fallback pose is used
+    bad = RoadModel(a0=0.0, a1=0.0, valid=False)
+    fb = rd.bev_ipm.func(
+        rd.IpmParams(fallback_pitch_deg=1.5, fallback_height_m=1.6), image=img, road=bad, calib=CALIB
+    )
+    exp = ipm.bev_geometry(rd.IpmParams(), CALIB, math.radians(1.5), 0.0, 1.6).H_img_from_bev
+    np.testing.assert_allclose(fb["geometry"].H_img_from_bev, exp)
+    assert fb["mask"].any()
+
+
+def test_ipm_params_are_validated():
+    with pytest.raises(ValueError, match="x_max"):
+        rd.IpmParams(x_min=5.0, x_max=1.0)
+    with pytest.raises(ValueError):
+        rd.ProfileParams(model="cubic")
+    with pytest.raises(ValueError):
+        rd.MaskParams(bogus=1)
+
+
+# --------------------------------------------------------------------------- registration
+
+
+def test_node_types_are_registered_with_documented_params():
+    from lanegraph.plugins import PluginManager
+
+    pm = PluginManager()
+    pm.register(rd, name="lanegraph_road")
+    types = pm.node_types
+    for name in ("road.vdisparity", "road.profile", "road.mask", "bev.ipm"):
+        nt = types[name]
+        assert nt.summary
+        for field_name, f in nt.params.model_fields.items():
+            assert f.description, f"{name}: params.{field_name} has no description"
+    assert types["road.profile"].inputs["calib"].rate == "constant"
+    assert types["road.profile"].inputs["vdisparity"].optional
+    assert types["bev.ipm"].inputs["mask"].optional
+    assert set(types["bev.ipm"].outputs) == {"image", "mask", "geometry"}
+    assert types["road.mask"].outputs["mask"].type == "mask"
+
+
+# --------------------------------------------------------------------------- real data
+
+
+def _sgbm(left, right):
+    from lanegraph.plugins import get_plugin_manager
+
+    nt = get_plugin_manager().get_node_type("disparity.sgbm")
+    if nt is not None and not nt.stateful:
+        try:
+            return np.asarray(next(iter(nt.func(nt.params(), left=left, right=right).values())), np.float32)
+        except Exception:  # the disparity plugin's interface may differ; OpenCV directly then
+            pass
+    gl, gr = (cv2.cvtColor(x, cv2.COLOR_BGR2GRAY) for x in (left, right))
+    sgbm = cv2.StereoSGBM_create(
+        0,
+        128,
+        5,
+        P1=8 * 25,
+        P2=32 * 25,
+        disp12MaxDiff=1,
+        uniquenessRatio=10,
+        speckleWindowSize=100,
+        speckleRange=2,
+        mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY,
+    )
+    return sgbm.compute(gl, gr).astype(np.float32) / 16.0
+
+
+@pytest.mark.kitti
+def test_kitti_frame0_height_and_pitch(kitti_drive, kitti_calib):
+    left = cv2.imread(str(kitti_drive / "image_02" / "data" / "0000000000.png"), cv2.IMREAD_COLOR)
+    right = cv2.imread(str(kitti_drive / "image_03" / "data" / "0000000000.png"), cv2.IMREAD_COLOR)
+    disp = _sgbm(left, right)
+    road = rd.road_profile.func(rd.ProfileParams(), disparity=disp, calib=kitti_calib)["road"]
+    assert road.valid
+    assert 1.45 <= road.height <= 1.85
+    assert abs(math.degrees(road.pitch)) < 3.0
+    m = rd.road_mask.func(rd.MaskParams(), disparity=disp, road=road, calib=kitti_calib)["mask"]
+    # the road ahead of the car is road; the sky, the parked cars' bodies and the tram bed are not
+    assert m[330:375, 450:700].mean() > 0.95
+    assert not m[:150].any()
+    assert m[300:375, 950:1242].mean() < 0.05
+    bev = rd.bev_ipm.func(rd.IpmParams(), image=left, mask=m, road=road, calib=kitti_calib)
+    assert bev["image"].shape == (800, 400) and bev["mask"].any()
