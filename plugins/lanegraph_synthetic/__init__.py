@@ -1,14 +1,41 @@
-"""Synthetic stereo road scenes (``io.synthetic``) and the input-path dispatcher ``io.auto``."""
+"""Synthetic stereo road scenes (``io.synthetic``) and the input-path dispatcher ``io.auto``.
+
+Python API::
+
+    from lanegraph_synthetic import preset, SceneRenderer, write_sequence
+
+    spec = preset("urban", seed=3, pitch_deg=1.5)     # a SceneSpec
+    frame = SceneRenderer(spec).render(0)              # left, right, disparity, masks, lanes_gt ...
+    write_sequence(spec, "out/urban", n=20)            # an io.folder-readable folder + ground truth
+"""
 
 from __future__ import annotations
+
+from typing import Literal
 
 from pydantic import Field
 
 from lanegraph import NodeParams, Port, RunContext, hookimpl, node_type
 
-from .scene import Frame, Marking, SceneRenderer, SceneSpec
+from .objects import Box, Pole, car
+from .scene import KITTI_CALIB, PRESETS, Frame, Marking, SceneRenderer, SceneSpec, preset
+from .sequence import disparity_to_png16, write_sequence
 
-__all__ = ["Frame", "Marking", "SceneRenderer", "SceneSpec"]
+__all__ = [
+    "KITTI_CALIB",
+    "PRESETS",
+    "Box",
+    "Frame",
+    "Marking",
+    "Pole",
+    "SceneRenderer",
+    "SceneSpec",
+    "SyntheticParams",
+    "car",
+    "disparity_to_png16",
+    "preset",
+    "write_sequence",
+]
 
 STEREO_OUTPUTS = {
     "frame": Port("frame_id", "left image file stem"),
@@ -17,47 +44,67 @@ STEREO_OUTPUTS = {
     "calib": Port("calibration", "stereo calibration", rate="constant"),
 }
 
+#: params of io.synthetic that override the SceneSpec field of the same name when not None
+_OVERRIDES = (
+    "pitch_deg", "roll_deg", "height", "n_lanes", "lane_width", "curvature", "curvature_rate", "speed",
+    "lateral_speed", "lane_change", "noise_sigma", "overexposed_every", "exposure_gain",
+)  # fmt: skip
+
 
 class SyntheticParams(NodeParams):
-    """Params of ``io.synthetic``."""
+    """Params of ``io.synthetic``: a preset and overrides (``None`` keeps the preset's value)."""
 
-    frames: int = Field(10, ge=1, le=100000, description="number of frames in the sequence")
-    seed: int = Field(0, ge=0, description="random seed (texture, noise)")
-    pitch_deg: float = Field(1.0, ge=-10, le=10, description="camera pitch, degrees (positive = nose down)")
-    roll_deg: float = Field(0.0, ge=-10, le=10, description="camera roll, degrees")
-    height: float = Field(1.65, gt=0.3, le=5.0, description="camera height above the road, metres")
-    curvature: float = Field(0.0, ge=-0.02, le=0.02, description="lane curvature, 1/metres")
-    speed: float = Field(10.0, ge=0, le=60, description="ego speed, metres per second (10 fps)")
-    noise_sigma: float = Field(3.0, ge=0, le=50, description="sensor noise, grey levels")
+    preset: Literal["straight", "curved", "clothoid", "urban", "no_markings", "overexposed"] = Field(
+        "straight", description="scene preset: road shape, objects, shadows, paint, exposure"
+    )
+    frames: int = Field(10, ge=1, le=100000, description="number of frames in the sequence (10 Hz)")
+    seed: int = Field(0, ge=0, description="random seed (texture, layout, dash phases, noise)")
+    scale: float = Field(1.0, ge=0.1, le=2.0, description="image size relative to the 1242x375 KITTI rig")
+    pitch_deg: float | None = Field(None, ge=-10, le=10, description="camera pitch, degrees (positive = nose down)")
+    roll_deg: float | None = Field(None, ge=-10, le=10, description="camera roll, degrees (positive = clockwise)")
+    height: float | None = Field(None, gt=0.3, le=5.0, description="camera height above the road, metres")
+    n_lanes: int | None = Field(None, ge=1, le=6, description="number of lanes")
+    lane_width: float | None = Field(None, ge=2.0, le=6.0, description="lane width, metres")
+    curvature: float | None = Field(None, ge=-0.02, le=0.02, description="road curvature at the start, 1/metres (positive bends right)")
+    curvature_rate: float | None = Field(None, ge=-1e-3, le=1e-3, description="clothoid: curvature change per metre, 1/metres^2")
+    speed: float | None = Field(None, ge=0, le=60, description="ego speed, metres per second")
+    lateral_speed: float | None = Field(None, ge=-3, le=3, description="lateral drift, metres per second (right positive)")
+    lane_change: int | None = Field(None, ge=-1, le=1, description="a lane change from t = 0.5 s over 3 s: -1 left, +1 right, 0 none")
+    noise_sigma: float | None = Field(None, ge=0, le=50, description="sensor noise, grey levels")
+    overexposed_every: int | None = Field(None, ge=0, le=100000, description="every n-th frame is over-exposed (0: none)")
+    exposure_gain: float | None = Field(None, ge=1.0, le=10.0, description="gain of the over-exposed frames (then clipped at 255)")
+
+
+def spec_from_params(params: SyntheticParams) -> SceneSpec:
+    """The :class:`SceneSpec` that ``io.synthetic`` renders for ``params``."""
+    over = {name: getattr(params, name) for name in _OVERRIDES if getattr(params, name) is not None}
+    if params.scale != 1.0:
+        over["calib"] = KITTI_CALIB.scaled(params.scale)
+    return preset(params.preset, seed=params.seed, **over)
 
 
 @node_type(
     "io.synthetic",
     source=True,
-    outputs={**STEREO_OUTPUTS, "gt_disparity": Port("disparity", "exact disparity (0 off the road)")},
+    outputs={
+        **STEREO_OUTPUTS,
+        "gt_disparity": Port("disparity", "exact left disparity, pixels (0 on the sky)"),
+        "gt_road_mask": Port("mask", "left-view pixels on the road plane"),
+        "gt_object_mask": Port("mask", "left-view pixels on objects (cars, poles, walls)"),
+    },
 )
 class SyntheticSource:
-    """A built-in synthetic stereo road sequence (4 lanes, dashed and solid) with exact ground truth."""
+    """A built-in synthetic stereo road sequence with exact ground truth (presets: straight, curved,
+    clothoid, urban, no_markings, overexposed)."""
 
     def __init__(self, params: SyntheticParams, context: RunContext):
         self.params = params
-        marks = [Marking(x, kind, curvature=params.curvature) for x, kind in
-                 ((-5.4, "solid"), (-1.8, "dashed"), (1.8, "dashed"), (5.4, "solid"))]
-        spec = SceneSpec(
-            pitch_deg=params.pitch_deg,
-            roll_deg=params.roll_deg,
-            height=params.height,
-            markings=marks,
-            speed=params.speed,
-            noise_sigma=params.noise_sigma,
-            seed=params.seed,
-        )
-        self.renderer = SceneRenderer(spec)
-        sel = context.frames or slice(None)
+        self.renderer = SceneRenderer(spec_from_params(params))
+        sel = (context.frames if context is not None else None) or slice(None)
         self.indices = list(range(params.frames))[sel]
 
     def constants(self) -> dict:
-        return {"calib": self.renderer.spec.calib}
+        return {"calib": self.renderer.calib}
 
     def __len__(self) -> int:
         return len(self.indices)
@@ -65,7 +112,14 @@ class SyntheticSource:
     def __iter__(self):
         for k in self.indices:
             fr = self.renderer.render(k)
-            yield {"frame": f"{k:010d}", "left": fr.left, "right": fr.right, "gt_disparity": fr.disparity}
+            yield {
+                "frame": fr.frame,
+                "left": fr.left,
+                "right": fr.right,
+                "gt_disparity": fr.disparity,
+                "gt_road_mask": fr.road_mask,
+                "gt_object_mask": fr.object_mask,
+            }
 
 
 class AutoParams(NodeParams):

@@ -1,57 +1,206 @@
 """Synthetic stereo road scenes with exact ground truth (deterministic from a seed).
 
-A planar road seen by a rectified stereo rig of known calibration, pitch, roll and height. Each
-image pixel's ray is intersected with the road plane analytically, so the rendered pair, the
-ground-truth disparity and the ground-truth lanes are exact.
+A planar road seen by a rectified stereo rig of known calibration, pitch, roll and height, with
+painted lane markings (solid and dashed, straight, constant curvature or a clothoid), asphalt
+texture, soft shadows, arrows and hatching, objects standing on the road (cars, poles, tree trunks,
+walls), sky, sensor noise and over-exposed frames. Every pixel's ray is cast against the road plane
+and every object, and the nearest hit is kept, so the two views, the disparity, the road and object
+masks and the lane ground truth are exact and consistent with each other.
 
-World frame: x right, y down, z ahead, origin at the left camera centre; the road is the plane
-``y = height``. The camera looks down by ``pitch`` (radians, positive = nose down) and is rolled
-by ``roll`` (radians, positive = clockwise as seen by the camera) about its optical axis.
+Frames
+------
+World frame (one per frame): ``x`` right, ``y`` down, ``z`` ahead and horizontal, origin at the left
+camera centre; the road is the plane ``y = height``. Camera-to-world rotation ``R = Rx(pitch) @
+Rz(roll)``: the camera looks down by ``pitch`` (radians, positive = nose down) and is rolled by
+``roll`` (radians, positive = clockwise as seen by the camera) about its optical axis; the right
+camera sits ``baseline`` metres along the rig's x axis. The same convention as ``lanegraph_road``.
+
+Road coordinates: ``s`` metres along the road from the sequence start, ``lateral`` metres across it
+from the reference line (right positive), which is where the ego vehicle drives at frame 0.
+
+The road's reference line, seen from the vehicle at frame ``k`` (travelled ``s_k = k * speed /
+fps``, lateral offset ``e_k``), is the clothoid (small-angle form)
+
+    x(z) = c_k z**2 / 2 + r z**3 / 6,   c_k = curvature + r * s_k,   r = curvature_rate
+
+and a marking at lateral offset ``o`` lies at ``x = o + x(z) - e_k`` (metres), ``z`` metres ahead.
+The vehicle stays parallel to the road (it changes lanes by a lateral shift only).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
 
 from lanegraph.types import Calibration
 
+from .layout import LATERAL_HALF, PAINT_RES, SHADOW_RES, build_tile
+from .objects import Box, Placed, Pole, intersect, place
+
+#: the KITTI colour pair's calibration (1242 x 375), the default rig
+KITTI_CALIB = Calibration(f=721.5377, cx=609.5593, cy=172.8540, baseline=0.5327, width=1242, height=375)
+
+FINE_TEXEL = 0.04  # metres per texel of the fine asphalt texture (512 x 512, repeating)
+COARSE_TEXEL = 0.40  # metres per texel of the coarse (patchy) asphalt texture (256 x 256)
+ASPHALT = 92.0  # grey level of the asphalt
+PAINT = 210.0  # grey level of white paint
+VERGE = 100.0  # grey level of the ground beyond the paved road
+ASPHALT_TINT = np.array([1.03, 1.0, 0.97], np.float32)  # BGR
+VERGE_TINT = np.array([0.62, 1.0, 0.85], np.float32)
+
 
 @dataclass
 class Marking:
-    """A longitudinal marking: lateral offset ``x0`` (m) at z=0, ``curvature`` (1/m), width (m),
-    dashed or solid (dash length / gap in metres)."""
+    """A longitudinal lane marking.
 
-    x0: float
+    ``offset``: lateral position of its centre line in road coordinates (metres, right positive);
+    ``kind``: ``"solid"`` or ``"dashed"``; ``width`` metres; a dashed marking has ``dash`` metres of
+    paint then ``gap`` metres without, the first dash starting at ``s = phase`` metres.
+    """
+
+    offset: float
     kind: str = "solid"
     width: float = 0.15
-    curvature: float = 0.0
     dash: float = 3.0
     gap: float = 6.0
-
-    def x_at(self, z: np.ndarray) -> np.ndarray:
-        return self.x0 + 0.5 * self.curvature * z * z
+    phase: float = 0.0
 
 
 @dataclass
 class SceneSpec:
-    """Parameters of a synthetic scene."""
+    """Everything that defines a synthetic sequence. Build one from a preset with :func:`preset`.
 
-    calib: Calibration = field(
-        default_factory=lambda: Calibration(f=721.5, cx=620.0, cy=180.0, baseline=0.54, width=1242, height=375)
-    )
+    Lengths in metres, angles in degrees, speeds in metres per second, densities per 100 m of road.
+    ``markings=None`` paints the standard layout of ``n_lanes`` lanes (outer lines ``outer_kind``,
+    inner ``inner_kind``); an explicit list replaces it (``[]``: no markings at all).
+    """
+
+    preset: str = "straight"
+    calib: Calibration = KITTI_CALIB
     pitch_deg: float = 1.0
     roll_deg: float = 0.0
     height: float = 1.65
-    markings: list[Marking] = field(
-        default_factory=lambda: [Marking(-5.4, "solid"), Marking(-1.8, "dashed"), Marking(1.8, "dashed"), Marking(5.4, "solid")]
-    )
-    speed: float = 10.0  # m/s, ego motion along z
+    # --- road layout
+    n_lanes: int = 3
+    ego_lane: int = -1  # lane index from the left; -1: n_lanes // 2
+    lane_width: float = 3.6
+    marking_width: float = 0.15
+    inner_kind: str = "dashed"
+    outer_kind: str = "solid"
+    dash_length: float = 3.0
+    gap_length: float = 6.0
+    shoulder: float = 0.6  # paved road beyond the outer markings
+    markings: list[Marking] | None = None
+    curvature: float = 0.0  # 1/m at s = 0, positive bends right
+    curvature_rate: float = 0.0  # 1/m**2, the curvature's change per metre travelled (clothoid)
+    # --- ego motion
+    speed: float = 10.0
     fps: float = 10.0
-    noise_sigma: float = 3.0
+    lateral_speed: float = 0.0  # drift to the right
+    lane_change: int = 0  # -1 left, +1 right, 0 none
+    lane_change_start: float = 0.5  # seconds
+    lane_change_duration: float = 3.0  # seconds
+    # --- appearance
+    noise_sigma: float = 2.0  # grey levels
+    texture_contrast: float = 12.0  # grey levels
+    blur_sigma: float = 0.5  # optics, pixels
+    right_gain: float = 1.0  # the right camera's exposure relative to the left
+    shadow_strength: float = 0.55
+    shadows: float = 0.0  # soft canopy shadows on the road (trees out of view)
+    trees: float = 0.0  # tree trunks beside the road with canopy shadows
+    poles: float = 0.0
+    parked_cars: float = 0.0
+    traffic: int = 0  # moving cars ahead (a number, not a density)
+    walls: bool = False
+    arrows: float = 0.0
+    hatching: float = 0.0
+    objects: list[Box | Pole] = field(default_factory=list)  # extra objects, road coordinates
+    # --- exposure
+    overexposed_frames: tuple[int, ...] = ()
+    overexposed_every: int = 0  # every n-th frame (k % n == 0) is over-exposed; 0: none
+    exposure_gain: float = 2.2
+    # --- extents
+    z_far: float = 200.0  # the road ends here (sky beyond)
+    gt_max_distance: float = 50.0  # lane ground truth up to this distance ahead
+    tile_length: float = 300.0  # shadows, paint and objects repeat with this period
     seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.n_lanes <= 6:
+            raise ValueError(f"SceneSpec.n_lanes: expected 1..6, got {self.n_lanes}")
+        if self.ego_lane >= self.n_lanes:
+            raise ValueError(f"SceneSpec.ego_lane: expected < n_lanes={self.n_lanes}, got {self.ego_lane}")
+        for name in ("inner_kind", "outer_kind"):
+            if getattr(self, name) not in ("solid", "dashed"):
+                raise ValueError(
+                    f"SceneSpec.{name}: expected 'solid' or 'dashed', got {getattr(self, name)!r}"
+                )
+        if self.height <= 0 or self.fps <= 0 or self.z_far <= 5:
+            raise ValueError("SceneSpec: height, fps must be > 0 and z_far > 5 m")
+        if self.tile_length < self.z_far + 80:
+            raise ValueError(f"SceneSpec.tile_length: expected >= z_far + 80 m, got {self.tile_length}")
+        if self.calib.width <= 0 or self.calib.height <= 0:
+            raise ValueError("SceneSpec.calib: width and height (pixels) must be set")
+
+    @property
+    def pitch(self) -> float:
+        """Pitch, radians."""
+        return math.radians(self.pitch_deg)
+
+    @property
+    def roll(self) -> float:
+        """Roll, radians."""
+        return math.radians(self.roll_deg)
+
+    def is_overexposed(self, k: int) -> bool:
+        return k in self.overexposed_frames or (
+            self.overexposed_every > 0 and k % self.overexposed_every == 0
+        )
+
+
+#: named starting points; every field may be overridden (see :func:`preset`)
+PRESETS: dict[str, dict] = {
+    "straight": {},
+    "curved": {"curvature": 1.0 / 350.0},
+    "clothoid": {"curvature": -0.002, "curvature_rate": 8e-5},
+    "urban": {
+        "n_lanes": 2,
+        "lane_width": 3.3,
+        "shoulder": 2.6,
+        "speed": 8.0,
+        "pitch_deg": 0.6,
+        "roll_deg": 0.3,
+        "shadows": 8.0,
+        "trees": 6.0,
+        "poles": 4.0,
+        "parked_cars": 10.0,
+        "traffic": 1,
+        "walls": True,
+        "arrows": 3.0,
+        "hatching": 1.0,
+        "noise_sigma": 2.5,
+        "right_gain": 0.97,
+    },
+    "no_markings": {
+        "markings": [],
+        "shoulder": 1.0,
+        "shadows": 6.0,
+        "trees": 3.0,
+        "poles": 2.0,
+        "parked_cars": 4.0,
+    },
+    "overexposed": {"overexposed_every": 2, "exposure_gain": 2.2},
+}
+
+
+def preset(name: str = "straight", **overrides) -> SceneSpec:
+    """The :class:`SceneSpec` of preset ``name`` (one of :data:`PRESETS`) with ``overrides`` applied."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown synthetic scene preset {name!r}; known: {', '.join(PRESETS)}")
+    return replace(SceneSpec(preset=name), **{**PRESETS[name], **overrides})
 
 
 def _rotation(pitch: float, roll: float) -> np.ndarray:
@@ -64,111 +213,399 @@ def _rotation(pitch: float, roll: float) -> np.ndarray:
 
 @dataclass
 class Frame:
-    """One rendered frame: BGR images, the exact disparity (0 off the road), lanes and calibration."""
+    """One rendered frame.
 
+    ``left``/``right``: H x W x 3 uint8 BGR. ``disparity``: H x W float32, the exact disparity of the
+    left view in pixels (0 on the sky); ``disparity_right`` the same for the right view (right pixel
+    ``(u, v)`` sees what left pixel ``(u + d, v)`` sees). ``road_mask``/``object_mask``: H x W bool,
+    left-view pixels whose nearest hit is the road plane / an object. ``lanes_gt``: the data
+    README's ground-truth record. ``pitch``, ``roll`` in radians, ``height`` in metres.
+    """
+
+    index: int
+    frame: str
     left: np.ndarray
     right: np.ndarray
     disparity: np.ndarray
+    disparity_right: np.ndarray
+    road_mask: np.ndarray
+    object_mask: np.ndarray
     lanes_gt: dict
     calib: Calibration
+    pitch: float
+    roll: float
+    height: float
+    overexposed: bool = False
+
+
+@dataclass
+class _View:
+    """Per-camera constants: ray origin and directions, and the road hits of rows ``v0:``."""
+
+    origin: np.ndarray  # (3,) world
+    rays: np.ndarray  # (3, H, W) float32, world direction per unit of camera depth
+    v0: int
+    X: np.ndarray  # (H - v0, W) float32 road hit, world metres
+    Z: np.ndarray
+    depth: np.ndarray  # camera depth of the road hit (inf: no road)
+    fp_lat: np.ndarray  # metres per pixel across / along the road at the hit
+    fp_long: np.ndarray
+    fine_amp: np.ndarray  # amplitude of the fine texture (fades where it would alias)
+    blend_lo: np.ndarray  # weight of the low-resolution paint map
+
+
+@dataclass
+class _State:
+    """Per-frame ego pose and objects."""
+
+    k: int
+    s: float  # travelled, metres
+    e: float  # lateral offset of the vehicle, metres (right positive)
+    c: float  # curvature at the vehicle, 1/m
+    r: float  # curvature rate, 1/m**2
+    placed: list[Placed]
 
 
 class SceneRenderer:
-    """Renders frames of a :class:`SceneSpec`; ``render(k)`` gives frame ``k`` of the sequence."""
+    """Renders the frames of a :class:`SceneSpec`: ``render(k)`` gives frame ``k`` (at ``k / fps`` s).
+
+    Per-pixel rays and their road hits are computed once; a frame costs shading and the objects.
+    """
 
     def __init__(self, spec: SceneSpec | None = None):
-        self.spec = spec or SceneSpec()
-        rng = np.random.default_rng(self.spec.seed)
-        tex = rng.normal(0.0, 1.0, (512, 512)).astype(np.float32)
-        tex = cv2.GaussianBlur(tex, (0, 0), 1.2)
-        self.texture = (tex / (tex.std() + 1e-6)).astype(np.float32)
-        self.R = _rotation(np.radians(self.spec.pitch_deg), np.radians(self.spec.roll_deg))
+        self.spec = s = spec or SceneSpec()
+        self.calib = c = s.calib
+        self.R = _rotation(s.pitch, s.roll)
+        rng = np.random.default_rng([s.seed, 7])
+        fine = cv2.GaussianBlur(rng.normal(0.0, 1.0, (512, 512)).astype(np.float32), (0, 0), 1.0)
+        coarse = cv2.GaussianBlur(rng.normal(0.0, 1.0, (256, 256)).astype(np.float32), (0, 0), 2.0)
+        self.tex_fine = fine / fine.std()
+        self.tex_coarse = coarse / coarse.std()
+        self.markings, lane_centres, self.edges = self._layout(rng)
+        self.tile = build_tile(s, [m.offset for m in self.markings], lane_centres, self.edges, rng)
+        self.paint_lo = cv2.resize(self.tile.paint, None, fx=1 / 8, fy=1 / 8, interpolation=cv2.INTER_AREA)
+        self.objects: list[Box | Pole] = list(self.tile.objects) + list(s.objects)
+        self.colours = np.array([(0, 0, 0)] + [o.colour for o in self.objects], np.float32).reshape(-1, 3)
+        self.views = [self._view(0.0), self._view(c.baseline)]
+        n_px = c.height * c.width * 3
+        self.noise_bank = rng.standard_normal(n_px + max(n_px // 2, 4096), dtype=np.float32)
+        v = np.arange(c.height, dtype=np.float32)[:, None, None] / max(c.height - 1, 1)
+        top, bottom = np.array([215, 170, 140], np.float32), np.array([245, 225, 210], np.float32)
+        self.sky = np.broadcast_to(top + (bottom - top) * v, (c.height, c.width, 3)).astype(np.float32)
 
-    def _road_hits(self, offset_x: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(X, Z, depth) of the road point seen by each pixel of a camera at ``offset_x`` (m, along the
-        rig's x axis); depth is the camera-frame z (inf where the ray misses the road)."""
-        c = self.spec.calib
+    # ------------------------------------------------------------------ set-up
+    def _layout(self, rng) -> tuple[list[Marking], list[float], tuple[float, float]]:
+        s = self.spec
+        ego = s.n_lanes // 2 if s.ego_lane < 0 else s.ego_lane
+        left = -(ego + 0.5) * s.lane_width
+        offsets = [left + i * s.lane_width for i in range(s.n_lanes + 1)]
+        centres = [o + s.lane_width / 2 for o in offsets[:-1]]
+        edges = (offsets[0] - s.shoulder, offsets[-1] + s.shoulder)
+        if s.markings is not None:
+            return [replace(m) for m in s.markings], centres, edges
+        period = s.dash_length + s.gap_length
+        marks = []
+        for i, o in enumerate(offsets):
+            kind = s.outer_kind if i in (0, s.n_lanes) else s.inner_kind
+            phase = float(rng.uniform(0, period))
+            marks.append(Marking(o, kind, s.marking_width, s.dash_length, s.gap_length, phase))
+        return marks, centres, edges
+
+    def _view(self, offset_x: float) -> _View:
+        """Rays of the camera at ``offset_x`` metres along the rig's x axis and their road hits."""
+        s, c = self.spec, self.calib
         v, u = np.mgrid[0 : c.height, 0 : c.width].astype(np.float64)
         d_cam = np.stack([(u - c.cx) / c.f, (v - c.cy) / c.f_y, np.ones_like(u)])
-        d_w = np.tensordot(self.R, d_cam, axes=1)
+        rays = np.tensordot(self.R, d_cam, axes=1)
         origin = self.R @ np.array([offset_x, 0.0, 0.0])
+        down = rays[1] > 1e-9
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = (self.spec.height - origin[1]) / d_w[1]
-        miss = (d_w[1] <= 1e-6) | ~(t > 0)
-        t_hit = np.where(miss, 1e6, t)
-        X = origin[0] + t_hit * d_w[0]
-        Z = origin[2] + t_hit * d_w[2]
-        t[miss] = np.inf
-        return X, Z, t
+            t = np.where(down, (s.height - origin[1]) / np.where(down, rays[1], 1.0), np.inf)
+        X = origin[0] + np.where(down, t, 0.0) * rays[0]
+        Z = origin[2] + np.where(down, t, 0.0) * rays[2]
+        valid = down & (t > 0) & (Z < s.z_far) & (Z > 0)
+        rows = np.flatnonzero(valid.any(axis=1))
+        v0 = int(rows[0]) if rows.size else c.height
+        depth = np.where(valid, t, np.inf)[v0:]
+        X, Z, valid = X[v0:], Z[v0:], valid[v0:]
+        Zc = np.where(valid, Z, s.z_far)
+        fp_long = np.clip(np.abs(np.gradient(Zc, axis=0)) if Zc.shape[0] > 1 else 1.0, 1e-3, 50.0)
+        fp_lat = np.where(valid, depth, s.z_far) / c.f
+        fine_amp = 1.0 / (1.0 + (fp_long / (4 * FINE_TEXEL)) ** 2)
+        blend_lo = np.clip((fp_long - 0.1) / 0.3, 0.0, 1.0)
+        f32 = np.float32
+        return _View(
+            origin, rays.astype(f32), v0, X.astype(f32), Zc.astype(f32), depth.astype(f32),
+            fp_lat.astype(f32), fp_long.astype(f32), fine_amp.astype(f32), blend_lo.astype(f32),
+        )  # fmt: skip
 
-    def _shade(self, X: np.ndarray, Z: np.ndarray, depth: np.ndarray, travelled: float) -> np.ndarray:
+    # ------------------------------------------------------------------ per frame
+    def ego_offset(self, k: int) -> float:
+        """Lateral offset of the vehicle from the reference line at frame ``k``, metres."""
         s = self.spec
-        road = np.isfinite(depth) & (Z < 150)
-        Zw = Z + travelled
-        img = np.full(X.shape, 95.0, dtype=np.float32)
-        # asphalt texture, 4 cm per texel, tiled
-        tu = np.where(road, np.mod(X / 0.04, 512), 0).astype(np.float32)
-        tv = np.where(road, np.mod(Zw / 0.04, 512), 0).astype(np.float32)
-        tex = cv2.remap(self.texture, tu, tv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
-        img += 10.0 * tex
-        for m in s.markings:
-            # pixel footprint for anti-aliasing: metres per pixel laterally at this depth
-            fp = np.clip(np.where(road, depth, 1.0) / s.calib.f, 1e-3, 1e3)
-            dist = np.abs(X - m.x_at(Z))
-            cover = np.clip((m.width / 2 + fp / 2 - dist) / fp, 0.0, 1.0)
+        t = k / s.fps
+        e = s.lateral_speed * t
+        if s.lane_change:
+            x = min(max((t - s.lane_change_start) / s.lane_change_duration, 0.0), 1.0)
+            e += s.lane_change * s.lane_width * x * x * (3 - 2 * x)
+        return e
+
+    def _state(self, k: int) -> _State:
+        s = self.spec
+        t = k / s.fps
+        sk = s.speed * t
+        st = _State(k, sk, self.ego_offset(k), s.curvature + s.curvature_rate * sk, s.curvature_rate, [])
+        L = s.tile_length
+        for i, o in enumerate(self.objects):
+            z = o.s + o.speed * t - sk
+            z = math.fmod(z + 60.0, L)
+            z = (z + L if z < 0 else z) - 60.0
+            ext = o.length / 2 if isinstance(o, Box) else o.radius
+            if z + ext < 0.3 or z - ext > s.z_far:
+                continue
+            x = o.lateral + self.centre_x(z, st) - st.e
+            heading = math.atan(st.c * z + st.r * z * z / 2)
+            st.placed.append(place(i + 1, o, z, x, heading, s.height))
+        return st
+
+    @staticmethod
+    def centre_x(z, st: _State):
+        """Lateral position (metres) of the reference line ``z`` metres ahead, before the ego offset."""
+        return st.c * z * z / 2 + st.r * z * z * z / 6
+
+    def marking_x(self, m: Marking, z, k: int):
+        """World lateral ``x`` (metres, camera-centred) of marking ``m`` at ``z`` metres ahead, frame ``k``."""
+        st = self._state_light(k)
+        return m.offset + self.centre_x(np.asarray(z, float), st) - st.e
+
+    def _state_light(self, k: int) -> _State:
+        s = self.spec
+        sk = s.speed * k / s.fps
+        return _State(k, sk, self.ego_offset(k), s.curvature + s.curvature_rate * sk, s.curvature_rate, [])
+
+    def _roi(self, view: _View, p: Placed) -> tuple[slice, slice] | None:
+        """Image rows/cols that may see ``p``: its bounding box's edges clipped to the space in front
+        of the camera, projected. None when it is out of view."""
+        c = self.calib
+        near = 0.05
+        a, b = ((e - view.origin) @ self.R for e in p.edges())  # camera coordinates, (12, 3) each
+        keep = (a[:, 2] > near) | (b[:, 2] > near)
+        if not keep.any():
+            return None
+        a, b = a[keep], b[keep]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            w = np.clip((near - a[:, 2]) / (b[:, 2] - a[:, 2]), 0.0, 1.0)[:, None]
+        a = np.where(a[:, 2:] < near, a + w * (b - a), a)
+        b = np.where(b[:, 2:] < near, b + (1 - w) * (a - b), b)
+        q = np.concatenate([a, b])
+        u = c.f * q[:, 0] / q[:, 2] + c.cx
+        v = c.f_y * q[:, 1] / q[:, 2] + c.cy
+        c0, c1 = max(int(math.floor(u.min())) - 1, 0), min(int(math.ceil(u.max())) + 2, c.width)
+        r0, r1 = max(int(math.floor(v.min())) - 1, 0), min(int(math.ceil(v.max())) + 2, c.height)
+        if c0 >= c1 or r0 >= r1:
+            return None
+        return slice(r0, r1), slice(c0, c1)
+
+    def _cast(self, view: _View, st: _State):
+        """Depth test of the road and all objects: (depth, label, shade, bbox); label -1 sky, 0 road,
+        i > 0 object ``i - 1`` of ``self.objects``; bbox the rows/cols holding every object pixel."""
+        c = self.calib
+        depth = np.full((c.height, c.width), np.inf, np.float32)
+        depth[view.v0 :] = view.depth
+        label = np.where(np.isfinite(depth), 0, -1).astype(np.int16)
+        shade = np.zeros((c.height, c.width), np.float32)
+        box = [c.height, 0, c.width, 0]
+        for p in st.placed:
+            roi = self._roi(view, p)
+            if roi is None:
+                continue
+            rs, cs = roi
+            t, sh, ta, tb = intersect(view.origin, view.rays[:, rs, cs], p)
+            cur = depth[rs, cs]
+            win = t < cur
+            if not win.any():
+                continue
+            tu = np.mod(ta * np.float32(1 / 0.03), 512).astype(np.float32)
+            tv = np.mod(tb * np.float32(1 / 0.03), 512).astype(np.float32)
+            tex = cv2.remap(self.tex_fine, tu, tv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+            np.copyto(cur, t, where=win)
+            np.copyto(label[rs, cs], np.int16(p.index), where=win)
+            np.copyto(shade[rs, cs], sh * (1.0 + np.float32(0.1) * tex), where=win)
+            box = [min(box[0], rs.start), max(box[1], rs.stop), min(box[2], cs.start), max(box[3], cs.stop)]
+        return depth, label, shade, box
+
+    def _shade_road(self, view: _View, st: _State) -> np.ndarray:
+        """BGR float32 of the road plane for rows ``v0:`` (paint, texture, shadows)."""
+        s = self.spec
+        Z = view.Z
+        lat = view.X - (np.float32(st.c / 2) * Z * Z + np.float32(st.r / 6) * Z * Z * Z) + np.float32(st.e)
+        # asphalt: a fine texture (fading out where it would alias) and large patches
+        per_f, per_c = 512 * FINE_TEXEL, 256 * COARSE_TEXEL
+        tu = np.mod(lat, per_f) * np.float32(1 / FINE_TEXEL)
+        tv = np.mod(Z + np.float32(math.fmod(st.s, per_f)), per_f) * np.float32(1 / FINE_TEXEL)
+        fine = cv2.remap(self.tex_fine, tu, tv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP) * view.fine_amp
+        tu = np.mod(lat, per_c) * np.float32(1 / COARSE_TEXEL)
+        tv = np.mod(Z + np.float32(math.fmod(st.s, per_c)), per_c) * np.float32(1 / COARSE_TEXEL)
+        coarse = cv2.remap(self.tex_coarse, tu, tv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+        verge = (lat < self.edges[0]) | (lat > self.edges[1])
+        base = np.where(verge, np.float32(VERGE), np.float32(ASPHALT))
+        lum = base + np.float32(s.texture_contrast) * (fine + np.float32(0.7) * coarse)
+        # lane markings: exact coverage of the pixel footprint (a box filter) across and along
+        paint = np.zeros_like(lum)
+        for m in self.markings:
+            cov = (
+                np.float32(m.width / 2) + view.fp_lat / 2 - np.abs(lat - np.float32(m.offset))
+            ) / view.fp_lat
+            np.clip(cov, 0.0, 1.0, out=cov)
             if m.kind == "dashed":
-                phase = np.mod(Zw, m.dash + m.gap)
-                cover = cover * (phase < m.dash)
-            img = img * (1 - cover) + 210.0 * cover
-        sky_v = np.linspace(235, 170, X.shape[0], dtype=np.float32)[:, None]
-        img = np.where(road, img, sky_v)
-        return img
+                cov *= _dash_cover(Z, st.s - m.phase, m.dash, m.gap, view.fp_long)
+            np.maximum(paint, cov, out=paint)
+        # arrows and hatching from the tile's paint map, shadows from its shadow map
+        L = s.tile_length
+        s_tile = Z + np.float32(math.fmod(st.s, L))
+        s_tile = np.where(s_tile >= L, s_tile - np.float32(L), s_tile)
+        col = np.clip(
+            (lat + np.float32(LATERAL_HALF)) / np.float32(PAINT_RES) - 0.5, -2, self.tile.paint.shape[1] + 1
+        )
+        row = s_tile / np.float32(PAINT_RES) - 0.5
+        pm = cv2.remap(self.tile.paint, col, row, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        pm_lo = cv2.remap(self.paint_lo, (col + 0.5) / 8 - 0.5, (row + 0.5) / 8 - 0.5, cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_CONSTANT)  # fmt: skip
+        pmf = (pm + view.blend_lo * (pm_lo.astype(np.float32) - pm)) * np.float32(1 / 255)
+        np.maximum(paint, pmf, out=paint)
+        lum += paint * (np.float32(PAINT) + np.float32(0.4 * s.texture_contrast) * fine - lum)
+        r = PAINT_RES / SHADOW_RES
+        sh = cv2.remap(self.tile.shadow, (col + 0.5) * r - 0.5, (row + 0.5) * r - 0.5, cv2.INTER_LINEAR,
+                       borderMode=cv2.BORDER_CONSTANT)  # fmt: skip
+        lum *= 1.0 - np.float32(s.shadow_strength / 255) * sh
+        tint = np.where(verge[..., None], VERGE_TINT, ASPHALT_TINT)
+        return lum[..., None] * tint
+
+    def _image(self, view: _View, st: _State, cast, noise_key: int) -> np.ndarray:
+        s = self.spec
+        depth, label, shade, box = cast
+        img = self.sky.copy()
+        road = (label[view.v0 :] == 0)[..., None]
+        np.copyto(img[view.v0 :], self._shade_road(view, st), where=road)
+        r0, r1, c0, c1 = box
+        if r0 < r1:
+            lab = label[r0:r1, c0:c1]
+            col = self.colours[np.maximum(lab, 0)] * shade[r0:r1, c0:c1, None]
+            np.copyto(img[r0:r1, c0:c1], col, where=(lab > 0)[..., None])
+        if s.blur_sigma > 0:
+            img = cv2.GaussianBlur(img, (0, 0), s.blur_sigma)
+        gain, bias = (s.exposure_gain, 12.0) if s.is_overexposed(st.k) else (1.0, 0.0)
+        if noise_key == 1:
+            gain *= s.right_gain
+        if gain != 1.0 or bias:
+            img = cv2.addWeighted(img, gain, img, 0.0, bias)
+        if s.noise_sigma > 0:
+            # sensor noise: a window of a fixed bank of normal samples, chosen per frame and camera
+            rng = np.random.default_rng([s.seed, st.k, noise_key])
+            start = int(rng.integers(0, self.noise_bank.size - img.size + 1))
+            img += self.noise_bank[start : start + img.size].reshape(img.shape) * np.float32(s.noise_sigma)
+        return np.clip(img, 0, 255, out=img).astype(np.uint8)
 
     def render(self, k: int = 0) -> Frame:
-        s = self.spec
-        c = s.calib
-        travelled = k * s.speed / s.fps
-        rng = np.random.default_rng(s.seed * 100003 + k)
-        XL, ZL, tL = self._road_hits(0.0)
-        XR, ZR, tR = self._road_hits(c.baseline)
-        imgs = []
-        for X, Z, t in ((XL, ZL, tL), (XR, ZR, tR)):
-            g = self._shade(X, Z, t, travelled) + rng.normal(0, s.noise_sigma, X.shape)
-            g8 = np.clip(g, 0, 255).astype(np.uint8)
-            imgs.append(cv2.cvtColor(g8, cv2.COLOR_GRAY2BGR))
-        disp = np.where(np.isfinite(tL) & (ZL < 150), c.f * c.baseline / tL, 0.0).astype(np.float32)
-        return Frame(imgs[0], imgs[1], disp, self.lanes_gt(k), c)
+        """Frame ``k`` of the sequence: both views, exact disparity, masks and lane ground truth."""
+        s, c = self.spec, self.calib
+        st = self._state(k)
+        casts = [self._cast(v, st) for v in self.views]
+        imgs = [
+            self._image(v, st, cast, i) for i, (v, cast) in enumerate(zip(self.views, casts, strict=True))
+        ]
+        fb = np.float32(c.f * c.baseline)
+        disp = [np.where(np.isfinite(cast[0]), fb / cast[0], 0.0).astype(np.float32) for cast in casts]
+        label = casts[0][1]
+        return Frame(
+            index=k,
+            frame=f"{k:010d}",
+            left=imgs[0],
+            right=imgs[1],
+            disparity=disp[0],
+            disparity_right=disp[1],
+            road_mask=label == 0,
+            object_mask=label > 0,
+            lanes_gt=self._lanes_gt(st, casts[0]),
+            calib=c,
+            pitch=s.pitch,
+            roll=s.roll,
+            height=s.height,
+            overexposed=s.is_overexposed(k),
+        )
 
+    # ------------------------------------------------------------------ ground truth
     def project(self, X: np.ndarray, Z: np.ndarray) -> np.ndarray:
-        """World road points (X, Z) -> left-image pixels (x, y), N x 2."""
-        c = self.spec.calib
+        """Road points (world ``X``, ``Z`` metres, on ``y = height``) -> left-image pixels (x, y), N x 2."""
+        return self._project(np.asarray(X, float), np.asarray(Z, float))[0]
+
+    def _project(self, X: np.ndarray, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        c = self.calib
         P = np.stack([X, np.full_like(X, self.spec.height), Z])
         q = self.R.T @ P
-        return np.stack([c.f * q[0] / q[2] + c.cx, c.f_y * q[1] / q[2] + c.cy], axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            pts = np.stack([c.f * q[0] / q[2] + c.cx, c.f_y * q[1] / q[2] + c.cy], axis=1)
+        return pts, q[2]
 
     def lanes_gt(self, k: int = 0) -> dict:
-        """Ground truth in the data README's format (points at rows multiple of 10)."""
-        c = self.spec.calib
-        z = np.linspace(4.0, 60.0, 800)
-        markings, xs_bottom = [], []
-        for i, m in enumerate(self.spec.markings):
-            pts = self.project(m.x_at(z), z)
-            ok = (pts[:, 0] >= 0) & (pts[:, 0] < c.width) & (pts[:, 1] >= 0) & (pts[:, 1] < c.height)
-            if ok.sum() < 2:
+        """The ground truth of frame ``k`` in the data README's format (see :meth:`render`)."""
+        st = self._state(k)
+        return self._lanes_gt(st, self._cast(self.views[0], st))
+
+    def _lanes_gt(self, st: _State, cast) -> dict:
+        """Markings' centre lines at rows multiple of 10, from the bottom of the image up to
+        ``gt_max_distance``, where they are inside the image and not hidden by an object."""
+        c, s = self.calib, self.spec
+        depth, label = cast[0], cast[1]
+        z = np.geomspace(0.5, s.gt_max_distance, 1500)
+        cen = self.centre_x(z, st)
+        markings, near_x = [], {}
+        for i, m in enumerate(self.markings):
+            X = m.offset + cen - st.e
+            near_x[i] = m.offset - st.e
+            pts, qz = self._project(X, z)
+            inside = (qz > 0.1) & (pts[:, 0] >= 0) & (pts[:, 0] <= c.width - 1)
+            inside &= (pts[:, 1] >= 0) & (pts[:, 1] <= c.height - 1)
+            idx = np.flatnonzero(inside)
+            if idx.size < 2:
                 continue
-            px, py = pts[ok, 0], pts[ok, 1]
+            stop = np.flatnonzero(~inside[idx[0] :])
+            run = slice(idx[0], idx[0] + (stop[0] if stop.size else inside.size))
+            px, py, pd = pts[run, 0], pts[run, 1], qz[run]
             order = np.argsort(py)
-            px, py = px[order], py[order]
-            rows = np.arange(np.ceil(py[0] / 10) * 10, py[-1] + 1e-9, 10)
+            px, py, pd = px[order], py[order], pd[order]
+            rows = np.arange(math.ceil(py[0] / 10) * 10, math.floor(py[-1]) + 1, 10)
+            if rows.size == 0:
+                continue
             xs = np.interp(rows, py, px)
-            points = [[round(float(x), 1), int(y)] for x, y in zip(xs[::-1], rows[::-1])]
+            ds = np.interp(rows, py, pd)
+            ci = np.clip(np.round(xs).astype(int), 0, c.width - 1)
+            hidden = (label[rows, ci] > 0) & (depth[rows, ci] < ds - 0.05)
+            points = [
+                [round(float(x), 2), int(y)]
+                for x, y, h in zip(xs[::-1], rows[::-1], hidden[::-1], strict=True)
+                if not h
+            ]
             if len(points) >= 2:
                 markings.append({"id": i, "kind": m.kind, "points": points})
-                xs_bottom.append((i, m.x0))
-        left = [i for i, x in xs_bottom if x < 0]
-        right = [i for i, x in xs_bottom if x >= 0]
-        ego = {
-            "left": max(left, key=lambda i: self.spec.markings[i].x0) if left else None,
-            "right": min(right, key=lambda i: self.spec.markings[i].x0) if right else None,
-        }
-        return {"frame": f"{k:010d}", "image_size": [c.width, c.height], "markings": markings, "ego": ego}
+        shown = {m["id"] for m in markings}
+        left = [i for i, x in near_x.items() if x < 0]
+        right = [i for i, x in near_x.items() if x >= 0]
+        ego_l = max(left, key=near_x.get) if left else None
+        ego_r = min(right, key=near_x.get) if right else None
+        ego = {"left": ego_l if ego_l in shown else None, "right": ego_r if ego_r in shown else None}
+        return {"frame": f"{st.k:010d}", "image_size": [c.width, c.height], "markings": markings, "ego": ego}
+
+
+def _dash_cover(Z: np.ndarray, s0: float, dash: float, gap: float, fp: np.ndarray) -> np.ndarray:
+    """Fraction of each pixel's footprint (``fp`` metres long, centred on ``s0 + Z``) that falls on
+    the dashes ``[n (dash + gap), n (dash + gap) + dash]``."""
+    period = dash + gap
+    p = np.mod(Z + np.float32(math.fmod(s0, period)), np.float32(period))
+    h = fp / 2
+    cover = np.zeros_like(Z)
+    for shift in (0.0, -period, period):
+        q = p + np.float32(shift)
+        cover += np.clip(np.minimum(q + h, np.float32(dash)) - np.maximum(q - h, 0.0), 0.0, None)
+    cover /= fp
+    return np.clip(cover, 0.0, 1.0, out=cover)
