@@ -97,7 +97,7 @@ def run(graph: str, input_path: Path | None, out_dir: Path, sets: tuple[str, ...
     try:
         ex = Executor(g, ctx)
         ex.open()
-        bar = tqdm(total=len(ex) or None, unit="frame", disable=quiet, desc=g.name, file=sys.stderr)
+        bar = tqdm(total=len(ex) or None, unit="frame", disable=True if quiet else None, desc=g.name, file=sys.stderr)
 
         def tick(index: int, frame: str | None) -> None:
             bar.update(1)

@@ -1,0 +1,185 @@
+"""Sources and sinks: tiny synthetic KITTI raw / odometry / folder layouts, bad input, writers."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from lanegraph.errors import InputError
+from lanegraph.nodes import RunContext
+from lanegraph.types import Lane
+from lanegraph_io import WriteLanes, WriteOverlay, detect_source, parse_frames, read_calibration_yaml
+from lanegraph_io._sources import FolderSource, KittiOdometrySource, KittiRawSource
+
+P2 = "7.215377e+02 0 6.095593e+02 4.485728e+01 0 7.215377e+02 1.728540e+02 2.163791e-01 0 0 1 2.745884e-03"
+P3 = "7.215377e+02 0 6.095593e+02 -3.395242e+02 0 7.215377e+02 1.728540e+02 2.199936e+00 0 0 1 2.729905e-03"
+
+
+def img(h=12, w=20, v=100, colour=True):
+    a = np.full((h, w), v, np.uint8)
+    return np.dstack([a] * 3) if colour else a
+
+
+def kitti_raw(tmp_path: Path, n=3, calib_rows=None, w=20, h=12) -> Path:
+    date = tmp_path / "2011_09_26"
+    drive = date / "2011_09_26_drive_0001_sync"
+    for cam in ("image_02", "image_03"):
+        (drive / cam / "data").mkdir(parents=True)
+        for i in range(n):
+            cv2.imwrite(str(drive / cam / "data" / f"{i:010d}.png"), img(h, w, 10 * i))
+    rows = calib_rows if calib_rows is not None else [f"S_rect_02: {w} {h}", f"P_rect_02: {P2}", f"P_rect_03: {P3}"]
+    (date / "calib_cam_to_cam.txt").write_text("calib_time: 09-Jan-2012 13:57:47\n" + "\n".join(rows) + "\n")
+    return drive
+
+
+def open_source(cls, params, path, frames=None):
+    return cls.func(cls.params(**params), RunContext(input_path=path, frames=frames))
+
+
+def test_kitti_raw_layout(tmp_path):
+    drive = kitti_raw(tmp_path)
+    assert detect_source(drive) == "io.kitti_raw"
+    src = open_source(KittiRawSource, {}, drive)
+    c = src.constants()["calib"]
+    assert c.f == pytest.approx(721.5377) and c.cx == pytest.approx(609.5593) and c.cy == pytest.approx(172.854)
+    assert c.baseline == pytest.approx((44.85728 + 339.5242) / 721.5377, abs=1e-6)
+    frames = list(src)
+    assert [f["frame"] for f in frames] == ["0000000000", "0000000001", "0000000002"]
+    assert frames[2]["left"][0, 0, 0] == 20 and frames[2]["left"].shape == (12, 20, 3)
+
+
+def test_frame_selection(tmp_path):
+    drive = kitti_raw(tmp_path, n=5)
+    src = open_source(KittiRawSource, {"frames": "1:5:2"}, drive)
+    assert len(src) == 2 and [f["frame"] for f in src] == ["0000000001", "0000000003"]
+    src = open_source(KittiRawSource, {}, drive, frames=slice(3, None))
+    assert [f["frame"] for f in src] == ["0000000003", "0000000004"]
+    assert parse_frames("7") == slice(7, 8) and parse_frames("") is None
+    with pytest.raises(ValueError):
+        parse_frames("a:b")
+
+
+def test_images_are_read_lazily(tmp_path):
+    drive = kitti_raw(tmp_path, n=3)
+    src = open_source(KittiRawSource, {}, drive)
+    (drive / "image_02" / "data" / "0000000002.png").write_bytes(b"\x89PNG truncated")  # after opening
+    it = iter(src)
+    assert next(it)["frame"] == "0000000000"
+
+
+@pytest.mark.parametrize(
+    "breaker, words",
+    [
+        (lambda d: (d / "image_03" / "data" / "0000000001.png").unlink(), ["0000000001.png has no right partner"]),
+        (lambda d: [p.unlink() for p in (d / "image_02" / "data").iterdir()], ["no images in the folder"]),
+        (lambda d: (d.parent / "calib_cam_to_cam.txt").unlink(), ["calibration file not found"]),
+        (lambda d: (d.parent / "calib_cam_to_cam.txt").write_text("P_rect_02: 1 2 3\nP_rect_03: " + P3 + "\n"),
+         ["line 1", "'P_rect_02' has 3 numbers, expected 12"]),
+        (lambda d: (d.parent / "calib_cam_to_cam.txt").write_text("P_rect_02: " + P2 + "\n"), ["row 'P_rect_03' missing"]),
+        (lambda d: (d.parent / "calib_cam_to_cam.txt").write_text("garbage line\n"), ["line 1", "expected 'KEY: values'"]),
+        (lambda d: [(d / c / "data" / "0000000002.png").rename(d / c / "data" / "frame_x.png") for c in ("image_02", "image_03")],
+         ["'frame_x' is not a frame number"]),
+    ],
+)
+def test_bad_kitti_folders_are_located(tmp_path, breaker, words):
+    drive = kitti_raw(tmp_path)
+    breaker(drive)
+    with pytest.raises(InputError) as info:
+        list(open_source(KittiRawSource, {}, drive))
+    for w in words:
+        assert w in str(info.value), str(info.value)
+
+
+def test_non_monotonic_frames(tmp_path):
+    drive = kitti_raw(tmp_path, n=2)
+    # 0000000010 and 10 sort as strings in this order but are the same frame number
+    for c in ("image_02", "image_03"):
+        cv2.imwrite(str(drive / c / "data" / "10.png"), img())
+        cv2.imwrite(str(drive / c / "data" / "0000000010.png"), img())
+    with pytest.raises(InputError, match="not increasing"):
+        open_source(KittiRawSource, {}, drive)
+
+
+def test_bad_frames_are_yielded_as_errors_and_the_rest_read(tmp_path):
+    drive = kitti_raw(tmp_path, n=4)
+    (drive / "image_02" / "data" / "0000000001.png").write_bytes(b"\x89PNG\r\n\x1a\n truncated")
+    cv2.imwrite(str(drive / "image_03" / "data" / "0000000002.png"), img(12, 18))
+    items = list(open_source(KittiRawSource, {}, drive))
+    assert isinstance(items[1], InputError) and "cannot decode image" in str(items[1]) and "0000000001" in str(items[1])
+    assert isinstance(items[2], InputError) and "size mismatch" in str(items[2])
+    assert items[3]["frame"] == "0000000003"
+
+
+def test_kitti_odometry(tmp_path):
+    seq = tmp_path / "00"
+    for cam in ("image_0", "image_1"):
+        (seq / cam).mkdir(parents=True)
+        for i in range(2):
+            cv2.imwrite(str(seq / cam / f"{i:06d}.png"), img(colour=False))
+    rows = [f"P{k}: " + " ".join(["700", "0", "600", str(-700 * 0.54 * (k % 2)), "0", "700", "180", "0", "0", "0", "1", "0"]) for k in range(4)]
+    (seq / "calib.txt").write_text("\n".join(rows) + "\n")
+    assert detect_source(seq) == "io.kitti_odometry"
+    src = open_source(KittiOdometrySource, {}, seq)
+    assert src.constants()["calib"].baseline == pytest.approx(0.54)
+    f = next(iter(src))
+    assert f["left"].ndim == 2 and f["frame"] == "000000"
+
+
+def test_folder_source_and_calibration_yaml(tmp_path):
+    for side in ("left", "right"):
+        (tmp_path / side).mkdir()
+        cv2.imwrite(str(tmp_path / side / "a.png"), img())
+    (tmp_path / "calib.yaml").write_text("f: 500\ncx: 10\ncy: 6\nbaseline: 0.3\n")
+    assert detect_source(tmp_path) == "io.folder"
+    src = open_source(FolderSource, {}, tmp_path)
+    assert src.constants()["calib"].baseline == 0.3 and next(iter(src))["frame"] == "a"
+    (tmp_path / "calib.yaml").write_text("f: 500\ncx: 10\n")
+    with pytest.raises(InputError, match=r"missing key\(s\) \['cy', 'baseline'\]"):
+        read_calibration_yaml(tmp_path / "calib.yaml")
+    (tmp_path / "calib.yaml").write_text("f: x\ncx: 10\ncy: 1\nbaseline: 1\n")
+    with pytest.raises(InputError, match="must be numbers"):
+        read_calibration_yaml(tmp_path / "calib.yaml")
+
+
+def test_missing_input_folder(tmp_path):
+    with pytest.raises(InputError, match="input folder not found"):
+        open_source(KittiRawSource, {}, tmp_path / "nope")
+    assert detect_source(tmp_path / "nope") is None
+
+
+def test_write_lanes_flushes_every_frame(tmp_path):
+    w = WriteLanes.func(WriteLanes.params(), RunContext(out_dir=tmp_path))
+    lane = Lane(coeffs=(1.0, 0.0, 0.0), bev_rows=(0, 10), side="left", score=0.5, points=np.array([[10.0, 370.0], [12.0, 360.0]]))
+    w(frame="0001", lanes=[lane])
+    w(frame="0002", lanes=None)
+    lines = (tmp_path / "lanes.jsonl").read_text().splitlines()  # before close()
+    assert [json.loads(x)["frame"] for x in lines] == ["0001", "0002"]
+    rec = json.loads(lines[0])["lanes"][0]
+    assert rec["points"] == [[10.0, 370.0], [12.0, 360.0]] and rec["side"] == "left" and rec["score"] == 0.5
+    w.close()
+    w2 = WriteLanes.func(WriteLanes.params(append=True), RunContext(out_dir=tmp_path))
+    w2(frame="0003")
+    w2.close()
+    assert len((tmp_path / "lanes.jsonl").read_text().splitlines()) == 3
+
+
+def test_write_overlay(tmp_path):
+    w = WriteOverlay.func(WriteOverlay.params(every=2), RunContext(out_dir=tmp_path))
+    lane = Lane(coeffs=(1.0, 0.0, 0.0), bev_rows=(0, 10), side="left", score=0.5, points=np.array([[2.0, 11.0], [5.0, 1.0]]))
+    w(frame="a", image=img(), lanes=[lane], mask=np.ones((12, 20), bool))
+    w(frame="b", image=img())
+    assert (tmp_path / "overlay" / "a.png").is_file() and not (tmp_path / "overlay" / "b.png").exists()
+
+
+def test_real_kitti_drive(kitti_drive):
+    src = open_source(KittiRawSource, {}, kitti_drive)
+    assert len(src) == 54
+    c = src.constants()["calib"]
+    assert (c.f, c.cx, c.cy) == pytest.approx((721.5377, 609.5593, 172.854))
+    assert c.baseline == pytest.approx(0.5327, abs=1e-3) and (c.width, c.height) == (1242, 375)
+    f = next(iter(src))
+    assert f["left"].shape == (375, 1242, 3) and f["right"].shape == (375, 1242, 3)
