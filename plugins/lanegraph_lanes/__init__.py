@@ -1,8 +1,19 @@
-"""lanegraph_lanes node plugin."""
+"""From the BEV image to lanes: SLT/ESLT features, road and previous-frame masks, orientation
+histogram, 1D/2D Hough, IRLS/RANSAC parabolas, and the projection back to image pixels."""
+
+from __future__ import annotations
 
 from lanegraph import hookimpl
+
+from ._features import eslt, mask_features, slt
+from ._fit import fit_irls, fit_ransac, irls_fit, ransac_fit
+from ._hough import line1d, line2d, orientation
+from ._temporal import temporal_mask, to_image
+from ._verify import verify
+
+__all__ = ["irls_fit", "ransac_fit"]
 
 
 @hookimpl
 def lanegraph_node_types():
-    return []
+    return [slt, eslt, mask_features, orientation, line1d, line2d, fit_irls, fit_ransac, temporal_mask, verify, to_image]

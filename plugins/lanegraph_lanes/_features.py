@@ -1,0 +1,180 @@
+"""Lane features in the BEV: SLT and the extended SLT (ESLT), and masking.
+
+SLT (symmetrical local threshold): a pixel is a feature when ``I - T`` exceeds both the mean of
+the ``w`` pixels to its left and the mean of the ``w`` pixels to its right on the same row.
+
+ESLT adds the parallel-border test: in the left and in the right window, the pixel with the
+strongest Sobel gradient (the marking's borders) must have edge orientations within
+``max_angle_deg`` (15 degrees) of each other; the feature's orientation is their mean.
+
+Orientation convention (docs/architecture.md): radians in [0, pi) from the +x axis (columns)
+towards *up*; a lane straight ahead is pi/2. ``-1`` where unknown.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+from pydantic import Field
+
+from lanegraph import NodeParams, Port, node_type
+from lanegraph._numba import jit
+from lanegraph.types import FeatureMap
+
+
+@jit
+def _slt(img, window, threshold, out):
+    """SLT on a float32 image; writes a uint8 0/1 map into ``out``. Windows are clipped at the
+    borders; a pixel with an empty window on either side is not a feature."""
+    rows, cols = img.shape
+    csum = np.empty(cols + 1, np.float64)
+    for r in range(rows):
+        csum[0] = 0.0
+        for c in range(cols):
+            csum[c + 1] = csum[c] + img[r, c]
+        for c in range(cols):
+            lo = max(c - window, 0)
+            hi = min(c + 1 + window, cols)
+            nl = c - lo
+            nr = hi - (c + 1)
+            out[r, c] = 0
+            if nl == 0 or nr == 0:
+                continue
+            v = img[r, c] - threshold
+            if v > (csum[c] - csum[lo]) / nl and v > (csum[hi] - csum[c + 1]) / nr:
+                out[r, c] = 1
+
+
+@jit
+def _eslt(img, mag, theta, window, threshold, max_angle, out_mask, out_theta):
+    """ESLT: SLT plus parallel strongest-gradient borders. ``theta`` holds edge orientations in
+    [0, pi); writes the mask and the mean border orientation (-1 where not a feature)."""
+    rows, cols = img.shape
+    csum = np.empty(cols + 1, np.float64)
+    for r in range(rows):
+        csum[0] = 0.0
+        for c in range(cols):
+            csum[c + 1] = csum[c] + img[r, c]
+        for c in range(cols):
+            out_mask[r, c] = 0
+            out_theta[r, c] = -1.0
+            lo = max(c - window, 0)
+            hi = min(c + 1 + window, cols)
+            nl = c - lo
+            nr = hi - (c + 1)
+            if nl == 0 or nr == 0:
+                continue
+            v = img[r, c] - threshold
+            if not (v > (csum[c] - csum[lo]) / nl and v > (csum[hi] - csum[c + 1]) / nr):
+                continue
+            bl = lo
+            for k in range(lo, c):
+                if mag[r, k] > mag[r, bl]:
+                    bl = k
+            br = c + 1
+            for k in range(c + 1, hi):
+                if mag[r, k] > mag[r, br]:
+                    br = k
+            if mag[r, bl] <= 0.0 or mag[r, br] <= 0.0:
+                continue
+            a = theta[r, bl]
+            b = theta[r, br]
+            d = abs(a - b)
+            if d > math.pi / 2:
+                d = math.pi - d
+            if d >= max_angle:
+                continue
+            # circular mean modulo pi (doubled angles)
+            s = math.sin(2 * a) + math.sin(2 * b)
+            co = math.cos(2 * a) + math.cos(2 * b)
+            m = 0.5 * math.atan2(s, co)
+            if m < 0:
+                m += math.pi
+            out_mask[r, c] = 1
+            out_theta[r, c] = m
+
+
+def edge_orientation(gray: np.ndarray, ksize: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """Sobel gradient magnitude and *edge* orientation (perpendicular to the gradient) in [0, pi),
+    measured from +x towards up, both float32."""
+    g = gray.astype(np.float32)
+    gx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=ksize)
+    gy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=ksize)  # rows grow downwards
+    mag = cv2.magnitude(gx, gy)
+    # the gradient in (x, up) coordinates is (gx, -gy); the edge runs perpendicular to it, along
+    # (gy, gx), whose angle from +x towards up is atan2(gx, gy), taken modulo pi.
+    theta = np.mod(np.arctan2(gx, gy), np.pi).astype(np.float32)
+    return mag, theta
+
+
+def _as_gray32(image: np.ndarray) -> np.ndarray:
+    if image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    return np.ascontiguousarray(image, dtype=np.float32)
+
+
+class SltParams(NodeParams):
+    """Params of ``features.slt``."""
+
+    window: int = Field(6, ge=1, le=200, description="width w of the left and right windows, BEV pixels")
+    threshold: float = Field(10.0, ge=0.0, le=255.0, description="threshold T, grey levels")
+
+
+@node_type("features.slt", inputs={"image": Port("bev_image", "BEV grey image")}, outputs={"features": "features"})
+def slt(params: SltParams, image: np.ndarray) -> dict:
+    """Symmetrical local threshold: brighter than the mean of the left and of the right window by T."""
+    img = _as_gray32(image)
+    out = np.zeros(img.shape, np.uint8)
+    _slt(img, params.window, float(params.threshold), out)
+    return {"features": FeatureMap(mask=out.astype(bool), orientation=None)}
+
+
+class EsltParams(SltParams):
+    """Params of ``features.eslt``."""
+
+    max_angle_deg: float = Field(15.0, gt=0.0, le=90.0, description="largest angle between the two borders, degrees")
+    sobel_ksize: int = Field(3, ge=1, le=7, description="Sobel aperture (1, 3, 5 or 7)")
+
+
+@node_type("features.eslt", inputs={"image": Port("bev_image", "BEV grey image")}, outputs={"features": "features"})
+def eslt(params: EsltParams, image: np.ndarray) -> dict:
+    """Extended SLT: SLT plus parallel strongest-gradient borders; features get the borders' mean orientation."""
+    img = _as_gray32(image)
+    k = params.sobel_ksize if params.sobel_ksize in (1, 3, 5, 7) else 3
+    mag, theta = edge_orientation(img, k)
+    mask = np.zeros(img.shape, np.uint8)
+    ori = np.empty(img.shape, np.float32)
+    _eslt(img, mag, theta, params.window, float(params.threshold), math.radians(params.max_angle_deg), mask, ori)
+    return {"features": FeatureMap(mask=mask.astype(bool), orientation=ori)}
+
+
+class MaskParams(NodeParams):
+    """Params of ``features.mask``."""
+
+    erode_px: int = Field(4, ge=0, le=100, description="erode the road mask by this many BEV pixels so its border is no feature")
+
+
+@node_type(
+    "features.mask",
+    inputs={
+        "features": "features",
+        "mask": Port("bev_mask", "BEV road mask"),
+        "temporal": Port("bev_mask", "previous-frame mask", optional=True),
+    },
+    outputs={"features": "features"},
+)
+def mask_features(params: MaskParams, features: FeatureMap, mask: np.ndarray, temporal: np.ndarray | None = None) -> dict:
+    """Features multiplied by the BEV road mask (eroded) and, when given, the previous-frame mask."""
+    keep = mask.astype(bool)
+    if params.erode_px > 0:
+        k = 2 * params.erode_px + 1
+        keep = cv2.erode(keep.astype(np.uint8), np.ones((k, k), np.uint8), borderValue=0).astype(bool)
+    if temporal is not None:
+        keep &= temporal.astype(bool)
+    m = features.mask & keep
+    ori = None
+    if features.orientation is not None:
+        ori = np.where(m, features.orientation, -1.0).astype(np.float32)
+    return {"features": FeatureMap(mask=m, orientation=ori)}

@@ -1,0 +1,196 @@
+"""Global lane orientation (histogram of feature orientations), 1D Hough and 2D Hough.
+
+1D Hough (the paper's eq. 4): with the global orientation ``theta`` known, every feature at BEV
+pixel ``(x, y)`` votes for ``rho = x - (H - y) / tan(theta)``, the column where its line crosses the
+bottom edge of the BEV (``H`` = number of rows). 2D Hough: the classic accumulator over
+(rho, theta) with the same parametrisation, theta sampled in a window around vertical.
+
+Peak selection (``select``):
+
+- ``paper``: the two strongest peaks (after non-maximum suppression), as the paper states.
+- ``nearest`` (default): on each side of the vehicle, the nearest peak that is strong enough
+  (``min_votes`` and ``min_relative`` of the strongest peak on that side) and at a plausible lateral
+  distance (``min_offset_m`` .. ``max_offset_m``). On real roads the two strongest peaks are often
+  an outer solid line and a kerb or rail rather than the ego-lane boundaries.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import numpy as np
+from pydantic import Field
+
+from lanegraph import NodeParams, Port, node_type
+from lanegraph._numba import jit
+from lanegraph.types import BevGeometry, FeatureMap, Line
+
+
+@jit
+def _vote_1d(rows_idx, cols_idx, height, inv_tan, offset, acc):
+    """Each feature adds 1 at bin ``round(x - (height - y) * inv_tan) + offset`` (if inside)."""
+    n = acc.shape[0]
+    for i in range(rows_idx.shape[0]):
+        rho = cols_idx[i] - (height - rows_idx[i]) * inv_tan
+        b = int(math.floor(rho + 0.5)) + offset
+        if 0 <= b < n:
+            acc[b] += 1.0
+
+
+@jit
+def _vote_2d(rows_idx, cols_idx, height, inv_tans, offset, acc):
+    """2D accumulator: for every theta (row of ``acc``) each feature votes like :func:`_vote_1d`."""
+    nt, n = acc.shape
+    for t in range(nt):
+        it = inv_tans[t]
+        for i in range(rows_idx.shape[0]):
+            rho = cols_idx[i] - (height - rows_idx[i]) * it
+            b = int(math.floor(rho + 0.5)) + offset
+            if 0 <= b < n:
+                acc[t, b] += 1.0
+
+
+def _smooth(acc: np.ndarray, sigma: float) -> np.ndarray:
+    if sigma <= 0:
+        return acc
+    r = int(3 * sigma + 0.5)
+    k = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
+    return np.convolve(acc, k / k.sum(), mode="same")
+
+
+def find_peaks(acc: np.ndarray, min_separation: int) -> list[int]:
+    """Indices of local maxima, strongest first, with non-maximum suppression within ``min_separation``."""
+    if acc.size == 0 or acc.max() <= 0:
+        return []
+    order = np.argsort(-acc, kind="stable")
+    taken: list[int] = []
+    suppressed = np.zeros(acc.size, bool)
+    for i in order:
+        if acc[i] <= 0:
+            break
+        if suppressed[i]:
+            continue
+        taken.append(int(i))
+        suppressed[max(0, i - min_separation) : i + min_separation + 1] = True
+    return taken
+
+
+class OrientationParams(NodeParams):
+    """Params of ``lanes.orientation``."""
+
+    bin_deg: float = Field(1.0, gt=0.0, le=10.0, description="histogram bin width, degrees")
+    smooth_bins: float = Field(1.5, ge=0.0, le=20.0, description="Gaussian smoothing of the histogram, bins")
+    max_deviation_deg: float = Field(35.0, gt=0.0, le=90.0, description="only orientations within this of straight ahead (90 deg) count, degrees")
+    default_deg: float = Field(90.0, ge=1.0, le=179.0, description="orientation when there are no oriented features (SLT), degrees")
+    min_features: int = Field(50, ge=1, le=1000000, description="fewer oriented features than this: use the default")
+
+
+@node_type("lanes.orientation", inputs={"features": "features"}, outputs={"orientation": "orientation"})
+def orientation(params: OrientationParams, features: FeatureMap) -> dict:
+    """Global lane orientation: the peak of the histogram of feature orientations (lanes are parallel in the BEV)."""
+    default = math.radians(params.default_deg)
+    if features.orientation is None:
+        return {"orientation": default}
+    ori = features.orientation[features.mask & (features.orientation >= 0)]
+    lo, hi = math.radians(90 - params.max_deviation_deg), math.radians(90 + params.max_deviation_deg)
+    ori = ori[(ori >= lo) & (ori <= hi)]
+    if ori.size < params.min_features:
+        return {"orientation": default}
+    nb = max(1, int(round(math.degrees(hi - lo) / params.bin_deg)))
+    hist, edges = np.histogram(ori, bins=nb, range=(lo, hi))
+    sm = _smooth(hist.astype(np.float64), params.smooth_bins)
+    k = int(np.argmax(sm))
+    centre = 0.5 * (edges[k] + edges[k + 1])
+    near = np.abs(ori - centre) <= 1.5 * (edges[1] - edges[0])
+    theta = float(np.mean(ori[near])) if near.any() else float(centre)
+    return {"orientation": theta}
+
+
+class HoughParams(NodeParams):
+    """Peak selection params shared by ``hough.line1d`` and ``hough.line2d``."""
+
+    select: Literal["nearest", "paper"] = Field("nearest", description="nearest strong peak each side of the vehicle, or the paper's two strongest peaks")
+    smooth_px: float = Field(2.0, ge=0.0, le=50.0, description="Gaussian smoothing of the accumulator, BEV pixels")
+    min_separation_m: float = Field(1.2, gt=0.0, le=20.0, description="non-maximum suppression distance between peaks, metres")
+    min_votes: float = Field(60.0, ge=0.0, le=1e7, description="a peak needs at least this many (smoothed) votes")
+    min_relative: float = Field(0.25, ge=0.0, le=1.0, description="nearest rule: a peak needs this fraction of the strongest peak on its side")
+    min_offset_m: float = Field(0.6, ge=0.0, le=20.0, description="nearest rule: closest plausible lateral distance of a lane boundary, metres")
+    max_offset_m: float = Field(3.2, gt=0.0, le=50.0, description="nearest rule: farthest plausible lateral distance of a lane boundary, metres")
+
+
+def _select(acc: np.ndarray, offset: int, theta: float, geometry: BevGeometry, p: HoughParams) -> list[Line]:
+    res = geometry.resolution
+    sm = _smooth(acc, p.smooth_px)
+    peaks = [i for i in find_peaks(sm, max(1, int(round(p.min_separation_m / res)))) if sm[i] >= p.min_votes]
+    # the vehicle's column at the bottom row, and each peak's lateral offset there
+    x0 = -geometry.x_min / res - 0.5
+
+    def lateral(i: int) -> float:
+        return ((i - offset) - x0) * res
+
+    if p.select == "paper":
+        chosen = sorted(peaks, key=lambda i: -sm[i])[:2]
+    else:
+        chosen = []
+        for sign in (-1, 1):
+            side = [i for i in peaks if sign * lateral(i) > 0]
+            if not side:
+                continue
+            best = max(sm[i] for i in side)
+            ok = [i for i in side if p.min_offset_m <= abs(lateral(i)) <= p.max_offset_m and sm[i] >= p.min_relative * best]
+            if ok:
+                chosen.append(min(ok, key=lambda i: abs(lateral(i))))
+    lines = [Line(rho=float(i - offset), theta=theta, votes=float(sm[i]), side="left" if lateral(i) < 0 else "right") for i in chosen]
+    return sorted(lines, key=lambda ln: ln.rho)
+
+
+def _feature_coords(features: FeatureMap) -> tuple[np.ndarray, np.ndarray]:
+    r, c = np.nonzero(features.mask)
+    return r.astype(np.float64), c.astype(np.float64)
+
+
+@node_type(
+    "hough.line1d",
+    inputs={"features": "features", "orientation": "orientation", "geometry": Port("bev_geometry")},
+    outputs={"lines": "lines"},
+)
+def line1d(params: HoughParams, features: FeatureMap, orientation: float, geometry: BevGeometry) -> dict:
+    """1D Hough over rho = x - (H - y) / tan(theta) with the global orientation; at most two lines."""
+    rows, cols = features.mask.shape
+    r, c = _feature_coords(features)
+    theta = float(orientation)
+    inv_tan = math.cos(theta) / max(math.sin(theta), 1e-6)
+    offset = 2 * cols  # rho may lie left of the BEV when lines slant
+    acc = np.zeros(5 * cols, np.float64)
+    _vote_1d(r, c, float(rows), inv_tan, offset, acc)
+    return {"lines": _select(acc, offset, theta, geometry, params)}
+
+
+class Hough2dParams(HoughParams):
+    """Params of ``hough.line2d``."""
+
+    theta_range_deg: float = Field(30.0, gt=0.0, le=89.0, description="thetas searched: 90 deg +- this, degrees")
+    theta_step_deg: float = Field(0.5, gt=0.0, le=10.0, description="theta resolution, degrees")
+
+
+@node_type(
+    "hough.line2d",
+    inputs={"features": "features", "orientation": Port("orientation", "ignored; kept for drop-in swaps", optional=True), "geometry": Port("bev_geometry")},
+    outputs={"lines": "lines"},
+)
+def line2d(params: Hough2dParams, features: FeatureMap, geometry: BevGeometry, orientation: float | None = None) -> dict:
+    """Classic 2D (rho, theta) Hough: the strongest theta row is the lane orientation; peaks chosen as in 1D."""
+    rows, cols = features.mask.shape
+    r, c = _feature_coords(features)
+    thetas = np.radians(np.arange(90 - params.theta_range_deg, 90 + params.theta_range_deg + 1e-9, params.theta_step_deg))
+    inv = np.cos(thetas) / np.maximum(np.sin(thetas), 1e-6)
+    offset = 2 * cols
+    acc = np.zeros((thetas.size, 5 * cols), np.float64)
+    _vote_2d(r, c, float(rows), inv, offset, acc)
+    if not r.size:
+        return {"lines": []}
+    # the theta whose smoothed accumulator has the strongest peak structure (sum of the top peaks)
+    score = [np.sort(_smooth(a, params.smooth_px))[-3:].sum() for a in acc]
+    t = int(np.argmax(score))
+    return {"lines": _select(acc[t], offset, float(thetas[t]), geometry, params)}

@@ -1,0 +1,118 @@
+"""The previous-frame mask, and lanes from the BEV back to left-image pixels.
+
+``lanes.temporal_mask`` (the paper's last step, against arrows and other transient markings):
+features are accepted only within ``band_px`` of the lanes found in the previous frame (delivered
+by a feedback edge). Re-acquisition, so that a wrong or lost lock does not persist:
+
+- no previous lanes (first frame, a skipped frame, nothing found): the full mask;
+- a side (left / right of the vehicle) with no previous lane, or whose previous lane scored below
+  ``min_score``: that whole side stays open, so a lane there can be (re)found;
+- ``reacquire``: when the current features inside the band are fewer than ``min_band_fraction`` of
+  the features on that side, the side is opened again (the lock is not supported by this frame).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import Field
+
+from lanegraph import NodeParams, Port, node_type
+from lanegraph.types import BevGeometry, Calibration, FeatureMap, Lane
+
+
+def lane_cols(lane: Lane, rows: int) -> np.ndarray:
+    """The lane model's column at every BEV row (row 0 .. rows-1)."""
+    t = rows - 1 - np.arange(rows, dtype=np.float64)
+    c0, c1, c2 = lane.coeffs
+    return c0 + c1 * t + c2 * t * t
+
+
+class TemporalParams(NodeParams):
+    """Params of ``lanes.temporal_mask``."""
+
+    band_px: float = Field(30.0, gt=0.0, le=1000.0, description="half width of the accepted band around a previous lane, BEV pixels")
+    min_score: float = Field(0.1, ge=0.0, le=1.0, description="previous lanes scoring below this do not restrict the search")
+    reacquire: bool = Field(True, description="open a side again when this frame's features do not support the previous lane")
+    min_band_fraction: float = Field(0.15, ge=0.0, le=1.0, description="reacquire when fewer than this fraction of a side's features lie in its band")
+
+
+@node_type(
+    "lanes.temporal_mask",
+    inputs={
+        "previous": Port("lanes", "the previous frame's lanes (a feedback edge)", optional=True),
+        "geometry": Port("bev_geometry"),
+        "features": Port("features", "this frame's features, for re-acquisition", optional=True),
+    },
+    outputs={"mask": "bev_mask"},
+)
+def temporal_mask(params: TemporalParams, geometry: BevGeometry, previous: list[Lane] | None = None, features: FeatureMap | None = None) -> dict:
+    """Previous-frame mask: bands around the previous frame's lanes; re-acquires sides that are lost or unsupported."""
+    rows, cols = geometry.rows, geometry.cols
+    full = np.ones((rows, cols), bool)
+    good = [ln for ln in (previous or []) if ln.score >= params.min_score]
+    if not good:
+        return {"mask": full}
+    x0 = -geometry.x_min / geometry.resolution - 0.5
+    cc = np.arange(cols)[None, :]
+    mask = np.zeros((rows, cols), bool)
+    for side, sel in (("left", cc < x0), ("right", cc >= x0)):
+        sel = np.broadcast_to(sel, (rows, cols))
+        lanes = [ln for ln in good if ln.side == side]
+        if not lanes:
+            mask |= sel
+            continue
+        band = np.zeros((rows, cols), bool)
+        for ln in lanes:
+            band |= np.abs(cc - lane_cols(ln, rows)[:, None]) <= params.band_px
+        band &= sel
+        if params.reacquire and features is not None:
+            n_side = int((features.mask & sel).sum())
+            n_band = int((features.mask & band).sum())
+            if n_side > 0 and n_band < params.min_band_fraction * n_side:
+                band = sel
+        mask |= band
+    return {"mask": mask}
+
+
+class ToImageParams(NodeParams):
+    """Params of ``lanes.to_image``."""
+
+    row_step: float = Field(5.0, gt=0.0, le=10.0, description="spacing of the output points, image rows (at most 10)")
+
+
+@node_type(
+    "lanes.to_image",
+    inputs={"lanes": "lanes", "geometry": Port("bev_geometry"), "calib": Port("calibration", "image size for clipping", optional=True, rate="constant")},
+    outputs={"lanes": "lanes"},
+)
+def to_image(params: ToImageParams, lanes: list[Lane], geometry: BevGeometry, calib: Calibration | None = None) -> dict:
+    """Lanes as points in left-image pixels (x, y), covering the detected extent, at most 10 rows apart."""
+    out = []
+    w = calib.width if calib is not None and calib.width else None
+    h = calib.height if calib is not None and calib.height else None
+    rows = geometry.rows
+    for ln in lanes or []:
+        r0, r1 = ln.bev_rows
+        r = np.arange(r0, r1 + 1, dtype=np.float64)
+        t = rows - 1 - r
+        c0, c1, c2 = ln.coeffs
+        c = c0 + c1 * t + c2 * t * t
+        pts = geometry.bev_to_image(c, r)
+        ok = np.isfinite(pts).all(axis=1)
+        if h is not None:
+            ok &= (pts[:, 1] >= 0) & (pts[:, 1] <= h - 1)
+        if w is not None:
+            ok &= (pts[:, 0] >= 0) & (pts[:, 0] <= w - 1)
+        pts = pts[ok]
+        if len(pts) < 2:
+            continue
+        order = np.argsort(-pts[:, 1])  # bottom (near) first
+        x, y = pts[order, 0], pts[order, 1]
+        y_uniq, idx = np.unique(y, return_index=True)
+        x_uniq = x[idx]
+        ys = np.arange(y_uniq[-1], y_uniq[0], -params.row_step)
+        ys = np.append(ys, y_uniq[0])
+        xs = np.interp(ys, y_uniq, x_uniq)
+        new = Lane(ln.coeffs, ln.bev_rows, ln.side, ln.score, np.stack([xs, ys], axis=1), dict(ln.extra))
+        out.append(new)
+    return {"lanes": out}

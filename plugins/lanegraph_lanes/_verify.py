@@ -1,0 +1,65 @@
+"""``lanes.verify``: keep only lanes that look like paint on a road surface.
+
+Deviation from the paper (documented in graphs/paper.yaml): on real roads a kerb, a rail or the
+edge of a gravel track bed is a bright, straight, parallel-bordered ridge that passes SLT/ESLT and
+the Hough transform like a painted line. What tells them apart is the surface on both sides: a
+painted line lies on asphalt, which is smooth at the BEV scale, while beyond a kerb or rail there
+is gravel, grass or pavement texture. For every lane, on each side, a band of the BEV image from
+``gap_px`` to ``band_px`` away from the lane is taken; the lateral standard deviation of the
+intensity is computed per row and its median over the lane's rows is the side's *texture*. A lane
+whose rougher side exceeds ``max_texture`` grey levels is dropped.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import Field
+
+from lanegraph import NodeParams, Port, node_type
+from lanegraph.types import Lane
+
+
+def side_texture(image: np.ndarray, lane: Lane, gap_px: int, band_px: int) -> tuple[float, float]:
+    """Median over the lane's rows of the lateral intensity std in the (left, right) side bands."""
+    rows, cols = image.shape[:2]
+    r = np.arange(lane.bev_rows[0], lane.bev_rows[1] + 1)
+    t = rows - 1 - r
+    c0, c1, c2 = lane.coeffs
+    centre = c0 + c1 * t + c2 * t * t
+    img = image.astype(np.float32)
+    out = []
+    for sign in (-1, 1):
+        offs = sign * np.arange(gap_px, band_px + 1)
+        cc = np.round(centre[:, None] + offs[None, :]).astype(np.int64)
+        inside = (cc >= 0) & (cc < cols)
+        vals = img[r[:, None], np.clip(cc, 0, cols - 1)]
+        full = inside.all(axis=1)
+        if not full.any():
+            out.append(0.0)
+            continue
+        out.append(float(np.median(vals[full].std(axis=1))))
+    return out[0], out[1]
+
+
+class VerifyParams(NodeParams):
+    """Params of ``lanes.verify``."""
+
+    gap_px: int = Field(6, ge=0, le=200, description="start of the side bands, BEV pixels from the lane")
+    band_px: int = Field(30, ge=2, le=400, description="end of the side bands, BEV pixels from the lane")
+    max_texture: float = Field(18.0, gt=0.0, le=255.0, description="largest median lateral intensity std on either side, grey levels")
+
+
+@node_type(
+    "lanes.verify",
+    inputs={"lanes": "lanes", "image": Port("bev_image", "the BEV image the lanes were found in")},
+    outputs={"lanes": "lanes"},
+)
+def verify(params: VerifyParams, lanes: list[Lane], image: np.ndarray) -> dict:
+    """Drop lanes that lie next to a textured surface (a kerb or rail beside gravel or grass), not paint on asphalt."""
+    kept = []
+    for ln in lanes or []:
+        left, right = side_texture(image, ln, params.gap_px, params.band_px)
+        if max(left, right) <= params.max_texture:
+            extra = dict(ln.extra, texture=[round(left, 1), round(right, 1)])
+            kept.append(Lane(ln.coeffs, ln.bev_rows, ln.side, ln.score, ln.points, extra))
+    return {"lanes": kept}
