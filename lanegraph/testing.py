@@ -134,7 +134,8 @@ def make_bev_image(
     c = np.arange(cols)[None, :]
     for c0 in lane_cols:
         centre = c0 + slope * (rows - 1 - r)
-        img = np.where(np.abs(c - centre) <= width_px / 2, paint, img)
+        cover = np.clip(width_px / 2 + 0.5 - np.abs(c - centre), 0.0, 1.0)  # anti-aliased stripe
+        img = img * (1 - cover) + paint * cover
     img = img + rng.normal(0, noise, img.shape)
     return np.clip(img, 0, 255).astype(np.uint8)
 

@@ -1,0 +1,283 @@
+"""Lane plugin: kernels against NumPy twins, synthetic stripes with known answers, robust fits."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from lanegraph.testing import check_node_type, make_bev_image
+from lanegraph.types import BevGeometry, FeatureMap, Lane, Line
+from lanegraph_lanes import _features, _hough
+from lanegraph_lanes._features import edge_orientation, eslt, mask_features, slt
+from lanegraph_lanes._fit import fit_irls, fit_ransac, irls_fit, ransac_fit
+from lanegraph_lanes._hough import line1d, line2d, orientation
+from lanegraph_lanes._temporal import temporal_mask, to_image
+from lanegraph_lanes._verify import verify
+
+
+# ----------------------------------------------------------------------------- NumPy twins
+def slt_twin(img, w, T):
+    rows, cols = img.shape
+    out = np.zeros((rows, cols), np.uint8)
+    for r in range(rows):
+        for c in range(cols):
+            left = img[r, max(c - w, 0) : c]
+            right = img[r, c + 1 : c + 1 + w]
+            if left.size and right.size and img[r, c] - T > left.mean() and img[r, c] - T > right.mean():
+                out[r, c] = 1
+    return out
+
+
+def eslt_twin(img, mag, theta, w, T, max_angle):
+    rows, cols = img.shape
+    mask = np.zeros((rows, cols), np.uint8)
+    ori = np.full((rows, cols), -1.0, np.float32)
+    base = slt_twin(img, w, T)
+    for r, c in zip(*np.nonzero(base)):
+        lo, hi = max(c - w, 0), min(c + 1 + w, cols)
+        bl = lo + int(np.argmax(mag[r, lo:c]))
+        br = c + 1 + int(np.argmax(mag[r, c + 1 : hi]))
+        if mag[r, bl] <= 0 or mag[r, br] <= 0:
+            continue
+        a, b = float(theta[r, bl]), float(theta[r, br])
+        d = abs(a - b)
+        d = min(d, math.pi - d)
+        if d >= max_angle:
+            continue
+        m = 0.5 * math.atan2(math.sin(2 * a) + math.sin(2 * b), math.cos(2 * a) + math.cos(2 * b)) % math.pi
+        mask[r, c] = 1
+        ori[r, c] = m
+    return mask, ori
+
+
+def vote_twin(r, c, H, inv_tan, offset, n):
+    acc = np.zeros(n)
+    b = np.floor(c - (H - r) * inv_tan + 0.5).astype(int) + offset
+    ok = (b >= 0) & (b < n)
+    np.add.at(acc, b[ok], 1.0)
+    return acc
+
+
+@pytest.mark.parametrize("shape, w, T", [((7, 23), 3, 5.0), ((5, 9), 20, 0.0), ((1, 1), 2, 1.0), ((4, 2), 1, 0.0)])
+def test_slt_kernel_matches_twin(shape, w, T):
+    rng = np.random.default_rng(1)
+    img = rng.integers(0, 255, shape).astype(np.float32)
+    out = np.zeros(shape, np.uint8)
+    _features._slt(img, w, T, out)
+    np.testing.assert_array_equal(out, slt_twin(img, w, T))
+
+
+@pytest.mark.parametrize("w", [2, 4, 30])
+def test_eslt_kernel_matches_twin(w):
+    img = make_bev_image(rows=24, cols=40, lane_cols=(12.0, 30.0), slope=0.3, noise=10.0, seed=3).astype(np.float32)
+    mag, theta = edge_orientation(img)
+    mask = np.zeros(img.shape, np.uint8)
+    ori = np.empty(img.shape, np.float32)
+    _features._eslt(img, mag, theta, w, 8.0, math.radians(15), mask, ori)
+    tm, to = eslt_twin(img, mag, theta, w, 8.0, math.radians(15))
+    np.testing.assert_array_equal(mask, tm)
+    np.testing.assert_allclose(ori, to, atol=1e-5)
+
+
+def test_vote_kernels_match_twin():
+    rng = np.random.default_rng(2)
+    r = rng.integers(0, 50, 300).astype(float)
+    c = rng.integers(-10, 80, 300).astype(float)
+    for inv_tan in (0.0, 0.3, -0.7):
+        acc = np.zeros(200)
+        _hough._vote_1d(r, c, 50.0, inv_tan, 60, acc)
+        np.testing.assert_array_equal(acc, vote_twin(r, c, 50.0, inv_tan, 60, 200))
+    inv = np.array([0.0, 0.2, -0.2])
+    acc2 = np.zeros((3, 200))
+    _hough._vote_2d(r, c, 50.0, inv, 60, acc2)
+    for t in range(3):
+        np.testing.assert_array_equal(acc2[t], vote_twin(r, c, 50.0, inv[t], 60, 200))
+    empty = np.zeros(10)
+    _hough._vote_1d(np.zeros(0), np.zeros(0), 5.0, 0.0, 0, empty)
+    assert empty.sum() == 0
+
+
+# ----------------------------------------------------------------------------- features
+def test_slt_and_eslt_find_stripes_with_orientation():
+    bev = make_bev_image(rows=120, cols=100, lane_cols=(30.0, 70.0), width_px=3, slope=0.25, noise=3)
+    f = slt.func(slt.params(), image=bev)["features"]
+    assert f.orientation is None
+    cols = np.nonzero(f.mask[-1])[0]
+    assert set(cols) <= {29, 30, 31, 69, 70, 71} and len(cols) >= 2
+    e = eslt.func(eslt.params(), image=bev)["features"]
+    ori = e.orientation[e.mask]
+    assert e.mask.sum() > 100
+    assert np.median(ori) == pytest.approx(math.atan2(1.0, 0.25), abs=math.radians(3))
+    assert (e.orientation[~e.mask] == -1).all()
+
+
+def test_eslt_rejects_a_single_edge():
+    img = np.full((20, 40), 80, np.uint8)
+    img[:, 20:] = 200  # a step: bright on one side only
+    e = eslt.func(eslt.params(), image=img)["features"]
+    assert e.mask.sum() == 0
+
+
+def test_mask_features_erodes_and_combines():
+    fm = FeatureMap(mask=np.ones((20, 20), bool), orientation=np.full((20, 20), 1.5, np.float32))
+    road = np.zeros((20, 20), bool)
+    road[:, 5:15] = True
+    tmp = np.ones((20, 20), bool)
+    tmp[:10] = False
+    out = mask_features.func(mask_features.params(erode_px=2), features=fm, mask=road, temporal=tmp)["features"]
+    assert out.mask[15, 7:13].all() and not out.mask[15, 5:7].any() and not out.mask[5].any()
+    assert (out.orientation[~out.mask] == -1).all()
+
+
+# ----------------------------------------------------------------------------- orientation and Hough
+def geometry(rows=200, cols=160, res=0.05):
+    return BevGeometry(-cols * res / 2, cols * res / 2, 5.0, 5.0 + rows * res, res, np.eye(3))
+
+
+def features_for(lane_cols, rows=200, cols=160, slope=0.0):
+    bev = make_bev_image(rows=rows, cols=cols, lane_cols=lane_cols, slope=slope, noise=2)
+    return eslt.func(eslt.params(), image=bev)["features"]
+
+
+def test_orientation_histogram_and_default():
+    f = features_for((50.0, 110.0), slope=0.2)
+    th = orientation.func(orientation.params(), features=f)["orientation"]
+    assert th == pytest.approx(math.atan2(1, 0.2), abs=math.radians(1.5))
+    assert orientation.func(orientation.params(default_deg=80), features=FeatureMap(f.mask))["orientation"] == pytest.approx(math.radians(80))
+
+
+def test_line1d_finds_rho_and_sides():
+    f = features_for((50.0, 110.0), slope=0.2)
+    th = math.atan2(1, 0.2)
+    lines = line1d.func(line1d.params(min_votes=20), features=f, orientation=th, geometry=geometry())["lines"]
+    assert [ln.side for ln in lines] == ["left", "right"]
+    assert lines[0].rho == pytest.approx(50, abs=1.5) and lines[1].rho == pytest.approx(110, abs=1.5)
+
+
+def test_nearest_rule_vs_paper_rule():
+    # a strong outer line far right, a weaker ego line right, one ego line left
+    rows, cols = 200, 240
+    bev = make_bev_image(rows=rows, cols=cols, lane_cols=(90.0, 150.0, 200.0), noise=2)
+    bev[:, 197:204] = 230  # wide bright outer stripe: more votes
+    f = slt.func(slt.params(window=8), image=bev)["features"]
+    g = geometry(rows, cols)
+    near = line1d.func(line1d.params(min_votes=20), features=f, orientation=math.pi / 2, geometry=g)["lines"]
+    assert [round(ln.rho) for ln in near] == [90, 150]
+    paper = line1d.func(line1d.params(min_votes=20, select="paper"), features=f, orientation=math.pi / 2, geometry=g)["lines"]
+    assert any(abs(ln.rho - 200) < 5 for ln in paper)
+
+
+def test_line2d_finds_the_same_lines():
+    f = features_for((50.0, 110.0), slope=0.2)
+    lines = line2d.func(line2d.params(min_votes=20), features=f, geometry=geometry())["lines"]
+    assert [round(ln.rho) for ln in lines] == pytest.approx([50, 110], abs=2)
+    assert lines[0].theta == pytest.approx(math.atan2(1, 0.2), abs=math.radians(1))
+
+
+def test_hough_on_empty_features():
+    empty = FeatureMap(np.zeros((50, 40), bool), np.full((50, 40), -1, np.float32))
+    g = geometry(50, 40)
+    assert line1d.func(line1d.params(), features=empty, orientation=math.pi / 2, geometry=g)["lines"] == []
+    assert line2d.func(line2d.params(), features=empty, geometry=g)["lines"] == []
+    assert fit_irls.func(fit_irls.params(), features=empty, lines=[], geometry=g)["lanes"] == []
+
+
+# ----------------------------------------------------------------------------- fitting
+def parabola_with_outliers(n=400, frac=0.3, seed=0):
+    rng = np.random.default_rng(seed)
+    t = rng.uniform(0, 300, n)
+    true = np.array([40.0, 0.1, 2e-4])
+    y = true[0] + true[1] * t + true[2] * t * t + rng.normal(0, 0.5, n)
+    k = int(frac * n)
+    y[:k] += rng.uniform(-20, 20, k) + np.sign(rng.uniform(-1, 1, k)) * 5
+    return t, y, true
+
+
+@pytest.mark.parametrize("fit", ["irls", "ransac"])
+def test_parabola_recovered_with_30_percent_outliers(fit):
+    t, y, true = parabola_with_outliers()
+    coef, w = irls_fit(t, y) if fit == "irls" else ransac_fit(t, y)
+    pred = np.polyval(coef[::-1], t)
+    truth = np.polyval(true[::-1], t)
+    assert np.abs(pred - truth).max() < 1.0
+    assert coef[2] == pytest.approx(true[2], abs=3e-5)
+    plain = np.polyfit(t, y, 2)[::-1]
+    assert np.abs(np.polyval(plain[::-1], t) - truth).max() > np.abs(pred - truth).max()
+
+
+@pytest.mark.parametrize("node", [fit_irls, fit_ransac])
+def test_fit_nodes_on_curved_stripe(node):
+    rows, cols = 300, 160
+    bev = np.full((rows, cols), 80, np.uint8)
+    t = np.arange(rows)
+    centre = 60 + 0.05 * t + 3e-4 * t * t
+    for tt, cc in zip(t, centre):
+        bev[rows - 1 - tt, int(round(cc)) - 1 : int(round(cc)) + 2] = 220
+    f = eslt.func(eslt.params(), image=bev)["features"]
+    line = Line(rho=60.0, theta=math.atan2(1, 0.1), side="left")
+    lanes = node.func(node.params(), features=f, lines=[line], geometry=geometry(rows, cols))["lanes"]
+    assert len(lanes) == 1
+    c0, c1, c2 = lanes[0].coeffs
+    fitted = c0 + c1 * t + c2 * t * t
+    assert np.abs(fitted - centre).max() < 1.5 and lanes[0].side == "left"
+
+
+def test_fit_rejects_weak_support():
+    f = FeatureMap(np.zeros((100, 80), bool))
+    f.mask[90:100, 40] = True  # 10 features only
+    lanes = fit_irls.func(fit_irls.params(), features=f, lines=[Line(40.0, math.pi / 2)], geometry=geometry(100, 80))["lanes"]
+    assert lanes == []
+
+
+# ----------------------------------------------------------------------------- temporal mask, verify, projection
+def test_temporal_mask_falls_back_and_bands():
+    g = geometry(100, 80)
+    full = temporal_mask.func(temporal_mask.params(), geometry=g, previous=None)["mask"]
+    assert full.all()
+    assert temporal_mask.func(temporal_mask.params(), geometry=g, previous=[])["mask"].all()
+    lane = Lane((20.0, 0.0, 0.0), (0, 99), "left", 0.9)
+    m = temporal_mask.func(temporal_mask.params(band_px=5), geometry=g, previous=[lane])["mask"]
+    assert m[50, 20] and m[50, 25] and not m[50, 30] and not m[50, 10]
+    assert m[:, 40:].all()  # the right side has no previous lane: open
+    weak = Lane((20.0, 0.0, 0.0), (0, 99), "left", 0.01)
+    assert temporal_mask.func(temporal_mask.params(), geometry=g, previous=[weak])["mask"].all()
+
+
+def test_temporal_mask_reacquires_when_band_is_unsupported():
+    g = geometry(100, 80)
+    lane = Lane((20.0, 0.0, 0.0), (0, 99), "left", 0.9)
+    fm = np.zeros((100, 80), bool)
+    fm[:, 5] = True  # this frame's marking is elsewhere on the left side
+    m = temporal_mask.func(temporal_mask.params(band_px=5), geometry=g, previous=[lane], features=FeatureMap(fm))["mask"]
+    assert m[:, :40].all()
+
+
+def test_verify_drops_lane_beside_texture():
+    rng = np.random.default_rng(0)
+    img = np.full((100, 80), 100, np.uint8)
+    img[:, 50:80] = rng.integers(0, 255, (100, 30))  # gravel right of column 50
+    kerb = Lane((46.0, 0.0, 0.0), (0, 99), "right", 0.9)
+    paint = Lane((12.0, 0.0, 0.0), (0, 99), "left", 0.9)
+    out = verify.func(verify.params(), lanes=[kerb, paint], image=img)["lanes"]
+    assert [ln.side for ln in out] == ["left"]
+
+
+def test_to_image_spacing_and_extent():
+    # a homography that maps BEV (c, r) to image (2c + 10, r/2 + 100): rows shrink by half
+    H = np.array([[2.0, 0, 10], [0, 0.5, 100], [0, 0, 1]])
+    g = BevGeometry(-4, 4, 5, 15, 0.05, H)
+    lane = Lane((40.0, 0.1, 0.0), (20, 180), "left", 0.8)
+    out = to_image.func(to_image.params(), lanes=[lane], geometry=g)["lanes"][0]
+    y = out.points[:, 1]
+    assert np.all(np.abs(np.diff(y)) <= 10) and y[0] == pytest.approx(190) and y[-1] == pytest.approx(110)
+    assert np.all(np.diff(y) < 0)  # bottom first
+
+
+def test_nodes_follow_the_contract():
+    bev = make_bev_image(rows=60, cols=50, lane_cols=(15.0, 35.0))
+    check_node_type(slt, {"image": bev})
+    check_node_type(eslt, {"image": bev})
+    f = eslt.func(eslt.params(), image=bev)["features"]
+    check_node_type(orientation, {"features": f})
