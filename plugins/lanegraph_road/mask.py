@@ -42,24 +42,26 @@ from lanegraph.types import Calibration, RoadModel
 from . import geometry
 from .profile import as_disparity
 
-ROAD, ABOVE, BELOW = 1, 2, 3  # labels of _height_class_kernel (0: no disparity, or beyond max_distance_m)
+ROAD, ABOVE, BELOW, UNKNOWN = 1, 2, 3, 4  # labels of _height_class_kernel (0: beyond max_distance_m)
 
 
 @jit
 def _height_class_kernel(disp, a0, a1, a2, cx, cy, s, c, height, height_tol, min_disp_tol, min_road_disp):
     """Label each pixel by its height above the road (eq. 4): 1 road (``|d - d_road| <= tol`` with
-    ``tol = max(height_tol * d / height, min_disp_tol)``), 2 above, 3 below; 0 where ``d <= 0`` or the
-    road disparity at the pixel (roll-corrected row ``cy + s (u-cx) + c (v-cy)``) is < ``min_road_disp``."""
+    ``tol = max(height_tol * d / height, min_disp_tol)``), 2 above, 3 below, 4 no disparity (``d <= 0``)
+    where the road would be visible; 0 where the road disparity at the pixel (roll-corrected row
+    ``cy + s (u-cx) + c (v-cy)``) is < ``min_road_disp`` (beyond ``max_distance_m`` or the horizon)."""
     H, W = disp.shape
     out = np.zeros((H, W), np.uint8)
     for v in range(H):
         for u in range(W):
             d = disp[v, u]
-            if d <= 0.0:
-                continue
             r = cy + s * (u - cx) + c * (v - cy)
             dr = a0 + a1 * r + a2 * r * r
             if dr < min_road_disp:
+                continue
+            if d <= 0.0:
+                out[v, u] = 4
                 continue
             tol = height_tol * d / height
             if tol < min_disp_tol:
@@ -74,18 +76,18 @@ def _height_class_kernel(disp, a0, a1, a2, cx, cy, s, c, height, height_tol, min
 
 
 @jit
-def _free_space_kernel(labels, min_run):
-    """Column-wise free space: scanning each column from the bottom row up, road pixels (label 1)
-    are kept until the first run of ``min_run`` pixels above the road (label 2; pixels without a
-    disparity or below the road, labels 0 and 3, neither count nor break a run); everything above
-    it is dropped."""
+def _free_space_kernel(labels, min_run, unknown_is_road):
+    """Column-wise free space: scanning each column from the bottom row up, road pixels (label 1,
+    and label 4 -- no disparity -- when ``unknown_is_road``) are kept until the first run of
+    ``min_run`` pixels above the road (label 2; pixels below the road, label 3, or beyond range,
+    label 0, neither count nor break a run); everything above it is dropped."""
     H, W = labels.shape
     out = np.zeros((H, W), np.bool_)
     for u in range(W):
         run = 0
         for v in range(H - 1, -1, -1):
             lab = labels[v, u]
-            if lab == 1:
+            if lab == 1 or (lab == 4 and unknown_is_road):
                 run = 0
                 out[v, u] = True
             elif lab == 2:
@@ -147,6 +149,11 @@ class MaskParams(NodeParams):
         gt=0.0,
         le=1.0,
         description="height of the bottom band used by 'keep', fraction of the image rows",
+    )
+    textureless_is_road: bool = Field(
+        True,
+        description="free-space scan: pixels with no disparity (smooth, textureless asphalt far away) below "
+        "the first obstacle of their column count as road",
     )
     invalid_road: Literal["all", "none"] = Field(
         "all", description="mask when the road model is invalid: every pixel (no masking) or none"
@@ -214,7 +221,7 @@ def road_mask_array(
         float(min_road_disp),
     )
     mask = (
-        _free_space_kernel(labels, int(params.min_obstacle_run_px)) if params.free_space else labels == ROAD
+        _free_space_kernel(labels, int(params.min_obstacle_run_px), bool(params.textureless_is_road)) if params.free_space else labels == ROAD
     )
     if params.open_px > 1:
         mask = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN, _disk(params.open_px)).astype(bool)

@@ -75,17 +75,18 @@ def height_class_np(disp, a0, a1, a2, cx, cy, s, c, height, height_tol, min_tol,
     dr = a0 + a1 * r + a2 * r * r
     tol = np.maximum(height_tol * disp / height, min_tol)
     out = np.where(disp - dr > tol, 2, np.where(dr - disp > tol, 3, 1)).astype(np.uint8)
-    out[(disp <= 0) | (dr < min_road)] = 0
+    out[disp <= 0] = 4
+    out[dr < min_road] = 0
     return out
 
 
-def free_space_np(labels, min_run):
+def free_space_np(labels, min_run, unknown_is_road):
     H, W = labels.shape
     out = np.zeros((H, W), bool)
     for u in range(W):
         run = 0
         for v in range(H - 1, -1, -1):
-            if labels[v, u] == 1:
+            if labels[v, u] == 1 or (unknown_is_road and labels[v, u] == 4):
                 run = 0
                 out[v, u] = True
             elif labels[v, u] == 2:
@@ -184,9 +185,10 @@ def test_mask_kernels_match_numpy(shape):
     labels = mask._height_class_kernel(disp, *args)
     np.testing.assert_array_equal(labels, height_class_np(disp, *args))
     for min_run in (1, 2, 4):
-        np.testing.assert_array_equal(
-            mask._free_space_kernel(labels, min_run), free_space_np(labels, min_run)
-        )
+        for unknown in (False, True):
+            np.testing.assert_array_equal(
+                mask._free_space_kernel(labels, min_run, unknown), free_space_np(labels, min_run, unknown)
+            )
 
 
 # --------------------------------------------------------------------------- geometry
