@@ -116,22 +116,27 @@ def warp_to_bev(
         raise ValueError(f"mask: expected shape {(h_img, w_img)} (the image's), got {np.asarray(mask).shape}")
     pitch, roll, height = bev_pose(params, road)
     geom = bev_geometry(params, calib, pitch, roll, height)
-    map_x, map_y, inside = bev_maps(geom, w_img, h_img)
-    bev = cv2.remap(
-        image, map_x, map_y, _INTERP[params.interpolation], borderMode=cv2.BORDER_CONSTANT, borderValue=0
+    # one perspective warp per array: cv2 evaluates the homography per BEV pixel (the same mapping
+    # as bev_maps(), without building float64 maps in NumPy every frame)
+    size = (geom.cols, geom.rows)
+    flags = cv2.WARP_INVERSE_MAP
+    bev = cv2.warpPerspective(
+        image, geom.H_img_from_bev, size, flags=_INTERP[params.interpolation] | flags, borderMode=cv2.BORDER_REPLICATE
     )
-    if mask is not None:
-        m = cv2.remap(
-            np.asarray(mask, dtype=np.uint8),
-            map_x,
-            map_y,
-            cv2.INTER_NEAREST,
-            borderMode=cv2.BORDER_CONSTANT,
-            borderValue=0,
-        )
-        bev_mask = inside & (m > 0)
-    else:
-        bev_mask = inside
+    def warp_nearest(a: np.ndarray) -> np.ndarray:
+        return cv2.warpPerspective(
+            a, geom.H_img_from_bev, size, flags=cv2.INTER_NEAREST | flags, borderMode=cv2.BORDER_CONSTANT, borderValue=0
+        ) > 0
+
+    inside = warp_nearest(np.full((h_img, w_img), 255, np.uint8))
+    if geom.H_img_from_bev[2, :2].any():
+        # keep only BEV pixels in front of the camera (w > 0), as bev_maps() does
+        r = np.arange(geom.rows, dtype=np.float64)[:, None]
+        c = np.arange(geom.cols, dtype=np.float64)[None, :]
+        Hm = geom.H_img_from_bev
+        inside &= (Hm[2, 0] * c + Hm[2, 1] * r + Hm[2, 2]) > 1e-9
+    bev[~inside] = 0  # outside the image: 0, never a replicated border
+    bev_mask = inside if mask is None else inside & warp_nearest(np.asarray(mask, dtype=np.uint8))
     return bev, bev_mask, geom
 
 

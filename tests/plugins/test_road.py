@@ -439,8 +439,13 @@ def test_ipm_mask_geometry_and_fallback():
     xy = geom.bev_to_image(c, r)
     inside = (
         (xy[:, 0] >= 0) & (xy[:, 0] <= CALIB.width - 1) & (xy[:, 1] >= 0) & (xy[:, 1] <= CALIB.height - 1)
-    )
-    assert np.array_equal(inside.reshape(m.shape), m)
+    ).reshape(m.shape)
+    # nearest-pixel convention of the warp: the two may differ only within half a pixel of the border
+    near_border = (
+        (xy[:, 0] > -0.5) & (xy[:, 0] < CALIB.width - 0.5) & (xy[:, 1] > -0.5) & (xy[:, 1] < CALIB.height - 0.5)
+    ).reshape(m.shape) & ~inside
+    assert not (inside & ~m).any()
+    assert not (m & ~inside & ~near_border).any()
     # an image mask is carried over
     half = np.zeros(img.shape[:2], bool)
     half[:, : CALIB.width // 2] = True
