@@ -20,17 +20,17 @@ import numpy as np
 from pydantic import Field
 
 from lanegraph import NodeParams, Port, node_type
-from lanegraph._numba import jit
+from lanegraph._numba import jit, prange
 from lanegraph.types import FeatureMap
 
 
-@jit
+@jit(parallel=True)
 def _slt(img, window, threshold, out):
     """SLT on a float32 image; writes a uint8 0/1 map into ``out``. Windows are clipped at the
-    borders; a pixel with an empty window on either side is not a feature."""
+    borders; a pixel with an empty window on either side is not a feature. Rows in parallel."""
     rows, cols = img.shape
-    csum = np.empty(cols + 1, np.float64)
-    for r in range(rows):
+    for r in prange(rows):
+        csum = np.empty(cols + 1, np.float64)
         csum[0] = 0.0
         for c in range(cols):
             csum[c + 1] = csum[c] + img[r, c]
@@ -47,13 +47,14 @@ def _slt(img, window, threshold, out):
                 out[r, c] = 1
 
 
-@jit
-def _eslt(img, mag, theta, window, threshold, max_angle, out_mask, out_theta):
-    """ESLT: SLT plus parallel strongest-gradient borders. ``theta`` holds edge orientations in
-    [0, pi); writes the mask and the mean border orientation (-1 where not a feature)."""
+@jit(parallel=True)
+def _eslt(img, gx, gy, window, threshold, max_angle, out_mask, out_theta):
+    """ESLT: SLT plus parallel strongest-gradient borders. ``gx``, ``gy`` are Sobel gradients (rows
+    growing downwards); the edge orientation of a border pixel is ``atan2(gx, gy)`` modulo pi (from
+    +x towards up). Writes the mask and the mean border orientation (-1 where not a feature)."""
     rows, cols = img.shape
-    csum = np.empty(cols + 1, np.float64)
-    for r in range(rows):
+    for r in prange(rows):
+        csum = np.empty(cols + 1, np.float64)
         csum[0] = 0.0
         for c in range(cols):
             csum[c + 1] = csum[c] + img[r, c]
@@ -70,17 +71,23 @@ def _eslt(img, mag, theta, window, threshold, max_angle, out_mask, out_theta):
             if not (v > (csum[c] - csum[lo]) / nl and v > (csum[hi] - csum[c + 1]) / nr):
                 continue
             bl = lo
+            ml = -1.0
             for k in range(lo, c):
-                if mag[r, k] > mag[r, bl]:
+                m2 = gx[r, k] * gx[r, k] + gy[r, k] * gy[r, k]
+                if m2 > ml:
+                    ml = m2
                     bl = k
             br = c + 1
+            mr = -1.0
             for k in range(c + 1, hi):
-                if mag[r, k] > mag[r, br]:
+                m2 = gx[r, k] * gx[r, k] + gy[r, k] * gy[r, k]
+                if m2 > mr:
+                    mr = m2
                     br = k
-            if mag[r, bl] <= 0.0 or mag[r, br] <= 0.0:
+            if ml <= 0.0 or mr <= 0.0:
                 continue
-            a = theta[r, bl]
-            b = theta[r, br]
+            a = math.atan2(gx[r, bl], gy[r, bl]) % math.pi
+            b = math.atan2(gx[r, br], gy[r, br]) % math.pi
             d = abs(a - b)
             if d > math.pi / 2:
                 d = math.pi - d
@@ -94,6 +101,12 @@ def _eslt(img, mag, theta, window, threshold, max_angle, out_mask, out_theta):
                 m += math.pi
             out_mask[r, c] = 1
             out_theta[r, c] = m
+
+
+def sobel(gray: np.ndarray, ksize: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """Sobel gradients ``(gx, gy)`` of a float32 image (rows growing downwards)."""
+    g = gray.astype(np.float32, copy=False)
+    return cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=ksize), cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=ksize)
 
 
 def edge_orientation(gray: np.ndarray, ksize: int = 3) -> tuple[np.ndarray, np.ndarray]:
@@ -143,10 +156,10 @@ def eslt(params: EsltParams, image: np.ndarray) -> dict:
     """Extended SLT: SLT plus parallel strongest-gradient borders; features get the borders' mean orientation."""
     img = _as_gray32(image)
     k = params.sobel_ksize if params.sobel_ksize in (1, 3, 5, 7) else 3
-    mag, theta = edge_orientation(img, k)
+    gx, gy = sobel(img, k)
     mask = np.zeros(img.shape, np.uint8)
     ori = np.empty(img.shape, np.float32)
-    _eslt(img, mag, theta, params.window, float(params.threshold), math.radians(params.max_angle_deg), mask, ori)
+    _eslt(img, gx, gy, params.window, float(params.threshold), math.radians(params.max_angle_deg), mask, ori)
     return {"features": FeatureMap(mask=mask.astype(bool), orientation=ori)}
 
 

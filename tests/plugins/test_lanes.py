@@ -10,7 +10,7 @@ import pytest
 from lanegraph.testing import check_node_type, make_bev_image
 from lanegraph.types import BevGeometry, FeatureMap, Lane, Line
 from lanegraph_lanes import _features, _hough
-from lanegraph_lanes._features import edge_orientation, eslt, mask_features, slt
+from lanegraph_lanes._features import edge_orientation, eslt, mask_features, slt  # noqa: F401
 from lanegraph_lanes._fit import fit_irls, fit_ransac, irls_fit, ransac_fit
 from lanegraph_lanes._hough import line1d, line2d, orientation
 from lanegraph_lanes._temporal import temporal_mask, to_image
@@ -30,7 +30,9 @@ def slt_twin(img, w, T):
     return out
 
 
-def eslt_twin(img, mag, theta, w, T, max_angle):
+def eslt_twin(img, gx, gy, w, T, max_angle):
+    mag = np.hypot(gx, gy)
+    theta = np.mod(np.arctan2(gx, gy), np.pi)
     rows, cols = img.shape
     mask = np.zeros((rows, cols), np.uint8)
     ori = np.full((rows, cols), -1.0, np.float32)
@@ -72,11 +74,11 @@ def test_slt_kernel_matches_twin(shape, w, T):
 @pytest.mark.parametrize("w", [2, 4, 30])
 def test_eslt_kernel_matches_twin(w):
     img = make_bev_image(rows=24, cols=40, lane_cols=(12.0, 30.0), slope=0.3, noise=10.0, seed=3).astype(np.float32)
-    mag, theta = edge_orientation(img)
+    gx, gy = _features.sobel(img)
     mask = np.zeros(img.shape, np.uint8)
     ori = np.empty(img.shape, np.float32)
-    _features._eslt(img, mag, theta, w, 8.0, math.radians(15), mask, ori)
-    tm, to = eslt_twin(img, mag, theta, w, 8.0, math.radians(15))
+    _features._eslt(img, gx, gy, w, 8.0, math.radians(15), mask, ori)
+    tm, to = eslt_twin(img, gx, gy, w, 8.0, math.radians(15))
     np.testing.assert_array_equal(mask, tm)
     np.testing.assert_allclose(ori, to, atol=1e-5)
 
