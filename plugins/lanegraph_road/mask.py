@@ -177,20 +177,21 @@ def _keep_components(mask: np.ndarray, keep: str, band_frac: float, cx: float) -
     for region in seeds:
         overlap = np.bincount(region.ravel(), minlength=n)[1:]
         if overlap.max() > 0:
-            ids = 1 + np.flatnonzero(overlap >= 0.1 * overlap.max())
-            return np.isin(labels, ids)
+            lut = np.zeros(n, bool)
+            lut[1:] = overlap >= 0.1 * overlap.max()
+            return lut[labels]
     return mask
 
 
 def _fill_holes(mask: np.ndarray, above: np.ndarray, max_above: float) -> np.ndarray:
     """Fill the regions of ``~mask`` that do not touch the image border and whose share of
     above-road pixels is at most ``max_above``."""
-    n, labels = cv2.connectedComponents((~mask).astype(np.uint8), connectivity=4)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats((~mask).astype(np.uint8), connectivity=4)
     if n <= 1:
         return mask
     border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
-    size = np.bincount(labels.ravel(), minlength=n)
-    n_above = np.bincount(labels.ravel(), weights=above.ravel(), minlength=n)
+    size = stats[:, cv2.CC_STAT_AREA]
+    n_above = np.bincount(labels[above], minlength=n)
     fill = n_above <= max_above * size
     fill[0] = False
     fill[border] = False
