@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from .cache import ResultCache, digest
 from .errors import GraphError, LanegraphError, NodeError, Problem
 from .graph import Graph, GraphNode
 from .nodes import RunContext
@@ -50,6 +51,8 @@ class RunResult:
     node_types: dict[str, str] = field(default_factory=dict)
     failures: list[FrameFailure] = field(default_factory=list)
     frame_ms: list[float] = field(default_factory=list)
+    cache_hits: dict[str, int] = field(default_factory=dict)
+    cache_misses: dict[str, int] = field(default_factory=dict)
 
     def timings_json(self) -> dict[str, Any]:
         nodes = {}
@@ -76,10 +79,23 @@ class Executor:
     """Runs a validated :class:`~lanegraph.graph.Graph` over the frames of its source node."""
 
     def __init__(
-        self, graph: Graph, context: RunContext | None = None, pm: PluginManager | None = None, prefetch: int = 1
+        self,
+        graph: Graph,
+        context: RunContext | None = None,
+        pm: PluginManager | None = None,
+        prefetch: int = 1,
+        cache: ResultCache | None = None,
+        cache_nodes: set[str] | None = None,
     ):
+        """``cache``: a :class:`~lanegraph.cache.ResultCache` for the results of ``cache_nodes``
+        (default: every stateless node); results are keyed by node type, params, upstream keys and
+        the identity of the source's input files."""
         self.graph = graph
         self.prefetch = prefetch
+        self.cache = cache
+        self.cache_nodes = (
+            set(cache_nodes) if cache_nodes is not None else {nid for nid, n in graph.nodes.items() if not n.type.stateful}
+        )
         self.pm = pm or get_plugin_manager()
         self.context = context or RunContext()
         self._resolve_auto_source()
@@ -133,9 +149,21 @@ class Executor:
         return const
 
     # -- run -------------------------------------------------------------------
-    def _call(self, node: GraphNode, inputs: dict[str, Any], frame: str | None, index: int, result: RunResult) -> dict:
+    def _call(
+        self, node: GraphNode, inputs: dict[str, Any], frame: str | None, index: int, result: RunResult, key: str | None = None
+    ) -> dict:
         hook = self.pm.hook
         hook.lanegraph_before_node(node_id=node.id, node_type=node.type.name, frame=frame, inputs=inputs)
+        use_cache = self.cache is not None and key is not None and node.id in self.cache_nodes
+        if use_cache:
+            hit = self.cache.get(key)
+            if hit is not self.cache.MISS:
+                result.timings_ms.setdefault(node.id, []).append(hit["ms"])  # the time it took to compute
+                result.cache_hits[node.id] = result.cache_hits.get(node.id, 0) + 1
+                hook.lanegraph_after_node(
+                    node_id=node.id, node_type=node.type.name, frame=frame, outputs=hit["outputs"], elapsed_ms=hit["ms"]
+                )
+                return hit["outputs"]
         t0 = time.perf_counter()
         try:
             if node.type.stateful:
@@ -165,8 +193,30 @@ class Executor:
             if node.on_error == "skip":
                 raise _SkipFrame()
             return {p: None for p in node.type.outputs}
+        if use_cache:
+            self.cache.put(key, {"outputs": out, "ms": elapsed})
+            result.cache_misses[node.id] = result.cache_misses.get(node.id, 0) + 1
         hook.lanegraph_after_node(node_id=node.id, node_type=node.type.name, frame=frame, outputs=out, elapsed_ms=elapsed)
         return out
+
+    def _key(
+        self, node: GraphNode, keys: dict[tuple[str, str], str | None], prev_keys: dict[tuple[str, str], str | None]
+    ) -> str | None:
+        """The content key of ``node``'s result this frame, or None when it is not determined by its
+        inputs (a stateful node, or an input without a key)."""
+        if node.type.stateful:
+            return None
+        parts = []
+        for port in sorted(node.inputs):
+            e = node.inputs[port]
+            if e.previous:
+                k = prev_keys.get((e.src_node, e.src_port), "first-frame") if prev_keys else "first-frame"
+            else:
+                k = keys.get((e.src_node, e.src_port))
+            if k is None:
+                return None
+            parts.append((port, k))
+        return digest(node.type.name, node.type.plugin, node.params.model_dump(mode="json"), parts)
 
     def open(self) -> None:
         """Instantiate the stateful nodes (sources, sinks); done by :meth:`run` if not yet done."""
@@ -193,26 +243,37 @@ class Executor:
         src_id = g.source.id
         source = self.instances[src_id]
         values: dict[tuple[str, str], Any] = {}
+        keys: dict[tuple[str, str], str | None] = {}
+        caching = self.cache is not None
+        src_params = g.source.params.model_dump(mode="json")
         try:
             consts = source.constants() if hasattr(source, "constants") else {}
             for port, v in consts.items():
                 values[(src_id, port)] = v
+                keys[(src_id, port)] = digest(g.source.type.name, src_params, "constant", port, repr(v)) if caching else None
             for nid in g.order:
                 if nid in self.constant_nodes:
                     n = g.nodes[nid]
                     ins = {p: values.get((e.src_node, e.src_port)) for p, e in n.inputs.items()}
-                    out = self._call(n, ins, None, -1, result)
+                    key = self._key(n, keys, {}) if caching else None
+                    out = self._call(n, ins, None, -1, result, key)
                     for port, v in out.items():
                         values[(nid, port)] = v
+                        keys[(nid, port)] = None if key is None else digest(key, port)
             previous: dict[tuple[str, str], Any] = {}
+            prev_keys: dict[tuple[str, str], str | None] = {}
+            frame_key = getattr(source, "frame_key", None)
             for index, frame_out in enumerate(self._frames(source, src_id, result)):
                 if frame_out is None:
                     continue
                 frame = frame_out.get("frame")
                 t_frame = time.perf_counter()
                 cur = dict(values)
+                cur_keys = dict(keys)
+                identity = frame_key(frame) if (caching and frame_key is not None) else None
                 for port, v in frame_out.items():
                     cur[(src_id, port)] = v
+                    cur_keys[(src_id, port)] = None if identity is None else digest(g.source.type.name, src_params, identity, port)
                 try:
                     for nid in g.order:
                         if nid == src_id or nid in self.constant_nodes:
@@ -225,15 +286,17 @@ class Executor:
                         for p, port in n.type.inputs.items():
                             if p not in ins and port.optional:
                                 ins[p] = None
-                        out = self._call(n, ins, frame, index, result)
+                        key = self._key(n, cur_keys, prev_keys) if caching else None
+                        out = self._call(n, ins, frame, index, result, key)
                         for port, v in out.items():
                             cur[(nid, port)] = v
+                            cur_keys[(nid, port)] = None if key is None else digest(key, port)
                 except _SkipFrame:
-                    previous = {}
+                    previous, prev_keys = {}, {}
                     if on_frame:
                         on_frame(index, frame)
                     continue
-                previous = cur
+                previous, prev_keys = cur, cur_keys
                 result.frames += 1
                 result.frame_ms.append((time.perf_counter() - t_frame) * 1000.0)
                 if on_frame:

@@ -127,6 +127,20 @@ class _PairSource:
     def constants(self) -> dict:
         return {"calib": self.calib}
 
+    def frame_key(self, frame: str) -> str | None:
+        """Identity of a frame's input files (resolved path, size, mtime), for result caches."""
+        pair = next((p for p in self.pairs if p[0] == frame), None)
+        if pair is None:
+            return None
+        parts = []
+        for path in pair[1:]:
+            try:
+                st = path.stat()
+            except OSError:
+                return None
+            parts.append(f"{path.resolve()}:{st.st_size}:{st.st_mtime_ns}")
+        return "|".join(parts)
+
     def __len__(self) -> int:
         return len(self.pairs)
 

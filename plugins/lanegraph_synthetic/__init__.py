@@ -106,6 +106,10 @@ class SyntheticSource:
     def constants(self) -> dict:
         return {"calib": self.renderer.calib}
 
+    def frame_key(self, frame: str) -> str:
+        """A rendered frame is determined by the params and the frame index (for result caches)."""
+        return f"synthetic:{self.params.model_dump_json()}:{frame}"
+
     def __len__(self) -> int:
         return len(self.indices)
 

@@ -7,6 +7,9 @@ from pydantic import Field
 from lanegraph import NodeParams, Port, RunContext, hookimpl, node_type
 
 
+KEY_SALT = {"salt": "v1"}  # tests change it to simulate a changed input file
+
+
 class CountParams(NodeParams):
     n: int = Field(3, ge=1, le=1000, description="number of frames")
     fail_at: int = Field(-1, ge=-1, description="raise on this frame index (-1: never)")
@@ -26,6 +29,9 @@ class Count:
 
     def constants(self):
         return {"calib": "CAL"}
+
+    def frame_key(self, frame):
+        return f"count:{frame}:{KEY_SALT['salt']}"
 
     def __len__(self):
         return len(range(self.p.n)[self.sel])
