@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import sys
+import time
 from pathlib import Path
 
 import click
@@ -225,6 +226,54 @@ def show(graph: str, fmt: str, sets: tuple[str, ...]) -> None:
             label = f"{e.src_port}→{e.dst_port}" + (" (prev)" if e.previous else "")
             lines.append(f"  {e.src_node} {arrow}|{label}| {e.dst_node}")
         click.echo("\n".join(lines))
+
+
+@main.command()
+@click.argument("base", type=click.Path(path_type=Path))
+@click.argument("variants", nargs=-1, type=click.Path(path_type=Path))
+@click.option("--input", "input_path", type=click.Path(path_type=Path), help="input folder; default: the built-in synthetic scene")
+@click.option("--gt", "gt_path", type=click.Path(path_type=Path), help="ground truth lanes_gt.jsonl to evaluate against")
+@click.option("--sweep", "sweeps", multiple=True, metavar="NODE.PARAM=V1,V2,...", help="also run BASE once per value (repeatable)")
+@click.option("--out", "out_dir", type=click.Path(path_type=Path), default=Path("out/ablation"), show_default=True)
+@click.option("--frames", help="frame selection A:B or A:B:S")
+@click.option("--no-cache", is_flag=True, help="recompute everything (no shared results, no reuse of unchanged runs)")
+@click.option("--cache-dir", type=click.Path(path_type=Path), help="result cache folder (default: ~/.cache/lanegraph/results)")
+@click.option("--cache-max-gb", type=float, default=2.0, show_default=True, help="size bound of the result cache, GiB")
+@click.option("--quiet", is_flag=True, help="no progress bars")
+def ablate(base, variants, input_path, gt_path, sweeps, out_dir, frames, no_cache, cache_dir, cache_max_gb, quiet):
+    """Run BASE and every VARIANT (and every --sweep point) over the same input, evaluate each and
+    write OUT/results.csv, OUT/results.md and plots; work shared between variants is computed once."""
+    from .ablate import Variant, expand_sweeps, run_ablation
+    from .cache import ResultCache
+
+    paths = [resolve_graph_path(str(p)) for p in (base, *variants)]
+    runs = [Variant(p.stem, p) for p in paths]
+    names = [r.name for r in runs]
+    for i, r in enumerate(runs):  # disambiguate equal file names
+        if names.count(r.name) > 1:
+            r.name = f"{r.graph.parent.name}/{r.name}"
+    try:
+        runs += expand_sweeps(paths[0], list(sweeps))
+    except ValueError as exc:
+        click.echo(f"error: {exc}", err=True)
+        sys.exit(2)
+    if input_path is not None and not input_path.exists():
+        click.echo(f"error: --input {input_path}: no such file or folder", err=True)
+        sys.exit(2)
+    for r in runs:  # validate everything before running anything
+        try:
+            _load(str(r.graph), tuple(r.sets))
+        except GraphError as exc:
+            _fail(exc)
+    cache = None if no_cache else ResultCache(cache_dir, int(cache_max_gb * 1024**3))
+    t0 = time.perf_counter()
+    try:
+        rows = run_ablation(runs, input_path, gt_path, out_dir, parse_frames(frames), cache, progress=not quiet)
+    except LanegraphError as exc:
+        _fail(exc)
+    click.echo((out_dir / "results.md").read_text())
+    hits = f", cache {cache.hits} hits / {cache.misses} misses" if cache is not None else ", no cache"
+    click.echo(f"{len(rows)} run(s) in {time.perf_counter() - t0:.1f} s{hits} -> {out_dir}/results.md, results.csv, accuracy.png, accuracy_vs_ms.png")
 
 
 @main.command(name="eval")

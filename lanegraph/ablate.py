@@ -1,0 +1,210 @@
+"""Ablation runs: several graph variants (and param sweeps) over the same input, evaluated and
+tabulated, with the work the variants share computed once (:mod:`lanegraph.cache`).
+
+Writes ``OUT/<variant>/lanes.jsonl`` and ``timings.json`` per run, and ``OUT/results.csv``,
+``OUT/results.md``, ``OUT/accuracy.png`` (accuracy per variant) and ``OUT/accuracy_vs_ms.png``.
+A run whose resolved graph, input files and frame selection are unchanged since the last ablation
+(same output folder) is not run again: its recorded results are reused.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .cache import ResultCache, digest
+from .executor import Executor
+from .graph import load_graph
+from .metrics import evaluate, read_jsonl
+from .nodes import RunContext
+from .plugins import get_plugin_manager
+
+
+@dataclass
+class Variant:
+    """One run of an ablation: a graph file plus ``--set`` overrides."""
+
+    name: str
+    graph: Path
+    sets: list[str] = field(default_factory=list)
+
+
+def expand_sweeps(base: Path, sweeps: list[str]) -> list[Variant]:
+    """``node.param=v1,v2,...`` -> one variant of ``base`` per value."""
+    out = []
+    for sw in sweeps:
+        key, _, values = sw.partition("=")
+        if not values:
+            raise ValueError(f"--sweep {sw!r}: expected node.param=v1,v2,...")
+        for v in values.split(","):
+            out.append(Variant(f"{base.stem}[{key}={v}]", base, [f"{key}={v}"]))
+    return out
+
+
+def _input_identity(input_path: Path | None) -> str:
+    if input_path is None:
+        return "synthetic"
+    files = sorted(p for p in Path(input_path).rglob("*") if p.is_file())
+    return digest([(str(p), p.stat().st_size, p.stat().st_mtime_ns) for p in files])
+
+
+def _extra_metrics(pred: list[dict], gt: list[dict]) -> dict[str, Any]:
+    """CULane F1 when the extra metrics module is available."""
+    try:
+        from . import metrics_extra  # noqa: PLC0415
+    except ImportError:
+        return {}
+    fn = getattr(metrics_extra, "culane_metrics", None) or getattr(metrics_extra, "culane", None)
+    if fn is None:
+        return {}
+    try:
+        res = fn(pred, gt)
+    except Exception:  # noqa: BLE001 - a missing extra metric must not lose the ablation
+        return {}
+    return {"culane_f1": res.get("f1") if isinstance(res, dict) else None}
+
+
+def run_ablation(
+    variants: list[Variant],
+    input_path: Path | None,
+    gt_path: Path | None,
+    out_dir: Path,
+    frames: slice | None = None,
+    cache: ResultCache | None = None,
+    progress: bool = True,
+) -> list[dict[str, Any]]:
+    """Run, evaluate and tabulate every variant; returns the result rows."""
+    from tqdm import tqdm
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    gt = read_jsonl(gt_path) if gt_path else None
+    if gt is not None and frames is not None:
+        gt = gt[frames]  # the ground truth lists the input's frames in order
+    pm = get_plugin_manager()
+    ident = _input_identity(input_path)
+    rows = []
+    for var in tqdm(variants, desc="variants", unit="variant", disable=not progress, file=sys.stderr, position=0):
+        g = load_graph(var.graph, var.sets, pm)
+        run_dir = out_dir / _safe(var.name)
+        run_dir.mkdir(parents=True, exist_ok=True)
+        run_key = digest(g.resolved_dict(), ident, str(frames))
+        stamp = run_dir / "run_key.txt"
+        t0 = time.perf_counter()
+        reused = cache is not None and stamp.is_file() and stamp.read_text() == run_key and (run_dir / "timings.json").is_file()
+        if not reused:
+            stamp.unlink(missing_ok=True)
+            ctx = RunContext(input_path=input_path, out_dir=run_dir, frames=frames, graph_file=g.file)
+            ex = Executor(g, ctx, pm, cache=cache)
+            ex.open()
+            bar = tqdm(total=len(ex) or None, desc=var.name, unit="frame", leave=False, disable=not progress, file=sys.stderr, position=1)
+            res = ex.run(on_frame=lambda i, f: bar.update(1))
+            bar.close()
+            timings = res.timings_json()
+            timings["cache"] = {"hits": res.cache_hits, "misses": res.cache_misses}
+            (run_dir / "timings.json").write_text(json.dumps(timings, indent=2) + "\n")
+            stamp.write_text(run_key)
+        wall = time.perf_counter() - t0
+        timings = json.loads((run_dir / "timings.json").read_text())
+        row: dict[str, Any] = {"variant": var.name, "graph": str(var.graph), "sets": " ".join(var.sets)}
+        lanes_file = run_dir / "lanes.jsonl"
+        if gt is not None and lanes_file.is_file():
+            pred = read_jsonl(lanes_file)
+            ev = evaluate(pred, gt)
+            row.update({k: ev[k] for k in ("detection_ratio", "precision", "ego_recall", "mean_abs_dx_px")})
+            row.update(_extra_metrics(pred, gt))
+        nodes = timings.get("nodes", {})
+        # the sum of the stages' median compute times (a cached stage counts with the time it took)
+        row["ms_per_frame"] = round(sum(v["median_ms"] or 0.0 for v in nodes.values()), 2) if nodes else None
+        row["stage_ms"] = {nid: v["median_ms"] for nid, v in nodes.items()}
+        row["wall_s"] = round(wall, 2)
+        row["reused"] = reused
+        row["cache_hits"] = sum(timings.get("cache", {}).get("hits", {}).values())
+        rows.append(row)
+    write_reports(rows, out_dir)
+    return rows
+
+
+def _safe(name: str) -> str:
+    return "".join(ch if ch.isalnum() or ch in "-_.=[]" else "_" for ch in name)
+
+
+def _fmt(x: Any, pct: bool = False) -> str:
+    if x is None:
+        return "n/a"
+    if isinstance(x, float):
+        return f"{100 * x:.1f} %" if pct else f"{x:.2f}"
+    return str(x)
+
+
+def write_reports(rows: list[dict[str, Any]], out_dir: Path) -> None:
+    """``results.csv``, ``results.md`` and the two plots."""
+    stages = []
+    for r in rows:
+        for s in r.get("stage_ms", {}):
+            if s not in stages:
+                stages.append(s)
+    cols = ["variant", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px", "culane_f1", "ms_per_frame"]
+    with (out_dir / "results.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(cols + [f"ms_{s}" for s in stages] + ["wall_s", "reused", "cache_hits"])
+        for r in rows:
+            w.writerow([r.get(c) for c in cols] + [r["stage_ms"].get(s) for s in stages] + [r["wall_s"], r["reused"], r["cache_hits"]])
+    lines = [
+        "| variant | detection ratio | precision | ego recall | mean abs dx (px) | CULane F1 | ms/frame |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['variant']} | {_fmt(r.get('detection_ratio'), True)} | {_fmt(r.get('precision'), True)} | "
+            f"{_fmt(r.get('ego_recall'), True)} | {_fmt(r.get('mean_abs_dx_px'))} | {_fmt(r.get('culane_f1'))} | "
+            f"{_fmt(r.get('ms_per_frame'))} |"
+        )
+    lines += ["", "Median ms per frame per stage:", "", "| variant | " + " | ".join(stages) + " |", "|---|" + "---|" * len(stages)]
+    for r in rows:
+        lines.append(f"| {r['variant']} | " + " | ".join(_fmt(r["stage_ms"].get(s)) for s in stages) + " |")
+    (out_dir / "results.md").write_text("\n".join(lines) + "\n")
+    _plots(rows, out_dir)
+
+
+def _plots(rows: list[dict[str, Any]], out_dir: Path) -> None:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:  # pragma: no cover - matplotlib is a dependency
+        return
+    names = [r["variant"] for r in rows]
+    acc = [r.get("detection_ratio") or 0.0 for r in rows]
+    prec = [r.get("precision") or 0.0 for r in rows]
+    fig, ax = plt.subplots(figsize=(max(6, 0.8 * len(rows) + 2), 4))
+    xs = range(len(rows))
+    ax.bar([x - 0.2 for x in xs], acc, width=0.4, label="detection ratio")
+    ax.bar([x + 0.2 for x in xs], prec, width=0.4, label="precision")
+    ax.set_xticks(list(xs), names, rotation=35, ha="right")
+    ax.set_ylim(0, 1.05)
+    ax.set_ylabel("fraction")
+    ax.set_title("accuracy per variant")
+    ax.legend(loc="lower right")
+    fig.tight_layout()
+    fig.savefig(out_dir / "accuracy.png", dpi=110)
+    plt.close(fig)
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    for r, a in zip(rows, acc):
+        ms = r.get("ms_per_frame")
+        if ms is None:
+            continue
+        ax.scatter(ms, a)
+        ax.annotate(r["variant"], (ms, a), fontsize=7, xytext=(3, 3), textcoords="offset points")
+    ax.set_xlabel("median ms per frame (all nodes)")
+    ax.set_ylabel("detection ratio")
+    ax.set_ylim(-0.02, 1.05)
+    ax.set_title("accuracy against time")
+    fig.tight_layout()
+    fig.savefig(out_dir / "accuracy_vs_ms.png", dpi=110)
+    plt.close(fig)
