@@ -75,7 +75,10 @@ def main() -> None:
 @click.option("--set", "sets", multiple=True, metavar="NODE.PARAM=VALUE", help="override a param (repeatable)")
 @click.option("--frames", help="frame selection A:B or A:B:S (indices into the input's frames)")
 @click.option("--quiet", is_flag=True, help="no progress bar")
-def run(graph: str, input_path: Path | None, out_dir: Path, sets: tuple[str, ...], frames: str | None, quiet: bool) -> None:
+@click.option("--resume", is_flag=True, help="continue an interrupted run in OUT from its last complete frame")
+def run(
+    graph: str, input_path: Path | None, out_dir: Path, sets: tuple[str, ...], frames: str | None, quiet: bool, resume: bool
+) -> None:
     """Run GRAPH (a file or a name under graphs/, default: paper) and write OUT/lanes.jsonl and OUT/timings.json."""
     from tqdm import tqdm
 
@@ -91,12 +94,26 @@ def run(graph: str, input_path: Path | None, out_dir: Path, sets: tuple[str, ...
             sys.exit(2)
         _fail(exc)
     out_dir.mkdir(parents=True, exist_ok=True)
-    ctx = RunContext(input_path=input_path, out_dir=out_dir, frames=parse_frames(frames), graph_file=g.file)
+    selection = parse_frames(frames)
+    checkpoint = out_dir / "checkpoint.pkl"
+    state = None
+    if resume:
+        from .resume import prepare_resume
+
+        try:
+            selection, state = prepare_resume(out_dir, checkpoint, selection, g)
+        except LanegraphError as exc:
+            _fail(exc)
+        if state is not None:
+            click.echo(f"resuming after frame {state['frame']} ({state['done']} frame(s) already done)", err=True)
+    else:
+        checkpoint.unlink(missing_ok=True)
+    ctx = RunContext(input_path=input_path, out_dir=out_dir, frames=selection, graph_file=g.file, extra={"resume": state is not None})
     bar = None
     status = 0
     result = None
     try:
-        ex = Executor(g, ctx)
+        ex = Executor(g, ctx, checkpoint=checkpoint, resume_state=state)
         ex.open()
         bar = tqdm(total=len(ex) or None, unit="frame", disable=True if quiet else None, desc=g.name, file=sys.stderr)
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -86,10 +87,16 @@ class Executor:
         prefetch: int = 1,
         cache: ResultCache | None = None,
         cache_nodes: set[str] | None = None,
+        checkpoint: Path | None = None,
+        resume_state: dict | None = None,
     ):
         """``cache``: a :class:`~lanegraph.cache.ResultCache` for the results of ``cache_nodes``
         (default: every stateless node); results are keyed by node type, params, upstream keys and
-        the identity of the source's input files."""
+        the identity of the source's input files. ``checkpoint``: a file rewritten (atomically) after
+        every complete frame with the values of the feedback edges; ``resume_state``: such a
+        checkpoint's content, to continue a run with the same feedback values."""
+        self.checkpoint = checkpoint
+        self.resume_state = resume_state or {}
         self.graph = graph
         self.prefetch = prefetch
         self.cache = cache
@@ -199,6 +206,18 @@ class Executor:
         hook.lanegraph_after_node(node_id=node.id, node_type=node.type.name, frame=frame, outputs=out, elapsed_ms=elapsed)
         return out
 
+    def _write_checkpoint(self, index: int, frame: str | None, previous: dict, prev_keys: dict) -> None:
+        """After a frame is complete (its sinks have written): the values of the feedback edges, so a
+        resumed run continues exactly where this one stopped."""
+        import os
+        import pickle
+
+        assert self.checkpoint is not None
+        tmp = self.checkpoint.with_suffix(".tmp")
+        with tmp.open("wb") as fh:
+            pickle.dump({"index": index, "frame": frame, "previous": previous, "prev_keys": prev_keys, "graph": self.graph.file}, fh)
+        os.replace(tmp, self.checkpoint)
+
     def _key(
         self, node: GraphNode, keys: dict[tuple[str, str], str | None], prev_keys: dict[tuple[str, str], str | None]
     ) -> str | None:
@@ -260,8 +279,9 @@ class Executor:
                     for port, v in out.items():
                         values[(nid, port)] = v
                         keys[(nid, port)] = None if key is None else digest(key, port)
-            previous: dict[tuple[str, str], Any] = {}
-            prev_keys: dict[tuple[str, str], str | None] = {}
+            previous: dict[tuple[str, str], Any] = dict(self.resume_state.get("previous", {}))
+            prev_keys: dict[tuple[str, str], str | None] = dict(self.resume_state.get("prev_keys", {}))
+            feedback = {(e.src_node, e.src_port) for e in g.edges if e.previous}
             frame_key = getattr(source, "frame_key", None)
             for index, frame_out in enumerate(self._frames(source, src_id, result)):
                 if frame_out is None:
@@ -298,6 +318,8 @@ class Executor:
                     continue
                 previous, prev_keys = cur, cur_keys
                 result.frames += 1
+                if self.checkpoint is not None:
+                    self._write_checkpoint(index, frame, {k: cur[k] for k in feedback if k in cur}, {k: cur_keys.get(k) for k in feedback})
                 result.frame_ms.append((time.perf_counter() - t_frame) * 1000.0)
                 if on_frame:
                     on_frame(index, frame)

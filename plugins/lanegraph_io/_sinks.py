@@ -44,7 +44,8 @@ class WriteLanes:
     def __init__(self, params: WriteLanesParams, context: RunContext):
         self.path = _out_dir(context) / params.filename
         self.fsync = params.fsync
-        self.fh = self.path.open("a" if params.append else "w", encoding="utf-8")
+        append = params.append or bool(context.extra.get("resume"))
+        self.fh = self.path.open("a" if append else "w", encoding="utf-8")
 
     def __call__(self, frame: str, lanes: list[Lane] | None = None) -> dict:
         line = json.dumps(lane_record(frame, lanes), separators=(",", ":")) + "\n"
