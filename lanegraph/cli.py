@@ -76,8 +76,18 @@ def main() -> None:
 @click.option("--frames", help="frame selection A:B or A:B:S (indices into the input's frames)")
 @click.option("--quiet", is_flag=True, help="no progress bar")
 @click.option("--resume", is_flag=True, help="continue an interrupted run in OUT from its last complete frame")
+@click.option("--debug-dir", type=click.Path(path_type=Path), help="save every node's output of the chosen frames as pictures, and a mosaic")
+@click.option("--debug-frames", help="frames for --debug-dir: ids or indices, comma-separated (default: all)")
 def run(
-    graph: str, input_path: Path | None, out_dir: Path, sets: tuple[str, ...], frames: str | None, quiet: bool, resume: bool
+    graph: str,
+    input_path: Path | None,
+    out_dir: Path,
+    sets: tuple[str, ...],
+    frames: str | None,
+    quiet: bool,
+    resume: bool,
+    debug_dir: Path | None,
+    debug_frames: str | None,
 ) -> None:
     """Run GRAPH (a file or a name under graphs/, default: paper) and write OUT/lanes.jsonl and OUT/timings.json."""
     from tqdm import tqdm
@@ -113,6 +123,20 @@ def run(
     status = 0
     result = None
     try:
+        recorder = None
+        if debug_dir is not None:
+            from .render import DebugRecorder
+
+            chosen = None
+            if debug_frames:
+                chosen = set()
+                for item in debug_frames.split(","):
+                    item = item.strip()
+                    chosen.add(item)
+                    if item.isdigit():
+                        chosen.update({f"{int(item):010d}", f"{int(item):06d}"})
+            recorder = DebugRecorder(debug_dir, chosen, get_plugin_manager())
+            get_plugin_manager().register(recorder)
         ex = Executor(g, ctx, checkpoint=checkpoint, resume_state=state)
         ex.open()
         bar = tqdm(total=len(ex) or None, unit="frame", disable=True if quiet else None, desc=g.name, file=sys.stderr)
