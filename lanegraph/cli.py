@@ -55,11 +55,22 @@ def _fail(exc: LanegraphError) -> None:
     sys.exit(exc.exit_code)
 
 
+def allowed_roots(graph_path: Path) -> list[Path]:
+    """Where ``extends`` may point: the graph's own folder, the current folder, lanegraph's
+    ``graphs/`` and the folders listed in ``LANEGRAPH_GRAPH_ROOTS`` (os.pathsep-separated)."""
+    import os
+
+    roots = [graph_path.resolve().parent, Path.cwd().resolve(), REPO_GRAPHS.resolve()]
+    roots += [Path(p).resolve() for p in os.environ.get("LANEGRAPH_GRAPH_ROOTS", "").split(os.pathsep) if p]
+    return roots
+
+
 def _load(graph: str, sets: tuple[str, ...] = ()) -> Graph:
     pm = get_plugin_manager()
     for err in pm.load_errors:
         click.echo(f"warning: {err}", err=True)
-    return load_graph(resolve_graph_path(graph), list(sets), pm)
+    path = resolve_graph_path(graph)
+    return load_graph(path, list(sets), pm, roots=allowed_roots(path))
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})

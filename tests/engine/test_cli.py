@@ -90,3 +90,19 @@ def test_eval_json(cli, tmp_path):
     assert res["failed_frames"][0]["frame"] == "f1"
     r = cli.invoke(main, ["eval", str(tmp_path / "p.jsonl"), str(tmp_path / "gt.jsonl")])
     assert "detection ratio: 50.0 %" in r.output and "f1: ego left boundary" in r.output
+
+
+def test_extends_outside_allowed_roots_is_rejected_by_the_cli(cli, tmp_path, monkeypatch):
+    outside = tmp_path / "outside"
+    inside = tmp_path / "work" / "graphs"
+    outside.mkdir()
+    inside.mkdir(parents=True)
+    (outside / "base.yaml").write_text(yaml.safe_dump(VALID))
+    child = inside / "child.yaml"
+    child.write_text("extends: ../../outside/base.yaml\n")
+    monkeypatch.chdir(tmp_path / "work")
+    r = cli.invoke(main, ["validate", str(child)])
+    assert r.exit_code == 2 and "outside the allowed roots" in r.output
+    monkeypatch.setenv("LANEGRAPH_GRAPH_ROOTS", str(outside))
+    r = cli.invoke(main, ["validate", str(child)])
+    assert r.exit_code == 0, r.output
