@@ -85,9 +85,11 @@ def free_space_np(labels, min_run, unknown_is_road):
     out = np.zeros((H, W), bool)
     for u in range(W):
         run = 0
+        seen = False
         for v in range(H - 1, -1, -1):
-            if labels[v, u] == 1 or (unknown_is_road and labels[v, u] == 4):
+            if labels[v, u] == 1 or (unknown_is_road and labels[v, u] == 4 and seen):
                 run = 0
+                seen = True
                 out[v, u] = True
             elif labels[v, u] == 2:
                 run += 1
