@@ -53,6 +53,22 @@ class DisparityParams(NodeParams):
         le=16.0,
         description="largest accepted left-right disparity difference, pixels of the input resolution",
     )
+    top_fraction: float = Field(
+        0.0,
+        ge=0.0,
+        le=0.9,
+        description="compute only from this fraction of the image height downwards (unitless); the rows "
+        "above (sky, far above the horizon) are left invalid",
+    )
+    strips: int = Field(
+        1,
+        ge=1,
+        le=8,
+        description="split the rows into this many horizontal strips computed in parallel threads",
+    )
+    strip_overlap: int = Field(
+        24, ge=0, le=256, description="rows each strip extends into its neighbours, pixels of the computing resolution"
+    )
 
 
 def to_gray(image: np.ndarray, port: str) -> np.ndarray:
@@ -174,6 +190,30 @@ def upsample_disparity(d: np.ndarray, shape: tuple[int, int], scale: float, mode
     return out.astype(np.float32, copy=False)
 
 
+def _compute_strips(
+    compute: Backend, gl: np.ndarray, gr: np.ndarray, s: float, need_right: bool, strips: int, overlap: int
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """``compute`` on ``strips`` horizontal strips (each extended by ``overlap`` rows) in threads
+    (OpenCV and the numba kernels release the GIL), stitched back together."""
+    h = gl.shape[0]
+    strips = max(1, min(strips, h // max(1, 2 * overlap + 8)))
+    if strips == 1:
+        return compute(gl, gr, s, need_right)
+    from concurrent.futures import ThreadPoolExecutor
+
+    bounds = np.linspace(0, h, strips + 1).round().astype(int)
+    jobs = [(max(0, a - overlap), min(h, b + overlap), a, b) for a, b in zip(bounds[:-1], bounds[1:])]
+    with ThreadPoolExecutor(max_workers=strips) as pool:
+        results = list(pool.map(lambda j: compute(np.ascontiguousarray(gl[j[0] : j[1]]), np.ascontiguousarray(gr[j[0] : j[1]]), s, need_right), jobs))
+    dl = np.zeros(gl.shape, np.float32)
+    dr = np.zeros(gl.shape, np.float32) if need_right else None
+    for (lo, hi, a, b), (sl, sr) in zip(jobs, results):
+        dl[a:b] = sl[a - lo : b - lo]
+        if dr is not None and sr is not None:
+            dr[a:b] = sr[a - lo : b - lo]
+    return dl, dr
+
+
 def run_backend(left: np.ndarray, right: np.ndarray, params: DisparityParams, compute: Backend) -> np.ndarray:
     """Run ``compute`` with the common steps (gray, scale, lr check, upsample).
 
@@ -199,7 +239,12 @@ def run_backend(left: np.ndarray, right: np.ndarray, params: DisparityParams, co
         gl = cv2.resize(gl, size, interpolation=cv2.INTER_AREA)
         gr = cv2.resize(gr, size, interpolation=cv2.INTER_AREA)
         s = size[0] / w  # the horizontal factor actually applied: disparities are horizontal
-    dl, dr = compute(gl, gr, s, params.lr_check)
+    top = int(round(params.top_fraction * gl.shape[0]))
+    dl, dr = _compute_strips(compute, gl[top:], gr[top:], s, params.lr_check, params.strips, params.strip_overlap)
+    if top:
+        pad = np.zeros((top, gl.shape[1]), np.float32)
+        dl = np.vstack([pad, dl])
+        dr = None if dr is None else np.vstack([pad, dr])
     if params.lr_check:
         if dr is None:  # pragma: no cover - a backend bug, not a user error
             raise RuntimeError("backend returned no right disparity although lr_check is on")

@@ -539,3 +539,13 @@ def test_sgm_agrees_with_sgbm_on_kitti(kitti_drive):
     assert (own[h // 2 :] > 0).mean() >= 0.8
     both = (ref > 0) & (own > 0)
     assert np.mean(np.abs(ref - own)[both] < 1.5) >= 0.8
+
+
+def test_strips_and_top_fraction_agree_with_one_pass():
+    left, right = shifted_pair(7, h=120, w=96)
+    one = run(ld.sgbm, ld.SgbmParams(), left, right, num_disparities=16, block_size=5)
+    strips = run(ld.sgbm, ld.SgbmParams(), left, right, num_disparities=16, block_size=5, strips=3, strip_overlap=12)
+    both = (one > 0) & (strips > 0)
+    assert both.mean() > 0.5 and np.mean(np.abs(one - strips)[both] < 0.5) > 0.95
+    top = run(ld.sgbm, ld.SgbmParams(), left, right, num_disparities=16, block_size=5, top_fraction=0.5)
+    assert not top[:60].any() and np.median(top[70:, 30:80]) == pytest.approx(7, abs=0.5)
