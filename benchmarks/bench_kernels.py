@@ -18,10 +18,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from lanegraph.testing import make_bev_image, make_disparity  # noqa: E402
 from lanegraph_disparity import _sgm  # noqa: E402
 from lanegraph_lanes import _features, _hough  # noqa: E402
 from lanegraph_road import mask, profile  # noqa: E402
+
+from lanegraph.testing import make_bev_image, make_disparity  # noqa: E402
 from tests.plugins import test_disparity as td  # noqa: E402
 from tests.plugins import test_lanes as tl  # noqa: E402
 from tests.plugins import test_road as tr  # noqa: E402

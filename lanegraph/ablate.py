@@ -102,7 +102,7 @@ def run_ablation(
             ex = Executor(g, ctx, pm, cache=cache)
             ex.open()
             bar = tqdm(total=len(ex) or None, desc=var.name, unit="frame", leave=False, disable=not progress, file=sys.stderr, position=1)
-            res = ex.run(on_frame=lambda i, f: bar.update(1))
+            res = ex.run(on_frame=lambda i, f, bar=bar: bar.update(1))
             bar.close()
             timings = res.timings_json()
             timings["cache"] = {"hits": res.cache_hits, "misses": res.cache_misses}

@@ -80,7 +80,7 @@ class ResultCache:
 
     def evict(self) -> None:
         """Remove least recently used entries until the cache is within 80 % of its bound."""
-        entries = sorted(((p.stat().st_mtime, p.stat().st_size, p) for p in self.root.glob("*/*.pkl")))
+        entries = sorted((p.stat().st_mtime, p.stat().st_size, p) for p in self.root.glob("*/*.pkl"))
         total = sum(e[1] for e in entries)
         for _, size, p in entries:
             if total <= 0.8 * self.max_bytes:

@@ -301,7 +301,7 @@ def ablate(base, variants, input_path, gt_path, sweeps, out_dir, frames, no_cach
     paths = [resolve_graph_path(str(p)) for p in (base, *variants)]
     runs = [Variant(p.stem, p) for p in paths]
     names = [r.name for r in runs]
-    for i, r in enumerate(runs):  # disambiguate equal file names
+    for r in runs:  # disambiguate equal file names
         if names.count(r.name) > 1:
             r.name = f"{r.graph.parent.name}/{r.name}"
     try:

@@ -324,7 +324,7 @@ class Executor:
                 if on_frame:
                     on_frame(index, frame)
         finally:
-            for nid, inst in self.instances.items():
+            for inst in self.instances.values():
                 close = getattr(inst, "close", None)
                 if close is not None:
                     try:

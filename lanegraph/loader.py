@@ -7,10 +7,10 @@ bounded in size and nesting depth, and ``extends`` may only point inside the all
 from __future__ import annotations
 
 import json
-import tomllib
 from pathlib import Path
 from typing import Any
 
+import tomllib
 import yaml
 
 from .errors import GraphError, Problem

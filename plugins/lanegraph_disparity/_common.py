@@ -207,7 +207,7 @@ def _compute_strips(
         results = list(pool.map(lambda j: compute(np.ascontiguousarray(gl[j[0] : j[1]]), np.ascontiguousarray(gr[j[0] : j[1]]), s, need_right), jobs))
     dl = np.zeros(gl.shape, np.float32)
     dr = np.zeros(gl.shape, np.float32) if need_right else None
-    for (lo, hi, a, b), (sl, sr) in zip(jobs, results):
+    for (lo, _hi, a, b), (sl, sr) in zip(jobs, results):
         dl[a:b] = sl[a - lo : b - lo]
         if dr is not None and sr is not None:
             dr[a:b] = sr[a - lo : b - lo]

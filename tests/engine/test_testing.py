@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
+import lanegraph_image
 import numpy as np
 import pytest
 
-import lanegraph_image
 from lanegraph import NodeParams, node_type
 from lanegraph.testing import check_node_type, make_bev_image, make_disparity, make_stereo_pair, run_node
 

@@ -6,7 +6,6 @@ from pydantic import Field
 
 from lanegraph import NodeParams, Port, RunContext, hookimpl, node_type
 
-
 KEY_SALT = {"salt": "v1"}  # tests change it to simulate a changed input file
 
 

@@ -8,12 +8,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from lanegraph_io import WriteLanes, WriteOverlay, detect_source, parse_frames, read_calibration_yaml
+from lanegraph_io._sources import FolderSource, KittiOdometrySource, KittiRawSource
 
 from lanegraph.errors import InputError
 from lanegraph.nodes import RunContext
 from lanegraph.types import Lane
-from lanegraph_io import WriteLanes, WriteOverlay, detect_source, parse_frames, read_calibration_yaml
-from lanegraph_io._sources import FolderSource, KittiOdometrySource, KittiRawSource
 
 P2 = "7.215377e+02 0 6.095593e+02 4.485728e+01 0 7.215377e+02 1.728540e+02 2.163791e-01 0 0 1 2.745884e-03"
 P3 = "7.215377e+02 0 6.095593e+02 -3.395242e+02 0 7.215377e+02 1.728540e+02 2.199936e+00 0 0 1 2.729905e-03"

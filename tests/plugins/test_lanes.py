@@ -6,15 +6,15 @@ import math
 
 import numpy as np
 import pytest
-
-from lanegraph.testing import check_node_type, make_bev_image
-from lanegraph.types import BevGeometry, FeatureMap, Lane, Line
 from lanegraph_lanes import _features, _hough
 from lanegraph_lanes._features import edge_orientation, eslt, mask_features, slt  # noqa: F401
 from lanegraph_lanes._fit import fit_irls, fit_ransac, irls_fit, ransac_fit
 from lanegraph_lanes._hough import line1d, line2d, orientation
 from lanegraph_lanes._temporal import temporal_mask, to_image
 from lanegraph_lanes._verify import verify
+
+from lanegraph.testing import check_node_type, make_bev_image
+from lanegraph.types import BevGeometry, FeatureMap, Lane, Line
 
 
 # ----------------------------------------------------------------------------- NumPy twins
