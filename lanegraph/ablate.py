@@ -59,11 +59,8 @@ def _extra_metrics(pred: list[dict], gt: list[dict]) -> dict[str, Any]:
         from . import metrics_extra  # noqa: PLC0415
     except ImportError:
         return {}
-    fn = getattr(metrics_extra, "culane_metrics", None) or getattr(metrics_extra, "culane", None)
-    if fn is None:
-        return {}
     try:
-        res = fn(pred, gt)
+        res = metrics_extra.culane_metrics(pred, gt)
     except Exception:  # noqa: BLE001 - a missing extra metric must not lose the ablation
         return {}
     return {"culane_f1": res.get("f1") if isinstance(res, dict) else None}

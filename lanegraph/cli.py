@@ -14,7 +14,7 @@ import click
 import yaml
 
 from . import __version__
-from .errors import GraphError, LanegraphError
+from .errors import GraphError, LanegraphError, UsageError
 from .graph import Graph, graph_json_schema, load_graph
 from .nodes import RunContext
 from .plugins import get_plugin_manager
@@ -332,16 +332,47 @@ def ablate(base, variants, input_path, gt_path, sweeps, out_dir, frames, no_cach
 @click.argument("pred", type=click.Path(path_type=Path))
 @click.argument("gt", type=click.Path(path_type=Path))
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
-def eval_cmd(pred: Path, gt: Path, as_json: bool) -> None:
-    """Evaluate PRED lanes.jsonl against GT lanes_gt.jsonl with the lane metric of the data README."""
+@click.option("--metrics", default="readme,culane,tusimple", show_default=True, help="readme, culane, tusimple, lateral (comma-separated)")
+@click.option("--scene", type=click.Path(path_type=Path), help="scene.json of a synthetic sequence (pitch, height) for the lateral error")
+@click.option("--calib", type=click.Path(path_type=Path), help="calib.yaml (f, cx, cy, baseline) for the lateral error")
+def eval_cmd(pred: Path, gt: Path, as_json: bool, metrics: str, scene: Path | None, calib: Path | None) -> None:
+    """Evaluate PRED lanes.jsonl against GT lanes_gt.jsonl: the lane metric of the data README, plus
+    CULane-style F1, TuSimple-style accuracy and, for synthetic scenes, the lateral error in cm."""
     from .metrics import evaluate, read_jsonl
+    from .metrics_extra import culane_metrics, lateral_error_cm, tusimple_metrics
 
+    wanted = {m.strip() for m in metrics.split(",") if m.strip()}
+    unknown = wanted - {"readme", "culane", "tusimple", "lateral"}
+    if unknown:
+        click.echo(f"error: --metrics: unknown metric(s) {sorted(unknown)}; expected readme, culane, tusimple, lateral", err=True)
+        sys.exit(2)
+    if scene is not None:
+        wanted.add("lateral")
     try:
-        res = evaluate(read_jsonl(pred), read_jsonl(gt))
+        pred_recs, gt_recs = read_jsonl(pred), read_jsonl(gt)
+        res = evaluate(pred_recs, gt_recs)
+        res.pop("per_frame")
+        if "culane" in wanted:
+            res["culane"] = culane_metrics(pred_recs, gt_recs)
+        if "tusimple" in wanted:
+            res["tusimple"] = tusimple_metrics(pred_recs, gt_recs)
+        if "lateral" in wanted:
+            if scene is None:
+                raise UsageError("--metrics lateral needs --scene scene.json (and --calib, default: calib.yaml beside it)")
+            import math
+
+            from lanegraph_io import read_calibration_yaml
+
+            info = json.loads(Path(scene).read_text())
+            cal = read_calibration_yaml(calib or Path(scene).with_name("calib.yaml"))
+            pitch = info.get("pitch_rad", math.radians(info.get("pitch_deg", 0.0)))
+            res["lateral_error_cm"] = lateral_error_cm(pred_recs, gt_recs, cal, float(pitch), float(info["height"]))
     except LanegraphError as exc:
         click.echo(f"error: {exc}", err=True)
         sys.exit(2)
-    res.pop("per_frame")
+    except (OSError, KeyError, ValueError) as exc:
+        click.echo(f"error: {exc}", err=True)
+        sys.exit(2)
     if as_json:
         click.echo(json.dumps(res))
         return
@@ -355,6 +386,15 @@ def eval_cmd(pred: Path, gt: Path, as_json: bool) -> None:
     click.echo(f"ego recall:      {pct(res['ego_recall'])}")
     dx = res["mean_abs_dx_px"]
     click.echo(f"mean |dx|:       {'n/a' if dx is None else f'{dx:.2f} px'}")
+    if "culane" in res:
+        c = res["culane"]
+        click.echo(f"CULane F1:       {pct(c['f1'])} (precision {pct(c['precision'])}, recall {pct(c['recall'])}; TP {c['tp']} FP {c['fp']} FN {c['fn']})")
+    if "tusimple" in res:
+        t = res["tusimple"]
+        click.echo(f"TuSimple:        accuracy {pct(t['accuracy'])}, FP {pct(t['fp'])}, FN {pct(t['fn'])}")
+    if "lateral_error_cm" in res:
+        lat = ", ".join(f"{k} m: {'n/a' if v is None else f'{v:.1f} cm'}" for k, v in res["lateral_error_cm"].items())
+        click.echo(f"lateral error:   {lat}")
     if res["failed_frames"]:
         click.echo(f"failed frames ({len(res['failed_frames'])}):")
         for f in res["failed_frames"]:
