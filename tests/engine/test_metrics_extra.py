@@ -5,7 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lanegraph.metrics_extra import culane_metrics, image_to_road_x, lateral_error_cm, road_row, tusimple_metrics
+from lanegraph.metrics_extra import (
+    culane_metrics,
+    image_to_road_x,
+    lateral_error_cm,
+    road_row,
+    tusimple_metrics,
+)
 from lanegraph.types import Calibration
 
 SIZE = [200, 100]
