@@ -133,19 +133,12 @@ def run(
     bar = None
     status = 0
     result = None
+    recorder = None
     try:
-        recorder = None
         if debug_dir is not None:
             from .render import DebugRecorder
 
-            chosen = None
-            if debug_frames:
-                chosen = set()
-                for item in debug_frames.split(","):
-                    item = item.strip()
-                    chosen.add(item)
-                    if item.isdigit():
-                        chosen.update({f"{int(item):010d}", f"{int(item):06d}"})
+            chosen = {item.strip() for item in debug_frames.split(",") if item.strip()} if debug_frames else None
             recorder = DebugRecorder(debug_dir, chosen, get_plugin_manager())
             get_plugin_manager().register(recorder)
         ex = Executor(g, ctx, checkpoint=checkpoint, resume_state=state)
@@ -164,6 +157,8 @@ def run(
     finally:
         if bar is not None:
             bar.close()
+        if recorder is not None:
+            get_plugin_manager().unregister(recorder)
     assert result is not None
     (out_dir / "timings.json").write_text(json.dumps(result.timings_json(), indent=2) + "\n")
     (out_dir / "run.json").write_text(

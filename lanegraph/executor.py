@@ -270,6 +270,8 @@ class Executor:
             for port, v in consts.items():
                 values[(src_id, port)] = v
                 keys[(src_id, port)] = digest(g.source.type.name, src_params, "constant", port, repr(v)) if caching else None
+            if consts:
+                self.pm.hook.lanegraph_after_node(node_id=src_id, node_type=g.source.type.name, frame=None, outputs=dict(consts), elapsed_ms=0.0)
             for nid in g.order:
                 if nid in self.constant_nodes:
                     n = g.nodes[nid]
@@ -294,6 +296,9 @@ class Executor:
                 for port, v in frame_out.items():
                     cur[(src_id, port)] = v
                     cur_keys[(src_id, port)] = None if identity is None else digest(g.source.type.name, src_params, identity, port)
+                # the source is an iterator read ahead, so it fires only the after-node hook
+                src_ms = result.timings_ms.get(src_id, [0.0])[-1]
+                self.pm.hook.lanegraph_after_node(node_id=src_id, node_type=g.source.type.name, frame=frame, outputs=frame_out, elapsed_ms=src_ms)
                 try:
                     for nid in g.order:
                         if nid == src_id or nid in self.constant_nodes:

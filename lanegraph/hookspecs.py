@@ -29,7 +29,12 @@ def lanegraph_before_node(node_id: str, node_type: str, frame: str | None, input
 def lanegraph_after_node(
     node_id: str, node_type: str, frame: str | None, outputs: dict[str, Any] | None, elapsed_ms: float
 ) -> None:
-    """Called right after a node processed a frame, with its outputs and wall time in ms."""
+    """Called right after a node processed a frame, with its outputs and wall time in ms.
+
+    The source node (an iterator read ahead) fires only this hook: once with its constants
+    (``frame`` None) and once per frame. Nodes that run once (constant inputs only) fire it with
+    ``frame`` None.
+    """
 
 
 @hookspec
