@@ -21,6 +21,7 @@ _SGBM_MODES = {
     "sgbm": cv2.StereoSGBM_MODE_SGBM,
     "3way": cv2.StereoSGBM_MODE_SGBM_3WAY,
     "hh": cv2.StereoSGBM_MODE_HH,
+    "hh4": cv2.StereoSGBM_MODE_HH4,
 }
 
 
@@ -93,10 +94,11 @@ class SgbmParams(OpenCVDisparityParams):
     """Params of ``disparity.sgbm`` (OpenCV semi-global block matching)."""
 
     block_size: int = Field(5, ge=1, le=31, description="matching block size, pixels (odd)")
-    mode: Literal["sgbm", "3way", "hh"] = Field(
+    mode: Literal["sgbm", "3way", "hh", "hh4"] = Field(
         "sgbm",
-        description="'sgbm': 5 paths, single pass; '3way': faster 3-way variant; 'hh': full 8-path "
-        "Hirschmueller (slow, memory hungry)",
+        description="'sgbm': 5 paths, single pass (its paths all come from above, so on a road "
+        "sloping away it reads 0.5-1 px low); '3way': faster 3-way variant; 'hh4': 4 symmetric "
+        "paths, two passes (unbiased on the road); 'hh': full 8-path Hirschmueller (slow, memory hungry)",
     )
     p1: int = Field(
         0,
@@ -310,9 +312,9 @@ def bm(params: BmParams, left: np.ndarray, right: np.ndarray) -> dict:
         num = scaled_disparities(params.num_disparities, scale, 16)
         mind = int(round(params.min_disparity * scale))
         _check_range(gl.shape[1], mind, num, params.block_size, scale)
-        if min(gl.shape) < params.block_size:
+        if min(gl.shape) <= params.block_size:  # StereoBM needs block_size < width and height
             raise InputError(
-                f"image of {gl.shape[0]}x{gl.shape[1]} px at scale {scale:g} is smaller than block_size "
+                f"image of {gl.shape[0]}x{gl.shape[1]} px at scale {scale:g} is not larger than block_size "
                 f"{params.block_size}"
             )
         return _compute_opencv(_bm_matcher(params, num, mind), params, gl, gr, need_right)

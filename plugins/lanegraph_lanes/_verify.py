@@ -6,11 +6,17 @@ the Hough transform like a painted line. What tells them apart is the surface on
 painted line lies on asphalt, which is smooth at the BEV scale, while beyond a kerb or rail there
 is gravel, grass or pavement texture. For every lane, on each side, a band of the BEV image from
 ``gap_px`` to ``band_px`` away from the lane is taken; the lateral standard deviation of the
-intensity is computed per row and its median over the lane's rows is the side's *texture*. A lane
-whose rougher side exceeds ``max_texture`` grey levels is dropped.
+intensity is measured per row — by default the mean absolute difference of neighbouring pixels,
+which a smooth shadow edge barely raises (the lateral standard deviation, ``measure="std"``, is
+kept as an option: a car's shadow beside a line raises it like gravel) — and its median over the
+lane's rows is the side's *texture*. A lane whose rougher side exceeds ``max_texture`` grey levels
+is dropped. On KITTI drive 0001 the kept lines measure at most 3.4 and the rails and kerbs at
+least 14 (default threshold 9).
 """
 
 from __future__ import annotations
+
+from typing import Literal
 
 import numpy as np
 from pydantic import Field
@@ -19,8 +25,13 @@ from lanegraph import NodeParams, Port, node_type
 from lanegraph.types import Lane
 
 
-def side_texture(image: np.ndarray, lane: Lane, gap_px: int, band_px: int) -> tuple[float, float]:
-    """Median over the lane's rows of the lateral intensity std in the (left, right) side bands."""
+def side_texture(image: np.ndarray, lane: Lane, gap_px: int, band_px: int, measure: str = "std") -> tuple[float, float]:
+    """Median over the lane's rows of the lateral texture in the (left, right) side bands.
+
+    ``measure="std"``: the intensity's standard deviation across the band; ``"diff"``: the mean
+    absolute difference of neighbouring pixels across the band, which a smooth shadow edge or
+    illumination gradient barely changes while gravel or grass raise it.
+    """
     rows, cols = image.shape[:2]
     r = np.arange(lane.bev_rows[0], lane.bev_rows[1] + 1)
     t = rows - 1 - r
@@ -37,7 +48,9 @@ def side_texture(image: np.ndarray, lane: Lane, gap_px: int, band_px: int) -> tu
         if not full.any():
             out.append(0.0)
             continue
-        out.append(float(np.median(vals[full].std(axis=1))))
+        v = vals[full]
+        tex = np.abs(np.diff(v, axis=1)).mean(axis=1) if measure == "diff" else v.std(axis=1)
+        out.append(float(np.median(tex)))
     return out[0], out[1]
 
 
@@ -46,7 +59,12 @@ class VerifyParams(NodeParams):
 
     gap_px: int = Field(6, ge=0, le=200, description="start of the side bands, BEV pixels from the lane")
     band_px: int = Field(30, ge=2, le=400, description="end of the side bands, BEV pixels from the lane")
-    max_texture: float = Field(18.0, gt=0.0, le=255.0, description="largest median lateral intensity std on either side, grey levels")
+    max_texture: float = Field(9.0, gt=0.0, le=255.0, description="largest texture on either side, grey levels (see measure; about 18 suits 'std')")
+    measure: Literal["std", "diff"] = Field(
+        "diff",
+        description="'std': lateral intensity std in the band; 'diff': mean absolute difference of "
+        "neighbouring pixels (insensitive to shadow edges)",
+    )
 
 
 @node_type(
@@ -58,7 +76,7 @@ def verify(params: VerifyParams, lanes: list[Lane], image: np.ndarray) -> dict:
     """Drop lanes that lie next to a textured surface (a kerb or rail beside gravel or grass), not paint on asphalt."""
     kept = []
     for ln in lanes or []:
-        left, right = side_texture(image, ln, params.gap_px, params.band_px)
+        left, right = side_texture(image, ln, params.gap_px, params.band_px, params.measure)
         if max(left, right) <= params.max_texture:
             extra = dict(ln.extra, texture=[round(left, 1), round(right, 1)])
             kept.append(Lane(ln.coeffs, ln.bev_rows, ln.side, ln.score, ln.points, extra))

@@ -44,6 +44,7 @@ from .objects import Box, Placed, Pole, intersect, place
 KITTI_CALIB = Calibration(f=721.5377, cx=609.5593, cy=172.8540, baseline=0.5327, width=1242, height=375)
 
 FINE_TEXEL = 0.04  # metres per texel of the fine asphalt texture (512 x 512, repeating)
+RIP_LEVELS = 7  # levels of the fine texture's rip-map: footprints of 1 .. 64 texels along the road
 COARSE_TEXEL = 0.40  # metres per texel of the coarse (patchy) asphalt texture (256 x 256)
 ASPHALT = 92.0  # grey level of the asphalt
 PAINT = 210.0  # grey level of white paint
@@ -218,7 +219,8 @@ class Frame:
     ``left``/``right``: H x W x 3 uint8 BGR. ``disparity``: H x W float32, the exact disparity of the
     left view in pixels (0 on the sky); ``disparity_right`` the same for the right view (right pixel
     ``(u, v)`` sees what left pixel ``(u + d, v)`` sees). ``road_mask``/``object_mask``: H x W bool,
-    left-view pixels whose nearest hit is the road plane / an object. ``lanes_gt``: the data
+    left-view pixels whose nearest hit is the road plane / an object; ``paved_mask`` the road-plane
+    pixels on the paved road (between its edges, not the verge beyond). ``lanes_gt``: the data
     README's ground-truth record. ``pitch``, ``roll`` in radians, ``height`` in metres.
     """
 
@@ -236,6 +238,7 @@ class Frame:
     roll: float
     height: float
     overexposed: bool = False
+    paved_mask: np.ndarray | None = None
 
 
 @dataclass
@@ -252,6 +255,7 @@ class _View:
     fp_long: np.ndarray
     fine_amp: np.ndarray  # amplitude of the fine texture (fades where it would alias)
     blend_lo: np.ndarray  # weight of the low-resolution paint map
+    level: np.ndarray  # rip-map level of the fine texture (log2 of the footprint along the road in texels)
 
 
 @dataclass
@@ -280,6 +284,7 @@ class SceneRenderer:
         fine = cv2.GaussianBlur(rng.normal(0.0, 1.0, (512, 512)).astype(np.float32), (0, 0), 1.0)
         coarse = cv2.GaussianBlur(rng.normal(0.0, 1.0, (256, 256)).astype(np.float32), (0, 0), 2.0)
         self.tex_fine = fine / fine.std()
+        self.tex_levels = _rip_levels(self.tex_fine)
         self.tex_coarse = coarse / coarse.std()
         self.markings, lane_centres, self.edges = self._layout(rng)
         self.tile = build_tile(s, [m.offset for m in self.markings], lane_centres, self.edges, rng)
@@ -331,12 +336,18 @@ class SceneRenderer:
         Zc = np.where(valid, Z, s.z_far)
         fp_long = np.clip(np.abs(np.gradient(Zc, axis=0)) if Zc.shape[0] > 1 else 1.0, 1e-3, 50.0)
         fp_lat = np.where(valid, depth, s.z_far) / c.f
-        fine_amp = 1.0 / (1.0 + (fp_long / (4 * FINE_TEXEL)) ** 2)
+        # the fine texture is pre-averaged along the road to the pixel's footprint (a rip-map level,
+        # see _rip_levels): it fades along the road as a camera would average it but keeps its
+        # detail across the road, which stereo matching needs; across, it fades only where the
+        # footprint outgrows the texel
+        fine_amp = 1.0 / (1.0 + (fp_lat / (2 * FINE_TEXEL)) ** 2)
+        level = np.clip(np.log2(np.maximum(fp_long / FINE_TEXEL, 1.0)), 0.0, RIP_LEVELS - 1.0)
         blend_lo = np.clip((fp_long - 0.1) / 0.3, 0.0, 1.0)
         f32 = np.float32
         return _View(
             origin, rays.astype(f32), v0, X.astype(f32), Zc.astype(f32), depth.astype(f32),
             fp_lat.astype(f32), fp_long.astype(f32), fine_amp.astype(f32), blend_lo.astype(f32),
+            level.astype(f32),
         )  # fmt: skip
 
     # ------------------------------------------------------------------ per frame
@@ -434,16 +445,21 @@ class SceneRenderer:
             box = [min(box[0], rs.start), max(box[1], rs.stop), min(box[2], cs.start), max(box[3], cs.stop)]
         return depth, label, shade, box
 
+    def _lateral(self, view: _View, st: _State) -> np.ndarray:
+        """Lateral position of the road hits of rows ``v0:`` across the (curved) road, metres."""
+        Z = view.Z
+        return view.X - (np.float32(st.c / 2) * Z * Z + np.float32(st.r / 6) * Z * Z * Z) + np.float32(st.e)
+
     def _shade_road(self, view: _View, st: _State) -> np.ndarray:
         """BGR float32 of the road plane for rows ``v0:`` (paint, texture, shadows)."""
         s = self.spec
         Z = view.Z
-        lat = view.X - (np.float32(st.c / 2) * Z * Z + np.float32(st.r / 6) * Z * Z * Z) + np.float32(st.e)
+        lat = self._lateral(view, st)
         # asphalt: a fine texture (fading out where it would alias) and large patches
         per_f, per_c = 512 * FINE_TEXEL, 256 * COARSE_TEXEL
         tu = np.mod(lat, per_f) * np.float32(1 / FINE_TEXEL)
         tv = np.mod(Z + np.float32(math.fmod(st.s, per_f)), per_f) * np.float32(1 / FINE_TEXEL)
-        fine = cv2.remap(self.tex_fine, tu, tv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP) * view.fine_amp
+        fine = self._fine(tu, tv, view)
         tu = np.mod(lat, per_c) * np.float32(1 / COARSE_TEXEL)
         tv = np.mod(Z + np.float32(math.fmod(st.s, per_c)), per_c) * np.float32(1 / COARSE_TEXEL)
         coarse = cv2.remap(self.tex_coarse, tu, tv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
@@ -481,6 +497,25 @@ class SceneRenderer:
         tint = np.where(verge[..., None], VERGE_TINT, ASPHALT_TINT)
         return lum[..., None] * tint
 
+    def _fine(self, tu: np.ndarray, tv: np.ndarray, view: _View) -> np.ndarray:
+        """The fine asphalt texture at texel coordinates, from the two rip-map levels around each
+        pixel's level (rows are grouped by level, so each row is sampled at most twice)."""
+        out = np.zeros(tu.shape, np.float32)
+        lev = view.level
+        lo = np.floor(lev).astype(np.int16)
+        w = lev - lo
+        row_min, row_max = lo.min(axis=1), lo.max(axis=1)
+        for k in range(RIP_LEVELS):
+            rows = np.flatnonzero((row_min <= k) & (row_max >= k - 1))
+            if rows.size == 0:
+                continue
+            r0, r1 = int(rows[0]), int(rows[-1]) + 1
+            sample = cv2.remap(self.tex_levels[k], tu[r0:r1], tv[r0:r1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+            lk, wk = lo[r0:r1], w[r0:r1]
+            weight = np.where(lk == k, 1.0 - wk, 0.0) + np.where(lk == k - 1, wk, 0.0)
+            out[r0:r1] += weight.astype(np.float32) * sample
+        return out * view.fine_amp
+
     def _image(self, view: _View, st: _State, cast, noise_key: int) -> np.ndarray:
         s = self.spec
         depth, label, shade, box = cast
@@ -517,6 +552,9 @@ class SceneRenderer:
         fb = np.float32(c.f * c.baseline)
         disp = [np.where(np.isfinite(cast[0]), fb / cast[0], 0.0).astype(np.float32) for cast in casts]
         label = casts[0][1]
+        lat = self._lateral(self.views[0], st)
+        paved = np.zeros_like(label, dtype=bool)
+        paved[self.views[0].v0 :] = (lat >= self.edges[0]) & (lat <= self.edges[1])
         return Frame(
             index=k,
             frame=f"{k:010d}",
@@ -526,6 +564,7 @@ class SceneRenderer:
             disparity_right=disp[1],
             road_mask=label == 0,
             object_mask=label > 0,
+            paved_mask=paved & (label == 0),
             lanes_gt=self._lanes_gt(st, casts[0]),
             calib=c,
             pitch=s.pitch,
@@ -595,6 +634,21 @@ class SceneRenderer:
         ego_r = min(right, key=near_x.get) if right else None
         ego = {"left": ego_l if ego_l in shown else None, "right": ego_r if ego_r in shown else None}
         return {"frame": f"{st.k:010d}", "image_size": [c.width, c.height], "markings": markings, "ego": ego}
+
+
+def _rip_levels(tex: np.ndarray) -> list[np.ndarray]:
+    """``tex`` box-averaged along its rows axis (the road's direction) over 1, 2, 4 ... texels,
+    wrapping. Averaging lowers the contrast as a camera's footprint does, but only by the fourth
+    root of the footprint (real asphalt has detail at every scale), not the square root of white
+    noise."""
+    levels = [tex]
+    for k in range(1, RIP_LEVELS):
+        n = 2**k
+        c = np.cumsum(np.vstack([tex[-n:], tex]), axis=0, dtype=np.float64)  # a wrapping box sum
+        avg = (c[n:] - c[:-n]) / n
+        avg = avg / max(float(avg.std()), 1e-6) * (n ** -0.25)
+        levels.append(np.ascontiguousarray(avg, dtype=np.float32))  # RIP_LEVELS - 1 < log2(512)
+    return levels
 
 
 def _dash_cover(Z: np.ndarray, s0: float, dash: float, gap: float, fp: np.ndarray) -> np.ndarray:

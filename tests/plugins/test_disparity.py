@@ -401,7 +401,7 @@ def test_wls_without_ximgproc_says_what_is_missing(monkeypatch):
         (ld.SgbmParams, {"p1": 900}, "p2 \\(800\\)"),  # auto p2 for block 5 is 800
         (ld.SgmParams, {"p1": 50, "p2": 20}, "p2"),
         (ld.SgbmParams, {"scale": 0.1}, "greater than or equal to 0.25"),
-        (ld.SgbmParams, {"mode": "fast"}, "'sgbm', '3way' or 'hh'"),
+        (ld.SgbmParams, {"mode": "fast"}, "'sgbm', '3way', 'hh' or 'hh4'"),
         (ld.SgmParams, {"blocksize": 5}, "Extra inputs are not permitted"),
         (ld.FileParams, {}, "dir"),
     ],

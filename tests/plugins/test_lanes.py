@@ -264,6 +264,19 @@ def test_verify_drops_lane_beside_texture():
     paint = Lane((12.0, 0.0, 0.0), (0, 99), "left", 0.9)
     out = verify.func(verify.params(), lanes=[kerb, paint], image=img)["lanes"]
     assert [ln.side for ln in out] == ["left"]
+    out = verify.func(verify.params(measure="std", max_texture=18), lanes=[kerb, paint], image=img)["lanes"]
+    assert [ln.side for ln in out] == ["left"]
+
+
+def test_verify_keeps_lane_beside_a_shadow_edge_by_default():
+    # a car's shadow: a smooth dark band right of the line, a step at column 60
+    img = np.full((100, 120), 100, np.uint8)
+    img[:, 60:] = 40
+    img[:, 58:62] = [85, 70, 55, 45]  # a soft edge
+    line = Lane((46.0, 0.0, 0.0), (0, 99), "right", 0.9)
+    assert [ln.side for ln in verify.func(verify.params(), lanes=[line], image=img)["lanes"]] == ["right"]
+    # the std measure mistakes it for texture
+    assert verify.func(verify.params(measure="std", max_texture=18), lanes=[line], image=img)["lanes"] == []
 
 
 def test_to_image_spacing_and_extent():
