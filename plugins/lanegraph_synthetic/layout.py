@@ -192,6 +192,13 @@ def build_tile(
         for s in np.arange(10.0, L, 20.0):
             objects.append(Box(float(s), lat, 19.8, 0.3, 2.6, 0.0, (120.0, 135.0, 150.0)))
 
+    # ---- kerbs: low concrete steps along both road edges (5 m segments, so they follow a curve);
+    # a bright, straight, parallel-bordered ridge that passes SLT like paint
+    if spec.kerb_height > 0:
+        for lat in (left_edge - 0.1, right_edge + 0.1):
+            for s in np.arange(2.5, L, 5.0):
+                objects.append(Box(float(s), lat, 4.98, 0.2, spec.kerb_height, 0.0, (185.0, 190.0, 195.0)))
+
     paint = cv2.GaussianBlur(paint, (0, 0), 0.7)
     shadow = cv2.GaussianBlur(shadow, (0, 0), 2.5)
     return Tile(L, paint, shadow, objects)

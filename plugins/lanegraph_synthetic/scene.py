@@ -116,6 +116,7 @@ class SceneSpec:
     parked_cars: float = 0.0
     traffic: int = 0  # moving cars ahead (a number, not a density)
     walls: bool = False
+    kerb_height: float = 0.0  # > 0: a concrete kerb this high (metres) along both road edges
     arrows: float = 0.0
     hatching: float = 0.0
     objects: list[Box | Pole] = field(default_factory=list)  # extra objects, road coordinates
@@ -194,6 +195,20 @@ PRESETS: dict[str, dict] = {
         "parked_cars": 4.0,
     },
     "overexposed": {"overexposed_every": 2, "exposure_gain": 2.2},
+    # what makes real streets hard for the paper's literal rules: kerbs beside the outer lines,
+    # arrows and hatching between them, parked cars and shadows
+    "kerbs": {
+        "n_lanes": 2,
+        "lane_width": 3.4,
+        "shoulder": 0.5,
+        "kerb_height": 0.13,
+        "arrows": 8.0,
+        "hatching": 3.0,
+        "shadows": 8.0,
+        "parked_cars": 6.0,
+        "poles": 3.0,
+        "curvature": 1.0 / 500.0,
+    },
 }
 
 

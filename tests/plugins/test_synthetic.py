@@ -71,7 +71,7 @@ def centroid_error(img: np.ndarray, points, half: int = 6) -> np.ndarray:
 
 
 def test_presets_and_spec_validation():
-    for name in ("straight", "curved", "clothoid", "urban", "no_markings", "overexposed"):
+    for name in ("straight", "curved", "clothoid", "urban", "no_markings", "overexposed", "kerbs"):
         spec = preset(name)
         assert spec.preset == name
     assert preset("curved").curvature > 0 and preset("clothoid").curvature_rate != 0
@@ -214,6 +214,32 @@ def test_left_right_consistency():
     assert np.median(scores[:, 1]) > 0.97  # the same texture at (u - d, v)
     assert np.median(scores[:, 3]) < 0.5  # and not 4 pixels off
     assert np.median(np.abs(peaks)) < 0.1  # to a tenth of a pixel
+
+
+def test_far_asphalt_keeps_detail_across_the_road():
+    """Far away the footprint of a pixel is long along the road and short across it: the texture
+    averages out along the road (rip-mapped) but keeps the lateral detail stereo matching needs."""
+    fr = SceneRenderer(preset("straight", noise_sigma=0.0, seed=2)).render(0)
+    left = gray(fr.left)
+    gx = np.abs(np.diff(left, axis=1))[:-1, :]  # across the road
+    asphalt = fr.paved_mask[:-1, :-1] & (left[:-1, :-1] < 150)  # no paint
+    d = fr.disparity[:-1, :-1]
+    far, near = asphalt & (d > 5) & (d < 12), asphalt & (d > 40)  # ~30-75 m; nearer than ~10 m
+    assert far.sum() > 2000 and near.sum() > 2000
+    assert gx[far].mean() > 1.5  # grey levels between neighbours
+    assert gx[far].mean() > 0.8 * gx[near].mean()
+
+
+def test_kerbs_preset_raises_a_step_along_both_edges():
+    spec = preset("kerbs", calib=HALF, parked_cars=0.0, poles=0.0)
+    r = SceneRenderer(spec)
+    kerbs = [o for o in r.objects if isinstance(o, Box) and abs(o.height - spec.kerb_height) < 1e-9]
+    lats = sorted({round(o.lateral, 2) for o in kerbs})
+    assert len(lats) == 2 and lats[0] < 0 < lats[1]
+    fr = r.render(0)
+    # kerb pixels stand above the road: nearer than the road plane behind them in the same row
+    ys, xs = np.nonzero(fr.object_mask[fr.object_mask.shape[0] // 2 :])
+    assert ys.size > 100
 
 
 # --------------------------------------------------------------------------- lane ground truth
