@@ -9,7 +9,8 @@
 - A source that cannot read one frame raises (ending the stream) or *yields* an
   :class:`~lanegraph.errors.InputError` for it and goes on with the next frame.
 - Error policy per node: ``fail`` stops the run, ``skip`` drops the frame (sinks do not see it),
-  ``empty`` passes ``None`` on for the node's outputs.
+  ``empty`` passes ``None`` on for the node's outputs. A node that runs once for the whole run
+  (constant inputs) has no frame to drop: under ``skip`` its failure stops the run like ``fail``.
 """
 
 from __future__ import annotations
@@ -194,7 +195,7 @@ class Executor:
         result.timings_ms.setdefault(node.id, []).append(elapsed)
         if err is not None:
             hook.lanegraph_after_node(node_id=node.id, node_type=node.type.name, frame=frame, outputs=None, elapsed_ms=elapsed)
-            if node.on_error == "fail":
+            if node.on_error == "fail" or (node.on_error == "skip" and index < 0):  # index -1: runs once
                 raise NodeError(node.id, node.type.name, frame, err) from err
             result.failures.append(FrameFailure(frame, index, node.id, node.type.name, f"{type(err).__name__}: {err}"))
             if node.on_error == "skip":

@@ -92,7 +92,9 @@ def to_gray(image: np.ndarray, port: str) -> np.ndarray:
         img = img[:, :, 0]
     if img.ndim == 3 and img.shape[2] in (3, 4):
         if img.dtype != np.uint8:
-            img = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+            if img.dtype.kind not in "biuf":
+                raise InputError(f"input '{port}': expected a uint8 (or 0-255 float) image, got dtype {img.dtype}")
+            img = np.clip(np.rint(np.nan_to_num(img.astype(np.float64))), 0, 255).astype(np.uint8)
         code = cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
         img = cv2.cvtColor(np.ascontiguousarray(img), code)
     if img.ndim != 2:
@@ -239,7 +241,8 @@ def run_backend(left: np.ndarray, right: np.ndarray, params: DisparityParams, co
         gl = cv2.resize(gl, size, interpolation=cv2.INTER_AREA)
         gr = cv2.resize(gr, size, interpolation=cv2.INTER_AREA)
         s = size[0] / w  # the horizontal factor actually applied: disparities are horizontal
-    top = int(round(params.top_fraction * gl.shape[0]))
+    # at least one row is computed: an empty strip would reach the kernels as a 0-row volume
+    top = min(int(round(params.top_fraction * gl.shape[0])), gl.shape[0] - 1)
     dl, dr = _compute_strips(compute, gl[top:], gr[top:], s, params.lr_check, params.strips, params.strip_overlap)
     if top:
         pad = np.zeros((top, gl.shape[1]), np.float32)

@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 from pydantic import Field
 
-from lanegraph import NodeParams, Port, node_type
+from lanegraph import InputError, NodeParams, Port, node_type
 from lanegraph._numba import jit, prange
 from lanegraph.types import FeatureMap
 
@@ -122,10 +122,25 @@ def edge_orientation(gray: np.ndarray, ksize: int = 3) -> tuple[np.ndarray, np.n
     return mag, theta
 
 
-def _as_gray32(image: np.ndarray) -> np.ndarray:
-    if image.ndim == 3:
-        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    return np.ascontiguousarray(image, dtype=np.float32)
+def _as_gray32(image: np.ndarray, node: str) -> np.ndarray:
+    """The BEV image as C-contiguous float32 HxW grey levels (BGR converted, non-finite pixels 0);
+    an array that is no image raises an InputError naming ``node`` and the port."""
+    img = np.asarray(image)
+    if img.ndim == 3 and (img.shape[2] == 1 or (img.shape[2] == 3 and img.size == 0)):
+        img = img[:, :, 0]
+    if img.ndim == 3 and img.shape[2] == 3 and img.dtype.kind in "biuf":
+        if img.dtype not in (np.uint8, np.uint16, np.float32):
+            img = img.astype(np.float32)  # the dtypes cv2.cvtColor takes
+        img = cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_BGR2GRAY)
+    if img.ndim != 2 or img.dtype.kind not in "biuf":
+        raise InputError(
+            f"{node}: image: expected an HxW grey (or HxWx3 BGR) BEV image of numbers, "
+            f"got shape {np.shape(image)} of dtype {img.dtype}"
+        )
+    g = np.ascontiguousarray(img, dtype=np.float32)
+    if not np.isfinite(g).all():  # no NaN inside the kernels
+        g = np.where(np.isfinite(g), g, np.float32(0.0))
+    return g
 
 
 class SltParams(NodeParams):
@@ -138,7 +153,7 @@ class SltParams(NodeParams):
 @node_type("features.slt", inputs={"image": Port("bev_image", "BEV grey image")}, outputs={"features": "features"})
 def slt(params: SltParams, image: np.ndarray) -> dict:
     """Symmetrical local threshold: brighter than the mean of the left and of the right window by T."""
-    img = _as_gray32(image)
+    img = _as_gray32(image, "features.slt")
     out = np.zeros(img.shape, np.uint8)
     _slt(img, params.window, float(params.threshold), out)
     return {"features": FeatureMap(mask=out.astype(bool), orientation=None)}
@@ -154,11 +169,13 @@ class EsltParams(SltParams):
 @node_type("features.eslt", inputs={"image": Port("bev_image", "BEV grey image")}, outputs={"features": "features"})
 def eslt(params: EsltParams, image: np.ndarray) -> dict:
     """Extended SLT: SLT plus parallel strongest-gradient borders; features get the borders' mean orientation."""
-    img = _as_gray32(image)
+    img = _as_gray32(image, "features.eslt")
     k = params.sobel_ksize if params.sobel_ksize in (1, 3, 5, 7) else 3
-    gx, gy = sobel(img, k)
     mask = np.zeros(img.shape, np.uint8)
     ori = np.empty(img.shape, np.float32)
+    if img.size == 0:  # an empty BEV: no features (cv2.Sobel refuses empty images)
+        return {"features": FeatureMap(mask=mask.astype(bool), orientation=np.full(img.shape, -1.0, np.float32))}
+    gx, gy = sobel(img, k)
     _eslt(img, gx, gy, params.window, float(params.threshold), math.radians(params.max_angle_deg), mask, ori)
     return {"features": FeatureMap(mask=mask.astype(bool), orientation=ori)}
 
@@ -180,8 +197,14 @@ class MaskParams(NodeParams):
 )
 def mask_features(params: MaskParams, features: FeatureMap, mask: np.ndarray, temporal: np.ndarray | None = None) -> dict:
     """Features multiplied by the BEV road mask (eroded) and, when given, the previous-frame mask."""
-    keep = mask.astype(bool)
-    if params.erode_px > 0:
+    for port, m in (("mask", mask), ("temporal", temporal)):
+        if m is not None and np.shape(m) != features.mask.shape:
+            raise InputError(
+                f"features.mask: {port}: expected a BEV mask of the features' shape "
+                f"{features.mask.shape}, got {np.shape(m)}"
+            )
+    keep = np.asarray(mask).astype(bool)
+    if params.erode_px > 0 and keep.size:
         k = 2 * params.erode_px + 1
         keep = cv2.erode(keep.astype(np.uint8), np.ones((k, k), np.uint8), borderValue=0).astype(bool)
     if temporal is not None:

@@ -128,7 +128,7 @@ def _fit_lanes(features: FeatureMap, lines: list[Line], geometry: BevGeometry, p
     lanes = []
     for line in lines or []:
         t, y = roi_points(features, line, p.roi_width)
-        if t.size < p.min_inliers:
+        if t.size < max(p.min_inliers, p.degree + 1):  # a fit of degree d needs d + 1 points
             continue
         coef, w = fitter(t, y, p.degree)
         inl = w > 0.5
@@ -141,6 +141,8 @@ def _fit_lanes(features: FeatureMap, lines: list[Line], geometry: BevGeometry, p
         if p.degree >= 2 and abs(2 * coef[2] / res) > p.max_curvature:
             coef, w = fitter(t, y, 1)
             inl = w > 0.5
+            if inl.sum() < p.min_inliers:  # the straight fallback lost the support
+                continue
         c = np.zeros(3)
         c[: min(3, coef.size)] = coef[:3]
         t_hi = int(t[inl].max())

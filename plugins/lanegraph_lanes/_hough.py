@@ -22,7 +22,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field
 
-from lanegraph import NodeParams, Port, node_type
+from lanegraph import InputError, NodeParams, Port, node_type
 from lanegraph._numba import jit
 from lanegraph.types import BevGeometry, FeatureMap, Line
 
@@ -52,11 +52,13 @@ def _vote_2d(rows_idx, cols_idx, height, inv_tans, offset, acc):
 
 
 def _smooth(acc: np.ndarray, sigma: float) -> np.ndarray:
-    if sigma <= 0:
+    """Gaussian smoothing of a 1D histogram; the result has the length of ``acc`` (also when the
+    kernel is longer than ``acc``, where ``np.convolve(mode="same")`` would return the kernel's)."""
+    if sigma <= 0 or acc.size == 0:
         return acc
     r = int(3 * sigma + 0.5)
     k = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
-    return np.convolve(acc, k / k.sum(), mode="same")
+    return np.convolve(acc, k / k.sum(), mode="full")[r : r + acc.size]
 
 
 def find_peaks(acc: np.ndarray, min_separation: int) -> list[int]:
@@ -160,6 +162,8 @@ def line1d(params: HoughParams, features: FeatureMap, orientation: float, geomet
     rows, cols = features.mask.shape
     r, c = _feature_coords(features)
     theta = float(orientation)
+    if not math.isfinite(theta):
+        raise InputError(f"hough.line1d: orientation: expected a finite angle in radians, got {theta}")
     inv_tan = math.cos(theta) / max(math.sin(theta), 1e-6)
     offset = 2 * cols  # rho may lie left of the BEV when lines slant
     acc = np.zeros(5 * cols, np.float64)

@@ -22,6 +22,7 @@ from lanegraph import NodeParams, Port, node_type
 from lanegraph.types import BevGeometry, Calibration, RoadModel
 
 from . import geometry
+from .profile import RoadInputError
 
 _INTERP = {"nearest": cv2.INTER_NEAREST, "linear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC}
 
@@ -55,6 +56,13 @@ class IpmParams(NodeParams):
             raise ValueError(f"x_max ({self.x_max}) must be greater than x_min ({self.x_min})")
         if not self.z_max > self.z_min:
             raise ValueError(f"z_max ({self.z_max}) must be greater than z_min ({self.z_min})")
+        cols = round((self.x_max - self.x_min) / self.resolution)
+        rows = round((self.z_max - self.z_min) / self.resolution)
+        if cols < 1 or rows < 1:
+            raise ValueError(
+                f"the BEV grid would be {cols} x {rows} pixels (x range / resolution x z range / resolution); "
+                "lower the resolution"
+            )
         cells = (self.x_max - self.x_min) / self.resolution * (self.z_max - self.z_min) / self.resolution
         if cells > 50e6:
             raise ValueError(f"the BEV grid would have {cells:.3g} pixels (> 5e7); raise the resolution")
@@ -105,15 +113,21 @@ def warp_to_bev(
 ) -> tuple[np.ndarray, np.ndarray, BevGeometry]:
     """The work of ``bev.ipm``: ``(bev image, bev mask, geometry)``."""
     image = np.asarray(image)
-    if image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] not in (1, 3)):
-        raise ValueError(f"image: expected HxW or HxWx3, got shape {image.shape}")
+    if image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] not in (1, 3)) or image.size == 0:
+        raise RoadInputError(f"bev.ipm: image: expected a non-empty HxW or HxWx3 image, got shape {image.shape}")
+    if image.dtype.kind not in "biuf":
+        raise RoadInputError(f"bev.ipm: image: expected an image of numbers, got dtype {image.dtype}")
+    if image.dtype not in (np.uint8, np.uint16, np.int16, np.float32, np.float64):
+        image = image.astype(np.float32)  # the dtypes cv2.warpPerspective takes
     if image.ndim == 3 and image.shape[2] == 1:
         image = image[:, :, 0]
     if image.ndim == 3 and params.color == "gray":
-        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        if image.dtype not in (np.uint8, np.uint16, np.float32):
+            image = image.astype(np.float32)  # the dtypes cv2.cvtColor takes
+        image = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_BGR2GRAY)
     h_img, w_img = image.shape[:2]
-    if mask is not None and np.asarray(mask).shape != (h_img, w_img):
-        raise ValueError(f"mask: expected shape {(h_img, w_img)} (the image's), got {np.asarray(mask).shape}")
+    if mask is not None and np.shape(mask) != (h_img, w_img):
+        raise RoadInputError(f"bev.ipm: mask: expected shape {(h_img, w_img)} (the image's), got {np.shape(mask)}")
     pitch, roll, height = bev_pose(params, road)
     geom = bev_geometry(params, calib, pitch, roll, height)
     # one perspective warp per array: cv2 evaluates the homography per BEV pixel (the same mapping

@@ -205,7 +205,7 @@ def road_mask_array(
     params: MaskParams, disparity: np.ndarray, road: RoadModel, calib: Calibration
 ) -> np.ndarray:
     """The work of ``road.mask`` (HxW bool)."""
-    disp = as_disparity(disparity)
+    disp = as_disparity(disparity, "road.mask")
     if not road.valid or not road.height > 0:
         return np.full(disp.shape, params.invalid_road == "all", dtype=bool)
     s, c = geometry.roll_row_coeffs(road.roll, calib)

@@ -29,7 +29,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field
 
-from lanegraph import NodeParams, Port, node_type
+from lanegraph import InputError, NodeParams, Port, node_type
 from lanegraph._numba import jit
 from lanegraph.types import Calibration, RoadModel
 
@@ -136,11 +136,19 @@ def _plane_band_kernel(disp, b0, b1, b2, height, band):
 # --------------------------------------------------------------------------- helpers
 
 
-def as_disparity(disparity: np.ndarray) -> np.ndarray:
+class RoadInputError(InputError, ValueError):
+    """An input of a road node is not what its port promises: lanegraph's own :class:`InputError`
+    (so the executor reports it like any bad input) that stays a ``ValueError`` for Python callers."""
+
+
+def as_disparity(disparity: np.ndarray, node: str = "road") -> np.ndarray:
     """Validate a disparity map and return it as C-contiguous float32 with non-finite values set to 0."""
     disparity = np.asarray(disparity)
-    if disparity.ndim != 2 or disparity.shape[0] < 1 or disparity.shape[1] < 1:
-        raise ValueError(f"disparity: expected an HxW array, got shape {disparity.shape}")
+    if disparity.ndim != 2 or disparity.shape[0] < 1 or disparity.shape[1] < 1 or disparity.dtype.kind not in "biuf":
+        raise RoadInputError(
+            f"{node}: disparity: expected a non-empty HxW array of numbers, "
+            f"got shape {disparity.shape} of dtype {disparity.dtype}"
+        )
     d = np.ascontiguousarray(disparity, dtype=np.float32)
     if not np.isfinite(d).all():
         d = np.where(np.isfinite(d), d, 0.0).astype(np.float32)
@@ -198,7 +206,7 @@ class VDisparityParams(NodeParams):
 )
 def road_vdisparity(params: VDisparityParams, disparity: np.ndarray) -> dict:
     """The v-disparity image: per image row, a histogram of its valid disparities (H x D float32)."""
-    disp = as_disparity(disparity)
+    disp = as_disparity(disparity, "road.vdisparity")
     return {"vdisparity": compute_vdisparity(disp, params.max_disparity, params.bin_size)}
 
 
@@ -422,14 +430,14 @@ def estimate_road(
     pixels within ``road_band_m`` of that plane, so that walls, trees and the upper part of
     vehicles no longer compete with the far road in the DP.
     """
-    disp = as_disparity(disparity)
+    disp = as_disparity(disparity, "road.profile")
     H, _ = disp.shape
     D = n_bins(params.max_disparity, params.bin_size)
     if vdisparity is not None:
         vd = np.asarray(vdisparity, dtype=np.float32)
         if vd.shape != (H, D):
-            raise ValueError(
-                f"vdisparity: expected shape {(H, D)} (rows of the disparity x ceil(max_disparity / bin_size)), "
+            raise RoadInputError(
+                f"road.profile: vdisparity: expected shape {(H, D)} (rows of the disparity x ceil(max_disparity / bin_size)), "
                 f"got {vd.shape} (hint: give road.vdisparity the same max_disparity and bin_size)"
             )
     else:
