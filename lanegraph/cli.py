@@ -10,6 +10,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import click
 import yaml
@@ -137,6 +138,7 @@ def run(
     status = 0
     result = None
     recorder = None
+    ex: Executor | None = None
     try:
         if debug_dir is not None:
             from .render import DebugRecorder
@@ -159,6 +161,9 @@ def run(
     except LanegraphError as exc:
         if bar is not None:
             bar.close()
+        partial = getattr(ex, "result", None)
+        if partial is not None:  # the run started: record what it did and why it stopped
+            _write_run_files(out_dir, g, input_path, partial, stopped=exc)
         _fail(exc)
     finally:
         if bar is not None:
@@ -166,19 +171,7 @@ def run(
         if recorder is not None:
             get_plugin_manager().unregister(recorder)
     assert result is not None
-    (out_dir / "timings.json").write_text(json.dumps(result.timings_json(), indent=2) + "\n")
-    (out_dir / "run.json").write_text(
-        json.dumps(
-            {
-                "graph": g.file,
-                "input": str(input_path) if input_path else None,
-                "frames_ok": result.frames,
-                "failures": [f.to_json() for f in result.failures],
-            },
-            indent=2,
-        )
-        + "\n"
-    )
+    _write_run_files(out_dir, g, input_path, result)
     if result.failures:
         click.echo(f"{len(result.failures)} frame(s) failed:", err=True)
         for f in result.failures:
@@ -190,6 +183,24 @@ def run(
         + (f" (median {total['median_ms']:.1f} ms/frame)" if total else "")
     )
     sys.exit(status)
+
+
+def _write_run_files(out_dir: Path, g: Graph, input_path: Path | None, result: Any, stopped: LanegraphError | None = None) -> None:
+    """``timings.json`` and ``run.json`` (frames done, failed frames, and the error that stopped the run)."""
+    (out_dir / "timings.json").write_text(json.dumps(result.timings_json(), indent=2) + "\n")
+    record: dict[str, Any] = {
+        "graph": g.file,
+        "input": str(input_path) if input_path else None,
+        "frames_ok": result.frames,
+        "failures": [f.to_json() for f in result.failures],
+    }
+    if stopped is not None:
+        record["stopped"] = {
+            "error": str(stopped),
+            "node": getattr(stopped, "node_id", None),
+            "frame": getattr(stopped, "frame", None),
+        }
+    (out_dir / "run.json").write_text(json.dumps(record, indent=2) + "\n")
 
 
 @main.command()

@@ -257,7 +257,8 @@ class Executor:
     def run(self, on_frame: Callable[[int, str | None], None] | None = None) -> RunResult:
         """Stream every frame of the source through the graph."""
         g = self.graph
-        result = RunResult(node_types={nid: n.type.name for nid, n in g.nodes.items()})
+        # kept on the executor so that a caller still has the partial result when the run stops
+        self.result = result = RunResult(node_types={nid: n.type.name for nid, n in g.nodes.items()})
         self.open()
         self.pm.hook.lanegraph_run_start(graph=g, context=self.context)
         src_id = g.source.id

@@ -20,7 +20,7 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from lanegraph import NodeParams, Port, node_type
 from lanegraph.types import Lane
@@ -66,6 +66,12 @@ class VerifyParams(NodeParams):
         description="'std': lateral intensity std in the band; 'diff': mean absolute difference of "
         "neighbouring pixels (insensitive to shadow edges)",
     )
+
+    @model_validator(mode="after")
+    def _band_not_empty(self) -> VerifyParams:
+        if self.band_px < self.gap_px + 2:
+            raise ValueError(f"band_px ({self.band_px}) must be at least gap_px + 2 ({self.gap_px + 2}): the side bands would be empty")
+        return self
 
 
 @node_type(

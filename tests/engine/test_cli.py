@@ -54,6 +54,10 @@ def test_run_writes_timings_and_reports_failures(cli, graph_file, tmp_path):
     r = cli.invoke(main, ["run", str(graph_file), "--out", str(out), "--quiet", "--set", "double.fail_on=2"])
     assert r.exit_code == 1
     assert "node 'double' (toy.scale) failed on frame 0002" in r.output
+    # the stopped run still records what it did and why it stopped
+    rec = json.loads((out / "run.json").read_text())
+    assert rec["frames_ok"] == 2 and rec["stopped"]["node"] == "double" and rec["stopped"]["frame"] == "0002"
+    assert json.loads((out / "timings.json").read_text())["frames"] == 2
     r = cli.invoke(main, ["run", str(graph_file), "--out", str(out), "--quiet", "--set", "double.factor=x"])
     assert r.exit_code == 2
 
