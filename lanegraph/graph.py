@@ -28,6 +28,7 @@ from __future__ import annotations
 import copy
 import difflib
 import re
+import reprlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -198,8 +199,12 @@ def _resolve(
     ext = data.get("extends")
     if ext is not None:
         if not isinstance(ext, str):
-            raise GraphError([Problem(f"expected a file path, got {ext!r}", file=display, field="extends")])
-        base_path = (path.parent / ext).resolve()
+            raise GraphError([Problem(f"expected a file path, got {_short(ext)}", file=display, field="extends")])
+        try:
+            base_path = (path.parent / ext).resolve()
+            base_found = base_path.is_file()
+        except (OSError, ValueError) as exc:  # a NUL byte, a name too long for the file system
+            raise GraphError([Problem(f"invalid path {_short(ext)}: {exc}", file=display, field="extends")]) from None
         if base_path in chain or base_path == path.resolve():
             cyc = " -> ".join(str(p) for p in (*chain, path.resolve(), base_path))
             raise GraphError([Problem(f"extends cycle: {cyc}", file=display, field="extends")])
@@ -215,6 +220,10 @@ def _resolve(
                 ]
             )
         base_display = str(Path(display).parent / ext) if display else str(base_path)
+        if not base_found:
+            raise GraphError(
+                [Problem(f"base graph file not found: {base_display} (resolved to {base_path})", file=display, field="extends")]
+            )
         base_raw, origin = _resolve(base_path, base_display, (*chain, path.resolve()), roots)
     merged = {k: v for k, v in base_raw.items() if k not in ("extends", "remove")}
     for key, value in data.items():
@@ -228,15 +237,32 @@ def _resolve(
             [Problem(f"expected a mapping of node id -> node, got {type(own_nodes).__name__}", file=display, field="nodes")]
         )
     problems = []
+
+    def did_you_mean(nid: Any) -> str:
+        close = difflib.get_close_matches(str(nid), [str(k) for k in nodes], n=1)
+        return f"did you mean '{close[0]}'?" if close else f"nodes: {', '.join(map(str, nodes)) or '(none)'}"
+
     for nid, spec in own_nodes.items():
         if spec is None:
             if nid not in nodes:
-                problems.append(Problem("cannot remove: no such node in the base graph", file=display, node=str(nid)))
+                problems.append(
+                    Problem("cannot remove: no such node in the base graph", file=display, node=str(nid), hint=did_you_mean(nid))
+                )
             nodes.pop(nid, None)
             origin.pop(nid, None)
+            origin[f"{nid}@removed"] = display
         elif isinstance(spec, dict) and isinstance(nodes.get(nid), dict):
             nodes[nid] = _merge_node(nodes[nid], spec)
             origin[nid] = display
+        elif ext is not None and isinstance(spec, dict) and "type" not in spec and nid not in nodes:
+            problems.append(
+                Problem(
+                    "cannot override: no such node in the base graph (a new node needs a 'type')",
+                    file=display,
+                    node=str(nid),
+                    hint=did_you_mean(nid),
+                )
+            )
         else:
             nodes[nid] = spec
             origin[nid] = display
@@ -245,10 +271,14 @@ def _resolve(
         problems.append(Problem(f"expected a list of node ids, got {removes!r}", file=display, field="remove"))
         removes = []
     for nid in removes:
+        if not isinstance(nid, str):
+            problems.append(Problem(f"expected a node id, got {nid!r}", file=display, field="remove"))
+            continue
         if nid not in nodes:
-            problems.append(Problem("cannot remove: no such node", file=display, node=str(nid), field="remove"))
+            problems.append(Problem("cannot remove: no such node", file=display, node=nid, field="remove", hint=did_you_mean(nid)))
         nodes.pop(nid, None)
         origin.pop(nid, None)
+        origin[f"{nid}@removed"] = display
     if problems:
         raise GraphError(problems)
     merged["nodes"] = nodes
@@ -265,7 +295,7 @@ def parse_set(item: str) -> tuple[str, list[str], Any]:
         raise GraphError([Problem(f"--set {item!r}: expected node.param=value", field="--set")])
     try:
         parsed = yaml.safe_load(value) if value.strip() else ""
-    except yaml.YAMLError:
+    except (yaml.YAMLError, ValueError):  # ValueError: a value its tag cannot hold (!!int x, a 5000-digit int)
         parsed = value
     return parts[0], parts[1:], parsed
 
@@ -289,10 +319,23 @@ def _apply_sets(raw: dict[str, Any], sets: list[str], origin: dict[str, str]) ->
             continue
         if path == ["type"]:
             spec.update(_merge_node(spec, {"type": value}))
+            origin[nid] = "--set"
             continue
         target = spec.setdefault("params", {})
-        for p in path[:-1]:
-            target = target.setdefault(p, {})
+        depth = 0
+        while depth < len(path) - 1 and isinstance(target, dict):
+            target = target.setdefault(path[depth], {})
+            depth += 1
+        if not isinstance(target, dict):
+            where = ".".join(["params", *path[:depth]])
+            problems.append(
+                Problem(
+                    f"--set {item!r}: {where} is {target!r}, not a mapping of params; cannot set {'.'.join(path[depth:])} in it",
+                    node=nid,
+                    field="--set",
+                )
+            )
+            continue
         target[path[-1]] = value
         origin[nid] = "--set"
     if problems:
@@ -315,6 +358,17 @@ def _loc_str(loc: tuple[Any, ...]) -> str:
     return ".".join(str(x) for x in loc)
 
 
+def _short(value: Any, limit: int = 120) -> str:
+    """``repr(value)``, cut to ``limit`` characters (a value may be a whole, huge subtree)."""
+    r = reprlib.Repr()
+    r.maxlevel, r.maxlist, r.maxdict, r.maxstring, r.maxother = 3, 8, 8, limit, limit
+    try:
+        text = r.repr(value)
+    except ValueError:  # an int beyond sys.get_int_max_str_digits()
+        text = f"<{type(value).__name__} too large to print>"
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 def _pydantic_problems(exc: ValidationError, file: str, node: str | None, ntype: str | None, prefix: str) -> list[Problem]:
     out = []
     for err in exc.errors():
@@ -325,7 +379,7 @@ def _pydantic_problems(exc: ValidationError, file: str, node: str | None, ntype:
         if err["type"] == "extra_forbidden":
             msg = "unknown key"
         elif err["type"] != "missing":
-            msg = f"expected: {msg[0].lower() + msg[1:]}; got {got!r}"
+            msg = f"expected: {msg[0].lower() + msg[1:]}; got {_short(got)}"
         out.append(Problem(msg, file=file, node=node, node_type=ntype, field=field_))
     return out
 
@@ -357,14 +411,29 @@ def validate_raw(
             loc = err["loc"]
             node = str(loc[1]) if len(loc) >= 2 and loc[0] == "nodes" else None
             rest = loc[2:] if node else loc
-            # pydantic reports union branches; keep the informative one for inputs
+            # pydantic reports union branches; keep the informative one
             if node and len(rest) >= 1 and rest[0] == "NodeSpec":
                 rest = rest[1:]
-            nfile = origin.get(node, file) if node else file
+            model: type[BaseModel] = NodeSpec if node else GraphSpec
             msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
             if err["type"] not in ("extra_forbidden", "missing"):
-                msg = f"expected: {msg[0].lower() + msg[1:]}; got {err.get('input')!r}"
-            problems.append(Problem(msg, file=nfile, node=node, field=_loc_str(rest) or None))
+                msg = f"expected: {msg[0].lower() + msg[1:]}; got {_short(err.get('input'))}"
+            if node and len(rest) >= 3 and rest[0] == "inputs" and rest[2] in ("str", "InputSpec"):
+                value = ((raw.get("nodes") or {}).get(loc[1]) or {}).get("inputs", {}).get(rest[1])
+                if (rest[2] == "InputSpec") != isinstance(value, dict):
+                    continue  # the branch of the other form
+                if rest[2] == "str":
+                    msg = f"expected 'node_id.port', 'node_id.port@prev' or {{from: node_id.port, previous: true}}; got {_short(value)}"
+                rest, model = (*rest[:2], *rest[3:]), InputSpec
+            hint = None
+            if node and not rest and isinstance(err.get("input"), str):
+                hint = f"a node is a mapping: {node}: {{type: {err['input']}}}"
+            if err["type"] == "extra_forbidden" and rest:
+                names = [f.alias or k for k, f in model.model_fields.items()]
+                close = difflib.get_close_matches(str(rest[-1]), names, n=1)
+                hint = f"did you mean '{close[0]}'?" if close else f"known keys: {', '.join(names)}"
+            nfile = origin.get(node, file) if node else file
+            problems.append(Problem(msg, file=nfile, node=node, field=_loc_str(rest) or None, hint=hint))
         raise GraphError(_dedupe(problems)) from None
 
     problems: list[Problem] = []
@@ -433,15 +502,14 @@ def validate_raw(
             src, sport, previous = m["node"], m["port"], previous or bool(m["prev"])
             if src not in specs:
                 close = difflib.get_close_matches(src, list(specs), n=1)
-                problems.append(
-                    Problem(
-                        f"refers to unknown node {src!r}",
-                        file=nfile,
-                        node=nid,
-                        node_type=nt.name,
-                        field=fld,
-                        hint=f"did you mean '{close[0]}'?" if close else None,
+                hint = f"did you mean '{close[0]}'?" if close else None
+                if f"{src}@removed" in origin:
+                    hint = (
+                        f"{origin[src + '@removed']} removes node {src!r}; unwire this input there "
+                        f"({nid}: {{inputs: {{{port}: null}}}}) or wire it to another node"
                     )
+                problems.append(
+                    Problem(f"refers to unknown node {src!r}", file=nfile, node=nid, node_type=nt.name, field=fld, hint=hint)
                 )
                 continue
             if src not in types:
@@ -548,7 +616,11 @@ def _toposort(nodes: dict[str, GraphNode]) -> tuple[list[str], list[str] | None]
                 if not d and other not in order and other not in ready:
                     ready.append(other)
     if len(order) == len(nodes):
-        return order, None
+        # sinks that feed nothing run last, so a frame that fails (or is skipped) in any other node
+        # never reaches a sink: no lanes.jsonl line for a frame that did not complete
+        feeding = {e.src_node for n in nodes.values() for e in n.inputs.values()}
+        last = [nid for nid in order if nodes[nid].type.sink and nid not in feeding]
+        return [nid for nid in order if nid not in last] + last, None
     # find one cycle among the rest
     rest = {nid for nid in nodes if nid not in order}
     start = sorted(rest)[0]

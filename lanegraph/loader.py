@@ -17,6 +17,7 @@ from .errors import GraphError, Problem
 
 MAX_FILE_BYTES = 1_000_000
 MAX_DEPTH = 32
+MAX_VALUES = 200_000
 
 
 class _UniqueKeyLoader(yaml.SafeLoader):
@@ -26,7 +27,15 @@ class _UniqueKeyLoader(yaml.SafeLoader):
 def _construct_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = False) -> dict:
     seen: dict[Any, int] = {}
     for key_node, _ in node.value:
+        if key_node.tag == "tag:yaml.org,2002:merge":
+            continue  # a '<<' merge key: its keys may be overridden by the mapping's own
         key = loader.construct_object(key_node, deep=True)
+        try:
+            hash(key)
+        except TypeError:
+            raise yaml.constructor.ConstructorError(
+                None, None, f"found an unhashable key ({type(key).__name__}); keys must be plain scalars", key_node.start_mark
+            ) from None
         if key in seen:
             raise yaml.constructor.ConstructorError(
                 None,
@@ -42,21 +51,42 @@ def _construct_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: b
 _UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
 
 
-def _depth(obj: Any, level: int = 0) -> int:
-    if level > MAX_DEPTH:
-        return level
-    if isinstance(obj, dict):
-        return max([_depth(v, level + 1) for v in obj.values()] or [level + 1])
-    if isinstance(obj, list):
-        return max([_depth(v, level + 1) for v in obj] or [level + 1])
-    return level
+def _too_big(obj: Any) -> str | None:
+    """Why ``obj`` is out of bounds (nesting deeper than MAX_DEPTH, more than MAX_VALUES values,
+    YAML aliases counted every time they are used), or None."""
+    stack = [(obj, 0)]
+    count = 0
+    while stack:
+        item, level = stack.pop()
+        count += 1
+        if count > MAX_VALUES:
+            return f"more than {MAX_VALUES} values (YAML aliases counted each time they are used)"
+        if isinstance(item, dict):
+            children = item.values()
+        elif isinstance(item, list):
+            children = item
+        else:
+            continue
+        if level >= MAX_DEPTH:
+            return f"nesting deeper than {MAX_DEPTH} levels"
+        stack.extend((c, level + 1) for c in children)
+    return None
+
+
+def _json_object(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise ValueError(f"duplicate key {key!r}; every key, node ids included, must be unique")
+        out[key] = value
+    return out
 
 
 def parse_text(text: str, fmt: str, source: str) -> Any:
     """Parse graph text of format ``yaml`` | ``json`` | ``toml``; errors name the source and line."""
     try:
         if fmt == "json":
-            data = json.loads(text)
+            data = json.loads(text, object_pairs_hook=_json_object)
         elif fmt == "toml":
             data = tomllib.loads(text)
         else:
@@ -71,15 +101,24 @@ def parse_text(text: str, fmt: str, source: str) -> Any:
         raise GraphError([Problem(f"invalid JSON at line {exc.lineno}: {exc.msg}", file=source)]) from None
     except tomllib.TOMLDecodeError as exc:
         raise GraphError([Problem(f"invalid TOML: {exc}", file=source)]) from None
-    if _depth(data) > MAX_DEPTH:
-        raise GraphError([Problem(f"nesting deeper than {MAX_DEPTH} levels", file=source)])
+    except ValueError as exc:  # a duplicate JSON key; a YAML value its tag cannot hold (!!int abc, 2011-13-45)
+        raise GraphError([Problem(f"invalid {fmt.upper()}: {exc}", file=source)]) from None
+    except RecursionError:  # the parsers recurse per nesting level
+        raise GraphError([Problem(f"nesting deeper than {MAX_DEPTH} levels", file=source)]) from None
+    why = _too_big(data)
+    if why:
+        raise GraphError([Problem(why, file=source)])
     return data
 
 
 def read_graph_file(path: Path, display: str | None = None) -> dict[str, Any]:
     """Read one graph file into a plain dict (no ``extends`` resolution)."""
     shown = display or str(path)
-    if not path.is_file():
+    try:
+        found = path.is_file()
+    except (OSError, ValueError) as exc:  # a NUL byte, a name too long for the file system
+        raise GraphError([Problem(f"invalid path: {exc}", file=shown)]) from None
+    if not found:
         raise GraphError([Problem("graph file not found", file=shown, hint="check the path")])
     size = path.stat().st_size
     if size > MAX_FILE_BYTES:
@@ -88,6 +127,8 @@ def read_graph_file(path: Path, display: str | None = None) -> dict[str, Any]:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError:
         raise GraphError([Problem("not a UTF-8 text file", file=shown)]) from None
+    except OSError as exc:
+        raise GraphError([Problem(f"cannot read the file: {exc.strerror or exc}", file=shown)]) from None
     fmt = {".json": "json", ".toml": "toml"}.get(path.suffix.lower(), "yaml")
     data = parse_text(text, fmt, shown)
     if data is None:

@@ -38,7 +38,9 @@ def projection(rows: dict[str, tuple[int, list[float]]], key: str, path: Path) -
         raise InputError(f"row {key!r} missing (expected a 3x4 projection matrix, 12 numbers)", path=str(path))
     line, vals = rows[key]
     if len(vals) != 12:
-        raise InputError(f"line {line}: row {key!r} has {len(vals)} numbers, expected 12 (a 3x4 matrix)", path=str(path))
+        text = path.read_text(errors="replace").splitlines()[line - 1].partition(":")[2].strip()
+        what = f"{len(vals)} numbers" if vals or not text else f"non-numeric values {text[:60]!r}"
+        raise InputError(f"line {line}: row {key!r} has {what}, expected 12 numbers (a 3x4 matrix)", path=str(path))
     return np.asarray(vals, dtype=np.float64).reshape(3, 4)
 
 

@@ -47,6 +47,11 @@ def parse_frames(text: str | None) -> slice | None:
     return slice(*parts)
 
 
+def _slice_text(s: slice) -> str:
+    text = f"{'' if s.start is None else s.start}:{'' if s.stop is None else s.stop}"
+    return text + (f":{s.step}" if s.step not in (None, 1) else "")
+
+
 def list_images(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXT and p.is_file())
 
@@ -116,10 +121,22 @@ class _PairSource:
         if not self.root.exists():
             raise InputError("input folder not found", path=str(self.root))
         self.pairs, self.calib = self.discover()
-        sel = parse_frames(params.frames) or slice(None)
-        self.pairs = self.pairs[sel]
-        if context.frames is not None:
-            self.pairs = self.pairs[context.frames]
+        n = len(self.pairs)
+        try:
+            self.pairs = self.pairs[parse_frames(params.frames) or slice(None)]
+            if context.frames is not None:
+                self.pairs = self.pairs[context.frames]
+        except ValueError as exc:  # a step of 0
+            raise InputError(f"frame selection: {exc}", path=str(self.root)) from None
+        if n and not self.pairs and not context.extra.get("resume"):  # a resumed, finished run has none left
+            chosen = [f"the source's frames param {params.frames!r}"] if params.frames else []
+            if context.frames is not None:
+                chosen.append(f"--frames {_slice_text(context.frames)}")
+            raise InputError(
+                f"{' and '.join(chosen) or 'the frame selection'} select(s) no frame: the input has {n} frame(s), "
+                f"indices 0..{n - 1}",
+                path=str(self.root),
+            )
 
     def discover(self) -> tuple[list[tuple[str, Path, Path]], Calibration]:  # pragma: no cover - abstract
         raise NotImplementedError
