@@ -433,6 +433,8 @@ def ablate(base, variants, input_path, gt_path, sweeps, out_dir, frames, no_cach
     t0 = time.perf_counter()
     try:
         rows = run_ablation(runs, input_path, gt_path, out_dir, parse_frames(frames), cache, progress=not quiet)
+    except InputError as exc:  # unusable input, found before any frame ran: like `run`, exit 2
+        _fail(exc, 2)
     except LanegraphError as exc:
         _fail(exc)
     click.echo((out_dir / "results.md").read_text())

@@ -48,3 +48,24 @@ def test_ablate_rejects_an_invalid_variant_before_running(tmp_path):
     r = CliRunner().invoke(main, ["ablate", str(ROOT / "graphs/paper.yaml"), str(bad), "--out", str(tmp_path / "o"), "--quiet"])
     assert r.exit_code == 2 and "bad.yaml: node 'fit' (fit.irls): params.iterations" in r.output
     assert not (tmp_path / "o" / "results.csv").exists()
+
+
+def test_ablate_unusable_input_exits_2_like_run(tmp_path):
+    import cv2
+    import numpy as np
+
+    for side in ("left", "right"):
+        (tmp_path / "in" / side).mkdir(parents=True)
+        cv2.imwrite(str(tmp_path / "in" / side / "000000.png"), np.zeros((48, 64), np.uint8))
+    graph = str(Path(__file__).resolve().parents[2] / "graphs" / "paper.yaml")
+    r = CliRunner().invoke(main, ["ablate", graph, "--input", str(tmp_path / "in"), "--out", str(tmp_path / "o"), "--quiet", "--no-cache"])
+    assert r.exit_code == 2, r.output
+    assert "calib.yaml" in r.output and "Traceback" not in r.output
+
+
+def test_python_dash_m_lanegraph_is_the_cli():
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "lanegraph", "--version"], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and "lanegraph, version" in out.stdout
