@@ -303,17 +303,20 @@ def parse_set(item: str) -> tuple[str, list[str], Any]:
 def _apply_sets(raw: dict[str, Any], sets: list[str], origin: dict[str, str]) -> None:
     problems = []
     nodes = raw.setdefault("nodes", {})
+    if not isinstance(nodes, dict):  # reported by the validation; --set has nothing to apply to
+        return
+    names = [str(k) for k in nodes]
     for item in sets:
         nid, path, value = parse_set(item)
         spec = nodes.get(nid)
         if not isinstance(spec, dict):
-            hint = difflib.get_close_matches(nid, list(nodes), n=1)
+            hint = difflib.get_close_matches(nid, names, n=1)
             problems.append(
                 Problem(
                     f"--set {item!r}: no node with this id",
                     node=nid,
                     field="--set",
-                    hint=f"did you mean '{hint[0]}'?" if hint else f"nodes: {', '.join(nodes)}",
+                    hint=f"did you mean '{hint[0]}'?" if hint else f"nodes: {', '.join(names)}",
                 )
             )
             continue

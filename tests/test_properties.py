@@ -246,6 +246,8 @@ SETS = st.lists(
     sets=["fit.loss.deep=1"],
 )
 @example(child={"extends": "paper.yaml"}, base={**PAPER_RAW, "nodes": [1, 2]}, fmt="json", sets=[])
+@example(child={"nodes": {0: False}}, base=PAPER_RAW, fmt="yaml", sets=["fit.iterations=3"])  # a non-str id
+@example(child={"nodes": [1]}, base=PAPER_RAW, fmt="yaml", sets=["fit.iterations=3"])
 def test_graph_files_load_or_raise_graph_error(child, base, fmt, sets):
     """A graph file (and an ``extends`` base, and ``--set`` overrides) that is not what the format
     says is a GraphError, through the whole file-loading path."""

@@ -51,16 +51,27 @@ def _slt(img, window, threshold, out):
 def _eslt(img, gx, gy, window, threshold, max_angle, out_mask, out_theta):
     """ESLT: SLT plus parallel strongest-gradient borders. ``gx``, ``gy`` are Sobel gradients (rows
     growing downwards); the edge orientation of a border pixel is ``atan2(gx, gy)`` modulo pi (from
-    +x towards up). Writes the mask and the mean border orientation (-1 where not a feature)."""
+    +x towards up). Writes the mask and the mean border orientation (-1 where not a feature).
+
+    Per row, the squared gradient magnitudes are computed once, and a border pixel's orientation
+    and its doubled-angle sine and cosine once, when first needed (neighbouring features share
+    their borders)."""
     rows, cols = img.shape
     for r in prange(rows):
         csum = np.empty(cols + 1, np.float64)
         csum[0] = 0.0
         for c in range(cols):
             csum[c + 1] = csum[c] + img[r, c]
+        mag2 = np.empty(cols, np.float32)
+        for c in range(cols):
+            mag2[c] = gx[r, c] * gx[r, c] + gy[r, c] * gy[r, c]
+        ang = np.full(cols, -1.0)  # atan2(gx, gy) % pi of a border pixel; -1: not computed yet
+        sin2 = np.empty(cols)
+        cos2 = np.empty(cols)
         for c in range(cols):
             out_mask[r, c] = 0
             out_theta[r, c] = -1.0
+        for c in range(cols):
             lo = max(c - window, 0)
             hi = min(c + 1 + window, cols)
             nl = c - lo
@@ -73,29 +84,36 @@ def _eslt(img, gx, gy, window, threshold, max_angle, out_mask, out_theta):
             bl = lo
             ml = -1.0
             for k in range(lo, c):
-                m2 = gx[r, k] * gx[r, k] + gy[r, k] * gy[r, k]
+                m2 = mag2[k]
                 if m2 > ml:
                     ml = m2
                     bl = k
             br = c + 1
             mr = -1.0
             for k in range(c + 1, hi):
-                m2 = gx[r, k] * gx[r, k] + gy[r, k] * gy[r, k]
+                m2 = mag2[k]
                 if m2 > mr:
                     mr = m2
                     br = k
             if ml <= 0.0 or mr <= 0.0:
                 continue
-            a = math.atan2(gx[r, bl], gy[r, bl]) % math.pi
-            b = math.atan2(gx[r, br], gy[r, br]) % math.pi
+            for k in (bl, br):
+                if ang[k] < 0.0:
+                    # float32 atan2 also for int16 gradients (cv2.spatialGradient of a uint8 image)
+                    t = math.atan2(np.float32(gx[r, k]), np.float32(gy[r, k])) % math.pi
+                    ang[k] = t
+                    sin2[k] = math.sin(2 * t)
+                    cos2[k] = math.cos(2 * t)
+            a = ang[bl]
+            b = ang[br]
             d = abs(a - b)
             if d > math.pi / 2:
                 d = math.pi - d
             if d >= max_angle:
                 continue
             # circular mean modulo pi (doubled angles)
-            s = math.sin(2 * a) + math.sin(2 * b)
-            co = math.cos(2 * a) + math.cos(2 * b)
+            s = sin2[bl] + sin2[br]
+            co = cos2[bl] + cos2[br]
             m = 0.5 * math.atan2(s, co)
             if m < 0:
                 m += math.pi
@@ -169,15 +187,22 @@ class EsltParams(SltParams):
 @node_type("features.eslt", inputs={"image": Port("bev_image", "BEV grey image")}, outputs={"features": "features"})
 def eslt(params: EsltParams, image: np.ndarray) -> dict:
     """Extended SLT: SLT plus parallel strongest-gradient borders; features get the borders' mean orientation."""
-    img = _as_gray32(image, "features.eslt")
     k = params.sobel_ksize if params.sobel_ksize in (1, 3, 5, 7) else 3
+    raw = np.asarray(image)
+    if raw.dtype == np.uint8 and raw.ndim == 2 and k == 3 and min(raw.shape) >= 2:
+        # a grey uint8 BEV (the usual case): integer 3x3 Sobel gradients in one pass, exactly the
+        # float32 ones (|g| <= 1020), and the kernel reads the uint8 grey levels directly
+        img = np.ascontiguousarray(raw)
+        gx, gy = cv2.spatialGradient(img, ksize=3)
+    else:
+        img = _as_gray32(image, "features.eslt")
+        if img.size == 0:  # an empty BEV: no features (cv2.Sobel refuses empty images)
+            return {"features": FeatureMap(mask=np.zeros(img.shape, bool), orientation=np.full(img.shape, -1.0, np.float32))}
+        gx, gy = sobel(img, k)
     mask = np.zeros(img.shape, np.uint8)
     ori = np.empty(img.shape, np.float32)
-    if img.size == 0:  # an empty BEV: no features (cv2.Sobel refuses empty images)
-        return {"features": FeatureMap(mask=mask.astype(bool), orientation=np.full(img.shape, -1.0, np.float32))}
-    gx, gy = sobel(img, k)
     _eslt(img, gx, gy, params.window, float(params.threshold), math.radians(params.max_angle_deg), mask, ori)
-    return {"features": FeatureMap(mask=mask.astype(bool), orientation=ori)}
+    return {"features": FeatureMap(mask=mask.view(bool), orientation=ori)}
 
 
 class MaskParams(NodeParams):

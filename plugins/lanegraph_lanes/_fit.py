@@ -11,17 +11,54 @@ A lane is reported only with enough support: ``min_inliers`` features spread ove
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 import numpy as np
 from pydantic import Field
 
 from lanegraph import NodeParams, Port, node_type
+from lanegraph._numba import jit
 from lanegraph.types import BevGeometry, FeatureMap, Lane, Line
+
+
+@jit
+def _roi_kernel(mask, rho, inv_tan, half_width):
+    """The features of ``mask`` with ``|col - x_line(row)| <= half_width``, ``x_line = rho + (rows -
+    row) * inv_tan``, in row-major order: ``(rows - 1 - row, col)`` as float64. Scans only the
+    columns near the line in each row."""
+    rows, cols = mask.shape
+    cap = rows * (int(2.0 * half_width) + 4)
+    t = np.empty(cap, np.float64)
+    x = np.empty(cap, np.float64)
+    n = 0
+    for r in range(rows):
+        x_line = rho + (rows - r) * inv_tan
+        lo = x_line - half_width - 1.0
+        hi = x_line + half_width + 2.0
+        if not (hi > 0.0 and lo < cols):  # also a NaN line
+            continue
+        c_lo = max(int(math.floor(lo)), 0)
+        c_hi = min(int(math.ceil(hi)), cols)
+        for c in range(c_lo, c_hi):
+            if mask[r, c] and abs(c - x_line) <= half_width:
+                t[n] = rows - 1 - r
+                x[n] = c
+                n += 1
+    return t[:n].copy(), x[:n].copy()
 
 
 def roi_points(features: FeatureMap, line: Line, width_px: float) -> tuple[np.ndarray, np.ndarray]:
     """(t, col) of the features within ``width_px / 2`` of ``line`` (measured along the row)."""
+    inv_tan = np.cos(line.theta) / max(np.sin(line.theta), 1e-6)
+    mask = np.ascontiguousarray(features.mask, dtype=bool)
+    if mask.ndim != 2:
+        raise ValueError(f"features mask must be 2-D, got shape {mask.shape}")
+    return _roi_kernel(mask, float(line.rho), float(inv_tan), float(width_px / 2))
+
+
+def roi_points_np(features: FeatureMap, line: Line, width_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`roi_points` in NumPy (the reference of the kernel)."""
     rows = features.mask.shape[0]
     r, c = np.nonzero(features.mask)
     inv_tan = np.cos(line.theta) / max(np.sin(line.theta), 1e-6)
@@ -40,11 +77,115 @@ def _wls(A: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
     return coef
 
 
-def irls_fit(t: np.ndarray, y: np.ndarray, degree: int = 2, iterations: int = 10, loss: str = "tukey", c: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Robust polynomial fit by iteratively reweighted least squares.
+@jit
+def _irls_kernel(t, y, degree, iterations, tukey, k):
+    """:func:`irls_fit` by weighted normal equations in the scaled abscissa ``x = (t - mid) / half``
+    (``x`` in [-1, 1]: well conditioned, unlike powers of ``t`` itself). Returns ``(ok, coef, w)``,
+    coefficients in ``t``, lowest power first; ``ok`` False when a system is singular (the caller
+    then uses the NumPy least-squares path)."""
+    n = t.size
+    m = degree + 1
+    lo = t.min()
+    hi = t.max()
+    mid = 0.5 * (lo + hi)
+    half = 0.5 * (hi - lo)
+    if half <= 0.0:
+        half = 1.0
+    X = np.empty((n, m))
+    for i in range(n):
+        xi = (t[i] - mid) / half
+        X[i, 0] = 1.0
+        for j in range(1, m):
+            X[i, j] = X[i, j - 1] * xi
+    # x^j = sum_i C(j, i) t^i (-mid)^(j - i) / half^j: T[i, j] maps x-coefficients to t-coefficients
+    T = np.zeros((m, m))
+    for j in range(m):
+        binom = 1.0
+        for i in range(j + 1):
+            T[i, j] = binom * (-mid) ** (j - i) / half**j
+            binom = binom * (j - i) / (i + 1)
+    w = np.ones(n)
+    coef = np.zeros(m)
+    a = np.zeros(m)
+    res = np.empty(n)
+    for it in range(iterations + 1):
+        if it > 0:
+            for i in range(n):
+                p = 0.0
+                for j in range(m):
+                    p += X[i, j] * a[j]
+                res[i] = y[i] - p
+            med = np.median(res)
+            scale = 1.4826 * np.median(np.abs(res - med))
+            scale = max(scale, 0.5)  # BEV pixels: never trust sub-half-pixel residual scales
+            wsum = 0.0
+            for i in range(n):
+                u = res[i] / (k * scale)
+                au = abs(u)
+                if tukey:
+                    w[i] = (1.0 - u * u) ** 2 if au < 1.0 else 0.0
+                else:
+                    w[i] = 1.0 if au <= 1.0 else 1.0 / max(au, 1e-12)
+                wsum += w[i]
+            if wsum < degree + 1:
+                break
+        # weighted normal equations, Gaussian elimination with partial pivoting
+        M = np.zeros((m, m + 1))
+        for i in range(n):
+            wi = w[i]
+            if wi == 0.0:
+                continue
+            for r in range(m):
+                xr = wi * X[i, r]
+                for c in range(m):
+                    M[r, c] += xr * X[i, c]
+                M[r, m] += xr * y[i]
+        for col in range(m):
+            piv = col
+            for r in range(col + 1, m):
+                if abs(M[r, col]) > abs(M[piv, col]):
+                    piv = r
+            if not abs(M[piv, col]) > 1e-12 * max(1.0, abs(M[0, 0])):
+                return False, coef, w
+            if piv != col:
+                for c in range(m + 1):
+                    tmp = M[col, c]
+                    M[col, c] = M[piv, c]
+                    M[piv, c] = tmp
+            for r in range(col + 1, m):
+                f = M[r, col] / M[col, col]
+                for c in range(col, m + 1):
+                    M[r, c] -= f * M[col, c]
+        new_a = np.zeros(m)
+        for r in range(m - 1, -1, -1):
+            acc = M[r, m]
+            for c in range(r + 1, m):
+                acc -= M[r, c] * new_a[c]
+            new_a[r] = acc / M[r, r]
+        new = np.zeros(m)
+        for i in range(m):
+            for j in range(m):
+                new[i] += T[i, j] * new_a[j]
+        if not np.all(np.isfinite(new)):
+            return False, coef, w
+        if it > 0:
+            close = True
+            for j in range(m):
+                if abs(new[j] - coef[j]) > 1e-6 + 1e-5 * abs(coef[j]):
+                    close = False
+            a = new_a
+            coef = new
+            if close:
+                break
+        else:
+            a = new_a
+            coef = new
+    return True, coef, w
 
-    Returns (coefficients, lowest order first; final weights in [0, 1]).
-    """
+
+def irls_fit_lstsq(t: np.ndarray, y: np.ndarray, degree: int = 2, iterations: int = 10, loss: str = "tukey", c: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`irls_fit` with ``np.linalg.lstsq`` solves (the reference; used when a normal-equation
+    system of the kernel is singular)."""
     A = _design(t, degree)
     w = np.ones_like(y)
     coef = _wls(A, y, w)
@@ -67,6 +208,21 @@ def irls_fit(t: np.ndarray, y: np.ndarray, degree: int = 2, iterations: int = 10
             break
         coef = new
     return coef, w
+
+
+def irls_fit(t: np.ndarray, y: np.ndarray, degree: int = 2, iterations: int = 10, loss: str = "tukey", c: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Robust polynomial fit by iteratively reweighted least squares.
+
+    Returns (coefficients, lowest order first; final weights in [0, 1]).
+    """
+    t = np.ascontiguousarray(t, dtype=np.float64)
+    y = np.ascontiguousarray(y, dtype=np.float64)
+    k = c if c is not None else (4.685 if loss == "tukey" else 1.345)
+    if t.size >= degree + 1:
+        ok, coef, w = _irls_kernel(t, y, int(degree), int(iterations), loss == "tukey", float(k))
+        if ok:
+            return coef, w
+    return irls_fit_lstsq(t, y, degree, iterations, loss, c)
 
 
 def ransac_fit(t: np.ndarray, y: np.ndarray, degree: int = 2, iterations: int = 200, inlier_px: float = 3.0, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:

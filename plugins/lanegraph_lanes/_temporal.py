@@ -13,10 +13,13 @@ by a feedback edge). Re-acquisition, so that a wrong or lost lock does not persi
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from pydantic import Field
 
 from lanegraph import NodeParams, Port, node_type
+from lanegraph._numba import jit
 from lanegraph.types import BevGeometry, Calibration, FeatureMap, Lane
 
 
@@ -25,6 +28,29 @@ def lane_cols(lane: Lane, rows: int) -> np.ndarray:
     t = rows - 1 - np.arange(rows, dtype=np.float64)
     c0, c1, c2 = lane.coeffs
     return c0 + c1 * t + c2 * t * t
+
+
+@jit
+def _side_band_kernel(lane_cols_rows, c_lo, c_hi, band_px, feat, use_feat, band):
+    """The band of a side: ``band[r, c]`` for the columns ``c_lo <= c < c_hi`` within ``band_px`` of a
+    lane (``|c - lane_cols_rows[i, r]| <= band_px`` for some lane ``i``). Returns the number of
+    features (``feat``, when ``use_feat``) in the side's columns and in its band."""
+    n_lanes, rows = lane_cols_rows.shape
+    n_side = 0
+    n_band = 0
+    for r in range(rows):
+        for c in range(c_lo, c_hi):
+            inside = False
+            for i in range(n_lanes):
+                if abs(c - lane_cols_rows[i, r]) <= band_px:
+                    inside = True
+                    break
+            band[r, c] = inside
+            if use_feat and feat[r, c]:
+                n_side += 1
+                if inside:
+                    n_band += 1
+    return n_side, n_band
 
 
 class TemporalParams(NodeParams):
@@ -53,24 +79,25 @@ def temporal_mask(params: TemporalParams, geometry: BevGeometry, previous: list[
     if not good:
         return {"mask": full}
     x0 = -geometry.x_min / geometry.resolution - 0.5
-    cc = np.arange(cols)[None, :]
+    # the left side is the columns c < x0, the right side c >= x0
+    split = min(max(math.ceil(x0), 0), cols)
+    feat = features.mask if features is not None else np.zeros((0, 0), bool)
+    use_feat = params.reacquire and features is not None
+    if use_feat:
+        feat = np.ascontiguousarray(feat, dtype=bool)
     mask = np.zeros((rows, cols), bool)
-    for side, sel in (("left", cc < x0), ("right", cc >= x0)):
-        sel = np.broadcast_to(sel, (rows, cols))
+    for side, c_lo, c_hi in (("left", 0, split), ("right", split, cols)):
         lanes = [ln for ln in good if ln.side == side]
         if not lanes:
-            mask |= sel
+            mask[:, c_lo:c_hi] = True
             continue
+        lcols = np.stack([lane_cols(ln, rows) for ln in lanes])
         band = np.zeros((rows, cols), bool)
-        for ln in lanes:
-            band |= np.abs(cc - lane_cols(ln, rows)[:, None]) <= params.band_px
-        band &= sel
-        if params.reacquire and features is not None:
-            n_side = int((features.mask & sel).sum())
-            n_band = int((features.mask & band).sum())
-            if n_side > 0 and n_band < params.min_band_fraction * n_side:
-                band = sel
-        mask |= band
+        n_side, n_band = _side_band_kernel(lcols, c_lo, c_hi, float(params.band_px), feat, use_feat, band)
+        if use_feat and n_side > 0 and n_band < params.min_band_fraction * n_side:
+            mask[:, c_lo:c_hi] = True
+        else:
+            mask |= band
     return {"mask": mask}
 
 

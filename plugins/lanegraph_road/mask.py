@@ -36,7 +36,7 @@ import numpy as np
 from pydantic import Field
 
 from lanegraph import NodeParams, Port, node_type
-from lanegraph._numba import jit
+from lanegraph._numba import jit, prange
 from lanegraph.types import Calibration, RoadModel
 
 from . import geometry
@@ -50,10 +50,11 @@ def _height_class_kernel(disp, a0, a1, a2, cx, cy, s, c, height, height_tol, min
     """Label each pixel by its height above the road (eq. 4): 1 road (``|d - d_road| <= tol`` with
     ``tol = max(height_tol * d / height, min_disp_tol)``), 2 above, 3 below, 4 no disparity (``d <= 0``)
     where the road would be visible; 0 where the road disparity at the pixel (roll-corrected row
-    ``cy + s (u-cx) + c (v-cy)``) is < ``min_road_disp`` (beyond ``max_distance_m`` or the horizon)."""
+    ``cy + s (u-cx) + c (v-cy)``) is < ``min_road_disp`` (beyond ``max_distance_m`` or the horizon).
+    Rows in parallel."""
     H, W = disp.shape
     out = np.zeros((H, W), np.uint8)
-    for v in range(H):
+    for v in prange(H):
         for u in range(W):
             d = disp[v, u]
             r = cy + s * (u - cx) + c * (v - cy)
@@ -98,6 +99,64 @@ def _free_space_kernel(labels, min_run, unknown_is_road):
                 if run >= min_run:
                     # the run's first pixels were not road anyway; nothing above is reachable
                     break
+    return out
+
+
+@jit
+def _fill_holes_kernel(mask, holes, n, classes, max_above):
+    """``mask`` with the components ``1..n-1`` of the label image ``holes`` filled when they touch
+    no image border and at most ``max_above`` of their pixels have the class ``ABOVE`` (2).
+    The per-label counts are taken in row-interleaved blocks in parallel (integer sums)."""
+    H, W = holes.shape
+    n_blocks = 4
+    psize = np.zeros((n_blocks, n), np.int64)
+    pabove = np.zeros((n_blocks, n), np.int64)
+    for blk in prange(n_blocks):
+        for v in range(blk, H, n_blocks):
+            prev = holes[v, 0]
+            run = 0
+            for u in range(W):
+                lab = holes[v, u]
+                if lab != prev:  # sizes by runs: labels come in long runs along a row
+                    psize[blk, prev] += run
+                    prev = lab
+                    run = 0
+                run += 1
+                if classes[v, u] == 2:
+                    pabove[blk, lab] += 1
+            psize[blk, prev] += run
+    fill = np.zeros(n, np.bool_)
+    for lab in range(1, n):
+        size = 0
+        n_above = 0
+        for blk in range(n_blocks):
+            size += psize[blk, lab]
+            n_above += pabove[blk, lab]
+        fill[lab] = n_above <= max_above * size
+    for u in range(W):
+        fill[holes[0, u]] = False
+        fill[holes[H - 1, u]] = False
+    for v in range(H):
+        fill[holes[v, 0]] = False
+        fill[holes[v, W - 1]] = False
+    out = mask.copy()
+    if not fill.any():
+        return out
+    for v in range(H):
+        for u in range(W):
+            if fill[holes[v, u]]:
+                out[v, u] = True
+    return out
+
+
+@jit
+def _lookup_kernel(lut, labels):
+    """``lut[labels]`` (a bool per label). Rows in parallel."""
+    H, W = labels.shape
+    out = np.empty((H, W), np.bool_)
+    for v in prange(H):
+        for u in range(W):
+            out[v, u] = lut[labels[v, u]]
     return out
 
 
@@ -171,7 +230,7 @@ def _keep_components(mask: np.ndarray, keep: str, band_frac: float, cx: float) -
     """Keep the connected components that cover the seed region (the bottom band, or its central
     half) best: every component with at least a tenth of the largest one's overlap with the seed."""
     H, W = mask.shape
-    n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    n, labels = cv2.connectedComponents(np.ascontiguousarray(mask).view(np.uint8), connectivity=8)
     if n <= 1:
         return mask
     band = labels[max(0, H - max(1, int(round(band_frac * H)))) :]
@@ -182,23 +241,17 @@ def _keep_components(mask: np.ndarray, keep: str, band_frac: float, cx: float) -
         if overlap.max() > 0:
             lut = np.zeros(n, bool)
             lut[1:] = overlap >= 0.1 * overlap.max()
-            return lut[labels]
+            return _lookup_kernel(lut, labels)
     return mask
 
 
-def _fill_holes(mask: np.ndarray, above: np.ndarray, max_above: float) -> np.ndarray:
+def _fill_holes(mask: np.ndarray, classes: np.ndarray, max_above: float) -> np.ndarray:
     """Fill the regions of ``~mask`` that do not touch the image border and whose share of
-    above-road pixels is at most ``max_above``."""
-    n, labels, stats, _ = cv2.connectedComponentsWithStats((~mask).astype(np.uint8), connectivity=4)
+    above-road pixels (``classes == ABOVE``) is at most ``max_above``."""
+    n, labels = cv2.connectedComponents(np.logical_not(mask).view(np.uint8), connectivity=4)
     if n <= 1:
         return mask
-    border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
-    size = stats[:, cv2.CC_STAT_AREA]
-    n_above = np.bincount(labels[above], minlength=n)
-    fill = n_above <= max_above * size
-    fill[0] = False
-    fill[border] = False
-    return mask | fill[labels]
+    return _fill_holes_kernel(np.ascontiguousarray(mask), labels, n, classes, float(max_above))
 
 
 def road_mask_array(
@@ -228,13 +281,14 @@ def road_mask_array(
         _free_space_kernel(labels, int(params.min_obstacle_run_px), bool(params.textureless_is_road)) if params.free_space else labels == ROAD
     )
     if params.open_px > 1:
-        mask = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN, _disk(params.open_px)).astype(bool)
+        # bool and 0/1 uint8 share their bytes: views, no copies
+        mask = cv2.morphologyEx(np.ascontiguousarray(mask).view(np.uint8), cv2.MORPH_OPEN, _disk(params.open_px)).view(bool)
     if params.keep != "all":
         mask = _keep_components(mask, params.keep, params.bottom_band_frac, calib.cx)
     if params.close_px > 1:
-        mask = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_CLOSE, _disk(params.close_px)).astype(bool)
+        mask = cv2.morphologyEx(np.ascontiguousarray(mask).view(np.uint8), cv2.MORPH_CLOSE, _disk(params.close_px)).view(bool)
     if params.fill_holes_max_above > 0:
-        mask = _fill_holes(mask, labels == ABOVE, params.fill_holes_max_above)
+        mask = _fill_holes(mask, labels, params.fill_holes_max_above)
     return mask
 
 

@@ -30,7 +30,7 @@ import numpy as np
 from pydantic import Field
 
 from lanegraph import InputError, NodeParams, Port, node_type
-from lanegraph._numba import jit
+from lanegraph._numba import jit, prange
 from lanegraph.types import Calibration, RoadModel
 
 from . import geometry
@@ -38,81 +38,155 @@ from . import geometry
 # --------------------------------------------------------------------------- kernels
 
 
+#: row-interleaved chunks of the parallel accumulation kernels: chunk k takes the rows v = k mod
+#: _N_CHUNKS (balanced although the top rows have no disparity); fixed, so that the order in which
+#: the partial sums are added does not depend on the number of threads
+_N_CHUNKS = 4
+_N_CHUNKS_VD = 2
+
+
 @jit
 def _vdisparity_kernel(disp, keep, n_bins, bin_size, max_disp, cx, cy, s, c):
     """Count the disparities of the ``keep`` pixels per (roll-corrected row, bin).
     ``v' = cy + s (u - cx) + c (v - cy)``, rounded to the nearest row; rows outside ``[0, H)``,
-    ``d <= 0`` and ``d >= max_disp`` are dropped."""
+    ``d <= 0`` and ``d >= max_disp`` are dropped. Row chunks in parallel."""
     H, W = disp.shape
+    # fewer chunks than _row_refine_kernel: each one is an H x n_bins array to zero and add
+    part = np.zeros((_N_CHUNKS_VD, H, n_bins), np.float32)
+    for ch in prange(_N_CHUNKS_VD):
+        for v in range(ch, H, _N_CHUNKS_VD):
+            for u in range(W):
+                d = disp[v, u]
+                if not keep[v, u] or d <= 0.0 or d >= max_disp:
+                    continue
+                r = int(math.floor(cy + s * (u - cx) + c * (v - cy) + 0.5))
+                if r < 0 or r >= H:
+                    continue
+                k = int(d / bin_size)
+                if k >= n_bins:
+                    continue
+                part[ch, r, k] += 1.0
     out = np.zeros((H, n_bins), np.float32)
-    for v in range(H):
-        for u in range(W):
-            d = disp[v, u]
-            if not keep[v, u] or d <= 0.0 or d >= max_disp:
-                continue
-            r = int(math.floor(cy + s * (u - cx) + c * (v - cy) + 0.5))
-            if r < 0 or r >= H:
-                continue
-            k = int(d / bin_size)
-            if k >= n_bins:
-                continue
-            out[r, k] += 1.0
+    for ch in range(_N_CHUNKS_VD):
+        out += part[ch]
     return out
 
 
 @jit
 def _dp_path_kernel(score, max_step, smoothness):
     """Best non-increasing-upwards path: ``path[v]`` is a bin per row, ``path[v] <= path[v+1] <=
-    path[v] + max_step``; maximises ``sum score[v, path[v]] - smoothness * sum step**2``."""
+    path[v] + max_step``; maximises ``sum score[v, path[v]] - smoothness * sum step**2``.
+    Keeps one row of accumulated scores and the chosen step (uint8, ``max_step <= 255``) per cell."""
     H, D = score.shape
-    acc = np.empty((H, D), np.float64)
-    back = np.zeros((H, D), np.int32)
+    pen = np.empty(max_step + 1, np.float64)
+    for step in range(max_step + 1):
+        pen[step] = smoothness * step * step
+    prev = np.empty(D, np.float64)
+    cur = np.empty(D, np.float64)
+    back = np.zeros((H, D), np.uint8)
     for k in range(D):
-        acc[H - 1, k] = score[H - 1, k]
+        prev[k] = score[H - 1, k]
     for v in range(H - 2, -1, -1):
         for k in range(D):
             best = -1e300
-            arg = k
+            arg = 0
             hi = min(D, k + max_step + 1)
             for j in range(k, hi):
-                step = j - k
-                val = acc[v + 1, j] - smoothness * step * step
+                val = prev[j] - pen[j - k]
                 if val > best:
                     best = val
-                    arg = j
-            acc[v, k] = score[v, k] + best
+                    arg = j - k
+            cur[k] = score[v, k] + best
             back[v, k] = arg
+        prev, cur = cur, prev
     path = np.zeros(H, np.int32)
     k = 0
     best = -1e300
     for j in range(D):
-        if acc[0, j] > best:
-            best = acc[0, j]
+        if prev[j] > best:
+            best = prev[j]
             k = j
     path[0] = k
     for v in range(1, H):
-        path[v] = back[v - 1, path[v - 1]]
+        path[v] = path[v - 1] + back[v - 1, path[v - 1]]
     return path
 
 
 @jit
-def _row_refine_kernel(disp, keep, centre, radius, cx, cy, s, c):
-    """Per roll-corrected row: sum and count of the disparities of the ``keep`` pixels within
-    ``radius[row]`` of ``centre[row]``."""
+def _corrected_rows_kernel(disp, keep, cx, cy, s, c, rows):
+    """Write into ``rows`` each pixel's roll-corrected row ``v' = cy + s (u - cx) + c (v - cy)``,
+    rounded to the nearest row; -1 where the pixel is left out (not ``keep``, ``d <= 0``, ``v'``
+    outside ``[0, H)``). Computed once per pass for its v-disparity and its row refinements. Rows in
+    parallel."""
     H, W = disp.shape
-    total = np.zeros(H, np.float64)
-    count = np.zeros(H, np.float64)
-    for v in range(H):
+    for v in prange(H):
         for u in range(W):
             d = disp[v, u]
-            if not keep[v, u] or d <= 0.0:
-                continue
-            r = int(math.floor(cy + s * (u - cx) + c * (v - cy) + 0.5))
-            if r < 0 or r >= H:
-                continue
-            if abs(d - centre[r]) <= radius[r]:
-                total[r] += d
-                count[r] += 1.0
+            r = -1
+            if keep[v, u] and d > 0.0:
+                r = int(math.floor(cy + s * (u - cx) + c * (v - cy) + 0.5))
+                if r < 0 or r >= H:
+                    r = -1
+            rows[v, u] = r
+
+
+def corrected_rows(disp: np.ndarray, keep: np.ndarray, cx: float, cy: float, s: float, c: float) -> np.ndarray:
+    """:func:`_corrected_rows_kernel` into a new array: int16 (half the memory traffic of the
+    passes over it) unless the image has too many rows for it."""
+    rows = np.empty(disp.shape, np.int16 if disp.shape[0] < 32767 else np.int32)
+    _corrected_rows_kernel(disp, keep, float(cx), float(cy), float(s), float(c), rows)
+    return rows
+
+
+@jit
+def _vdisparity_rows_kernel(disp, rows, n_bins, bin_size, max_disp):
+    """:func:`_vdisparity_kernel` over the rows of :func:`_corrected_rows_kernel`: count per (row, bin)
+    the pixels with ``rows >= 0`` and ``d < max_disp``. Row chunks in parallel."""
+    H, W = disp.shape
+    part = np.zeros((_N_CHUNKS_VD, H, n_bins), np.float32)
+    for ch in prange(_N_CHUNKS_VD):
+        for v in range(ch, H, _N_CHUNKS_VD):
+            for u in range(W):
+                r = rows[v, u]
+                if r < 0:
+                    continue
+                d = disp[v, u]
+                if d >= max_disp:
+                    continue
+                k = int(d / bin_size)
+                if k >= n_bins:
+                    continue
+                part[ch, r, k] += 1.0
+    out = np.zeros((H, n_bins), np.float32)
+    for ch in range(_N_CHUNKS_VD):
+        out += part[ch]
+    return out
+
+
+@jit
+def _row_refine_kernel(disp, rows, centre, radius):
+    """Per roll-corrected row (``rows`` from :func:`_corrected_rows_kernel`, -1: left out): sum and
+    count of the disparities within ``radius[row]`` of ``centre[row]``. Row chunks in parallel; the
+    chunks' sums are added in a fixed order."""
+    H, W = disp.shape
+    ptotal = np.zeros((_N_CHUNKS, H), np.float64)
+    pcount = np.zeros((_N_CHUNKS, H), np.float64)
+    for ch in prange(_N_CHUNKS):
+        for v in range(ch, H, _N_CHUNKS):
+            for u in range(W):
+                r = rows[v, u]
+                if r < 0:
+                    continue
+                d = disp[v, u]
+                if abs(d - centre[r]) <= radius[r]:
+                    ptotal[ch, r] += d
+                    pcount[ch, r] += 1.0
+    total = np.zeros(H, np.float64)
+    count = np.zeros(H, np.float64)
+    for ch in range(_N_CHUNKS):
+        for r in range(H):
+            total[r] += ptotal[ch, r]
+            count[r] += pcount[ch, r]
     return total, count
 
 
@@ -131,6 +205,97 @@ def _plane_band_kernel(disp, b0, b1, b2, height, band):
             if abs(d - (b0 + b1 * u + b2 * v)) <= k * d:
                 out[v, u] = True
     return out
+
+
+@jit
+def _plane_sums_kernel(disp, step, v_top, min_disp, b0, b1, b2, fixed_tol, plane_tol, height, min_tol, uc, vc):
+    """One selection round of the roll plane over every ``step``-th row and column from row 0 and
+    column 0: the pixels with ``d > min_disp``, ``v >= v_top`` and ``|d - (b0 + b1 u + b2 v)| < tol``,
+    ``tol = fixed_tol`` when it is > 0 else ``max(plane_tol * d / height, min_tol)``. Returns the sums
+    of the least-squares normal equations of ``d = a + b1 (u - uc) + b2 (v - vc)``: ``(n, S)`` with
+    ``S = [Su, Sv, Suu, Suv, Svv, Sd, Sud, Svd]`` over the centred ``u - uc``, ``v - vc``."""
+    H, W = disp.shape
+    n = 0
+    su = 0.0
+    sv = 0.0
+    suu = 0.0
+    suv = 0.0
+    svv = 0.0
+    sd = 0.0
+    sud = 0.0
+    svd = 0.0
+    for v in range(0, H, step):
+        if v < v_top:
+            continue
+        fv = float(v)
+        for u in range(0, W, step):
+            d = float(disp[v, u])
+            if not d > min_disp:
+                continue
+            fu = float(u)
+            if fixed_tol > 0.0:
+                tol = fixed_tol
+            else:
+                tol = plane_tol * d / height
+                if tol < min_tol:
+                    tol = min_tol
+            if abs(d - (b0 + b1 * fu + b2 * fv)) < tol:
+                x = fu - uc
+                y = fv - vc
+                n += 1
+                su += x
+                sv += y
+                suu += x * x
+                suv += x * y
+                svv += y * y
+                sd += d
+                sud += x * d
+                svd += y * d
+    out = np.empty(8, np.float64)
+    out[0] = su
+    out[1] = sv
+    out[2] = suu
+    out[3] = suv
+    out[4] = svv
+    out[5] = sd
+    out[6] = sud
+    out[7] = svd
+    return n, out
+
+
+@jit
+def _ransac_line_kernel(v, d, w, i, j, tol):
+    """Score the lines through the point pairs ``(i[k], j[k])`` (pairs with ``v[i] == v[j]`` or a slope
+    ``<= 0`` are skipped): the weight ``w`` of the points within ``tol``. Returns ``(found, inliers
+    of the first best line)``."""
+    n = v.size
+    best_score = -1.0
+    best_a0 = 0.0
+    best_a1 = 0.0
+    found = False
+    for k in range(i.size):
+        vi = v[i[k]]
+        vj = v[j[k]]
+        if vi == vj:
+            continue
+        a1 = (d[i[k]] - d[j[k]]) / (vi - vj)
+        if not a1 > 0:
+            continue
+        a0 = d[i[k]] - a1 * vi
+        score = 0.0
+        for p in range(n):
+            if abs(d[p] - (a0 + a1 * v[p])) < tol:
+                score += w[p]
+        if score > best_score:
+            best_score = score
+            best_a0 = a0
+            best_a1 = a1
+            found = True
+    inl = np.zeros(n, np.bool_)
+    if found:
+        for p in range(n):
+            inl[p] = abs(d[p] - (best_a0 + best_a1 * v[p])) < tol
+    return found, inl
 
 
 # --------------------------------------------------------------------------- helpers
@@ -294,26 +459,15 @@ def _ransac_line(
     rng = np.random.default_rng(seed)
     i = rng.integers(0, n, iterations)
     j = rng.integers(0, n, iterations)
-    ok = v[i] != v[j]
-    i, j = i[ok], j[ok]
-    if i.size == 0:
-        return None
-    a1 = (d[i] - d[j]) / (v[i] - v[j])
-    a0 = d[i] - a1 * v[i]
-    good = a1 > 0
-    if not good.any():
-        return None
-    a0, a1 = a0[good], a1[good]
-    best_score, best = -1.0, None
-    for start in range(0, a0.size, 256):  # bounded memory: 256 x n residuals at a time
-        res = np.abs(
-            d[None, :] - (a0[start : start + 256, None] + a1[start : start + 256, None] * v[None, :])
-        )
-        score = ((res < tol) * w[None, :]).sum(axis=1)
-        k = int(np.argmax(score))
-        if score[k] > best_score:
-            best_score, best = float(score[k]), res[k] < tol
-    return best
+    found, inl = _ransac_line_kernel(
+        np.ascontiguousarray(v, dtype=np.float64),
+        np.ascontiguousarray(d, dtype=np.float64),
+        np.ascontiguousarray(w, dtype=np.float64),
+        i,
+        j,
+        float(tol),
+    )
+    return inl if found else None
 
 
 def _weighted_polyfit(v: np.ndarray, d: np.ndarray, w: np.ndarray, deg: int) -> np.ndarray | None:
@@ -344,8 +498,9 @@ def _robust_fit(v, d, w, deg, tol, iterations, init: np.ndarray | None):
     return coef, inl
 
 
-def _profile_pass(disp, keep, vd, calib, params: ProfileParams, roll: float, height: float | None = None):
-    """DP + refinement + robust fit in (roll-corrected) rows.
+def _profile_pass(disp, pixel_rows, vd, params: ProfileParams, height: float | None = None):
+    """DP + refinement + robust fit in (roll-corrected) rows; ``pixel_rows``: each pixel's row in the pass
+    (:func:`_corrected_rows_kernel`, -1 where left out).
 
     With a ``height`` estimate (pass 2) the row disparities are refined once more, keeping only the
     disparities within ``plane_tolerance_m`` (metric, eq. 4) of the first mean, so that a kerb or
@@ -358,16 +513,14 @@ def _profile_pass(disp, keep, vd, calib, params: ProfileParams, roll: float, hei
     score = np.ascontiguousarray(vd, dtype=np.float64) / float(W)
     path = _dp_path_kernel(score, int(params.max_step), float(params.smoothness))
     centre = (path.astype(np.float64) + 0.5) * params.bin_size
-    s, c = geometry.roll_row_coeffs(roll, calib)
     radius = np.full(H, max(params.refine_radius_px, 0.5 * params.bin_size))
-    cx, cy = float(calib.cx), float(calib.cy)
-    total, count = _row_refine_kernel(disp, keep, centre, radius, cx, cy, s, c)
+    total, count = _row_refine_kernel(disp, pixel_rows, centre, radius)
     if height is not None and height > 0:
         for _ in range(2):
             ok = count > 0
             centre = np.where(ok, total / np.maximum(count, 1.0), centre)
             radius = np.maximum(params.plane_tolerance_m * centre / height, params.min_plane_tolerance_px)
-            total, count = _row_refine_kernel(disp, keep, centre, radius, cx, cy, s, c)
+            total, count = _row_refine_kernel(disp, pixel_rows, centre, radius)
     profile = np.full(H, -1.0, np.float32)
     have = count >= params.min_row_count
     profile[have] = (total[have] / count[have]).astype(np.float32)
@@ -390,26 +543,33 @@ def _profile_pass(disp, keep, vd, calib, params: ProfileParams, roll: float, hei
 def _fit_road_plane(disp, line, v_top: int, params: ProfileParams, calib: Calibration) -> np.ndarray | None:
     """The road plane ``d = b0 + b1 u + b2 v`` (disparity space) fitted over the pixels within
     ``roll_tolerance_px`` of the profile line, then re-fitted ``roll_iterations`` times over the
-    pixels within ``plane_tolerance_m`` (metric, eq. 4) of the plane."""
-    st = params.roll_subsample
-    sub = disp[::st, ::st].astype(np.float64)
-    vv, uu = np.mgrid[0 : disp.shape[0] : st, 0 : disp.shape[1] : st]
-    vv = vv.astype(np.float64)
-    uu = uu.astype(np.float64)
-    valid = (sub > params.min_fit_disparity_px) & (vv >= v_top)
-    sel = valid & (np.abs(sub - (line[0] + line[1] * vv)) < params.roll_tolerance_px)
+    pixels within ``plane_tolerance_m`` (metric, eq. 4) of the plane.
+
+    Each round is one pass of :func:`_plane_sums_kernel` (selection and least-squares normal
+    equations together, in coordinates centred on the image centre) and a 3 x 3 solve."""
+    H, W = disp.shape
+    st = int(params.roll_subsample)
+    uc, vc = 0.5 * (W - 1), 0.5 * (H - 1)
     _, h1 = geometry.pose_from_line(float(line[0]), float(line[1]), calib)
-    tol = np.maximum(params.plane_tolerance_m * sub / h1, params.min_plane_tolerance_px)
-    b = None
+    b = np.array([float(line[0]), 0.0, float(line[1])])
+    fixed = float(params.roll_tolerance_px)  # the first round: within this of the profile line
+    fitted = False
     for _ in range(params.roll_iterations):
-        if np.count_nonzero(sel) < 50:
+        n, S = _plane_sums_kernel(
+            disp, st, int(v_top), float(params.min_fit_disparity_px), float(b[0]), float(b[1]), float(b[2]),
+            fixed, float(params.plane_tolerance_m), float(h1), float(params.min_plane_tolerance_px), uc, vc,
+        )
+        if n < 50:
             return None
-        A = np.stack([np.ones(np.count_nonzero(sel)), uu[sel], vv[sel]], axis=1)
-        b, *_ = np.linalg.lstsq(A, sub[sel], rcond=None)
+        su, sv, suu, suv, svv, sd, sud, svd = S
+        M = np.array([[n, su, sv], [su, suu, suv], [sv, suv, svv]], np.float64)
+        a, b1, b2 = np.linalg.lstsq(M, np.array([sd, sud, svd]), rcond=None)[0]
+        b = np.array([a - b1 * uc - b2 * vc, b1, b2])
         if not np.all(np.isfinite(b)):
             return None
-        sel = valid & (np.abs(sub - (b[0] + b[1] * uu + b[2] * vv)) < tol)
-    if b is None or not b[2] > 0:
+        fitted = True
+        fixed = 0.0  # later rounds: the metric tolerance around the plane
+    if not fitted or not b[2] > 0:
         return None
     return b
 
@@ -433,6 +593,10 @@ def estimate_road(
     disp = as_disparity(disparity, "road.profile")
     H, _ = disp.shape
     D = n_bins(params.max_disparity, params.bin_size)
+    cx, cy = float(calib.cx), float(calib.cy)
+    # pass 1: every pixel in its own row (no roll: v' = v)
+    s, c = geometry.roll_row_coeffs(0.0, calib)
+    pixel_rows = corrected_rows(disp, np.ones(disp.shape, np.bool_), cx, cy, s, c)
     if vdisparity is not None:
         vd = np.asarray(vdisparity, dtype=np.float32)
         if vd.shape != (H, D):
@@ -441,10 +605,9 @@ def estimate_road(
                 f"got {vd.shape} (hint: give road.vdisparity the same max_disparity and bin_size)"
             )
     else:
-        vd = compute_vdisparity(disp, params.max_disparity, params.bin_size)
+        vd = _vdisparity_rows_kernel(disp, pixel_rows, D, float(params.bin_size), float(params.max_disparity))
 
-    keep = np.ones(disp.shape, np.bool_)
-    fit, profile, inl = _profile_pass(disp, keep, vd, calib, params, 0.0)
+    fit, profile, inl = _profile_pass(disp, pixel_rows, vd, params)
     if fit is None:
         return _invalid(profile), vd
     line = fit[0]
@@ -457,12 +620,15 @@ def estimate_road(
             if abs(est) <= math.radians(params.max_abs_roll_deg):
                 roll, plane = est, b
     _, h1 = geometry.pose_from_line(float(line[0]), float(line[1]), calib)
+    keep = np.ones(disp.shape, np.bool_)
     if params.road_band_m > 0:
         keep = _plane_band_kernel(
             disp, float(plane[0]), float(plane[1]), float(plane[2]), h1, params.road_band_m
         )
-    vd = compute_vdisparity(disp, params.max_disparity, params.bin_size, roll, calib, keep)
-    fit, profile, inl = _profile_pass(disp, keep, vd, calib, params, roll, h1)
+    s, c = geometry.roll_row_coeffs(roll, calib)
+    pixel_rows = corrected_rows(disp, keep, cx, cy, s, c)
+    vd = _vdisparity_rows_kernel(disp, pixel_rows, D, float(params.bin_size), float(params.max_disparity))
+    fit, profile, inl = _profile_pass(disp, pixel_rows, vd, params, h1)
     if fit is None:
         return _invalid(profile, roll), vd
     line, coef = fit

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 from lanegraph_lanes import _features, _hough
@@ -81,6 +82,32 @@ def test_eslt_kernel_matches_twin(w):
     tm, to = eslt_twin(img, gx, gy, w, 8.0, math.radians(15))
     np.testing.assert_array_equal(mask, tm)
     np.testing.assert_allclose(ori, to, atol=1e-5)
+
+
+@pytest.mark.parametrize("w", [2, 4, 30])
+def test_eslt_kernel_on_uint8_and_int16_gradients_matches_twin(w):
+    """The node's uint8 path: uint8 grey levels and cv2.spatialGradient's int16 gradients."""
+    img = make_bev_image(rows=24, cols=40, lane_cols=(12.0, 30.0), slope=0.3, noise=10.0, seed=4)
+    gx, gy = cv2.spatialGradient(np.ascontiguousarray(img, dtype=np.uint8), ksize=3)
+    mask = np.zeros(img.shape, np.uint8)
+    ori = np.empty(img.shape, np.float32)
+    _features._eslt(img.astype(np.uint8), gx, gy, w, 8.0, math.radians(15), mask, ori)
+    f32 = img.astype(np.float32)
+    tm, to = eslt_twin(f32, gx.astype(np.float32), gy.astype(np.float32), w, 8.0, math.radians(15))
+    np.testing.assert_array_equal(mask, tm)
+    np.testing.assert_allclose(ori, to, atol=1e-5)
+
+
+@pytest.mark.parametrize("shape", [(2, 2), (3, 5), (2, 9), (24, 40), (1, 7), (7, 1)])
+def test_eslt_node_uint8_path_equals_float_path(shape):
+    rng = np.random.default_rng(5)
+    img = rng.integers(0, 256, shape).astype(np.uint8)
+    img[:, shape[1] // 2 :: 5] = 255  # some stripes
+    p = eslt.params(window=3, threshold=5.0)
+    a = eslt.func(p, image=img)["features"]
+    b = eslt.func(p, image=img.astype(np.float32))["features"]  # cv2.Sobel on float32
+    np.testing.assert_array_equal(a.mask, b.mask)
+    np.testing.assert_array_equal(a.orientation, b.orientation)
 
 
 def test_vote_kernels_match_twin():
@@ -207,6 +234,71 @@ def test_parabola_recovered_with_30_percent_outliers(fit):
     assert coef[2] == pytest.approx(true[2], abs=3e-5)
     plain = np.polyfit(t, y, 2)[::-1]
     assert np.abs(np.polyval(plain[::-1], t) - truth).max() > np.abs(pred - truth).max()
+
+
+def test_roi_kernel_matches_numpy_twin():
+    from lanegraph_lanes._fit import roi_points, roi_points_np
+
+    rng = np.random.default_rng(12)
+    feats = FeatureMap(mask=rng.random((60, 45)) < 0.3, orientation=None)
+    for theta in (np.pi / 2, 1.3, 1.9, 0.2, 3.0, 0.0, 1e-9):
+        for rho in (-30.0, 0.0, 12.3, 22.0, 44.5, 80.0):
+            for width in (4.0, 9.0, 40.0):
+                line = Line(rho=rho, theta=theta, side="left")
+                got, ref = roi_points(feats, line, width), roi_points_np(feats, line, width)
+                np.testing.assert_array_equal(got[0], ref[0])
+                np.testing.assert_array_equal(got[1], ref[1])
+
+
+def side_band_np(lane_cols_rows, c_lo, c_hi, band_px, feat):
+    rows = lane_cols_rows.shape[1]
+    cols = feat.shape[1]
+    cc = np.arange(cols)[None, :]
+    sel = np.broadcast_to((cc >= c_lo) & (cc < c_hi), (rows, cols))
+    band = np.zeros((rows, cols), bool)
+    for lc in lane_cols_rows:
+        band |= np.abs(cc - lc[:, None]) <= band_px
+    band &= sel
+    return band, int((feat & sel).sum()), int((feat & band).sum())
+
+
+def test_side_band_kernel_matches_numpy_twin():
+    from lanegraph_lanes._temporal import _side_band_kernel
+
+    rng = np.random.default_rng(11)
+    rows, cols = 37, 53
+    feat = rng.random((rows, cols)) < 0.2
+    for n_lanes in (1, 2):
+        lcols = rng.uniform(-10, 60, (n_lanes, 1)) + rng.uniform(-0.3, 0.3, (1, rows)) * np.arange(rows)
+        for c_lo, c_hi in ((0, 26), (26, 53), (0, 0), (0, 53)):
+            for band_px in (3.0, 7.5):
+                band = np.zeros((rows, cols), bool)
+                n_side, n_band = _side_band_kernel(lcols, c_lo, c_hi, band_px, feat, True, band)
+                ref, ref_side, ref_band = side_band_np(lcols, c_lo, c_hi, band_px, feat)
+                np.testing.assert_array_equal(band, ref)
+                assert (n_side, n_band) == (ref_side, ref_band)
+
+
+@pytest.mark.parametrize("degree", [1, 2, 3])
+@pytest.mark.parametrize("loss", ["tukey", "huber"])
+def test_irls_kernel_matches_lstsq_twin(degree, loss):
+    """The normal-equation IRLS kernel against the NumPy ``lstsq`` IRLS it replaces."""
+    from lanegraph_lanes._fit import _irls_kernel, irls_fit_lstsq
+
+    for seed in range(5):
+        t, y, _ = parabola_with_outliers(n=60 + 100 * seed, seed=seed)
+        t = np.round(t)  # BEV rows
+        ok, coef, w = _irls_kernel(t, y, degree, 10, loss == "tukey", 4.685 if loss == "tukey" else 1.345)
+        assert ok
+        ref, wref = irls_fit_lstsq(t, y, degree, 10, loss)
+        np.testing.assert_allclose(coef, ref, rtol=1e-7, atol=1e-9)
+        np.testing.assert_allclose(w, wref, atol=1e-7)
+        np.testing.assert_allclose(irls_fit(t, y, degree, 10, loss)[0], ref, rtol=1e-7, atol=1e-9)
+    # one row only: singular for a line or a parabola; the lstsq path takes over
+    t, y = np.full(20, 7.0), np.arange(20.0)
+    ok, _, _ = _irls_kernel(t, y, 1, 10, True, 4.685)
+    assert not ok
+    np.testing.assert_allclose(irls_fit(t, y, 1)[0], irls_fit_lstsq(t, y, 1)[0])
 
 
 @pytest.mark.parametrize("node", [fit_irls, fit_ransac])

@@ -11,6 +11,7 @@ import lanegraph_road as rd
 import numpy as np
 import pytest
 from lanegraph_road import geometry, ipm, mask, profile
+from lanegraph_road import mask as mask_mod
 
 from lanegraph.types import BevGeometry, Calibration, RoadModel
 
@@ -68,6 +69,39 @@ def plane_band_np(disp, b0, b1, b2, height, band):
     return (disp > 0) & (np.abs(disp - (b0 + b1 * u + b2 * v)) <= band / height * disp)
 
 
+def plane_sums_np(disp, step, v_top, min_disp, b0, b1, b2, fixed_tol, plane_tol, height, min_tol, uc, vc):
+    sub = disp[::step, ::step].astype(np.float64)
+    vv, uu = np.mgrid[0 : disp.shape[0] : step, 0 : disp.shape[1] : step].astype(np.float64)
+    tol = fixed_tol if fixed_tol > 0 else np.maximum(plane_tol * sub / height, min_tol)
+    sel = (sub > min_disp) & (vv >= v_top) & (np.abs(sub - (b0 + b1 * uu + b2 * vv)) < tol)
+    x, y, d = uu[sel] - uc, vv[sel] - vc, sub[sel]
+    sums = [x.sum(), y.sum(), (x * x).sum(), (x * y).sum(), (y * y).sum(), d.sum(), (x * d).sum(), (y * d).sum()]
+    return int(sel.sum()), np.array(sums)
+
+
+def ransac_line_np(v, d, w, tol, iterations, seed=0):
+    """The former NumPy ``_ransac_line``."""
+    n = v.size
+    if n < 2:
+        return None
+    rng = np.random.default_rng(seed)
+    i = rng.integers(0, n, iterations)
+    j = rng.integers(0, n, iterations)
+    ok = v[i] != v[j]
+    i, j = i[ok], j[ok]
+    if i.size == 0:
+        return None
+    a1 = (d[i] - d[j]) / (v[i] - v[j])
+    a0 = d[i] - a1 * v[i]
+    good = a1 > 0
+    if not good.any():
+        return None
+    a0, a1 = a0[good], a1[good]
+    res = np.abs(d[None, :] - (a0[:, None] + a1[:, None] * v[None, :]))
+    score = ((res < tol) * w[None, :]).sum(axis=1)
+    return res[int(np.argmax(score))] < tol
+
+
 def height_class_np(disp, a0, a1, a2, cx, cy, s, c, height, height_tol, min_tol, min_road):
     H, W = disp.shape
     v, u = np.mgrid[0:H, 0:W]
@@ -96,6 +130,19 @@ def free_space_np(labels, min_run, unknown_is_road):
                 if run >= min_run:
                     break
     return out
+
+
+def fill_holes_np(mask, classes, max_above):
+    """The former NumPy ``_fill_holes``: ``~mask`` components off the border with few above-road pixels."""
+    n, labels, stats, _ = cv2.connectedComponentsWithStats((~mask).astype(np.uint8), connectivity=4)
+    if n <= 1:
+        return mask
+    border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+    n_above = np.bincount(labels[classes == mask_mod.ABOVE], minlength=n)
+    fill = n_above <= max_above * stats[:, cv2.CC_STAT_AREA]
+    fill[0] = False
+    fill[border] = False
+    return mask | fill[labels]
 
 
 def random_disparity(rng, shape, max_d=40.0, invalid=0.2):
@@ -157,6 +204,13 @@ def test_dp_follows_a_slanted_line_not_a_vertical_obstacle():
     assert np.mean(path == line) > 0.9
 
 
+def corrected_rows_np(disp, keep, cx, cy, s, c):
+    H, W = disp.shape
+    v, u = np.mgrid[0:H, 0:W]
+    r = np.floor(cy + s * (u - cx) + c * (v - cy) + 0.5).astype(int)
+    return np.where(keep & (disp > 0) & (r >= 0) & (r < H), r, -1)
+
+
 @pytest.mark.parametrize("shape", EDGE_SHAPES)
 def test_row_refine_kernel_matches_numpy(shape):
     rng = np.random.default_rng(3)
@@ -164,11 +218,27 @@ def test_row_refine_kernel_matches_numpy(shape):
     keep = rng.random(shape) < 0.9
     centre = rng.uniform(0, 40, shape[0])
     radius = rng.uniform(0.5, 8.0, shape[0])
-    for s, c in ((0.0, 1.0), (0.1, 0.99)):
-        t1, n1 = profile._row_refine_kernel(disp, keep, centre, radius, 3.0, 2.0, s, c)
+    for s, c in ((0.0, 1.0), (0.1, 0.99), (-0.3, 0.95)):
+        rows = profile.corrected_rows(disp, keep, 3.0, 2.0, s, c)
+        np.testing.assert_array_equal(rows, corrected_rows_np(disp, keep, 3.0, 2.0, s, c))
+        t1, n1 = profile._row_refine_kernel(disp, rows, centre, radius)
         t2, n2 = row_refine_np(disp, keep, centre, radius, 3.0, 2.0, s, c)
         np.testing.assert_allclose(t1, t2, rtol=1e-9, atol=1e-6)
         np.testing.assert_array_equal(n1, n2)
+
+
+@pytest.mark.parametrize("shape", EDGE_SHAPES)
+@pytest.mark.parametrize("roll", [0.0, 0.05, -0.2])
+def test_vdisparity_rows_kernel_matches_numpy(shape, roll):
+    rng = np.random.default_rng(13)
+    disp = random_disparity(rng, shape)
+    keep = rng.random(shape) < 0.8
+    s, c = math.sin(roll), math.cos(roll)
+    rows = profile.corrected_rows(disp, keep, 6.3, 4.1, s, c)
+    for bin_size, max_d in ((1.0, 32.0), (0.5, 40.0), (3.0, 10.0)):
+        nb = profile.n_bins(max_d, bin_size)
+        got = profile._vdisparity_rows_kernel(disp, rows, nb, bin_size, max_d)
+        np.testing.assert_array_equal(got, vdisparity_np(disp, keep, nb, bin_size, max_d, 6.3, 4.1, s, c))
 
 
 @pytest.mark.parametrize("shape", EDGE_SHAPES)
@@ -177,6 +247,63 @@ def test_plane_band_kernel_matches_numpy(shape):
     disp = random_disparity(rng, shape)
     got = profile._plane_band_kernel(disp, 1.0, 0.3, 1.2, 1.6, 1.0)
     np.testing.assert_array_equal(got, plane_band_np(disp, 1.0, 0.3, 1.2, 1.6, 1.0))
+
+
+def test_ransac_line_kernel_matches_numpy():
+    rng = np.random.default_rng(10)
+    for n in (1, 2, 3, 30, 200):
+        v = rng.integers(0, 100, n).astype(np.float64)
+        d = 0.3 * v - 5.0 + rng.normal(0, 0.4, n)
+        d[rng.random(n) < 0.3] += rng.uniform(-10, 10)
+        w = rng.integers(10, 500, n).astype(np.float64)
+        for iterations in (1, 50, 300):
+            got = profile._ransac_line(v, d, w, 1.0, iterations)
+            ref = ransac_line_np(v, d, w, 1.0, iterations)
+            assert (got is None) == (ref is None)
+            if ref is not None:
+                np.testing.assert_array_equal(got, ref)
+    # no admissible pair: every slope <= 0
+    v = np.arange(10.0)
+    assert profile._ransac_line(v, -v, np.ones(10), 1.0, 20) is None
+
+
+@pytest.mark.parametrize("shape", EDGE_SHAPES + [(40, 57)])
+def test_plane_sums_kernel_matches_numpy(shape):
+    rng = np.random.default_rng(6)
+    disp = random_disparity(rng, shape)
+    for step in (1, 2, 3):
+        for fixed_tol in (0.0, 4.0):
+            args = (step, 2, 3.0, 5.0, 0.2, 0.6, fixed_tol, 0.5, 1.6, 2.0, 20.0, 7.5)
+            n1, s1 = profile._plane_sums_kernel(disp, *args)
+            n2, s2 = plane_sums_np(disp, *args)
+            assert n1 == n2
+            np.testing.assert_allclose(s1, s2, rtol=1e-9, atol=1e-6)
+
+
+def test_fit_road_plane_matches_lstsq():
+    """The normal-equation plane of ``_fit_road_plane`` is the least-squares plane of its pixels."""
+    rng = np.random.default_rng(7)
+    H, W = 60, 90
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    b_true = np.array([-8.0, 0.02, 0.6])
+    disp = (b_true[0] + b_true[1] * u + b_true[2] * v + rng.normal(0, 0.05, (H, W))).astype(np.float32)
+    disp[rng.random((H, W)) < 0.1] += 5.0  # outliers above the road
+    calib = Calibration(f=100.0, cx=W / 2, cy=H / 2, baseline=0.5)
+    params = profile.ProfileParams(roll_subsample=2, roll_iterations=3)
+    b = profile._fit_road_plane(disp, np.array([b_true[0], b_true[2]]), 20, params, calib)
+    # reference: the same selection rounds with np.linalg.lstsq on the selected pixels
+    sub = disp[::2, ::2].astype(np.float64)
+    vv, uu = np.mgrid[0:H:2, 0:W:2].astype(np.float64)
+    valid = (sub > params.min_fit_disparity_px) & (vv >= 20)
+    sel = valid & (np.abs(sub - (b_true[0] + b_true[2] * vv)) < params.roll_tolerance_px)
+    _, h1 = geometry.pose_from_line(b_true[0], b_true[2], calib)
+    tol = np.maximum(params.plane_tolerance_m * sub / h1, params.min_plane_tolerance_px)
+    for _ in range(params.roll_iterations):
+        A = np.stack([np.ones(np.count_nonzero(sel)), uu[sel], vv[sel]], axis=1)
+        ref, *_ = np.linalg.lstsq(A, sub[sel], rcond=None)
+        sel = valid & (np.abs(sub - (ref[0] + ref[1] * uu + ref[2] * vv)) < tol)
+    np.testing.assert_allclose(b, ref, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(b, b_true, atol=0.05)
 
 
 @pytest.mark.parametrize("shape", EDGE_SHAPES)
@@ -191,6 +318,27 @@ def test_mask_kernels_match_numpy(shape):
             np.testing.assert_array_equal(
                 mask._free_space_kernel(labels, min_run, unknown), free_space_np(labels, min_run, unknown)
             )
+
+
+@pytest.mark.parametrize("shape", EDGE_SHAPES + [(30, 41)])
+@pytest.mark.parametrize("max_above", [0.0, 0.1, 0.5, 1.0])
+def test_fill_holes_matches_numpy(shape, max_above):
+    rng = np.random.default_rng(8)
+    for density in (0.3, 0.6, 0.9):
+        m = rng.random(shape) < density
+        classes = rng.integers(0, 5, shape).astype(np.uint8)
+        np.testing.assert_array_equal(mask._fill_holes(m, classes, max_above), fill_holes_np(m, classes, max_above))
+    m = np.ones(shape, bool)
+    m[shape[0] // 2, shape[1] // 2] = False  # one hole off the border (when the shape allows)
+    classes = np.ones(shape, np.uint8)
+    np.testing.assert_array_equal(mask._fill_holes(m, classes, max_above), fill_holes_np(m, classes, max_above))
+
+
+def test_lookup_kernel_matches_numpy():
+    rng = np.random.default_rng(9)
+    labels = rng.integers(0, 6, (7, 11)).astype(np.int32)
+    lut = np.array([False, True, True, False, True, False])
+    np.testing.assert_array_equal(mask._lookup_kernel(lut, labels), lut[labels])
 
 
 # --------------------------------------------------------------------------- geometry
