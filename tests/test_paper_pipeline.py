@@ -39,10 +39,18 @@ def test_paper_graph_on_kitti_reaches_the_target(kitti_drive, tmp_path):
     assert t["nodes"]["disp"]["type"] == "disparity.sgbm" and t["frames"] == 54
 
 
-def test_no_painted_markings_reports_no_lanes(tmp_path):
+@pytest.mark.parametrize(
+    "name, overrides",
+    [
+        ("no_markings", {}),
+        # kerbs are bright parallel-bordered ridges like paint: the road mask must keep them out
+        ("kerbs", {"markings": [], "arrows": 0.0, "hatching": 0.0}),
+    ],
+)
+def test_no_painted_markings_reports_no_lanes(name, overrides, tmp_path):
     from lanegraph_synthetic import preset, write_sequence
 
-    seq = write_sequence(preset("no_markings"), tmp_path / "seq", 4)
+    seq = write_sequence(preset(name, **overrides), tmp_path / "seq", 4)
     pred = run(PAPER, tmp_path / "out", "--input", str(seq))
     assert len(pred) == 4 and all(rec["lanes"] == [] for rec in pred)
 
