@@ -115,7 +115,7 @@ class HoughParams(NodeParams):
     select: Literal["nearest", "paper"] = Field("nearest", description="nearest strong peak each side of the vehicle, or the paper's two strongest peaks")
     smooth_px: float = Field(2.0, ge=0.0, le=50.0, description="Gaussian smoothing of the accumulator, BEV pixels")
     min_separation_m: float = Field(1.2, gt=0.0, le=20.0, description="non-maximum suppression distance between peaks, metres")
-    min_votes: float = Field(60.0, ge=0.0, le=1e7, description="a peak needs at least this many (smoothed) votes")
+    min_votes: float = Field(40.0, ge=0.0, le=1e7, description="a peak needs at least this many (smoothed) votes")
     min_relative: float = Field(0.25, ge=0.0, le=1.0, description="nearest rule: a peak needs this fraction of the strongest peak on its side")
     min_offset_m: float = Field(0.6, ge=0.0, le=20.0, description="nearest rule: closest plausible lateral distance of a lane boundary, metres")
     max_offset_m: float = Field(3.2, gt=0.0, le=50.0, description="nearest rule: farthest plausible lateral distance of a lane boundary, metres")
