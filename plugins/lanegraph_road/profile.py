@@ -42,34 +42,7 @@ from . import geometry
 #: _N_CHUNKS (balanced although the top rows have no disparity); fixed, so that the order in which
 #: the partial sums are added does not depend on the number of threads
 _N_CHUNKS = 4
-_N_CHUNKS_VD = 2
-
-
-@jit
-def _vdisparity_kernel(disp, keep, n_bins, bin_size, max_disp, cx, cy, s, c):
-    """Count the disparities of the ``keep`` pixels per (roll-corrected row, bin).
-    ``v' = cy + s (u - cx) + c (v - cy)``, rounded to the nearest row; rows outside ``[0, H)``,
-    ``d <= 0`` and ``d >= max_disp`` are dropped. Row chunks in parallel."""
-    H, W = disp.shape
-    # fewer chunks than _row_refine_kernel: each one is an H x n_bins array to zero and add
-    part = np.zeros((_N_CHUNKS_VD, H, n_bins), np.float32)
-    for ch in prange(_N_CHUNKS_VD):
-        for v in range(ch, H, _N_CHUNKS_VD):
-            for u in range(W):
-                d = disp[v, u]
-                if not keep[v, u] or d <= 0.0 or d >= max_disp:
-                    continue
-                r = int(math.floor(cy + s * (u - cx) + c * (v - cy) + 0.5))
-                if r < 0 or r >= H:
-                    continue
-                k = int(d / bin_size)
-                if k >= n_bins:
-                    continue
-                part[ch, r, k] += 1.0
-    out = np.zeros((H, n_bins), np.float32)
-    for ch in range(_N_CHUNKS_VD):
-        out += part[ch]
-    return out
+_N_CHUNKS_VD = 2  # fewer for the v-disparity: each chunk is an H x n_bins array to zero and add
 
 
 @jit
@@ -130,9 +103,10 @@ def _corrected_rows_kernel(disp, keep, cx, cy, s, c, rows):
             rows[v, u] = r
 
 
-def corrected_rows(disp: np.ndarray, keep: np.ndarray, cx: float, cy: float, s: float, c: float) -> np.ndarray:
-    """:func:`_corrected_rows_kernel` into a new array: int16 (half the memory traffic of the
-    passes over it) unless the image has too many rows for it."""
+def corrected_row_index(disp: np.ndarray, keep: np.ndarray, cx: float, cy: float, s: float, c: float) -> np.ndarray:
+    """:func:`_corrected_rows_kernel` into a new array (every pixel's rounded roll-corrected row, -1
+    where left out; :func:`geometry.corrected_rows` is the unrounded per-point form): int16 (half the
+    memory traffic of the passes over it) unless the image has too many rows for it."""
     rows = np.empty(disp.shape, np.int16 if disp.shape[0] < 32767 else np.int32)
     _corrected_rows_kernel(disp, keep, float(cx), float(cy), float(s), float(c), rows)
     return rows
@@ -140,8 +114,8 @@ def corrected_rows(disp: np.ndarray, keep: np.ndarray, cx: float, cy: float, s: 
 
 @jit
 def _vdisparity_rows_kernel(disp, rows, n_bins, bin_size, max_disp):
-    """:func:`_vdisparity_kernel` over the rows of :func:`_corrected_rows_kernel`: count per (row, bin)
-    the pixels with ``rows >= 0`` and ``d < max_disp``. Row chunks in parallel."""
+    """The v-disparity over the rows of :func:`_corrected_rows_kernel`: count per (row, bin) the
+    pixels with ``rows >= 0`` and ``d < max_disp``. Row chunks in parallel."""
     H, W = disp.shape
     part = np.zeros((_N_CHUNKS_VD, H, n_bins), np.float32)
     for ch in prange(_N_CHUNKS_VD):
@@ -339,17 +313,8 @@ def compute_vdisparity(
     s, c = geometry.roll_row_coeffs(roll, calib) if calib is not None else (0.0, 1.0)
     cx, cy = (calib.cx, calib.cy) if calib is not None else (0.0, 0.0)
     keep = np.ones(disp.shape, np.bool_) if keep is None else keep
-    return _vdisparity_kernel(
-        disp,
-        keep,
-        n_bins(max_disparity, bin_size),
-        float(bin_size),
-        float(max_disparity),
-        float(cx),
-        float(cy),
-        s,
-        c,
-    )
+    rows = corrected_row_index(disp, keep, cx, cy, s, c)
+    return _vdisparity_rows_kernel(disp, rows, n_bins(max_disparity, bin_size), float(bin_size), float(max_disparity))
 
 
 # --------------------------------------------------------------------------- road.vdisparity
@@ -596,7 +561,7 @@ def estimate_road(
     cx, cy = float(calib.cx), float(calib.cy)
     # pass 1: every pixel in its own row (no roll: v' = v)
     s, c = geometry.roll_row_coeffs(0.0, calib)
-    pixel_rows = corrected_rows(disp, np.ones(disp.shape, np.bool_), cx, cy, s, c)
+    pixel_rows = corrected_row_index(disp, np.ones(disp.shape, np.bool_), cx, cy, s, c)
     if vdisparity is not None:
         vd = np.asarray(vdisparity, dtype=np.float32)
         if vd.shape != (H, D):
@@ -626,7 +591,7 @@ def estimate_road(
             disp, float(plane[0]), float(plane[1]), float(plane[2]), h1, params.road_band_m
         )
     s, c = geometry.roll_row_coeffs(roll, calib)
-    pixel_rows = corrected_rows(disp, keep, cx, cy, s, c)
+    pixel_rows = corrected_row_index(disp, keep, cx, cy, s, c)
     vd = _vdisparity_rows_kernel(disp, pixel_rows, D, float(params.bin_size), float(params.max_disparity))
     fit, profile, inl = _profile_pass(disp, pixel_rows, vd, params, h1)
     if fit is None:

@@ -163,7 +163,8 @@ def test_vdisparity_kernel_matches_numpy(shape, roll):
     s, c = math.sin(roll), math.cos(roll)
     for bin_size, max_d in ((1.0, 32.0), (0.5, 40.0), (3.0, 10.0)):
         nb = profile.n_bins(max_d, bin_size)
-        got = profile._vdisparity_kernel(disp, keep, nb, bin_size, max_d, 6.3, 4.1, s, c)
+        rows = profile.corrected_row_index(disp, keep, 6.3, 4.1, s, c)
+        got = profile._vdisparity_rows_kernel(disp, rows, nb, bin_size, max_d)
         exp = vdisparity_np(disp, keep, nb, bin_size, max_d, 6.3, 4.1, s, c)
         np.testing.assert_array_equal(got, exp)
 
@@ -219,26 +220,12 @@ def test_row_refine_kernel_matches_numpy(shape):
     centre = rng.uniform(0, 40, shape[0])
     radius = rng.uniform(0.5, 8.0, shape[0])
     for s, c in ((0.0, 1.0), (0.1, 0.99), (-0.3, 0.95)):
-        rows = profile.corrected_rows(disp, keep, 3.0, 2.0, s, c)
+        rows = profile.corrected_row_index(disp, keep, 3.0, 2.0, s, c)
         np.testing.assert_array_equal(rows, corrected_rows_np(disp, keep, 3.0, 2.0, s, c))
         t1, n1 = profile._row_refine_kernel(disp, rows, centre, radius)
         t2, n2 = row_refine_np(disp, keep, centre, radius, 3.0, 2.0, s, c)
         np.testing.assert_allclose(t1, t2, rtol=1e-9, atol=1e-6)
         np.testing.assert_array_equal(n1, n2)
-
-
-@pytest.mark.parametrize("shape", EDGE_SHAPES)
-@pytest.mark.parametrize("roll", [0.0, 0.05, -0.2])
-def test_vdisparity_rows_kernel_matches_numpy(shape, roll):
-    rng = np.random.default_rng(13)
-    disp = random_disparity(rng, shape)
-    keep = rng.random(shape) < 0.8
-    s, c = math.sin(roll), math.cos(roll)
-    rows = profile.corrected_rows(disp, keep, 6.3, 4.1, s, c)
-    for bin_size, max_d in ((1.0, 32.0), (0.5, 40.0), (3.0, 10.0)):
-        nb = profile.n_bins(max_d, bin_size)
-        got = profile._vdisparity_rows_kernel(disp, rows, nb, bin_size, max_d)
-        np.testing.assert_array_equal(got, vdisparity_np(disp, keep, nb, bin_size, max_d, 6.3, 4.1, s, c))
 
 
 @pytest.mark.parametrize("shape", EDGE_SHAPES)
