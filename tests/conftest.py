@@ -1,4 +1,4 @@
-"""Shared fixtures: the real KITTI data (skipped with a reason when absent) and a clean plugin manager."""
+"""Shared fixtures: the real KITTI data (skipped with a reason when absent) and the installed plugins."""
 
 from __future__ import annotations
 
@@ -26,3 +26,13 @@ def kitti_calib():
     from lanegraph.types import Calibration
 
     return Calibration(f=721.5377, cx=609.5593, cy=172.8540, baseline=0.5327, width=1242, height=375)
+
+
+@pytest.fixture(scope="module")
+def installed_pm():
+    """The installed plugins in a manager of their own (other tests swap the process-wide one)."""
+    from lanegraph.plugins import PluginManager
+
+    pm = PluginManager()
+    pm.load_entrypoints()
+    return pm

@@ -20,7 +20,6 @@ from click.testing import CliRunner
 
 from lanegraph import plugins
 from lanegraph.cli import main
-from lanegraph.plugins import PluginManager
 
 DEMO = Path(__file__).resolve().parents[1] / "graphs" / "demo_sgbm.yaml"
 W, H = 64, 48
@@ -64,13 +63,6 @@ def kitti_odometry(root: Path, n: int = 3, stems: list[str] | None = None) -> Pa
             cv2.imwrite(str(seq / cam / f"{stem}.png"), texture(i, colour=False))
     (seq / "calib.txt").write_text("\n".join(f"P{k}: {P3 if k % 2 else P2}" for k in range(4)) + "\n")
     return seq
-
-
-@pytest.fixture(scope="module")
-def installed_pm() -> PluginManager:
-    pm = PluginManager()
-    pm.load_entrypoints()
-    return pm
 
 
 @pytest.fixture

@@ -18,7 +18,6 @@ from click.testing import CliRunner
 from lanegraph import plugins
 from lanegraph.cli import main
 from lanegraph.loader import MAX_FILE_BYTES
-from lanegraph.plugins import PluginManager
 
 CORPUS = Path(__file__).resolve().parent / "corpus" / "graphs"
 EXPECTED: dict = yaml.safe_load((CORPUS / "expected.yaml").read_text())
@@ -32,14 +31,6 @@ def _case(name: str) -> tuple[Path, list[str], str, list[str]]:
         entry = {"expect": entry}
     graph = CORPUS / entry.get("file", name)
     return graph, list(entry.get("args", [])), entry.get("shown", name), list(entry["expect"])
-
-
-@pytest.fixture(scope="module")
-def installed_pm() -> PluginManager:
-    """The installed plugins in a manager of their own (other tests swap the process-wide one)."""
-    pm = PluginManager()
-    pm.load_entrypoints()
-    return pm
 
 
 @pytest.fixture
