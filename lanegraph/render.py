@@ -245,16 +245,31 @@ def render_lanes_bev(lanes: list[Lane], bev: np.ndarray | None, roi_width: float
     return out
 
 
-def render_lanes_image(lanes: list[Lane], image: np.ndarray) -> np.ndarray:
-    """The final overlay: lanes' image points over the left image, with side and score."""
-    out = to_bgr(image).copy()
+def draw_lane_points(
+    img: np.ndarray,
+    lanes: Iterable[Lane],
+    colours: Mapping[str, tuple[int, int, int]] | None = None,
+    thickness: int = 3,
+    captions: bool = False,
+) -> None:
+    """Draw the lanes' image points into ``img`` (BGR, in place), coloured by side (``colours``
+    maps ``"left"``, ``"right"`` and ``""`` to BGR; the debug palette by default); with
+    ``captions``, side and score at each lane's far end."""
     for lane in lanes:
         if lane.points is None or len(lane.points) < 2:
             continue
+        colour = _colour(lane.side) if colours is None else colours.get(lane.side, colours.get("", OTHER_COLOUR))
         pts = np.asarray(lane.points, np.float64).round().astype(np.int32).reshape(-1, 1, 2)
-        cv2.polylines(out, [pts], False, _colour(lane.side), 3, cv2.LINE_AA)
-        x, y = pts[-1, 0]
-        cv2.putText(out, f"{lane.side} {lane.score:.2f}", (int(x) + 4, int(y)), cv2.FONT_HERSHEY_SIMPLEX, 0.5, _colour(lane.side), 1, cv2.LINE_AA)
+        cv2.polylines(img, [pts], False, colour, thickness, cv2.LINE_AA)
+        if captions:
+            x, y = pts[-1, 0]
+            cv2.putText(img, f"{lane.side} {lane.score:.2f}", (int(x) + 4, int(y)), cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour, 1, cv2.LINE_AA)
+
+
+def render_lanes_image(lanes: list[Lane], image: np.ndarray) -> np.ndarray:
+    """The final overlay: lanes' image points over the left image, with side and score."""
+    out = to_bgr(image).copy()
+    draw_lane_points(out, lanes, captions=True)
     return out
 
 

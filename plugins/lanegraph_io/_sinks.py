@@ -11,6 +11,7 @@ import numpy as np
 from pydantic import Field
 
 from lanegraph import NodeParams, Port, RunContext, node_type
+from lanegraph.render import draw_lane_points
 from lanegraph.types import Lane
 
 
@@ -78,11 +79,7 @@ def draw_overlay(image: np.ndarray, lanes: list[Lane] | None, mask: np.ndarray |
         tint = img.copy()
         tint[mask.astype(bool)] = (0.5 * tint[mask.astype(bool)] + np.array([0, 90, 0])).astype(np.uint8)
         img = tint
-    for ln in lanes or []:
-        if ln.points is None or len(ln.points) < 2:
-            continue
-        pts = np.round(np.asarray(ln.points)).astype(np.int32).reshape(-1, 1, 2)
-        cv2.polylines(img, [pts], False, SIDE_COLOURS.get(ln.side, SIDE_COLOURS[""]), thickness, cv2.LINE_AA)
+    draw_lane_points(img, lanes or [], SIDE_COLOURS, thickness)
     if label:
         cv2.putText(img, label, (10, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (255, 255, 255), 2, cv2.LINE_AA)
     return img
