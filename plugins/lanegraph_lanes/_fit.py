@@ -57,16 +57,6 @@ def roi_points(features: FeatureMap, line: Line, width_px: float) -> tuple[np.nd
     return _roi_kernel(mask, float(line.rho), float(inv_tan), float(width_px / 2))
 
 
-def roi_points_np(features: FeatureMap, line: Line, width_px: float) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`roi_points` in NumPy (the reference of the kernel)."""
-    rows = features.mask.shape[0]
-    r, c = np.nonzero(features.mask)
-    inv_tan = np.cos(line.theta) / max(np.sin(line.theta), 1e-6)
-    x_line = line.rho + (rows - r) * inv_tan
-    keep = np.abs(c - x_line) <= width_px / 2
-    return (rows - 1 - r[keep]).astype(np.float64), c[keep].astype(np.float64)
-
-
 def _design(t: np.ndarray, degree: int) -> np.ndarray:
     return np.vander(t, degree + 1, increasing=True)
 

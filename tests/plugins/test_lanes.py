@@ -236,8 +236,18 @@ def test_parabola_recovered_with_30_percent_outliers(fit):
     assert np.abs(np.polyval(plain[::-1], t) - truth).max() > np.abs(pred - truth).max()
 
 
+def roi_points_np(features, line, width_px):
+    """The NumPy twin of ``roi_points`` (its numba kernel)."""
+    rows = features.mask.shape[0]
+    r, c = np.nonzero(features.mask)
+    inv_tan = np.cos(line.theta) / max(np.sin(line.theta), 1e-6)
+    x_line = line.rho + (rows - r) * inv_tan
+    keep = np.abs(c - x_line) <= width_px / 2
+    return (rows - 1 - r[keep]).astype(np.float64), c[keep].astype(np.float64)
+
+
 def test_roi_kernel_matches_numpy_twin():
-    from lanegraph_lanes._fit import roi_points, roi_points_np
+    from lanegraph_lanes._fit import roi_points
 
     rng = np.random.default_rng(12)
     feats = FeatureMap(mask=rng.random((60, 45)) < 0.3, orientation=None)
