@@ -53,10 +53,13 @@ def _eslt(img, gx, gy, window, threshold, max_angle, out_mask, out_theta):
     growing downwards); the edge orientation of a border pixel is ``atan2(gx, gy)`` modulo pi (from
     +x towards up). Writes the mask and the mean border orientation (-1 where not a feature).
 
-    Per row, the squared gradient magnitudes are computed once, and a border pixel's orientation
-    and its doubled-angle sine and cosine once, when first needed (neighbouring features share
-    their borders)."""
+    No trigonometry per border: two borders (gradients ``a``, ``b``) are within ``max_angle`` of
+    each other, modulo pi, when ``(a.b)^2 > cos^2(max_angle) |a|^2 |b|^2``; the mean orientation
+    is half the angle of the sum of their doubled-angle unit vectors
+    ``((gy^2 - gx^2) / |g|^2, 2 gx gy / |g|^2)``, one ``atan2`` per feature."""
     rows, cols = img.shape
+    cmax = math.cos(max_angle)
+    cos2_max = cmax * cmax if max_angle < math.pi / 2 else 0.0
     for r in prange(rows):
         csum = np.empty(cols + 1, np.float64)
         csum[0] = 0.0
@@ -65,9 +68,6 @@ def _eslt(img, gx, gy, window, threshold, max_angle, out_mask, out_theta):
         mag2 = np.empty(cols, np.float32)
         for c in range(cols):
             mag2[c] = gx[r, c] * gx[r, c] + gy[r, c] * gy[r, c]
-        ang = np.full(cols, -1.0)  # atan2(gx, gy) % pi of a border pixel; -1: not computed yet
-        sin2 = np.empty(cols)
-        cos2 = np.empty(cols)
         for c in range(cols):
             out_mask[r, c] = 0
             out_theta[r, c] = -1.0
@@ -97,23 +97,18 @@ def _eslt(img, gx, gy, window, threshold, max_angle, out_mask, out_theta):
                     br = k
             if ml <= 0.0 or mr <= 0.0:
                 continue
-            for k in (bl, br):
-                if ang[k] < 0.0:
-                    # float32 atan2 also for int16 gradients (cv2.spatialGradient of a uint8 image)
-                    t = math.atan2(np.float32(gx[r, k]), np.float32(gy[r, k])) % math.pi
-                    ang[k] = t
-                    sin2[k] = math.sin(2 * t)
-                    cos2[k] = math.cos(2 * t)
-            a = ang[bl]
-            b = ang[br]
-            d = abs(a - b)
-            if d > math.pi / 2:
-                d = math.pi - d
-            if d >= max_angle:
+            ax = float(gx[r, bl])
+            ay = float(gy[r, bl])
+            bx = float(gx[r, br])
+            by = float(gy[r, br])
+            na = ax * ax + ay * ay
+            nb = bx * bx + by * by
+            dot = ax * bx + ay * by
+            if not dot * dot > cos2_max * na * nb:
                 continue
             # circular mean modulo pi (doubled angles)
-            s = sin2[bl] + sin2[br]
-            co = cos2[bl] + cos2[br]
+            s = 2.0 * ax * ay / na + 2.0 * bx * by / nb
+            co = (ay * ay - ax * ax) / na + (by * by - bx * bx) / nb
             m = 0.5 * math.atan2(s, co)
             if m < 0:
                 m += math.pi

@@ -130,27 +130,31 @@ def warp_to_bev(
         raise RoadInputError(f"bev.ipm: mask: expected shape {(h_img, w_img)} (the image's), got {np.shape(mask)}")
     pitch, roll, height = bev_pose(params, road)
     geom = bev_geometry(params, calib, pitch, roll, height)
-    # one perspective warp per array: cv2 evaluates the homography per BEV pixel (the same mapping
-    # as bev_maps(), without building float64 maps in NumPy every frame)
+    # cv2 evaluates the homography per BEV pixel (the same mapping as bev_maps(), without building
+    # float64 maps in NumPy every frame): one bilinear warp of the image, and one nearest warp of a
+    # code image that is 0 outside the image (the border), 1 inside and 2 on the mask
     size = (geom.cols, geom.rows)
     flags = cv2.WARP_INVERSE_MAP
+    Hm = geom.H_img_from_bev
     bev = cv2.warpPerspective(
-        image, geom.H_img_from_bev, size, flags=_INTERP[params.interpolation] | flags, borderMode=cv2.BORDER_REPLICATE
+        image, Hm, size, flags=_INTERP[params.interpolation] | flags, borderMode=cv2.BORDER_REPLICATE
     )
-    def warp_nearest(a: np.ndarray) -> np.ndarray:
-        return cv2.warpPerspective(
-            a, geom.H_img_from_bev, size, flags=cv2.INTER_NEAREST | flags, borderMode=cv2.BORDER_CONSTANT, borderValue=0
-        ) > 0
-
-    inside = warp_nearest(np.full((h_img, w_img), 255, np.uint8))
-    if geom.H_img_from_bev[2, :2].any():
-        # keep only BEV pixels in front of the camera (w > 0), as bev_maps() does
+    code = np.ones((h_img, w_img), np.uint8)
+    if mask is not None:
+        code += np.asarray(mask, dtype=bool)
+    code = cv2.warpPerspective(code, Hm, size, flags=cv2.INTER_NEAREST | flags, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    np.copyto(bev, 0, where=(code == 0) if bev.ndim == 2 else (code == 0)[:, :, None])  # outside: 0, never a replicated border
+    bev_mask = code > (0 if mask is None else 1)
+    # keep only BEV pixels in front of the camera (w > 0), as bev_maps() does. w is linear in the
+    # BEV pixel: when it is positive at the four corners it is positive everywhere.
+    corners_c = np.array([0.0, geom.cols - 1.0, 0.0, geom.cols - 1.0])
+    corners_r = np.array([0.0, 0.0, geom.rows - 1.0, geom.rows - 1.0])
+    if not np.all(Hm[2, 0] * corners_c + Hm[2, 1] * corners_r + Hm[2, 2] > 1e-9):
         r = np.arange(geom.rows, dtype=np.float64)[:, None]
         c = np.arange(geom.cols, dtype=np.float64)[None, :]
-        Hm = geom.H_img_from_bev
-        inside &= (Hm[2, 0] * c + Hm[2, 1] * r + Hm[2, 2]) > 1e-9
-    bev[~inside] = 0  # outside the image: 0, never a replicated border
-    bev_mask = inside if mask is None else inside & warp_nearest(np.asarray(mask, dtype=np.uint8))
+        ahead = (Hm[2, 0] * c + Hm[2, 1] * r + Hm[2, 2]) > 1e-9
+        bev[~ahead] = 0
+        bev_mask &= ahead
     return bev, bev_mask, geom
 
 

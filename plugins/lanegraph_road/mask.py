@@ -226,14 +226,16 @@ def _disk(diameter: int) -> np.ndarray:
     return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (diameter, diameter))
 
 
-def _keep_components(mask: np.ndarray, keep: str, band_frac: float, cx: float) -> np.ndarray:
+def _keep_components(mask: np.ndarray, keep: str, band_frac: float, cx: float, image_rows: int | None = None) -> np.ndarray:
     """Keep the connected components that cover the seed region (the bottom band, or its central
-    half) best: every component with at least a tenth of the largest one's overlap with the seed."""
+    half) best: every component with at least a tenth of the largest one's overlap with the seed.
+    ``mask`` may be the bottom rows of an image of ``image_rows`` rows (the band is a fraction of those)."""
     H, W = mask.shape
+    image_rows = H if image_rows is None else image_rows
     n, labels = cv2.connectedComponents(np.ascontiguousarray(mask).view(np.uint8), connectivity=8)
     if n <= 1:
         return mask
-    band = labels[max(0, H - max(1, int(round(band_frac * H)))) :]
+    band = labels[max(0, H - max(1, int(round(band_frac * image_rows)))) :]
     lo, hi = int(max(0, cx - W / 4)), int(min(W, cx + W / 4 + 1))
     seeds = ([band[:, lo:hi]] if keep == "bottom_centre" else []) + [band]
     for region in seeds:
@@ -257,7 +259,11 @@ def _fill_holes(mask: np.ndarray, classes: np.ndarray, max_above: float) -> np.n
 def road_mask_array(
     params: MaskParams, disparity: np.ndarray, road: RoadModel, calib: Calibration
 ) -> np.ndarray:
-    """The work of ``road.mask`` (HxW bool)."""
+    """The work of ``road.mask`` (HxW bool).
+
+    Everything after the height classes runs on the rows from the first one with a road label
+    down (above it, beyond ``max_distance_m`` or the horizon, nothing is road), with a margin of
+    empty rows wide enough for the morphology: the result is that of the whole image."""
     disp = as_disparity(disparity, "road.mask")
     if not road.valid or not road.height > 0:
         return np.full(disp.shape, params.invalid_road == "all", dtype=bool)
@@ -277,6 +283,13 @@ def road_mask_array(
         float(params.min_disparity_tolerance_px),
         float(min_road_disp),
     )
+    H = labels.shape[0]
+    labelled = np.flatnonzero(labels.any(axis=1))
+    out = np.zeros(disp.shape, bool)
+    if labelled.size == 0:
+        return out
+    top = max(0, int(labelled[0]) - 2 * (params.open_px + params.close_px) - 2)
+    labels = labels[top:]
     mask = (
         _free_space_kernel(labels, int(params.min_obstacle_run_px), bool(params.textureless_is_road)) if params.free_space else labels == ROAD
     )
@@ -284,12 +297,13 @@ def road_mask_array(
         # bool and 0/1 uint8 share their bytes: views, no copies
         mask = cv2.morphologyEx(np.ascontiguousarray(mask).view(np.uint8), cv2.MORPH_OPEN, _disk(params.open_px)).view(bool)
     if params.keep != "all":
-        mask = _keep_components(mask, params.keep, params.bottom_band_frac, calib.cx)
+        mask = _keep_components(mask, params.keep, params.bottom_band_frac, calib.cx, H)
     if params.close_px > 1:
         mask = cv2.morphologyEx(np.ascontiguousarray(mask).view(np.uint8), cv2.MORPH_CLOSE, _disk(params.close_px)).view(bool)
     if params.fill_holes_max_above > 0:
         mask = _fill_holes(mask, labels, params.fill_holes_max_above)
-    return mask
+    out[top:] = mask
+    return out
 
 
 @node_type(

@@ -107,7 +107,8 @@ def test_eslt_node_uint8_path_equals_float_path(shape):
     a = eslt.func(p, image=img)["features"]
     b = eslt.func(p, image=img.astype(np.float32))["features"]  # cv2.Sobel on float32
     np.testing.assert_array_equal(a.mask, b.mask)
-    np.testing.assert_array_equal(a.orientation, b.orientation)
+    # the same integer gradients; the kernels compiled for int16 and float32 may round the last bit
+    np.testing.assert_allclose(a.orientation, b.orientation, rtol=0, atol=1e-6)
 
 
 def test_vote_kernels_match_twin():
