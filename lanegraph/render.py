@@ -169,7 +169,7 @@ def line_columns(line: Line, rows: int, y: np.ndarray) -> np.ndarray:
 def hough_1d(features: FeatureMap, theta: float) -> np.ndarray:
     """The 1D Hough accumulator of ``features`` for orientation ``theta``; bin ``i`` is rho = i - 2W."""
     rows, cols = features.mask.shape
-    r, c = np.nonzero(features.mask)
+    r, c = features.points()
     inv_tan = math.cos(theta) / max(math.sin(theta), 1e-6)
     b = np.floor(c - (rows - r) * inv_tan + 0.5).astype(np.int64) + 2 * cols
     b = b[(b >= 0) & (b < 5 * cols)]

@@ -19,6 +19,8 @@ Functions
 
 from __future__ import annotations
 
+import dataclasses
+
 import copy
 import tempfile
 from collections.abc import Mapping
@@ -175,6 +177,9 @@ def _equal(a: Any, b: Any) -> bool:
         return a.keys() == b.keys() and all(_equal(a[k], b[k]) for k in a)
     if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
         return len(a) == len(b) and all(_equal(x, y) for x, y in zip(a, b))
+    if dataclasses.is_dataclass(a) and type(a) is type(b):
+        # the compared fields only (not caches such as FeatureMap's feature points)
+        return all(_equal(getattr(a, f.name), getattr(b, f.name)) for f in dataclasses.fields(a) if f.compare)
     if hasattr(a, "__dict__") and hasattr(b, "__dict__") and type(a) is type(b):
         return _equal(vars(a), vars(b))
     return bool(a == b)

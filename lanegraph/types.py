@@ -174,6 +174,19 @@ class FeatureMap:
 
     mask: np.ndarray
     orientation: np.ndarray | None = None
+    _points: tuple[np.ndarray, np.ndarray] | None = field(default=None, init=False, repr=False, compare=False)
+
+    def points(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(rows, cols)`` of the features (int64, row-major order, as ``np.nonzero(mask)``),
+        computed once per map and shared by the nodes that read it: treat the map as immutable."""
+        if self._points is None:
+            m = np.asarray(self.mask)
+            if m.ndim != 2:
+                raise ValueError(f"FeatureMap.mask: expected an Hb x Wb array, got shape {m.shape}")
+            # flatnonzero + divmod: several times faster than a 2-D np.nonzero
+            r, c = np.divmod(np.flatnonzero(m), max(m.shape[1], 1))
+            self._points = (r, c)
+        return self._points
 
 
 @dataclass

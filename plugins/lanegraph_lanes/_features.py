@@ -223,14 +223,16 @@ def mask_features(params: MaskParams, features: FeatureMap, mask: np.ndarray, te
                 f"features.mask: {port}: expected a BEV mask of the features' shape "
                 f"{features.mask.shape}, got {np.shape(m)}"
             )
-    keep = np.asarray(mask).astype(bool)
+    keep = np.ascontiguousarray(mask, dtype=bool)  # no copy for the usual bool BEV mask
     if params.erode_px > 0 and keep.size:
         k = 2 * params.erode_px + 1
-        keep = cv2.erode(keep.astype(np.uint8), np.ones((k, k), np.uint8), borderValue=0).astype(bool)
+        # bool and 0/1 uint8 share their bytes: erode the view, read the result back as bool
+        keep = cv2.erode(keep.view(np.uint8), cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)), borderValue=0).view(bool)
+    m = np.logical_and(features.mask, keep)
     if temporal is not None:
-        keep &= temporal.astype(bool)
-    m = features.mask & keep
+        np.logical_and(m, np.asarray(temporal, dtype=bool), out=m)
     ori = None
     if features.orientation is not None:
-        ori = np.where(m, features.orientation, -1.0).astype(np.float32)
+        ori = np.full(m.shape, -1.0, np.float32)
+        np.copyto(ori, features.orientation, where=m)
     return {"features": FeatureMap(mask=m, orientation=ori)}

@@ -94,7 +94,9 @@ def orientation(params: OrientationParams, features: FeatureMap) -> dict:
     default = math.radians(params.default_deg)
     if features.orientation is None:
         return {"orientation": default}
-    ori = features.orientation[features.mask & (features.orientation >= 0)]
+    r, c = features.points()
+    ori = features.orientation[r, c]
+    ori = ori[ori >= 0]
     lo, hi = math.radians(90 - params.max_deviation_deg), math.radians(90 + params.max_deviation_deg)
     ori = ori[(ori >= lo) & (ori <= hi)]
     if ori.size < params.min_features:
@@ -148,7 +150,7 @@ def _select(acc: np.ndarray, offset: int, theta: float, geometry: BevGeometry, p
 
 
 def _feature_coords(features: FeatureMap) -> tuple[np.ndarray, np.ndarray]:
-    r, c = np.nonzero(features.mask)
+    r, c = features.points()
     return r.astype(np.float64), c.astype(np.float64)
 
 

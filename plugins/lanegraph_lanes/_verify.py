@@ -17,42 +17,80 @@ least 14; on the synthetic "kerbs" scene painted lines 0.5 m from a 13 cm kerb m
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 import numpy as np
 from pydantic import Field, model_validator
 
 from lanegraph import NodeParams, Port, node_type
+from lanegraph._numba import jit
 from lanegraph.types import Lane
 
 
-def side_texture(image: np.ndarray, lane: Lane, gap_px: int, band_px: int, measure: str = "std") -> tuple[float, float]:
-    """Median over the lane's rows of the lateral texture in the (left, right) side bands.
+@jit
+def _band_texture_kernel(img, r0, centre, gap_px, band_px, sign, use_diff, out):
+    """Per lane row ``r0 + i``: the texture of the side band, columns ``round(centre[i] + sign * k)``
+    for ``k = gap_px .. band_px`` — the mean absolute difference of neighbouring band pixels
+    (``use_diff``) or their population standard deviation — into ``out[i]``; NaN where the band
+    leaves the image."""
+    rows, cols = img.shape
+    n = band_px - gap_px + 1
+    vals = np.empty(n, np.float64)
+    for i in range(centre.size):
+        r = r0 + i
+        full = True
+        for j in range(n):
+            c = int(np.round(centre[i] + sign * (gap_px + j)))
+            if c < 0 or c >= cols:
+                full = False
+                break
+            vals[j] = img[r, c]
+        if not full:
+            out[i] = np.nan
+            continue
+        if use_diff:
+            acc = 0.0
+            for j in range(n - 1):
+                acc += abs(vals[j + 1] - vals[j])
+            out[i] = acc / (n - 1) if n > 1 else 0.0
+        else:
+            mean = 0.0
+            for j in range(n):
+                mean += vals[j]
+            mean /= n
+            acc = 0.0
+            for j in range(n):
+                acc += (vals[j] - mean) ** 2
+            out[i] = math.sqrt(acc / n)
 
-    ``measure="std"``: the intensity's standard deviation across the band; ``"diff"``: the mean
-    absolute difference of neighbouring pixels across the band, which a smooth shadow edge or
-    illumination gradient barely changes while gravel or grass raise it.
-    """
-    rows, cols = image.shape[:2]
-    r = np.arange(lane.bev_rows[0], lane.bev_rows[1] + 1)
-    t = rows - 1 - r
+
+def band_textures(image: np.ndarray, lane: Lane, gap_px: int, band_px: int, measure: str = "std") -> tuple[np.ndarray, np.ndarray]:
+    """Per lane row, the lateral texture of the (left, right) side band (NaN where a band leaves
+    the image): ``measure="std"``, the intensity's standard deviation across the band; ``"diff"``,
+    the mean absolute difference of neighbouring pixels across the band, which a smooth shadow
+    edge or illumination gradient barely changes while gravel or grass raise it."""
+    rows = image.shape[0]
+    img = np.ascontiguousarray(image)
+    if img.ndim != 2:
+        raise ValueError(f"lanes.verify: image: expected an Hb x Wb grey BEV image, got shape {img.shape}")
+    r0, r1 = int(lane.bev_rows[0]), int(lane.bev_rows[1])
+    r0, r1 = max(r0, 0), min(r1, rows - 1)
+    t = rows - 1 - np.arange(r0, r1 + 1, dtype=np.float64)
     c0, c1, c2 = lane.coeffs
     centre = c0 + c1 * t + c2 * t * t
-    img = image.astype(np.float32)
     out = []
     for sign in (-1, 1):
-        offs = sign * np.arange(gap_px, band_px + 1)
-        cc = np.round(centre[:, None] + offs[None, :]).astype(np.int64)
-        inside = (cc >= 0) & (cc < cols)
-        vals = img[r[:, None], np.clip(cc, 0, cols - 1)]
-        full = inside.all(axis=1)
-        if not full.any():
-            out.append(0.0)
-            continue
-        v = vals[full]
-        tex = np.abs(np.diff(v, axis=1)).mean(axis=1) if measure == "diff" else v.std(axis=1)
-        out.append(float(np.median(tex)))
+        tex = np.empty(centre.size, np.float64)
+        _band_texture_kernel(img, r0, centre, int(gap_px), int(band_px), float(sign), measure == "diff", tex)
+        out.append(tex)
     return out[0], out[1]
+
+
+def side_texture(image: np.ndarray, lane: Lane, gap_px: int, band_px: int, measure: str = "std") -> tuple[float, float]:
+    """Median over the lane's rows of the lateral texture in the (left, right) side bands (rows
+    where a band leaves the image do not count; 0 when none is left): see :func:`band_textures`."""
+    return tuple(float(np.median(tex[~np.isnan(tex)])) if (~np.isnan(tex)).any() else 0.0 for tex in band_textures(image, lane, gap_px, band_px, measure))
 
 
 class VerifyParams(NodeParams):

@@ -30,19 +30,12 @@ import numpy as np
 from pydantic import Field
 
 from lanegraph import InputError, NodeParams, Port, node_type
-from lanegraph._numba import jit, prange
+from lanegraph._numba import jit
 from lanegraph.types import Calibration, RoadModel
 
 from . import geometry
 
 # --------------------------------------------------------------------------- kernels
-
-
-#: row-interleaved chunks of the parallel accumulation kernels: chunk k takes the rows v = k mod
-#: _N_CHUNKS (balanced although the top rows have no disparity); fixed, so that the order in which
-#: the partial sums are added does not depend on the number of threads
-_N_CHUNKS = 4
-_N_CHUNKS_VD = 2  # fewer for the v-disparity: each chunk is an H x n_bins array to zero and add
 
 
 @jit
@@ -86,99 +79,94 @@ def _dp_path_kernel(score, max_step, smoothness):
 
 
 @jit
-def _corrected_rows_kernel(disp, keep, cx, cy, s, c, rows):
-    """Write into ``rows`` each pixel's roll-corrected row ``v' = cy + s (u - cx) + c (v - cy)``,
-    rounded to the nearest row; -1 where the pixel is left out (not ``keep``, ``d <= 0``, ``v'``
-    outside ``[0, H)``). Computed once per pass for its v-disparity and its row refinements. Rows in
-    parallel."""
+def _select_kernel(disp, band_k, b0, b1, b2, cx, cy, s, c, out_rows, out_d):
+    """The pixels of a profile pass, compacted: those with ``d > 0`` and, when ``band_k > 0``, within
+    the band ``|d - (b0 + b1 u + b2 v)| <= band_k d`` of the road plane (disparity space; ``band_k`` is
+    the band in metres over the camera height, eq. 4), whose roll-corrected row
+    ``v' = cy + s (u - cx) + c (v - cy)``, rounded to the nearest row, lies in ``[0, H)``. Writes each
+    one's row and disparity into ``out_rows`` / ``out_d`` in row-major order; returns their number.
+    The v-disparity and the row refinements then loop over this list, not over the image."""
     H, W = disp.shape
-    for v in prange(H):
-        for u in range(W):
-            d = disp[v, u]
-            r = -1
-            if keep[v, u] and d > 0.0:
-                r = int(math.floor(cy + s * (u - cx) + c * (v - cy) + 0.5))
-                if r < 0 or r >= H:
-                    r = -1
-            rows[v, u] = r
-
-
-def corrected_row_index(disp: np.ndarray, keep: np.ndarray, cx: float, cy: float, s: float, c: float) -> np.ndarray:
-    """:func:`_corrected_rows_kernel` into a new array (every pixel's rounded roll-corrected row, -1
-    where left out; :func:`geometry.corrected_rows` is the unrounded per-point form): int16 (half the
-    memory traffic of the passes over it) unless the image has too many rows for it."""
-    rows = np.empty(disp.shape, np.int16 if disp.shape[0] < 32767 else np.int32)
-    _corrected_rows_kernel(disp, keep, float(cx), float(cy), float(s), float(c), rows)
-    return rows
-
-
-@jit
-def _vdisparity_rows_kernel(disp, rows, n_bins, bin_size, max_disp):
-    """The v-disparity over the rows of :func:`_corrected_rows_kernel`: count per (row, bin) the
-    pixels with ``rows >= 0`` and ``d < max_disp``. Row chunks in parallel."""
-    H, W = disp.shape
-    part = np.zeros((_N_CHUNKS_VD, H, n_bins), np.float32)
-    for ch in prange(_N_CHUNKS_VD):
-        for v in range(ch, H, _N_CHUNKS_VD):
-            for u in range(W):
-                r = rows[v, u]
-                if r < 0:
-                    continue
-                d = disp[v, u]
-                if d >= max_disp:
-                    continue
-                k = int(d / bin_size)
-                if k >= n_bins:
-                    continue
-                part[ch, r, k] += 1.0
-    out = np.zeros((H, n_bins), np.float32)
-    for ch in range(_N_CHUNKS_VD):
-        out += part[ch]
-    return out
-
-
-@jit
-def _row_refine_kernel(disp, rows, centre, radius):
-    """Per roll-corrected row (``rows`` from :func:`_corrected_rows_kernel`, -1: left out): sum and
-    count of the disparities within ``radius[row]`` of ``centre[row]``. Row chunks in parallel; the
-    chunks' sums are added in a fixed order."""
-    H, W = disp.shape
-    ptotal = np.zeros((_N_CHUNKS, H), np.float64)
-    pcount = np.zeros((_N_CHUNKS, H), np.float64)
-    for ch in prange(_N_CHUNKS):
-        for v in range(ch, H, _N_CHUNKS):
-            for u in range(W):
-                r = rows[v, u]
-                if r < 0:
-                    continue
-                d = disp[v, u]
-                if abs(d - centre[r]) <= radius[r]:
-                    ptotal[ch, r] += d
-                    pcount[ch, r] += 1.0
-    total = np.zeros(H, np.float64)
-    count = np.zeros(H, np.float64)
-    for ch in range(_N_CHUNKS):
-        for r in range(H):
-            total[r] += ptotal[ch, r]
-            count[r] += pcount[ch, r]
-    return total, count
-
-
-@jit
-def _plane_band_kernel(disp, b0, b1, b2, height, band):
-    """Pixels within ``band`` metres (eq. 4) of the road plane ``d = b0 + b1 u + b2 v`` (disparity
-    space) seen from ``height`` metres: ``|d - d_plane| <= band * d / height``, ``d > 0``."""
-    H, W = disp.shape
-    out = np.zeros((H, W), np.bool_)
-    k = band / height
+    n = 0
     for v in range(H):
         for u in range(W):
             d = disp[v, u]
-            if d <= 0.0:
+            if not d > 0.0:
                 continue
-            if abs(d - (b0 + b1 * u + b2 * v)) <= k * d:
-                out[v, u] = True
+            if band_k > 0.0 and abs(d - (b0 + b1 * u + b2 * v)) > band_k * d:
+                continue
+            r = int(math.floor(cy + s * (u - cx) + c * (v - cy) + 0.5))
+            if r < 0 or r >= H:
+                continue
+            out_rows[n] = r
+            out_d[n] = d
+            n += 1
+    return n
+
+
+def select_pixels(
+    disp: np.ndarray, cx: float, cy: float, s: float, c: float, band: tuple[float, float, float, float] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_select_kernel` into new arrays: ``(rows, disparities)`` of the selected pixels;
+    ``band = (band_k, b0, b1, b2)`` or None for every valid pixel. Rows are int16 (half the memory
+    traffic of int32) unless the image has too many rows for it."""
+    rows = np.empty(disp.size, np.int16 if disp.shape[0] < 32767 else np.int32)
+    d = np.empty(disp.size, np.float32)
+    k, b0, b1, b2 = band if band is not None else (0.0, 0.0, 0.0, 0.0)
+    n = _select_kernel(disp, float(k), float(b0), float(b1), float(b2), float(cx), float(cy), float(s), float(c), rows, d)
+    return rows[:n], d[:n]
+
+
+@jit
+def _vdisparity_kernel(rows, d, H, n_bins, bin_size, max_disp):
+    """The ``H x n_bins`` v-disparity of selected pixels (:func:`_select_kernel`): count per (row,
+    bin) those with ``d < max_disp``. The bins are computed in a first loop; the counts go to four
+    interleaved partial histograms (neighbouring pixels mostly hit the same cell: one histogram
+    would make every increment wait for the previous one), added at the end."""
+    n = rows.size
+    k = np.empty(n, np.int32)
+    for i in range(n):
+        di = d[i]
+        # bin n_bins collects the left-out disparities (>= max_disp or beyond the last bin)
+        k[i] = min(int(di / bin_size), n_bins) if di < max_disp else n_bins
+    part = np.zeros((4, H, n_bins + 1), np.int32)
+    for i in range(n):
+        part[i & 3, rows[i], k[i]] += 1
+    out = np.empty((H, n_bins), np.float32)
+    for r in range(H):
+        for j in range(n_bins):
+            out[r, j] = part[0, r, j] + part[1, r, j] + part[2, r, j] + part[3, r, j]
     return out
+
+
+@jit
+def _row_refine_kernel(rows, d, centre, radius):
+    """Per row, the sum and the count of the selected pixels' disparities (:func:`_select_kernel`)
+    within ``radius[row]`` of ``centre[row]``."""
+    H = centre.size
+    total = np.zeros(H, np.float64)
+    count = np.zeros(H, np.float64)
+    # runs of one row are summed in registers, then added (pixels come in row-major order)
+    cur = -1
+    t = 0.0
+    n = 0.0
+    for i in range(rows.size):
+        r = rows[i]
+        if r != cur:
+            if cur >= 0:
+                total[cur] += t
+                count[cur] += n
+            cur = r
+            t = 0.0
+            n = 0.0
+        di = d[i]
+        if abs(di - centre[r]) <= radius[r]:
+            t += di
+            n += 1.0
+    if cur >= 0:
+        total[cur] += t
+        count[cur] += n
+    return total, count
 
 
 @jit
@@ -299,22 +287,15 @@ def n_bins(max_disparity: float, bin_size: float) -> int:
 
 
 def compute_vdisparity(
-    disp: np.ndarray,
-    max_disparity: float,
-    bin_size: float,
-    roll: float = 0.0,
-    calib: Calibration | None = None,
-    keep: np.ndarray | None = None,
+    disp: np.ndarray, max_disparity: float, bin_size: float, roll: float = 0.0, calib: Calibration | None = None
 ) -> np.ndarray:
-    """``H x D`` v-disparity of a validated disparity map, optionally in roll-corrected rows and
-    over the ``keep`` pixels only."""
+    """``H x D`` v-disparity of a validated disparity map, optionally in roll-corrected rows."""
     if roll != 0.0 and calib is None:
         raise ValueError("a roll needs the calibration (principal point)")
     s, c = geometry.roll_row_coeffs(roll, calib) if calib is not None else (0.0, 1.0)
     cx, cy = (calib.cx, calib.cy) if calib is not None else (0.0, 0.0)
-    keep = np.ones(disp.shape, np.bool_) if keep is None else keep
-    rows = corrected_row_index(disp, keep, cx, cy, s, c)
-    return _vdisparity_rows_kernel(disp, rows, n_bins(max_disparity, bin_size), float(bin_size), float(max_disparity))
+    rows, d = select_pixels(disp, cx, cy, s, c)
+    return _vdisparity_kernel(rows, d, disp.shape[0], n_bins(max_disparity, bin_size), float(bin_size), float(max_disparity))
 
 
 # --------------------------------------------------------------------------- road.vdisparity
@@ -463,9 +444,9 @@ def _robust_fit(v, d, w, deg, tol, iterations, init: np.ndarray | None):
     return coef, inl
 
 
-def _profile_pass(disp, pixel_rows, vd, params: ProfileParams, height: float | None = None):
-    """DP + refinement + robust fit in (roll-corrected) rows; ``pixel_rows``: each pixel's row in the pass
-    (:func:`_corrected_rows_kernel`, -1 where left out).
+def _profile_pass(H: int, W: int, pixels, vd, params: ProfileParams, height: float | None = None):
+    """DP + refinement + robust fit in (roll-corrected) rows over the pass's ``pixels`` (``(rows,
+    disparities)`` from :func:`select_pixels`) of an ``H x W`` disparity map.
 
     With a ``height`` estimate (pass 2) the row disparities are refined once more, keeping only the
     disparities within ``plane_tolerance_m`` (metric, eq. 4) of the first mean, so that a kerb or
@@ -474,18 +455,17 @@ def _profile_pass(disp, pixel_rows, vd, params: ProfileParams, height: float | N
     Returns ``((line, coef), profile, inlier_rows)``, coefficients lowest power first; the first
     item is None when there is no fit.
     """
-    H, W = disp.shape
     score = np.ascontiguousarray(vd, dtype=np.float64) / float(W)
     path = _dp_path_kernel(score, int(params.max_step), float(params.smoothness))
     centre = (path.astype(np.float64) + 0.5) * params.bin_size
     radius = np.full(H, max(params.refine_radius_px, 0.5 * params.bin_size))
-    total, count = _row_refine_kernel(disp, pixel_rows, centre, radius)
+    total, count = _row_refine_kernel(*pixels, centre, radius)
     if height is not None and height > 0:
         for _ in range(2):
             ok = count > 0
             centre = np.where(ok, total / np.maximum(count, 1.0), centre)
             radius = np.maximum(params.plane_tolerance_m * centre / height, params.min_plane_tolerance_px)
-            total, count = _row_refine_kernel(disp, pixel_rows, centre, radius)
+            total, count = _row_refine_kernel(*pixels, centre, radius)
     profile = np.full(H, -1.0, np.float32)
     have = count >= params.min_row_count
     profile[have] = (total[have] / count[have]).astype(np.float32)
@@ -556,12 +536,12 @@ def estimate_road(
     vehicles no longer compete with the far road in the DP.
     """
     disp = as_disparity(disparity, "road.profile")
-    H, _ = disp.shape
+    H, W = disp.shape
     D = n_bins(params.max_disparity, params.bin_size)
     cx, cy = float(calib.cx), float(calib.cy)
     # pass 1: every pixel in its own row (no roll: v' = v)
     s, c = geometry.roll_row_coeffs(0.0, calib)
-    pixel_rows = corrected_row_index(disp, np.ones(disp.shape, np.bool_), cx, cy, s, c)
+    pixels = select_pixels(disp, cx, cy, s, c)
     if vdisparity is not None:
         vd = np.asarray(vdisparity, dtype=np.float32)
         if vd.shape != (H, D):
@@ -570,9 +550,9 @@ def estimate_road(
                 f"got {vd.shape} (hint: give road.vdisparity the same max_disparity and bin_size)"
             )
     else:
-        vd = _vdisparity_rows_kernel(disp, pixel_rows, D, float(params.bin_size), float(params.max_disparity))
+        vd = _vdisparity_kernel(*pixels, H, D, float(params.bin_size), float(params.max_disparity))
 
-    fit, profile, inl = _profile_pass(disp, pixel_rows, vd, params)
+    fit, profile, inl = _profile_pass(H, W, pixels, vd, params)
     if fit is None:
         return _invalid(profile), vd
     line = fit[0]
@@ -585,15 +565,12 @@ def estimate_road(
             if abs(est) <= math.radians(params.max_abs_roll_deg):
                 roll, plane = est, b
     _, h1 = geometry.pose_from_line(float(line[0]), float(line[1]), calib)
-    keep = np.ones(disp.shape, np.bool_)
-    if params.road_band_m > 0:
-        keep = _plane_band_kernel(
-            disp, float(plane[0]), float(plane[1]), float(plane[2]), h1, params.road_band_m
-        )
+    # pass 2: only the pixels within road_band_m of that plane, in roll-corrected rows
+    band = (params.road_band_m / h1, *plane) if params.road_band_m > 0 else None
     s, c = geometry.roll_row_coeffs(roll, calib)
-    pixel_rows = corrected_row_index(disp, keep, cx, cy, s, c)
-    vd = _vdisparity_rows_kernel(disp, pixel_rows, D, float(params.bin_size), float(params.max_disparity))
-    fit, profile, inl = _profile_pass(disp, pixel_rows, vd, params, h1)
+    pixels = select_pixels(disp, cx, cy, s, c, band)
+    vd = _vdisparity_kernel(*pixels, H, D, float(params.bin_size), float(params.max_disparity))
+    fit, profile, inl = _profile_pass(H, W, pixels, vd, params, h1)
     if fit is None:
         return _invalid(profile, roll), vd
     line, coef = fit

@@ -7,7 +7,7 @@ import math
 import cv2
 import numpy as np
 import pytest
-from lanegraph_lanes import _features, _hough
+from lanegraph_lanes import _features, _hough, _verify
 from lanegraph_lanes._features import edge_orientation, eslt, mask_features, slt  # noqa: F401
 from lanegraph_lanes._fit import fit_irls, fit_ransac, irls_fit, ransac_fit
 from lanegraph_lanes._hough import line1d, line2d, orientation
@@ -357,6 +357,41 @@ def test_temporal_mask_reacquires_when_band_is_unsupported():
     fm[:, 5] = True  # this frame's marking is elsewhere on the left side
     m = temporal_mask.func(temporal_mask.params(band_px=5), geometry=g, previous=[lane], features=FeatureMap(fm))["mask"]
     assert m[:, :40].all()
+
+
+def band_textures_twin(image, lane, gap_px, band_px, measure):
+    """NumPy twin of ``_band_texture_kernel`` (through ``band_textures``): per-row band textures."""
+    rows, cols = image.shape[:2]
+    r = np.arange(lane.bev_rows[0], lane.bev_rows[1] + 1)
+    t = rows - 1 - r
+    c0, c1, c2 = lane.coeffs
+    centre = c0 + c1 * t + c2 * t * t
+    out = []
+    for sign in (-1, 1):
+        offs = sign * np.arange(gap_px, band_px + 1)
+        cc = np.round(centre[:, None] + offs[None, :]).astype(np.int64)
+        vals = image[r[:, None], np.clip(cc, 0, cols - 1)].astype(np.float64)
+        tex = np.abs(np.diff(vals, axis=1)).mean(axis=1) if measure == "diff" else vals.std(axis=1)
+        out.append(np.where(((cc >= 0) & (cc < cols)).all(axis=1), tex, np.nan))
+    return out
+
+
+@pytest.mark.parametrize("measure", ["diff", "std"])
+@pytest.mark.parametrize("gap, band", [(6, 30), (0, 2), (3, 60)])
+def test_band_texture_kernel_matches_twin(measure, gap, band):
+    rng = np.random.default_rng(8)
+    img = rng.integers(0, 256, (90, 70)).astype(np.uint8)
+    lanes = [
+        Lane((35.0, 0.05, 0.0), (0, 89), "left", 0.9),
+        Lane((3.0, 0.2, 0.001), (10, 80), "left", 0.9),  # leaves the image on the left at the bottom
+        Lane((66.4, -0.1, 0.0), (5, 60), "right", 0.9),
+        Lane((35.5, 0.0, 0.0), (89, 89), "right", 0.9),  # one row, a .5 centre (round half to even)
+    ]
+    for lane in lanes:
+        got = _verify.band_textures(img, lane, gap, band, measure)
+        exp = band_textures_twin(img, lane, gap, band, measure)
+        for g, e in zip(got, exp):
+            np.testing.assert_allclose(g, e, rtol=1e-12, atol=1e-9)
 
 
 def test_verify_drops_lane_beside_texture():

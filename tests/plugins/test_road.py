@@ -154,19 +154,43 @@ def random_disparity(rng, shape, max_d=40.0, invalid=0.2):
 EDGE_SHAPES = [(1, 7), (9, 1), (13, 17)]
 
 
+def select_np(disp, band, cx, cy, s, c):
+    """NumPy twin of ``_select_kernel``: (rows, disparities) of the selected pixels, row-major."""
+    H, W = disp.shape
+    v, u = np.mgrid[0:H, 0:W]
+    r = np.floor(cy + s * (u - cx) + c * (v - cy) + 0.5).astype(int)
+    ok = (disp > 0) & (r >= 0) & (r < H)
+    if band is not None:
+        k, b0, b1, b2 = band
+        ok &= np.abs(disp - (b0 + b1 * u + b2 * v)) <= k * disp
+    return r[ok], disp[ok]
+
+
 @pytest.mark.parametrize("shape", EDGE_SHAPES)
 @pytest.mark.parametrize("roll", [0.0, 0.05, -0.2])
-def test_vdisparity_kernel_matches_numpy(shape, roll):
+@pytest.mark.parametrize("band", [None, (0.6, 1.0, 0.3, 1.2)])
+def test_select_and_vdisparity_kernels_match_numpy(shape, roll, band):
     rng = np.random.default_rng(1)
     disp = random_disparity(rng, shape)
-    keep = rng.random(shape) < 0.8
     s, c = math.sin(roll), math.cos(roll)
-    for bin_size, max_d in ((1.0, 32.0), (0.5, 40.0), (3.0, 10.0)):
+    rows, d = profile.select_pixels(disp, 6.3, 4.1, s, c, band)
+    r_np, d_np = select_np(disp, band, 6.3, 4.1, s, c)
+    np.testing.assert_array_equal(rows, r_np)
+    np.testing.assert_array_equal(d, d_np)
+    keep = np.ones(shape, bool) if band is None else plane_band_np(disp, band[1], band[2], band[3], 1.0, band[0])
+    for bin_size, max_d in ((1.0, 32.0), (0.5, 40.0), (3.0, 10.0), (3.0, 12.0)):
         nb = profile.n_bins(max_d, bin_size)
-        rows = profile.corrected_row_index(disp, keep, 6.3, 4.1, s, c)
-        got = profile._vdisparity_rows_kernel(disp, rows, nb, bin_size, max_d)
+        got = profile._vdisparity_kernel(rows, d, shape[0], nb, bin_size, max_d)
         exp = vdisparity_np(disp, keep, nb, bin_size, max_d, 6.3, 4.1, s, c)
         np.testing.assert_array_equal(got, exp)
+
+
+def test_vdisparity_counts_exact_bin_edges():
+    """A disparity exactly on a bin edge goes to the upper bin (d / bin_size, never d * (1 / bin_size))."""
+    d = np.array([3.0, 6.0, 9.0, 2.9999], np.float32)
+    rows = np.zeros(4, np.int16)
+    vd = profile._vdisparity_kernel(rows, d, 1, 4, 3.0, 12.0)
+    np.testing.assert_array_equal(vd[0], [1, 1, 1, 1])
 
 
 def test_vdisparity_edge_cases():
@@ -205,35 +229,19 @@ def test_dp_follows_a_slanted_line_not_a_vertical_obstacle():
     assert np.mean(path == line) > 0.9
 
 
-def corrected_rows_np(disp, keep, cx, cy, s, c):
-    H, W = disp.shape
-    v, u = np.mgrid[0:H, 0:W]
-    r = np.floor(cy + s * (u - cx) + c * (v - cy) + 0.5).astype(int)
-    return np.where(keep & (disp > 0) & (r >= 0) & (r < H), r, -1)
-
-
 @pytest.mark.parametrize("shape", EDGE_SHAPES)
 def test_row_refine_kernel_matches_numpy(shape):
     rng = np.random.default_rng(3)
     disp = random_disparity(rng, shape)
-    keep = rng.random(shape) < 0.9
     centre = rng.uniform(0, 40, shape[0])
     radius = rng.uniform(0.5, 8.0, shape[0])
+    keep = np.ones(shape, bool)
     for s, c in ((0.0, 1.0), (0.1, 0.99), (-0.3, 0.95)):
-        rows = profile.corrected_row_index(disp, keep, 3.0, 2.0, s, c)
-        np.testing.assert_array_equal(rows, corrected_rows_np(disp, keep, 3.0, 2.0, s, c))
-        t1, n1 = profile._row_refine_kernel(disp, rows, centre, radius)
+        rows, d = profile.select_pixels(disp, 3.0, 2.0, s, c)
+        t1, n1 = profile._row_refine_kernel(rows, d, centre, radius)
         t2, n2 = row_refine_np(disp, keep, centre, radius, 3.0, 2.0, s, c)
         np.testing.assert_allclose(t1, t2, rtol=1e-9, atol=1e-6)
         np.testing.assert_array_equal(n1, n2)
-
-
-@pytest.mark.parametrize("shape", EDGE_SHAPES)
-def test_plane_band_kernel_matches_numpy(shape):
-    rng = np.random.default_rng(4)
-    disp = random_disparity(rng, shape)
-    got = profile._plane_band_kernel(disp, 1.0, 0.3, 1.2, 1.6, 1.0)
-    np.testing.assert_array_equal(got, plane_band_np(disp, 1.0, 0.3, 1.2, 1.6, 1.0))
 
 
 def test_ransac_line_kernel_matches_numpy():
