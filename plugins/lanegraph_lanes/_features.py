@@ -79,22 +79,25 @@ def _eslt(img, gx, gy, window, threshold, max_angle, out_mask, out_theta):
             if nl == 0 or nr == 0:
                 continue
             v = img[r, c] - threshold
-            if not (v > (csum[c] - csum[lo]) / nl and v > (csum[hi] - csum[c + 1]) / nr):
+            # v > mean of each window, without the divisions
+            if not (v * nl > csum[c] - csum[lo] and v * nr > csum[hi] - csum[c + 1]):
                 continue
+            # strongest gradient in each window, first one on ties; selects rather than branches
+            # (which way a comparison goes is unpredictable)
             bl = lo
-            ml = -1.0
-            for k in range(lo, c):
+            ml = mag2[lo]
+            for k in range(lo + 1, c):
                 m2 = mag2[k]
-                if m2 > ml:
-                    ml = m2
-                    bl = k
+                gt = m2 > ml
+                ml = m2 if gt else ml
+                bl = k if gt else bl
             br = c + 1
-            mr = -1.0
-            for k in range(c + 1, hi):
+            mr = mag2[c + 1]
+            for k in range(c + 2, hi):
                 m2 = mag2[k]
-                if m2 > mr:
-                    mr = m2
-                    br = k
+                gt = m2 > mr
+                mr = m2 if gt else mr
+                br = k if gt else br
             if ml <= 0.0 or mr <= 0.0:
                 continue
             ax = float(gx[r, bl])

@@ -55,6 +55,12 @@ def _height_class_kernel(disp, a0, a1, a2, cx, cy, s, c, height, height_tol, min
     H, W = disp.shape
     out = np.zeros((H, W), np.uint8)
     for v in prange(H):
+        if a2 == 0.0:
+            # a linear profile along a straight (roll-corrected) row: its ends bound the row
+            r_a = cy + s * (0 - cx) + c * (v - cy)
+            r_b = cy + s * (W - 1 - cx) + c * (v - cy)
+            if a0 + a1 * r_a < min_road_disp and a0 + a1 * r_b < min_road_disp:
+                continue
         for u in range(W):
             d = disp[v, u]
             r = cy + s * (u - cx) + c * (v - cy)

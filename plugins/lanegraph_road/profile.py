@@ -79,17 +79,18 @@ def _dp_path_kernel(score, max_step, smoothness):
 
 
 @jit
-def _select_kernel(disp, band_k, b0, b1, b2, cx, cy, s, c, out_rows, out_d):
+def _select_kernel(disp, step, band_k, b0, b1, b2, cx, cy, s, c, out_rows, out_d):
     """The pixels of a profile pass, compacted: those with ``d > 0`` and, when ``band_k > 0``, within
     the band ``|d - (b0 + b1 u + b2 v)| <= band_k d`` of the road plane (disparity space; ``band_k`` is
     the band in metres over the camera height, eq. 4), whose roll-corrected row
     ``v' = cy + s (u - cx) + c (v - cy)``, rounded to the nearest row, lies in ``[0, H)``. Writes each
     one's row and disparity into ``out_rows`` / ``out_d`` in row-major order; returns their number.
-    The v-disparity and the row refinements then loop over this list, not over the image."""
+    Only every ``step``-th column (from column 0) is looked at. The v-disparity and the row
+    refinements then loop over this list, not over the image."""
     H, W = disp.shape
     n = 0
     for v in range(H):
-        for u in range(W):
+        for u in range(0, W, step):
             d = disp[v, u]
             if not d > 0.0:
                 continue
@@ -105,15 +106,22 @@ def _select_kernel(disp, band_k, b0, b1, b2, cx, cy, s, c, out_rows, out_d):
 
 
 def select_pixels(
-    disp: np.ndarray, cx: float, cy: float, s: float, c: float, band: tuple[float, float, float, float] | None = None
+    disp: np.ndarray,
+    cx: float,
+    cy: float,
+    s: float,
+    c: float,
+    band: tuple[float, float, float, float] | None = None,
+    step: int = 1,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_select_kernel` into new arrays: ``(rows, disparities)`` of the selected pixels;
-    ``band = (band_k, b0, b1, b2)`` or None for every valid pixel. Rows are int16 (half the memory
+    """:func:`_select_kernel` into new arrays: ``(rows, disparities)`` of the selected pixels of
+    every ``step``-th column; ``band = (band_k, b0, b1, b2)`` or None for every valid pixel. Rows are int16 (half the memory
     traffic of int32) unless the image has too many rows for it."""
-    rows = np.empty(disp.size, np.int16 if disp.shape[0] < 32767 else np.int32)
-    d = np.empty(disp.size, np.float32)
+    cap = disp.shape[0] * -(-disp.shape[1] // step)
+    rows = np.empty(cap, np.int16 if disp.shape[0] < 32767 else np.int32)
+    d = np.empty(cap, np.float32)
     k, b0, b1, b2 = band if band is not None else (0.0, 0.0, 0.0, 0.0)
-    n = _select_kernel(disp, float(k), float(b0), float(b1), float(b2), float(cx), float(cy), float(s), float(c), rows, d)
+    n = _select_kernel(disp, int(step), float(k), float(b0), float(b1), float(b2), float(cx), float(cy), float(s), float(c), rows, d)
     return rows[:n], d[:n]
 
 
@@ -348,6 +356,13 @@ class ProfileParams(NodeParams):
     )
     fit_tolerance_px: float = Field(1.0, gt=0.0, le=16.0, description="RANSAC inlier tolerance, pixels")
     ransac_iterations: int = Field(300, ge=1, le=100000, description="RANSAC samples (fixed seed)")
+    column_step: int = Field(
+        2,
+        ge=1,
+        le=16,
+        description="the profile passes look at every n-th column (the v-disparity rows keep hundreds of "
+        "road pixels each at 2; counts are scaled back to full-resolution pixels)",
+    )
     min_row_count: int = Field(
         10, ge=1, le=100000, description="rows with fewer path pixels are left out of the fit, pixels"
     )
@@ -444,9 +459,10 @@ def _robust_fit(v, d, w, deg, tol, iterations, init: np.ndarray | None):
     return coef, inl
 
 
-def _profile_pass(H: int, W: int, pixels, vd, params: ProfileParams, height: float | None = None):
+def _profile_pass(H: int, W: int, pixels, vd, params: ProfileParams, height: float | None = None, vd_columns: int | None = None):
     """DP + refinement + robust fit in (roll-corrected) rows over the pass's ``pixels`` (``(rows,
-    disparities)`` from :func:`select_pixels`) of an ``H x W`` disparity map.
+    disparities)`` from :func:`select_pixels`) of an ``H x W`` disparity map; ``vd`` counts the
+    pixels of ``vd_columns`` columns (default: the sampled ones, every ``column_step``-th).
 
     With a ``height`` estimate (pass 2) the row disparities are refined once more, keeping only the
     disparities within ``plane_tolerance_m`` (metric, eq. 4) of the first mean, so that a kerb or
@@ -455,8 +471,15 @@ def _profile_pass(H: int, W: int, pixels, vd, params: ProfileParams, height: flo
     Returns ``((line, coef), profile, inlier_rows)``, coefficients lowest power first; the first
     item is None when there is no fit.
     """
-    score = np.ascontiguousarray(vd, dtype=np.float64) / float(W)
-    path = _dp_path_kernel(score, int(params.max_step), float(params.smoothness))
+    step = int(params.column_step)
+    score = np.ascontiguousarray(vd, dtype=np.float64) / float(vd_columns or -(-W // step))  # support per column
+    # the rows above the first one with any support (the sky, or the rows the disparity was not
+    # computed for) add nothing: the DP runs from that row down and the path stays level above it
+    supported = np.flatnonzero(score.any(axis=1))
+    v0 = int(supported[0]) if supported.size else 0
+    path = np.empty(H, np.int32)
+    path[v0:] = _dp_path_kernel(score[v0:], int(params.max_step), float(params.smoothness))
+    path[:v0] = path[v0]
     centre = (path.astype(np.float64) + 0.5) * params.bin_size
     radius = np.full(H, max(params.refine_radius_px, 0.5 * params.bin_size))
     total, count = _row_refine_kernel(*pixels, centre, radius)
@@ -467,7 +490,7 @@ def _profile_pass(H: int, W: int, pixels, vd, params: ProfileParams, height: flo
             radius = np.maximum(params.plane_tolerance_m * centre / height, params.min_plane_tolerance_px)
             total, count = _row_refine_kernel(*pixels, centre, radius)
     profile = np.full(H, -1.0, np.float32)
-    have = count >= params.min_row_count
+    have = count * step >= params.min_row_count  # full-resolution pixels
     profile[have] = (total[have] / count[have]).astype(np.float32)
     use = have & (profile >= params.min_fit_disparity_px)
     rows = np.flatnonzero(use).astype(np.float64)
@@ -541,7 +564,7 @@ def estimate_road(
     cx, cy = float(calib.cx), float(calib.cy)
     # pass 1: every pixel in its own row (no roll: v' = v)
     s, c = geometry.roll_row_coeffs(0.0, calib)
-    pixels = select_pixels(disp, cx, cy, s, c)
+    pixels = select_pixels(disp, cx, cy, s, c, step=params.column_step)
     if vdisparity is not None:
         vd = np.asarray(vdisparity, dtype=np.float32)
         if vd.shape != (H, D):
@@ -552,7 +575,7 @@ def estimate_road(
     else:
         vd = _vdisparity_kernel(*pixels, H, D, float(params.bin_size), float(params.max_disparity))
 
-    fit, profile, inl = _profile_pass(H, W, pixels, vd, params)
+    fit, profile, inl = _profile_pass(H, W, pixels, vd, params, vd_columns=W if vdisparity is not None else None)
     if fit is None:
         return _invalid(profile), vd
     line = fit[0]
@@ -568,7 +591,7 @@ def estimate_road(
     # pass 2: only the pixels within road_band_m of that plane, in roll-corrected rows
     band = (params.road_band_m / h1, *plane) if params.road_band_m > 0 else None
     s, c = geometry.roll_row_coeffs(roll, calib)
-    pixels = select_pixels(disp, cx, cy, s, c, band)
+    pixels = select_pixels(disp, cx, cy, s, c, band, step=params.column_step)
     vd = _vdisparity_kernel(*pixels, H, D, float(params.bin_size), float(params.max_disparity))
     fit, profile, inl = _profile_pass(H, W, pixels, vd, params, h1)
     if fit is None:

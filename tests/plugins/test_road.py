@@ -486,9 +486,14 @@ def test_profile_rejects_a_mismatched_vdisparity(scene):
 def test_profile_accepts_the_vdisparity_node_output(scene):
     disp = noisy(scene[0])
     vd = rd.road_vdisparity.func(rd.VDisparityParams(), disparity=disp)["vdisparity"]
-    a = rd.road_profile.func(rd.ProfileParams(), disparity=disp, calib=CALIB, vdisparity=vd)["road"]
-    b = rd.road_profile.func(rd.ProfileParams(), disparity=disp, calib=CALIB)["road"]
+    # every column: the node's v-disparity is the profile's own first one
+    p1 = rd.ProfileParams(column_step=1)
+    a = rd.road_profile.func(p1, disparity=disp, calib=CALIB, vdisparity=vd)["road"]
+    b = rd.road_profile.func(p1, disparity=disp, calib=CALIB)["road"]
     assert (a.pitch, a.roll, a.height) == (b.pitch, b.roll, b.height)
+    # every 2nd column (the default): the full-resolution v-disparity is scaled, the pose agrees
+    a = rd.road_profile.func(rd.ProfileParams(), disparity=disp, calib=CALIB, vdisparity=vd)["road"]
+    assert a.valid and abs(a.pitch - b.pitch) < 1e-3 and abs(a.roll - b.roll) < 1e-3 and abs(a.height - b.height) < 0.01
 
 
 def test_mask_removes_box_and_kerb_keeps_road(scene):
