@@ -22,7 +22,7 @@ import numpy as np
 from pydantic import Field, field_validator, model_validator
 
 from lanegraph import node_type
-from lanegraph._numba import jit
+from lanegraph._numba import jit, prange
 
 from ._common import DisparityParams, run_backend, scaled_disparities
 
@@ -42,7 +42,7 @@ _ZERO, _ONE = np.uint64(0), np.uint64(1)
 # --------------------------------------------------------------------------- kernels
 
 
-@jit
+@jit(parallel=True)
 def _census(img, win_h, win_w):
     """Census transform.
 
@@ -60,24 +60,31 @@ def _census(img, win_h, win_w):
         ``win_h*win_w - 1`` used bits) is set when the ``k``-th window neighbour, in
         row-major order without the centre, is darker than the centre. Neighbours
         outside the image take the value of the nearest border pixel.
+
+    The image is first copied with its border replicated, so that every neighbour read is in
+    bounds; then, per row (rows in parallel) and per neighbour, one pass over the row's pixels
+    (a loop without branches that the compiler vectorises).
     """
     h, w = img.shape
     rh, rw = win_h // 2, win_w // 2
-    out = np.empty((h, w), np.uint64)
-    for r in range(h):
-        for c in range(w):
-            centre = img[r, c]
-            code = _ZERO
-            for dy in range(-rh, rh + 1):
-                rr = min(max(r + dy, 0), h - 1)
-                for dx in range(-rw, rw + 1):
-                    if dy == 0 and dx == 0:
-                        continue
-                    cc = min(max(c + dx, 0), w - 1)
-                    code = code << _ONE
-                    if img[rr, cc] < centre:
-                        code = code | _ONE
-            out[r, c] = code
+    out = np.zeros((h, w), np.uint64)
+    if h == 0 or w == 0:
+        return out
+    pad = np.empty((h + 2 * rh, w + 2 * rw), img.dtype)
+    for r in range(h + 2 * rh):
+        rr = min(max(r - rh, 0), h - 1)
+        for c in range(w + 2 * rw):
+            pad[r, c] = img[rr, min(max(c - rw, 0), w - 1)]
+    for r in prange(h):
+        code = out[r]
+        centre = pad[r + rh, rw : rw + w]
+        for dy in range(win_h):
+            for dx in range(win_w):
+                if dy == rh and dx == rw:
+                    continue
+                nb = pad[r + dy, dx : dx + w]
+                for c in range(w):
+                    code[c] = (code[c] << _ONE) | np.uint64(nb[c] < centre[c])
     return out
 
 

@@ -23,32 +23,47 @@ import numpy as np
 from pydantic import Field
 
 from lanegraph import InputError, NodeParams, Port, node_type
-from lanegraph._numba import jit
+from lanegraph._numba import jit, prange
 from lanegraph.types import BevGeometry, FeatureMap, Line
 
 
 @jit
-def _vote_1d(rows_idx, cols_idx, height, inv_tan, offset, acc):
-    """Each feature adds 1 at bin ``round(x - (height - y) * inv_tan) + offset`` (if inside)."""
-    n = acc.shape[0]
+def _vote_bins(rows_idx, cols_idx, height, inv_tan, offset, bins):
+    """``bins[i] = round(x - (height - y) * inv_tan) + offset`` of every feature (a loop without
+    branches, vectorised)."""
     for i in range(rows_idx.shape[0]):
-        rho = cols_idx[i] - (height - rows_idx[i]) * inv_tan
-        b = int(math.floor(rho + 0.5)) + offset
+        bins[i] = int(math.floor(cols_idx[i] - (height - rows_idx[i]) * inv_tan + 0.5)) + offset
+
+
+@jit
+def _vote_1d(rows_idx, cols_idx, height, inv_tan, offset, acc):
+    """Each feature adds 1 at bin ``round(x - (height - y) * inv_tan) + offset`` (if inside): the
+    bins first, then the counts."""
+    n = acc.shape[0]
+    bins = np.empty(rows_idx.shape[0], np.int64)
+    _vote_bins(rows_idx, cols_idx, height, inv_tan, offset, bins)
+    for i in range(bins.shape[0]):
+        b = bins[i]
         if 0 <= b < n:
             acc[b] += 1.0
 
 
-@jit
+@jit(parallel=True)
 def _vote_2d(rows_idx, cols_idx, height, inv_tans, offset, acc):
-    """2D accumulator: for every theta (row of ``acc``) each feature votes like :func:`_vote_1d`."""
+    """2D accumulator: for every theta (row of ``acc``) each feature votes like :func:`_vote_1d`.
+    Thetas in parallel; per theta the counts go to two interleaved integer accumulators (the
+    features of one row often share a bin: one accumulator would chain every increment)."""
     nt, n = acc.shape
-    for t in range(nt):
-        it = inv_tans[t]
-        for i in range(rows_idx.shape[0]):
-            rho = cols_idx[i] - (height - rows_idx[i]) * it
-            b = int(math.floor(rho + 0.5)) + offset
-            if 0 <= b < n:
-                acc[t, b] += 1.0
+    m = rows_idx.shape[0]
+    for t in prange(nt):
+        bins = np.empty(m, np.int64)
+        _vote_bins(rows_idx, cols_idx, height, inv_tans[t], offset, bins)
+        part = np.zeros((2, n + 1), np.int64)
+        for i in range(m):
+            b = bins[i]
+            part[i & 1, b if 0 <= b < n else n] += 1
+        for b in range(n):
+            acc[t, b] += part[0, b] + part[1, b]
 
 
 def _smooth(acc: np.ndarray, sigma: float) -> np.ndarray:
