@@ -47,6 +47,53 @@ def _slt(img, window, threshold, out):
                 out[r, c] = 1
 
 
+@jit(inline="always")
+def _eslt_pixel(img, gx, gy, mag2, csum, r, c, lo, hi, threshold, cos2_max, out_mask, out_theta):
+    """ESLT at pixel ``(r, c)`` with the left window ``[lo, c)`` and the right one ``(c, hi)``
+    (both non-empty); ``csum``: the row's cumulative intensity, ``mag2``: its squared gradient."""
+    nl = c - lo
+    nr = hi - (c + 1)
+    v = img[r, c] - threshold
+    # v > mean of each window, without the divisions
+    if not (v * nl > csum[c] - csum[lo] and v * nr > csum[hi] - csum[c + 1]):
+        return
+    # strongest gradient in each window, first one on ties; selects rather than branches (which
+    # way a comparison goes is unpredictable)
+    bl = lo
+    ml = mag2[lo]
+    for k in range(lo + 1, c):
+        m2 = mag2[k]
+        gt = m2 > ml
+        ml = m2 if gt else ml
+        bl = k if gt else bl
+    br = c + 1
+    mr = mag2[c + 1]
+    for k in range(c + 2, hi):
+        m2 = mag2[k]
+        gt = m2 > mr
+        mr = m2 if gt else mr
+        br = k if gt else br
+    if ml <= 0.0 or mr <= 0.0:
+        return
+    ax = float(gx[r, bl])
+    ay = float(gy[r, bl])
+    bx = float(gx[r, br])
+    by = float(gy[r, br])
+    na = ax * ax + ay * ay
+    nb = bx * bx + by * by
+    dot = ax * bx + ay * by
+    if not dot * dot > cos2_max * na * nb:
+        return
+    # circular mean modulo pi (doubled angles)
+    s = 2.0 * ax * ay / na + 2.0 * bx * by / nb
+    co = (ay * ay - ax * ax) / na + (by * by - bx * bx) / nb
+    m = 0.5 * math.atan2(s, co)
+    if m < 0:
+        m += math.pi
+    out_mask[r, c] = 1
+    out_theta[r, c] = m
+
+
 @jit(parallel=True)
 def _eslt(img, gx, gy, window, threshold, max_angle, out_mask, out_theta):
     """ESLT: SLT plus parallel strongest-gradient borders. ``gx``, ``gy`` are Sobel gradients (rows
@@ -56,7 +103,9 @@ def _eslt(img, gx, gy, window, threshold, max_angle, out_mask, out_theta):
     No trigonometry per border: two borders (gradients ``a``, ``b``) are within ``max_angle`` of
     each other, modulo pi, when ``(a.b)^2 > cos^2(max_angle) |a|^2 |b|^2``; the mean orientation
     is half the angle of the sum of their doubled-angle unit vectors
-    ``((gy^2 - gx^2) / |g|^2, 2 gx gy / |g|^2)``, one ``atan2`` per feature."""
+    ``((gy^2 - gx^2) / |g|^2, 2 gx gy / |g|^2)``, one ``atan2`` per feature. Windows are clipped
+    at the borders (a pixel with an empty window is no feature); the columns with both windows
+    whole are one loop with fixed window bounds."""
     rows, cols = img.shape
     cmax = math.cos(max_angle)
     cos2_max = cmax * cmax if max_angle < math.pi / 2 else 0.0
@@ -71,52 +120,18 @@ def _eslt(img, gx, gy, window, threshold, max_angle, out_mask, out_theta):
         for c in range(cols):
             out_mask[r, c] = 0
             out_theta[r, c] = -1.0
+        inner_lo = min(window, cols)
+        inner_hi = max(cols - window, inner_lo)
+        for c in range(inner_lo, inner_hi):
+            _eslt_pixel(img, gx, gy, mag2, csum, r, c, c - window, c + 1 + window, threshold, cos2_max, out_mask, out_theta)
         for c in range(cols):
+            if inner_lo <= c < inner_hi:
+                continue
             lo = max(c - window, 0)
             hi = min(c + 1 + window, cols)
-            nl = c - lo
-            nr = hi - (c + 1)
-            if nl == 0 or nr == 0:
+            if c - lo == 0 or hi - (c + 1) == 0:
                 continue
-            v = img[r, c] - threshold
-            # v > mean of each window, without the divisions
-            if not (v * nl > csum[c] - csum[lo] and v * nr > csum[hi] - csum[c + 1]):
-                continue
-            # strongest gradient in each window, first one on ties; selects rather than branches
-            # (which way a comparison goes is unpredictable)
-            bl = lo
-            ml = mag2[lo]
-            for k in range(lo + 1, c):
-                m2 = mag2[k]
-                gt = m2 > ml
-                ml = m2 if gt else ml
-                bl = k if gt else bl
-            br = c + 1
-            mr = mag2[c + 1]
-            for k in range(c + 2, hi):
-                m2 = mag2[k]
-                gt = m2 > mr
-                mr = m2 if gt else mr
-                br = k if gt else br
-            if ml <= 0.0 or mr <= 0.0:
-                continue
-            ax = float(gx[r, bl])
-            ay = float(gy[r, bl])
-            bx = float(gx[r, br])
-            by = float(gy[r, br])
-            na = ax * ax + ay * ay
-            nb = bx * bx + by * by
-            dot = ax * bx + ay * by
-            if not dot * dot > cos2_max * na * nb:
-                continue
-            # circular mean modulo pi (doubled angles)
-            s = 2.0 * ax * ay / na + 2.0 * bx * by / nb
-            co = (ay * ay - ax * ax) / na + (by * by - bx * bx) / nb
-            m = 0.5 * math.atan2(s, co)
-            if m < 0:
-                m += math.pi
-            out_mask[r, c] = 1
-            out_theta[r, c] = m
+            _eslt_pixel(img, gx, gy, mag2, csum, r, c, lo, hi, threshold, cos2_max, out_mask, out_theta)
 
 
 def sobel(gray: np.ndarray, ksize: int = 3) -> tuple[np.ndarray, np.ndarray]:

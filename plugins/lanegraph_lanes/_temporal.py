@@ -34,22 +34,27 @@ def lane_cols(lane: Lane, rows: int) -> np.ndarray:
 def _side_band_kernel(lane_cols_rows, c_lo, c_hi, band_px, feat, use_feat, band):
     """The band of a side: ``band[r, c]`` for the columns ``c_lo <= c < c_hi`` within ``band_px`` of a
     lane (``|c - lane_cols_rows[i, r]| <= band_px`` for some lane ``i``). Returns the number of
-    features (``feat``, when ``use_feat``) in the side's columns and in its band."""
+    features (``feat``, when ``use_feat``) in the side's columns and in its band.
+
+    Per row and lane the band is the run of columns ``ceil(x - band_px) .. floor(x + band_px)``:
+    only those are written (``band`` must come zeroed) and only the side's columns are counted."""
     n_lanes, rows = lane_cols_rows.shape
     n_side = 0
     n_band = 0
     for r in range(rows):
-        for c in range(c_lo, c_hi):
-            inside = False
-            for i in range(n_lanes):
-                if abs(c - lane_cols_rows[i, r]) <= band_px:
-                    inside = True
-                    break
-            band[r, c] = inside
-            if use_feat and feat[r, c]:
-                n_side += 1
-                if inside:
-                    n_band += 1
+        for i in range(n_lanes):
+            x = lane_cols_rows[i, r]
+            if not (x - band_px < c_hi and x + band_px >= c_lo):  # also a NaN lane
+                continue
+            lo = max(int(math.ceil(x - band_px)), c_lo)
+            hi = min(int(math.floor(x + band_px)) + 1, c_hi)
+            for c in range(lo, hi):
+                band[r, c] = True
+        if use_feat:
+            for c in range(c_lo, c_hi):
+                f = feat[r, c]
+                n_side += f
+                n_band += f & band[r, c]
     return n_side, n_band
 
 

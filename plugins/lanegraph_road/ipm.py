@@ -139,9 +139,10 @@ def warp_to_bev(
     bev = cv2.warpPerspective(
         image, Hm, size, flags=_INTERP[params.interpolation] | flags, borderMode=cv2.BORDER_REPLICATE
     )
-    code = np.ones((h_img, w_img), np.uint8)
-    if mask is not None:
-        code += np.asarray(mask, dtype=bool)
+    if mask is None:
+        code = np.ones((h_img, w_img), np.uint8)
+    else:
+        code = np.add(np.ascontiguousarray(mask, dtype=bool).view(np.uint8), 1, dtype=np.uint8)  # one pass
     code = cv2.warpPerspective(code, Hm, size, flags=cv2.INTER_NEAREST | flags, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     np.copyto(bev, 0, where=(code == 0) if bev.ndim == 2 else (code == 0)[:, :, None])  # outside: 0, never a replicated border
     bev_mask = code > (0 if mask is None else 1)

@@ -397,7 +397,7 @@ class ProfileParams(NodeParams):
     )
     roll_iterations: int = Field(3, ge=1, le=20, description="plane fit / pixel re-selection rounds")
     roll_subsample: int = Field(
-        2, ge=1, le=16, description="use every n-th row and column for the roll plane"
+        4, ge=1, le=16, description="use every n-th row and column for the roll plane"
     )
     max_abs_roll_deg: float = Field(
         10.0, gt=0.0, le=45.0, description="a larger roll estimate is discarded (roll 0 is used), degrees"
@@ -432,9 +432,21 @@ def _ransac_line(
 
 
 def _weighted_polyfit(v: np.ndarray, d: np.ndarray, w: np.ndarray, deg: int) -> np.ndarray | None:
-    """Weighted least squares, coefficients lowest power first."""
+    """Weighted least squares, coefficients lowest power first (a line in closed form, about the
+    weighted mean: no SVD for two unknowns)."""
     if np.count_nonzero(w > 0) < deg + 1:
         return None
+    if deg == 1:
+        sw = w.sum()
+        mv = (w * v).sum() / sw
+        md = (w * d).sum() / sw
+        dv = v - mv
+        var = (w * dv * dv).sum()
+        if not var > 0:
+            return None
+        a1 = (w * dv * (d - md)).sum() / var
+        coef = np.array([md - a1 * mv, a1])
+        return coef if np.all(np.isfinite(coef)) else None
     A = np.stack([v**k for k in range(deg + 1)], axis=1)
     sw = np.sqrt(w)
     coef, *_ = np.linalg.lstsq(A * sw[:, None], d * sw, rcond=None)
