@@ -72,6 +72,14 @@ def test_slt_kernel_matches_twin(shape, w, T):
     np.testing.assert_array_equal(out, slt_twin(img, w, T))
 
 
+def test_atan2_fast_matches_numpy():
+    rng = np.random.default_rng(4)
+    y = np.concatenate([rng.normal(0, 1, 3000), rng.normal(0, 1e6, 1000), [0.0, 0.0, 1.0, -1.0, 0.0, 5.0, -5.0]])
+    x = np.concatenate([rng.normal(0, 1, 3000), rng.normal(0, 1e6, 1000), [0.0, 1.0, 0.0, 0.0, -1.0, 5.0, -5.0]])
+    got = np.array([_features.atan2_fast(float(a), float(b)) for a, b in zip(y, x)])
+    assert np.abs(got - np.arctan2(y, x)).max() < 5e-8
+
+
 @pytest.mark.parametrize("w", [2, 4, 30])
 def test_eslt_kernel_matches_twin(w):
     img = make_bev_image(rows=24, cols=40, lane_cols=(12.0, 30.0), slope=0.3, noise=10.0, seed=3).astype(np.float32)
