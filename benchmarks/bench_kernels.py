@@ -87,7 +87,7 @@ def bev_kernels(rng: np.random.Generator) -> None:
     t, y, _ = tl.parabola_with_outliers(n=3000, seed=1)
     row(
         "_irls_kernel",
-        timed(lambda: _fit._irls_kernel(t, y, 2, 10, True, 4.685)),
+        timed(lambda: _fit._irls_kernel(t, y, 2, 10, True, 4.685, 0.01)),
         timed(lambda: _fit.irls_fit_lstsq(t, y, 2, 10, "tukey")),
         "(3000 points, 30 % outliers)",
     )

@@ -68,11 +68,12 @@ def _wls(A: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 
 @jit
-def _irls_kernel(t, y, degree, iterations, tukey, k):
+def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px):
     """:func:`irls_fit` by weighted normal equations in the scaled abscissa ``x = (t - mid) / half``
     (``x`` in [-1, 1]: well conditioned, unlike powers of ``t`` itself). Returns ``(ok, coef, w)``,
     coefficients in ``t``, lowest power first; ``ok`` False when a system is singular (the caller
-    then uses the NumPy least-squares path)."""
+    then uses the NumPy least-squares path). Converged when no point's fitted value moves by more
+    than ``tol_px``."""
     n = t.size
     m = degree + 1
     lo = t.min()
@@ -159,13 +160,15 @@ def _irls_kernel(t, y, degree, iterations, tukey, k):
         if not np.all(np.isfinite(new)):
             return False, coef, w
         if it > 0:
-            close = True
-            for j in range(m):
-                if abs(new[j] - coef[j]) > 1e-6 + 1e-5 * abs(coef[j]):
-                    close = False
+            moved = 0.0
+            for i in range(n):
+                dp = 0.0
+                for j in range(m):
+                    dp += X[i, j] * (new_a[j] - a[j])
+                moved = max(moved, abs(dp))
             a = new_a
             coef = new
-            if close:
+            if moved <= tol_px:
                 break
         else:
             a = new_a
@@ -173,7 +176,9 @@ def _irls_kernel(t, y, degree, iterations, tukey, k):
     return True, coef, w
 
 
-def irls_fit_lstsq(t: np.ndarray, y: np.ndarray, degree: int = 2, iterations: int = 10, loss: str = "tukey", c: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def irls_fit_lstsq(
+    t: np.ndarray, y: np.ndarray, degree: int = 2, iterations: int = 10, loss: str = "tukey", c: float | None = None, tol_px: float = 0.01
+) -> tuple[np.ndarray, np.ndarray]:
     """:func:`irls_fit` with ``np.linalg.lstsq`` solves (the reference; used when a normal-equation
     system of the kernel is singular)."""
     A = _design(t, degree)
@@ -193,15 +198,18 @@ def irls_fit_lstsq(t: np.ndarray, y: np.ndarray, degree: int = 2, iterations: in
         if w.sum() < degree + 1:
             break
         new = _wls(A, y, w)
-        if np.allclose(new, coef, atol=1e-6):
-            coef = new
-            break
+        moved = np.abs(A @ (new - coef)).max()
         coef = new
+        if moved <= tol_px:
+            break
     return coef, w
 
 
-def irls_fit(t: np.ndarray, y: np.ndarray, degree: int = 2, iterations: int = 10, loss: str = "tukey", c: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Robust polynomial fit by iteratively reweighted least squares.
+def irls_fit(
+    t: np.ndarray, y: np.ndarray, degree: int = 2, iterations: int = 10, loss: str = "tukey", c: float | None = None, tol_px: float = 0.01
+) -> tuple[np.ndarray, np.ndarray]:
+    """Robust polynomial fit by iteratively reweighted least squares, until no fitted value moves
+    by more than ``tol_px`` (or ``iterations`` reweightings).
 
     Returns (coefficients, lowest order first; final weights in [0, 1]).
     """
@@ -209,10 +217,10 @@ def irls_fit(t: np.ndarray, y: np.ndarray, degree: int = 2, iterations: int = 10
     y = np.ascontiguousarray(y, dtype=np.float64)
     k = c if c is not None else (4.685 if loss == "tukey" else 1.345)
     if t.size >= degree + 1:
-        ok, coef, w = _irls_kernel(t, y, int(degree), int(iterations), loss == "tukey", float(k))
+        ok, coef, w = _irls_kernel(t, y, int(degree), int(iterations), loss == "tukey", float(k), float(tol_px))
         if ok:
             return coef, w
-    return irls_fit_lstsq(t, y, degree, iterations, loss, c)
+    return irls_fit_lstsq(t, y, degree, iterations, loss, c, tol_px)
 
 
 def ransac_fit(t: np.ndarray, y: np.ndarray, degree: int = 2, iterations: int = 200, inlier_px: float = 3.0, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -258,6 +266,9 @@ class IrlsParams(FitParams):
 
     iterations: int = Field(10, ge=1, le=100, description="reweighting iterations")
     loss: Literal["tukey", "huber"] = Field("tukey", description="robust weight function")
+    tolerance_px: float = Field(
+        0.01, gt=0.0, le=10.0, description="converged when no fitted point moves by more than this between iterations, BEV pixels"
+    )
 
 
 class RansacParams(FitParams):
@@ -314,7 +325,7 @@ def fit_irls(params: IrlsParams, features: FeatureMap, lines: list[Line], geomet
     """Parabola through the features of a 40 px ROI around each line, by robust IRLS (Tukey or Huber)."""
 
     def fitter(t, y, degree):
-        return irls_fit(t, y, degree, params.iterations, params.loss)
+        return irls_fit(t, y, degree, params.iterations, params.loss, tol_px=params.tolerance_px)
 
     return {"lanes": _fit_lanes(features, lines, geometry, params, fitter)}
 

@@ -79,10 +79,9 @@ class TemporalParams(NodeParams):
 def temporal_mask(params: TemporalParams, geometry: BevGeometry, previous: list[Lane] | None = None, features: FeatureMap | None = None) -> dict:
     """Previous-frame mask: bands around the previous frame's lanes; re-acquires sides that are lost or unsupported."""
     rows, cols = geometry.rows, geometry.cols
-    full = np.ones((rows, cols), bool)
     good = [ln for ln in (previous or []) if ln.score >= params.min_score]
     if not good:
-        return {"mask": full}
+        return {"mask": np.ones((rows, cols), bool)}
     x0 = -geometry.x_min / geometry.resolution - 0.5
     # the left side is the columns c < x0, the right side c >= x0
     split = min(max(math.ceil(x0), 0), cols)
@@ -91,18 +90,18 @@ def temporal_mask(params: TemporalParams, geometry: BevGeometry, previous: list[
     if use_feat:
         feat = np.ascontiguousarray(feat, dtype=bool)
     mask = np.zeros((rows, cols), bool)
+    band = np.zeros((rows, cols), bool)  # each side writes only its own columns
     for side, c_lo, c_hi in (("left", 0, split), ("right", split, cols)):
         lanes = [ln for ln in good if ln.side == side]
         if not lanes:
             mask[:, c_lo:c_hi] = True
             continue
         lcols = np.stack([lane_cols(ln, rows) for ln in lanes])
-        band = np.zeros((rows, cols), bool)
         n_side, n_band = _side_band_kernel(lcols, c_lo, c_hi, float(params.band_px), feat, use_feat, band)
         if use_feat and n_side > 0 and n_band < params.min_band_fraction * n_side:
             mask[:, c_lo:c_hi] = True
         else:
-            mask |= band
+            mask[:, c_lo:c_hi] = band[:, c_lo:c_hi]
     return {"mask": mask}
 
 

@@ -307,7 +307,7 @@ def test_irls_kernel_matches_lstsq_twin(degree, loss):
     for seed in range(5):
         t, y, _ = parabola_with_outliers(n=60 + 100 * seed, seed=seed)
         t = np.round(t)  # BEV rows
-        ok, coef, w = _irls_kernel(t, y, degree, 10, loss == "tukey", 4.685 if loss == "tukey" else 1.345)
+        ok, coef, w = _irls_kernel(t, y, degree, 10, loss == "tukey", 4.685 if loss == "tukey" else 1.345, 0.01)
         assert ok
         ref, wref = irls_fit_lstsq(t, y, degree, 10, loss)
         np.testing.assert_allclose(coef, ref, rtol=1e-7, atol=1e-9)
@@ -315,7 +315,7 @@ def test_irls_kernel_matches_lstsq_twin(degree, loss):
         np.testing.assert_allclose(irls_fit(t, y, degree, 10, loss)[0], ref, rtol=1e-7, atol=1e-9)
     # one row only: singular for a line or a parabola; the lstsq path takes over
     t, y = np.full(20, 7.0), np.arange(20.0)
-    ok, _, _ = _irls_kernel(t, y, 1, 10, True, 4.685)
+    ok, _, _ = _irls_kernel(t, y, 1, 10, True, 4.685, 0.01)
     assert not ok
     np.testing.assert_allclose(irls_fit(t, y, 1)[0], irls_fit_lstsq(t, y, 1)[0])
 
