@@ -487,10 +487,13 @@ def _profile_pass(H: int, W: int, pixels, vd, params: ProfileParams, height: flo
     score = np.ascontiguousarray(vd, dtype=np.float64) / float(vd_columns or -(-W // step))  # support per column
     # the rows above the first one with any support (the sky, or the rows the disparity was not
     # computed for) add nothing: the DP runs from that row down and the path stays level above it
+    # (and the bins above the largest disparity seen hold no support either: left out)
     supported = np.flatnonzero(score.any(axis=1))
     v0 = int(supported[0]) if supported.size else 0
+    bins = np.flatnonzero(score.any(axis=0))
+    d_hi = int(bins[-1]) + 1 if bins.size else score.shape[1]
     path = np.empty(H, np.int32)
-    path[v0:] = _dp_path_kernel(score[v0:], int(params.max_step), float(params.smoothness))
+    path[v0:] = _dp_path_kernel(np.ascontiguousarray(score[v0:, :d_hi]), int(params.max_step), float(params.smoothness))
     path[:v0] = path[v0]
     centre = (path.astype(np.float64) + 0.5) * params.bin_size
     radius = np.full(H, max(params.refine_radius_px, 0.5 * params.bin_size))
