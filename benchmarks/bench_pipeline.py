@@ -2,7 +2,9 @@
 
     python benchmarks/bench_pipeline.py [GRAPH ...] [--input DRIVE] [--frames 0:54] [--cold-start]
 
-For each graph prints, over the selected frames (after one warm-up frame):
+For each graph prints, over the selected frames (after one warm-up frame; each figure from the
+best of ``--repeat`` runs, default 3: the machines are shared and the best run is the least
+disturbed one):
 - median ms per node (a run whose source reads each frame before the nodes run: no read-ahead
   thread decoding beside them);
 - "after disparity": the median per-frame sum of every node downstream of the disparity node;
@@ -41,32 +43,43 @@ def downstream_of(graph, start: str) -> set[str]:
     return out
 
 
-def bench(graph_path: str, drive: Path, frames: str) -> None:
+def bench(graph_path: str, drive: Path, frames: str, repeat: int = 3) -> None:
     a, _, b = frames.partition(":")
     sel = slice(int(a or 0), int(b) if b else None)
     out_dir = Path(tempfile.mkdtemp())
     # warm-up: compile kernels, fill caches
     Executor(load_graph(graph_path), RunContext(input_path=drive, out_dir=out_dir, frames=slice(0, 1))).run()
-    # 1. the nodes' own times: the source reads each frame in the main thread before the nodes run
-    #    (no prefetch thread decoding PNGs beside them on the 2 cores)
     g = load_graph(graph_path)
-    res = Executor(g, RunContext(input_path=drive, out_dir=out_dir, frames=sel), prefetch=0).run()
-    # 2. end to end, as `lanegraph run` does it: the next frame is read while this one is computed
-    t0 = time.perf_counter()
-    e2e = Executor(load_graph(graph_path), RunContext(input_path=drive, out_dir=out_dir, frames=sel)).run()
-    wall = time.perf_counter() - t0
-    n = res.frames
     src = g.source.id
     disp = [nid for nid, nd in g.nodes.items() if nd.type.family == "disparity"]
     after = downstream_of(g, disp[0]) if disp else set(g.nodes) - {src}
-    per_frame = lambda ids: np.sum([np.asarray(res.timings_ms[i][-n:]) for i in ids if i in res.timings_ms and len(res.timings_ms[i]) >= n], axis=0)  # noqa: E731
-    print(f"\n== {graph_path}: {n} frames of {drive.name}")
+
+    def per_frame(res, ids):
+        n = res.frames
+        return np.sum([np.asarray(res.timings_ms[i][-n:]) for i in ids if i in res.timings_ms and len(res.timings_ms[i]) >= n], axis=0)
+
+    # 1. the nodes' own times: the source reads each frame in the main thread before the nodes run
+    #    (no prefetch thread decoding PNGs beside them on the 2 cores). The machines are shared:
+    #    of `repeat` runs the one with the lowest median per-frame time is kept (the least
+    #    disturbed one, as timeit's best of N)
+    runs = [Executor(load_graph(graph_path), RunContext(input_path=drive, out_dir=out_dir, frames=sel), prefetch=0).run() for _ in range(repeat)]
+    res = min(runs, key=lambda r: float(np.median(per_frame(r, [i for i in g.nodes if i != src]))))
+    # 2. end to end, as `lanegraph run` does it: the next frame is read while this one is
+    #    computed; best of `repeat` runs
+    walls = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        e2e = Executor(load_graph(graph_path), RunContext(input_path=drive, out_dir=out_dir, frames=sel)).run()
+        walls.append(time.perf_counter() - t0)
+    wall = min(walls)
+    n = res.frames
+    print(f"\n== {graph_path}: {n} frames of {drive.name} (best of {repeat} runs)")
     for nid in g.order:
         ts = res.timings_ms.get(nid)
         if ts:
             print(f"  {nid:14s} {g.nodes[nid].type.name:22s} median {np.median(ts):8.2f} ms   p90 {np.percentile(ts, 90):8.2f} ms")
-    no_src = per_frame([i for i in g.nodes if i != src])
-    print(f"  after disparity (median of per-frame sum): {np.median(per_frame(after)):.2f} ms")
+    no_src = per_frame(res, [i for i in g.nodes if i != src])
+    print(f"  after disparity (median of per-frame sum): {np.median(per_frame(res, after)):.2f} ms")
     print(f"  every node but image reading: {1000.0 / np.median(no_src):.1f} frames/s ({np.median(no_src):.1f} ms median per frame)")
     print(f"  end to end, reading included: {e2e.frames / wall:.1f} frames/s ({1000 * wall / e2e.frames:.1f} ms/frame, next frame read ahead)")
 
@@ -96,11 +109,12 @@ def main() -> None:
     ap.add_argument("--input", type=Path, default=DRIVE)
     ap.add_argument("--frames", default="0:54")
     ap.add_argument("--cold-start", action="store_true")
+    ap.add_argument("--repeat", type=int, default=3, help="runs per figure; the best one is reported (default 3)")
     a = ap.parse_args()
     if not a.input.is_dir():
         sys.exit(f"input folder not found: {a.input}")
     for gp in a.graphs:
-        bench(gp, a.input, a.frames)
+        bench(gp, a.input, a.frames, a.repeat)
         if a.cold_start:
             cold_start(gp, a.input)
 

@@ -108,29 +108,24 @@ def _free_space_kernel(labels, min_run, unknown_is_road):
     return out
 
 
-@jit
+@jit(parallel=True)
 def _fill_holes_kernel(mask, holes, n, classes, max_above):
     """``mask`` with the components ``1..n-1`` of the label image ``holes`` filled when they touch
     no image border and at most ``max_above`` of their pixels have the class ``ABOVE`` (2).
-    The per-label counts are taken in row-interleaved blocks in parallel (integer sums)."""
+    Label 0 (the mask itself) is skipped; the per-label counts are taken in row-interleaved blocks
+    in parallel (integer sums), and only labelled pixels are visited again to fill."""
     H, W = holes.shape
     n_blocks = 4
     psize = np.zeros((n_blocks, n), np.int64)
     pabove = np.zeros((n_blocks, n), np.int64)
     for blk in prange(n_blocks):
         for v in range(blk, H, n_blocks):
-            prev = holes[v, 0]
-            run = 0
             for u in range(W):
                 lab = holes[v, u]
-                if lab != prev:  # sizes by runs: labels come in long runs along a row
-                    psize[blk, prev] += run
-                    prev = lab
-                    run = 0
-                run += 1
-                if classes[v, u] == 2:
-                    pabove[blk, lab] += 1
-            psize[blk, prev] += run
+                if lab == 0:
+                    continue
+                psize[blk, lab] += 1
+                pabove[blk, lab] += classes[v, u] == 2
     fill = np.zeros(n, np.bool_)
     for lab in range(1, n):
         size = 0
@@ -148,14 +143,15 @@ def _fill_holes_kernel(mask, holes, n, classes, max_above):
     out = mask.copy()
     if not fill.any():
         return out
-    for v in range(H):
+    for v in prange(H):
         for u in range(W):
-            if fill[holes[v, u]]:
+            lab = holes[v, u]
+            if lab != 0 and fill[lab]:
                 out[v, u] = True
     return out
 
 
-@jit
+@jit(parallel=True)
 def _lookup_kernel(lut, labels):
     """``lut[labels]`` (a bool per label). Rows in parallel."""
     H, W = labels.shape

@@ -134,12 +134,18 @@ def free_space_np(labels, min_run, unknown_is_road):
 
 def fill_holes_np(mask, classes, max_above):
     """The former NumPy ``_fill_holes``: ``~mask`` components off the border with few above-road pixels."""
-    n, labels, stats, _ = cv2.connectedComponentsWithStats((~mask).astype(np.uint8), connectivity=4)
+    n, labels = cv2.connectedComponents((~mask).astype(np.uint8), connectivity=4)
     if n <= 1:
         return mask
+    return fill_holes_labels_np(mask, labels, n, classes, max_above)
+
+
+def fill_holes_labels_np(mask, labels, n, classes, max_above):
+    """NumPy twin of ``_fill_holes_kernel``: given the labels of ``~mask``, fill the components
+    1..n-1 off the border with few above-road pixels."""
     border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
     n_above = np.bincount(labels[classes == mask_mod.ABOVE], minlength=n)
-    fill = n_above <= max_above * stats[:, cv2.CC_STAT_AREA]
+    fill = n_above <= max_above * np.bincount(labels.ravel(), minlength=n)
     fill[0] = False
     fill[border] = False
     return mask | fill[labels]
