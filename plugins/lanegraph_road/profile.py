@@ -363,6 +363,13 @@ class ProfileParams(NodeParams):
         description="the profile passes look at every n-th column (the v-disparity rows keep hundreds of "
         "road pixels each at 2; counts are scaled back to full-resolution pixels)",
     )
+    first_pass_column_step: int = Field(
+        4,
+        ge=1,
+        le=16,
+        description="the first pass (which only seeds the road plane, the roll and the road band of the "
+        "second) looks at every n-th column",
+    )
     min_row_count: int = Field(
         10, ge=1, le=100000, description="rows with fewer path pixels are left out of the fit, pixels"
     )
@@ -471,7 +478,9 @@ def _robust_fit(v, d, w, deg, tol, iterations, init: np.ndarray | None):
     return coef, inl
 
 
-def _profile_pass(H: int, W: int, pixels, vd, params: ProfileParams, height: float | None = None, vd_columns: int | None = None):
+def _profile_pass(
+    H: int, W: int, pixels, vd, params: ProfileParams, height: float | None = None, vd_columns: int | None = None, step: int | None = None
+):
     """DP + refinement + robust fit in (roll-corrected) rows over the pass's ``pixels`` (``(rows,
     disparities)`` from :func:`select_pixels`) of an ``H x W`` disparity map; ``vd`` counts the
     pixels of ``vd_columns`` columns (default: the sampled ones, every ``column_step``-th).
@@ -483,7 +492,7 @@ def _profile_pass(H: int, W: int, pixels, vd, params: ProfileParams, height: flo
     Returns ``((line, coef), profile, inlier_rows)``, coefficients lowest power first; the first
     item is None when there is no fit.
     """
-    step = int(params.column_step)
+    step = int(step or params.column_step)
     score = np.ascontiguousarray(vd, dtype=np.float64) / float(vd_columns or -(-W // step))  # support per column
     # the rows above the first one with any support (the sky, or the rows the disparity was not
     # computed for) add nothing: the DP runs from that row down and the path stays level above it
@@ -579,7 +588,8 @@ def estimate_road(
     cx, cy = float(calib.cx), float(calib.cy)
     # pass 1: every pixel in its own row (no roll: v' = v)
     s, c = geometry.roll_row_coeffs(0.0, calib)
-    pixels = select_pixels(disp, cx, cy, s, c, step=params.column_step)
+    step1 = int(params.first_pass_column_step)
+    pixels = select_pixels(disp, cx, cy, s, c, step=step1)
     if vdisparity is not None:
         vd = np.asarray(vdisparity, dtype=np.float32)
         if vd.shape != (H, D):
@@ -590,7 +600,7 @@ def estimate_road(
     else:
         vd = _vdisparity_kernel(*pixels, H, D, float(params.bin_size), float(params.max_disparity))
 
-    fit, profile, inl = _profile_pass(H, W, pixels, vd, params, vd_columns=W if vdisparity is not None else None)
+    fit, profile, inl = _profile_pass(H, W, pixels, vd, params, vd_columns=W if vdisparity is not None else None, step=step1)
     if fit is None:
         return _invalid(profile), vd
     line = fit[0]

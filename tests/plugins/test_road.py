@@ -493,7 +493,7 @@ def test_profile_accepts_the_vdisparity_node_output(scene):
     disp = noisy(scene[0])
     vd = rd.road_vdisparity.func(rd.VDisparityParams(), disparity=disp)["vdisparity"]
     # every column: the node's v-disparity is the profile's own first one
-    p1 = rd.ProfileParams(column_step=1)
+    p1 = rd.ProfileParams(column_step=1, first_pass_column_step=1)
     a = rd.road_profile.func(p1, disparity=disp, calib=CALIB, vdisparity=vd)["road"]
     b = rd.road_profile.func(p1, disparity=disp, calib=CALIB)["road"]
     assert (a.pitch, a.roll, a.height) == (b.pitch, b.roll, b.height)
