@@ -90,14 +90,15 @@ def test_paper_graph_lateral_error_at_20_m(name, tmp_path):
     assert err["20"] is not None and err["20"] <= 10.0, err
 
 
-def test_paper_graph_follows_a_sharp_curve_at_speed(tmp_path):
-    """R = 250 m at 25 m/s: the previous-frame band and the straight 1D Hough see fewer features of
-    the dashed boundary; every ego boundary must still be found."""
-    spec = synthetic.preset("curved", curvature=1 / 250, speed=25.0, hatching=10.0, arrows=6.0)
-    seq = synthetic.write_sequence(spec, tmp_path / "seq", 8)
+@pytest.mark.parametrize("radius, speed", [(250.0, 25.0), (150.0, 15.0)])
+def test_paper_graph_follows_a_sharp_curve_at_speed(radius, speed, tmp_path):
+    """Sharp curves with hatching and arrows: the straight 1D Hough sees the dashed boundary's votes
+    spread over many rho and misses it on some frames; the fit then follows the previous frame's
+    lane on that side. Every ego boundary must still be found."""
+    spec = synthetic.preset("curved", curvature=1 / radius, speed=speed, hatching=10.0, arrows=6.0)
+    seq = synthetic.write_sequence(spec, tmp_path / "seq", 10)
     out = tmp_path / "out"
     r = CliRunner().invoke(main, ["run", PAPER, "--input", str(seq), "--out", str(out), "--quiet"])
     assert r.exit_code == 0, r.output
     res = evaluate(read_jsonl(out / "lanes.jsonl"), read_jsonl(seq / "lanes_gt.jsonl"))
-    assert res["detection_ratio"] >= 7 / 8 and res["precision"] == 1.0, res["failed_frames"]
-
+    assert res["detection_ratio"] >= 0.9 and res["precision"] == 1.0, res["failed_frames"]

@@ -23,38 +23,51 @@ from lanegraph.types import BevGeometry, FeatureMap, Lane, Line
 
 
 @jit
-def _roi_kernel(mask, rho, inv_tan, half_width):
-    """The features of ``mask`` with ``|col - x_line(row)| <= half_width``, ``x_line = rho + (rows -
-    row) * inv_tan``, in row-major order: ``(rows - 1 - row, col)`` as float64. Scans only the
-    columns near the line in each row."""
+def _roi_kernel(mask, a, b, c, half_width):
+    """The features of ``mask`` with ``|col - x(row)| <= half_width`` around the centre curve
+    ``x(row) = a + b (rows - row) + c (rows - 1 - row)^2`` (a Hough line: ``a = rho``,
+    ``b = 1 / tan(theta)``, ``c = 0``; a lane ``col = c0 + c1 t + c2 t^2``: ``a = c0 - c1``, ``b = c1``,
+    ``c = c2``), in row-major order: ``(rows - 1 - row, col)`` as float64. Scans only the columns
+    near the curve in each row."""
     rows, cols = mask.shape
     cap = rows * (int(2.0 * half_width) + 4)
     t = np.empty(cap, np.float64)
     x = np.empty(cap, np.float64)
     n = 0
     for r in range(rows):
-        x_line = rho + (rows - r) * inv_tan
+        tr = rows - 1 - r
+        x_line = a + (rows - r) * b + c * tr * tr
         lo = x_line - half_width - 1.0
         hi = x_line + half_width + 2.0
-        if not (hi > 0.0 and lo < cols):  # also a NaN line
+        if not (hi > 0.0 and lo < cols):  # also a NaN curve
             continue
         c_lo = max(int(math.floor(lo)), 0)
         c_hi = min(int(math.ceil(hi)), cols)
-        for c in range(c_lo, c_hi):
-            if mask[r, c] and abs(c - x_line) <= half_width:
-                t[n] = rows - 1 - r
-                x[n] = c
+        for cc in range(c_lo, c_hi):
+            if mask[r, cc] and abs(cc - x_line) <= half_width:
+                t[n] = tr
+                x[n] = cc
                 n += 1
     return t[:n].copy(), x[:n].copy()
+
+
+def _as_mask(features: FeatureMap) -> np.ndarray:
+    mask = np.ascontiguousarray(features.mask, dtype=bool)
+    if mask.ndim != 2:
+        raise ValueError(f"features mask must be 2-D, got shape {mask.shape}")
+    return mask
 
 
 def roi_points(features: FeatureMap, line: Line, width_px: float) -> tuple[np.ndarray, np.ndarray]:
     """(t, col) of the features within ``width_px / 2`` of ``line`` (measured along the row)."""
     inv_tan = np.cos(line.theta) / max(np.sin(line.theta), 1e-6)
-    mask = np.ascontiguousarray(features.mask, dtype=bool)
-    if mask.ndim != 2:
-        raise ValueError(f"features mask must be 2-D, got shape {mask.shape}")
-    return _roi_kernel(mask, float(line.rho), float(inv_tan), float(width_px / 2))
+    return _roi_kernel(_as_mask(features), float(line.rho), float(inv_tan), 0.0, float(width_px / 2))
+
+
+def lane_roi_points(features: FeatureMap, lane: Lane, width_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """(t, col) of the features within ``width_px / 2`` of a lane's parabola (along the row)."""
+    c0, c1, c2 = (float(v) for v in lane.coeffs)
+    return _roi_kernel(_as_mask(features), c0 - c1, c1, c2, float(width_px / 2))
 
 
 def _design(t: np.ndarray, degree: int) -> np.ndarray:
@@ -259,6 +272,9 @@ class FitParams(NodeParams):
     min_extent_m: float = Field(4.0, ge=0.0, le=500.0, description="supporting features must span at least this much road, metres")
     max_curvature: float = Field(0.02, gt=0.0, le=1.0, description="largest plausible curvature, 1/metres; above it the fit falls back to a line")
     extend_to_bottom: bool = Field(True, description="report the lane down to the nearest BEV row (markings continue towards the car)")
+    track_min_score: float = Field(
+        0.1, ge=0.0, le=1.0, description="with `previous` lanes: a side with no Hough line is fitted around the previous lane there when it scored at least this"
+    )
 
 
 class IrlsParams(FitParams):
@@ -279,61 +295,100 @@ class RansacParams(FitParams):
     seed: int = Field(0, ge=0, le=2**31 - 1, description="random seed (runs are deterministic)")
 
 
-def _fit_lanes(features: FeatureMap, lines: list[Line], geometry: BevGeometry, p: FitParams, fitter) -> list[Lane]:
+def _fit_roi(
+    t: np.ndarray, y: np.ndarray, side: str, rows: int, res: float, p: FitParams, fitter,
+    extra: dict | None = None, shape: tuple[float, float] | None = None,
+) -> Lane | None:
+    """A lane fitted to the ROI points ``(t, y)``, or None without enough support: ``min_inliers``
+    inliers spanning ``min_extent_m``, and a plausible curvature (else a straight refit).
+
+    With ``shape = (c1, c2)`` (a previous lane's slope and curvature) only the lane's offset and a
+    change of slope are fitted, to ``y - c1 t - c2 t^2``: a dashed line seen over part of the ROI
+    cannot bend the parabola away from the lane it continues."""
+    if t.size < max(p.min_inliers, p.degree + 1):  # a fit of degree d needs d + 1 points
+        return None
+    if shape is not None:
+        b1, b2 = shape
+        coef, w = fitter(t, y - b1 * t - b2 * t * t, 1)
+        coef = np.array([coef[0], coef[1] + b1, b2])
+    else:
+        coef, w = fitter(t, y, p.degree)
+    inl = w > 0.5
+    if inl.sum() < p.min_inliers:
+        return None
+    extent = (t[inl].max() - t[inl].min()) * res
+    if extent < p.min_extent_m:
+        return None
+    # curvature of x(z) = c0 + c1 t + c2 t^2 in metres: 2 c2 / res
+    if shape is None and p.degree >= 2 and abs(2 * coef[2] / res) > p.max_curvature:
+        coef, w = fitter(t, y, 1)
+        inl = w > 0.5
+        if inl.sum() < p.min_inliers:  # the straight fallback lost the support
+            return None
+    c = np.zeros(3)
+    c[: min(3, coef.size)] = coef[:3]
+    t_hi = int(t[inl].max())
+    t_lo = 0 if p.extend_to_bottom else int(t[inl].min())
+    score = float(min(1.0, inl.sum() / max(1.0, (t_hi - t_lo + 1) * 2.0)))
+    return Lane(
+        coeffs=(float(c[0]), float(c[1]), float(c[2])),
+        bev_rows=(rows - 1 - t_hi, rows - 1 - t_lo),
+        side=side,
+        score=score,
+        extra={"support": int(inl.sum()), "extent_m": round(float(extent), 2), **(extra or {})},
+    )
+
+
+def _fit_lanes(
+    features: FeatureMap, lines: list[Line], geometry: BevGeometry, p: FitParams, fitter, previous: list[Lane] | None = None
+) -> list[Lane]:
     rows = features.mask.shape[0]
     res = geometry.resolution
     lanes = []
     for line in lines or []:
         t, y = roi_points(features, line, p.roi_width)
-        if t.size < max(p.min_inliers, p.degree + 1):  # a fit of degree d needs d + 1 points
+        lane = _fit_roi(t, y, line.side, rows, res, p, fitter)
+        if lane is not None:
+            lanes.append(lane)
+    # a side the Hough transform found nothing on (a dashed line on a sharp curve spreads its
+    # votes): the ROI follows the previous frame's lane on that side instead
+    found = {ln.side for ln in lanes}
+    n_hough = len(lanes)
+    for prev in previous or []:
+        if prev.side in found or prev.side not in ("left", "right") or prev.score < p.track_min_score:
             continue
-        coef, w = fitter(t, y, p.degree)
-        inl = w > 0.5
-        if inl.sum() < p.min_inliers:
-            continue
-        extent = (t[inl].max() - t[inl].min()) * res
-        if extent < p.min_extent_m:
-            continue
-        # curvature of x(z) = c0 + c1 t + c2 t^2 in metres: 2 c2 / res
-        if p.degree >= 2 and abs(2 * coef[2] / res) > p.max_curvature:
-            coef, w = fitter(t, y, 1)
-            inl = w > 0.5
-            if inl.sum() < p.min_inliers:  # the straight fallback lost the support
-                continue
-        c = np.zeros(3)
-        c[: min(3, coef.size)] = coef[:3]
-        t_hi = int(t[inl].max())
-        t_lo = 0 if p.extend_to_bottom else int(t[inl].min())
-        score = float(min(1.0, inl.sum() / max(1.0, (t_hi - t_lo + 1) * 2.0)))
-        lanes.append(
-            Lane(
-                coeffs=(float(c[0]), float(c[1]), float(c[2])),
-                bev_rows=(rows - 1 - t_hi, rows - 1 - t_lo),
-                side=line.side,
-                score=score,
-                extra={"support": int(inl.sum()), "extent_m": round(float(extent), 2)},
-            )
-        )
+        t, y = lane_roi_points(features, prev, p.roi_width)
+        lane = _fit_roi(t, y, prev.side, rows, res, p, fitter, {"tracked": True}, shape=(float(prev.coeffs[1]), float(prev.coeffs[2])))
+        if lane is not None:
+            lanes.append(lane)
+            found.add(lane.side)
+    if len(lanes) > n_hough:  # left to right, as the Hough lines come
+        lanes.sort(key=lambda ln: ln.coeffs[0])
     return lanes
 
 
-_FIT_INPUTS = {"features": "features", "lines": "lines", "geometry": Port("bev_geometry")}
+_FIT_INPUTS = {
+    "features": "features",
+    "lines": "lines",
+    "geometry": Port("bev_geometry"),
+    "previous": Port("lanes", "the previous frame's lanes (a feedback edge): a side with no line is fitted around its lane", optional=True),
+}
 
 
 @node_type("fit.irls", inputs=_FIT_INPUTS, outputs={"lanes": "lanes"})
-def fit_irls(params: IrlsParams, features: FeatureMap, lines: list[Line], geometry: BevGeometry) -> dict:
+def fit_irls(params: IrlsParams, features: FeatureMap, lines: list[Line], geometry: BevGeometry, previous: list[Lane] | None = None) -> dict:
     """Parabola through the features of a 40 px ROI around each line, by robust IRLS (Tukey or Huber)."""
 
     def fitter(t, y, degree):
         return irls_fit(t, y, degree, params.iterations, params.loss, tol_px=params.tolerance_px)
 
-    return {"lanes": _fit_lanes(features, lines, geometry, params, fitter)}
+    return {"lanes": _fit_lanes(features, lines, geometry, params, fitter, previous)}
 
 
 @node_type("fit.ransac", inputs=_FIT_INPUTS, outputs={"lanes": "lanes"})
-def fit_ransac(params: RansacParams, features: FeatureMap, lines: list[Line], geometry: BevGeometry) -> dict:
+def fit_ransac(params: RansacParams, features: FeatureMap, lines: list[Line], geometry: BevGeometry, previous: list[Lane] | None = None) -> dict:
     """Parabola through the features of a 40 px ROI around each line, by RANSAC plus a least-squares refit."""
 
     def fitter(t, y, degree):
         return ransac_fit(t, y, degree, params.iterations, params.inlier_px, params.seed)
-    return {"lanes": _fit_lanes(features, lines, geometry, params, fitter)}
+    return {"lanes": _fit_lanes(features, lines, geometry, params, fitter, previous)}

@@ -269,6 +269,30 @@ def test_roi_kernel_matches_numpy_twin():
                 np.testing.assert_array_equal(got[1], ref[1])
 
 
+def lane_roi_points_np(features, lane, width_px):
+    """The NumPy twin of ``lane_roi_points`` (the same kernel, around a parabola)."""
+    rows = features.mask.shape[0]
+    r, c = np.nonzero(features.mask)
+    t = rows - 1 - r
+    c0, c1, c2 = lane.coeffs
+    x = (c0 - c1) + (rows - r) * c1 + c2 * t * t
+    keep = np.abs(c - x) <= width_px / 2
+    return t[keep].astype(np.float64), c[keep].astype(np.float64)
+
+
+def test_lane_roi_kernel_matches_numpy_twin():
+    from lanegraph_lanes._fit import lane_roi_points
+
+    rng = np.random.default_rng(13)
+    feats = FeatureMap(mask=rng.random((70, 50)) < 0.3, orientation=None)
+    for coeffs in ((20.0, 0.1, 0.002), (-5.0, 0.5, 0.0), (45.5, -0.3, -0.004), (25.0, 0.0, 0.05), (np.nan, 0.0, 0.0)):
+        for width in (4.0, 9.0, 40.0):
+            lane = Lane(coeffs, (0, 69), "left", 0.5)
+            got, ref = lane_roi_points(feats, lane, width), lane_roi_points_np(feats, lane, width)
+            np.testing.assert_array_equal(got[0], ref[0])
+            np.testing.assert_array_equal(got[1], ref[1])
+
+
 def side_band_np(lane_cols_rows, c_lo, c_hi, band_px, feat):
     rows = lane_cols_rows.shape[1]
     cols = feat.shape[1]
@@ -335,6 +359,35 @@ def test_fit_nodes_on_curved_stripe(node):
     c0, c1, c2 = lanes[0].coeffs
     fitted = c0 + c1 * t + c2 * t * t
     assert np.abs(fitted - centre).max() < 1.5 and lanes[0].side == "left"
+
+
+@pytest.mark.parametrize("node", [fit_irls, fit_ransac])
+def test_fit_follows_the_previous_lane_where_the_hough_found_nothing(node):
+    """A dashed, sharply curving line: no Hough line on its side, but the previous frame's lane
+    there; the ROI follows that lane, its curvature is kept and the offset and slope are fitted."""
+    rows, cols = 300, 160
+    bev = np.full((rows, cols), 80, np.uint8)
+    t = np.arange(rows)
+    centre = 50 + 0.05 * t + 4e-4 * t * t
+    for tt, cc in zip(t, centre):
+        if (tt // 20) % 2 == 0:  # dashes
+            bev[rows - 1 - tt, int(round(cc)) - 1 : int(round(cc)) + 2] = 220
+    f = eslt.func(eslt.params(), image=bev)["features"]
+    g = geometry(rows, cols)
+    previous = [Lane((48.0, 0.06, 4e-4), (0, rows - 1), "left", 0.5)]  # 10 cm off, a little turned
+    lanes = node.func(node.params(), features=f, lines=[], geometry=g, previous=previous)["lanes"]
+    assert len(lanes) == 1 and lanes[0].side == "left" and lanes[0].extra["tracked"] is True
+    c0, c1, c2 = lanes[0].coeffs
+    assert c2 == pytest.approx(4e-4)  # the previous lane's curvature
+    assert np.abs(c0 + c1 * t + c2 * t * t - centre).max() < 1.5
+    # without the previous lane, or with a weak one, nothing is reported on that side
+    assert node.func(node.params(), features=f, lines=[], geometry=g)["lanes"] == []
+    weak = [Lane((48.0, 0.06, 4e-4), (0, rows - 1), "left", 0.05)]
+    assert node.func(node.params(), features=f, lines=[], geometry=g, previous=weak)["lanes"] == []
+    # a side with a Hough line is fitted around the line only
+    line = Line(rho=50.0, theta=math.atan2(1, 0.05), side="left")
+    lanes = node.func(node.params(), features=f, lines=[line], geometry=g, previous=[Lane((120.0, 0.0, 0.0), (0, 299), "left", 0.9)])["lanes"]
+    assert len(lanes) <= 1 and all("tracked" not in ln.extra for ln in lanes)
 
 
 def test_fit_rejects_weak_support():
