@@ -354,14 +354,20 @@ def _fit_lanes(
     # votes): the ROI follows the previous frame's lane on that side instead
     found = {ln.side for ln in lanes}
     n_hough = len(lanes)
+    x0 = -geometry.x_min / res - 0.5  # the vehicle's column
     for prev in previous or []:
         if prev.side in found or prev.side not in ("left", "right") or prev.score < p.track_min_score:
             continue
         t, y = lane_roi_points(features, prev, p.roi_width)
         lane = _fit_roi(t, y, prev.side, rows, res, p, fitter, {"tracked": True}, shape=(float(prev.coeffs[1]), float(prev.coeffs[2])))
-        if lane is not None:
-            lanes.append(lane)
-            found.add(lane.side)
+        if lane is None:
+            continue
+        # the side is where the lane is now (after a lane change the previous left line is right)
+        side = "left" if lane.coeffs[0] < x0 else "right"
+        if side in found:
+            continue
+        lanes.append(Lane(lane.coeffs, lane.bev_rows, side, lane.score, lane.points, lane.extra))
+        found.add(side)
     if len(lanes) > n_hough:  # left to right, as the Hough lines come
         lanes.sort(key=lambda ln: ln.coeffs[0])
     return lanes

@@ -384,6 +384,11 @@ def test_fit_follows_the_previous_lane_where_the_hough_found_nothing(node):
     assert node.func(node.params(), features=f, lines=[], geometry=g)["lanes"] == []
     weak = [Lane((48.0, 0.06, 4e-4), (0, rows - 1), "left", 0.05)]
     assert node.func(node.params(), features=f, lines=[], geometry=g, previous=weak)["lanes"] == []
+    # the side is where the lane is now: a previous "right" lane that lies left of the vehicle
+    # (column 79.5 here) after a lane change is reported as the left one
+    moved = [Lane((48.0, 0.06, 4e-4), (0, rows - 1), "right", 0.5)]
+    lanes = node.func(node.params(), features=f, lines=[], geometry=g, previous=moved)["lanes"]
+    assert [ln.side for ln in lanes] == ["left"]
     # a side with a Hough line is fitted around the line only
     line = Line(rho=50.0, theta=math.atan2(1, 0.05), side="left")
     lanes = node.func(node.params(), features=f, lines=[line], geometry=g, previous=[Lane((120.0, 0.0, 0.0), (0, 299), "left", 0.9)])["lanes"]
