@@ -275,6 +275,12 @@ class FitParams(NodeParams):
     track_min_score: float = Field(
         0.1, ge=0.0, le=1.0, description="with `previous` lanes: a side with no Hough line is fitted around the previous lane there when it scored at least this"
     )
+    track_min_offset_m: float = Field(
+        0.6, ge=0.0, le=20.0, description="a lane fitted around a previous one must cross the bottom row at least this far from the vehicle (as hough.min_offset_m), metres"
+    )
+    track_max_offset_m: float = Field(
+        3.2, gt=0.0, le=50.0, description="... and at most this far (as hough.max_offset_m), metres"
+    )
 
 
 class IrlsParams(FitParams):
@@ -362,9 +368,12 @@ def _fit_lanes(
         lane = _fit_roi(t, y, prev.side, rows, res, p, fitter, {"tracked": True}, shape=(float(prev.coeffs[1]), float(prev.coeffs[2])))
         if lane is None:
             continue
-        # the side is where the lane is now (after a lane change the previous left line is right)
-        side = "left" if lane.coeffs[0] < x0 else "right"
-        if side in found:
+        # the side is where the lane is now (after a lane change the previous left line is right),
+        # and it must still be a plausible ego-lane boundary, like a Hough line: else a lock on a
+        # line the vehicle has moved away from would keep itself alive through the temporal mask
+        lateral = (lane.coeffs[0] - x0) * res
+        side = "left" if lateral < 0 else "right"
+        if side in found or not p.track_min_offset_m <= abs(lateral) <= p.track_max_offset_m:
             continue
         lanes.append(Lane(lane.coeffs, lane.bev_rows, side, lane.score, lane.points, lane.extra))
         found.add(side)

@@ -389,6 +389,17 @@ def test_fit_follows_the_previous_lane_where_the_hough_found_nothing(node):
     moved = [Lane((48.0, 0.06, 4e-4), (0, rows - 1), "right", 0.5)]
     lanes = node.func(node.params(), features=f, lines=[], geometry=g, previous=moved)["lanes"]
     assert [ln.side for ln in lanes] == ["left"]
+    # a line the vehicle has moved away from (after a lane change: 0.1 m or 5 m from it) is no ego
+    # boundary: not kept alive by fitting around it
+    bev_far = np.full((rows, cols), 80, np.uint8)
+    bev_far[:, 77:80] = 220  # a solid line 0.05 m left of the vehicle (column 79.5)
+    bev_far[:, 8:11] = 220  # and one 3.5 m left of it
+    f_far = eslt.func(eslt.params(), image=bev_far)["features"]
+    for x in (78.0, 9.0):
+        prev = [Lane((x, 0.0, 0.0), (0, rows - 1), "left", 0.5)]
+        assert node.func(node.params(), features=f_far, lines=[], geometry=g, previous=prev)["lanes"] == []
+        wide = node.params(track_min_offset_m=0.0, track_max_offset_m=10.0)  # the check is what rejects them
+        assert len(node.func(wide, features=f_far, lines=[], geometry=g, previous=prev)["lanes"]) == 1
     # a side with a Hough line is fitted around the line only
     line = Line(rho=50.0, theta=math.atan2(1, 0.05), side="left")
     lanes = node.func(node.params(), features=f, lines=[line], geometry=g, previous=[Lane((120.0, 0.0, 0.0), (0, 299), "left", 0.9)])["lanes"]
