@@ -19,9 +19,8 @@ Functions
 
 from __future__ import annotations
 
-import dataclasses
-
 import copy
+import dataclasses
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
