@@ -19,6 +19,12 @@ Method (the paper's section on IPM, after Fan et al.'s road-surface papers):
 5. Pitch and height from the final line (see :mod:`.geometry`, eq. 3)::
 
        pitch = arctan((cy + a0/a1) / fy),   height = f B cos(pitch) / (fy a1).
+
+Each pass first compacts its pixels into a list (row in the pass, disparity; every
+``column_step``-th column, the first pass every ``first_pass_column_step``-th: hundreds of road
+pixels per row remain) and the v-disparity and the row refinements loop over that list; counts are
+scaled back to full-resolution pixels. The roll plane samples every ``roll_subsample``-th row and
+column. ``road.vdisparity`` counts every column.
 """
 
 from __future__ import annotations
