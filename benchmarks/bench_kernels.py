@@ -92,6 +92,13 @@ def bev_kernels(rng: np.random.Generator) -> None:
         timed(lambda: _fit.irls_fit_lstsq(t, y, 2, 10, "tukey")),
         "(3000 points, 30 % outliers)",
     )
+    samples = _fit.ransac_samples(t.size, 3, 200, 0)
+    row(
+        "_ransac_kernel",
+        timed(lambda: _fit._ransac_kernel(t, y, samples, 3.0)),
+        timed(lambda: tl.ransac_np(t, y, samples, 3.0), 3),
+        "(3000 points, 200 parabola samples)",
+    )
     lcols = np.stack([150.0 + 0.05 * np.arange(800), 250.0 + 0.05 * np.arange(800)])[None, 0]
     band = np.zeros((800, 400), bool)
     fm = feats.mask

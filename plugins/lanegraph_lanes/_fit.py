@@ -81,6 +81,36 @@ def _wls(A: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 
 @jit
+def _solve_augmented(M, tiny, out):
+    """Solve the ``m x m`` system whose augmented ``m x (m + 1)`` matrix is ``M`` (overwritten) into
+    ``out``: Gaussian elimination with partial pivoting. False (``out`` unchanged) when a pivot is not
+    above ``tiny`` (singular)."""
+    m = M.shape[0]
+    for col in range(m):
+        piv = col
+        for r in range(col + 1, m):
+            if abs(M[r, col]) > abs(M[piv, col]):
+                piv = r
+        if not abs(M[piv, col]) > tiny:
+            return False
+        if piv != col:
+            for c in range(m + 1):
+                tmp = M[col, c]
+                M[col, c] = M[piv, c]
+                M[piv, c] = tmp
+        for r in range(col + 1, m):
+            f = M[r, col] / M[col, col]
+            for c in range(col, m + 1):
+                M[r, c] -= f * M[col, c]
+    for r in range(m - 1, -1, -1):
+        acc = M[r, m]
+        for c in range(r + 1, m):
+            acc -= M[r, c] * out[c]
+        out[r] = acc / M[r, r]
+    return True
+
+
+@jit
 def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px):
     """:func:`irls_fit` by weighted normal equations in the scaled abscissa ``x = (t - mid) / half``
     (``x`` in [-1, 1]: well conditioned, unlike powers of ``t`` itself). Returns ``(ok, coef, w)``,
@@ -133,7 +163,7 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px):
                 wsum += w[i]
             if wsum < degree + 1:
                 break
-        # weighted normal equations, Gaussian elimination with partial pivoting
+        # weighted normal equations
         M = np.zeros((m, m + 1))
         for i in range(n):
             wi = w[i]
@@ -144,28 +174,9 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px):
                 for c in range(m):
                     M[r, c] += xr * X[i, c]
                 M[r, m] += xr * y[i]
-        for col in range(m):
-            piv = col
-            for r in range(col + 1, m):
-                if abs(M[r, col]) > abs(M[piv, col]):
-                    piv = r
-            if not abs(M[piv, col]) > 1e-12 * max(1.0, abs(M[0, 0])):
-                return False, coef, w
-            if piv != col:
-                for c in range(m + 1):
-                    tmp = M[col, c]
-                    M[col, c] = M[piv, c]
-                    M[piv, c] = tmp
-            for r in range(col + 1, m):
-                f = M[r, col] / M[col, col]
-                for c in range(col, m + 1):
-                    M[r, c] -= f * M[col, c]
         new_a = np.zeros(m)
-        for r in range(m - 1, -1, -1):
-            acc = M[r, m]
-            for c in range(r + 1, m):
-                acc -= M[r, c] * new_a[c]
-            new_a[r] = acc / M[r, r]
+        if not _solve_augmented(M, 1e-12 * max(1.0, abs(M[0, 0])), new_a):
+            return False, coef, w
         new = np.zeros(m)
         for i in range(m):
             for j in range(m):
@@ -236,24 +247,88 @@ def irls_fit(
     return irls_fit_lstsq(t, y, degree, iterations, loss, c, tol_px)
 
 
-def ransac_fit(t: np.ndarray, y: np.ndarray, degree: int = 2, iterations: int = 200, inlier_px: float = 3.0, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """RANSAC polynomial fit; returns (coefficients, inlier weights 0/1)."""
-    rng = np.random.default_rng(seed)
+@jit
+def _ransac_kernel(t, y, samples, inlier_px):
+    """The consensus of every minimal sample (rows of ``samples``: ``m = degree + 1`` point indices):
+    the polynomial through the sample (a Vandermonde system in the scaled abscissa
+    ``(t - mid) / half``) and the number of points within ``inlier_px`` of it. Samples with repeated
+    abscissae or a singular system are skipped. Returns the inlier mask of the first sample with the
+    most inliers (all False when none was usable)."""
     n = t.size
-    A = _design(t, degree)
-    best_in = np.zeros(n, bool)
+    n_samples, m = samples.shape
+    inl = np.zeros(n, np.bool_)
+    if n == 0:
+        return inl
+    lo = t.min()
+    hi = t.max()
+    mid = 0.5 * (lo + hi)
+    half = 0.5 * (hi - lo) if hi > lo else 1.0
+    M = np.empty((m, m + 1))
+    a = np.zeros(m)
+    best_a = np.zeros(m)
+    best = -1
+    for k in range(n_samples):
+        distinct = True
+        for i in range(m):
+            for j in range(i):
+                if t[samples[k, i]] == t[samples[k, j]]:
+                    distinct = False
+        if not distinct:
+            continue
+        for i in range(m):
+            x = (t[samples[k, i]] - mid) / half
+            p = 1.0
+            for j in range(m):
+                M[i, j] = p
+                p *= x
+            M[i, m] = y[samples[k, i]]
+        if not _solve_augmented(M, 1e-12, a):
+            continue
+        count = 0
+        for i in range(n):
+            x = (t[i] - mid) / half
+            p = 0.0
+            for j in range(m - 1, -1, -1):
+                p = p * x + a[j]
+            count += abs(p - y[i]) <= inlier_px
+        if count > best:
+            best = count
+            best_a[:] = a
+    if best < 0:
+        return inl
+    for i in range(n):
+        x = (t[i] - mid) / half
+        p = 0.0
+        for j in range(m - 1, -1, -1):
+            p = p * x + best_a[j]
+        inl[i] = abs(p - y[i]) <= inlier_px
+    return inl
+
+
+def ransac_samples(n: int, m: int, iterations: int, seed: int = 0) -> np.ndarray:
+    """``iterations`` minimal samples of ``m`` distinct indices below ``n`` (deterministic for a seed):
+    drawn with replacement, the rows with a repeated index redrawn."""
+    rng = np.random.default_rng(seed)
+    samples = rng.integers(0, max(n, 1), (iterations, m))
+    if m > 1 and n >= m:
+        for _ in range(100):
+            srt = np.sort(samples, axis=1)
+            bad = (srt[:, 1:] == srt[:, :-1]).any(axis=1)
+            if not bad.any():
+                break
+            samples[bad] = rng.integers(0, n, (int(bad.sum()), m))
+    return samples
+
+
+def ransac_fit(t: np.ndarray, y: np.ndarray, degree: int = 2, iterations: int = 200, inlier_px: float = 3.0, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """RANSAC polynomial fit; returns (coefficients, inlier weights 0/1). The minimal samples are
+    scored by :func:`_ransac_kernel`; then least squares on the best consensus set, re-selected once."""
+    t = np.ascontiguousarray(t, dtype=np.float64)
+    y = np.ascontiguousarray(y, dtype=np.float64)
+    n = t.size
     m = degree + 1
-    for _ in range(iterations):
-        idx = rng.choice(n, m, replace=False)
-        if np.unique(t[idx]).size < m:
-            continue
-        try:
-            coef = np.linalg.solve(A[idx], y[idx])
-        except np.linalg.LinAlgError:
-            continue
-        inl = np.abs(A @ coef - y) <= inlier_px
-        if inl.sum() > best_in.sum():
-            best_in = inl
+    A = _design(t, degree)
+    best_in = _ransac_kernel(t, y, ransac_samples(n, m, iterations, seed), float(inlier_px)) if n >= m else np.zeros(n, bool)
     if best_in.sum() < m:
         best_in = np.ones(n, bool)
     coef, *_ = np.linalg.lstsq(A[best_in], y[best_in], rcond=None)

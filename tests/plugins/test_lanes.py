@@ -269,6 +269,43 @@ def test_roi_kernel_matches_numpy_twin():
                 np.testing.assert_array_equal(got[1], ref[1])
 
 
+def ransac_np(t, y, samples, inlier_px):
+    """NumPy twin of ``_ransac_kernel``: every sample's polynomial by ``np.linalg.solve`` on the
+    scaled Vandermonde system, its inliers counted; the first sample with the most wins."""
+    lo, hi = t.min(), t.max()
+    mid, half = 0.5 * (lo + hi), (0.5 * (hi - lo) if hi > lo else 1.0)
+    x = (t - mid) / half
+    m = samples.shape[1]
+    best, best_inl = -1, np.zeros(t.size, bool)
+    for idx in samples:
+        if np.unique(t[idx]).size < m:
+            continue
+        try:
+            a = np.linalg.solve(np.vander(x[idx], m, increasing=True), y[idx])
+        except np.linalg.LinAlgError:
+            continue
+        inl = np.abs(np.vander(x, m, increasing=True) @ a - y) <= inlier_px
+        if inl.sum() > best:
+            best, best_inl = int(inl.sum()), inl
+    return best_inl
+
+
+@pytest.mark.parametrize("degree", [1, 2, 3])
+def test_ransac_kernel_matches_numpy_twin(degree):
+    from lanegraph_lanes._fit import _ransac_kernel, ransac_samples
+
+    for seed in range(4):
+        t, y, _ = parabola_with_outliers(n=50 + 120 * seed, seed=seed)
+        t = np.round(t)  # BEV rows: repeated abscissae happen
+        samples = ransac_samples(t.size, degree + 1, 60, seed)
+        assert samples.shape == (60, degree + 1) and np.all(np.sort(samples, 1)[:, 1:] != np.sort(samples, 1)[:, :-1])
+        np.testing.assert_array_equal(ransac_samples(t.size, degree + 1, 60, seed), samples)  # deterministic
+        np.testing.assert_array_equal(_ransac_kernel(t, y, samples, 3.0), ransac_np(t, y, samples, 3.0))
+    # every sample degenerate (one abscissa): nothing usable
+    t = np.full(10, 4.0)
+    assert not _ransac_kernel(t, np.arange(10.0), ransac_samples(10, 2, 20), 1.0).any()
+
+
 def lane_roi_points_np(features, lane, width_px):
     """The NumPy twin of ``lane_roi_points`` (the same kernel, around a parabola)."""
     rows = features.mask.shape[0]
