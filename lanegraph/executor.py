@@ -11,6 +11,9 @@
 - Error policy per node: ``fail`` stops the run, ``skip`` drops the frame (sinks do not see it),
   ``empty`` passes ``None`` on for the node's outputs. A node that runs once for the whole run
   (constant inputs) has no frame to drop: under ``skip`` its failure stops the run like ``fail``.
+- A run first tunes glibc's allocator so that the large per-frame arrays reuse memory instead of
+  faulting in fresh pages every frame (:mod:`lanegraph._runtime`; ``LANEGRAPH_MALLOC_TUNING=0``
+  turns it off).
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from ._runtime import tune_allocator
 from .cache import ResultCache, digest
 from .errors import GraphError, LanegraphError, NodeError, Problem
 from .graph import Graph, GraphNode
@@ -256,6 +260,7 @@ class Executor:
 
     def run(self, on_frame: Callable[[int, str | None], None] | None = None) -> RunResult:
         """Stream every frame of the source through the graph."""
+        tune_allocator()  # once per process; see lanegraph._runtime
         g = self.graph
         # kept on the executor so that a caller still has the partial result when the run stops
         self.result = result = RunResult(node_types={nid: n.type.name for nid, n in g.nodes.items()})

@@ -1,0 +1,47 @@
+"""The allocator tuning a run applies (lanegraph._runtime)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+CODE = "from lanegraph._runtime import tune_allocator; a = tune_allocator(); b = tune_allocator(); print(a, b)"
+
+
+def _run(env_value: str | None) -> str:
+    env = dict(os.environ)
+    env.pop("LANEGRAPH_MALLOC_TUNING", None)
+    if env_value is not None:
+        env["LANEGRAPH_MALLOC_TUNING"] = env_value
+    return subprocess.run([sys.executable, "-c", CODE], capture_output=True, text=True, env=env, check=True).stdout.split()
+
+
+def test_turned_off_by_the_environment():
+    assert _run("0") == ["False", "False"]
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt: Linux only")
+def test_applied_once_on_glibc():
+    import ctypes
+    import ctypes.util
+
+    try:
+        ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").mallopt  # noqa: B018
+    except (OSError, AttributeError):
+        pytest.skip("not glibc (no mallopt)")
+    assert _run(None) == ["True", "True"]  # the second call returns the first call's outcome
+
+
+def test_a_run_applies_it(tmp_path, pm, monkeypatch):
+    """The executor calls it when a run starts."""
+    from lanegraph import executor
+
+    from .test_executor import load
+
+    calls = []
+    monkeypatch.setattr(executor, "tune_allocator", lambda: calls.append(1) or True)
+    executor.Executor(load(tmp_path, pm), executor.RunContext(), pm).run()
+    assert calls == [1]
