@@ -7,6 +7,11 @@ consensus set within ``inlier_px``, then least squares on it.
 
 A lane is reported only with enough support: ``min_inliers`` features spread over at least
 ``min_extent_m`` of road, and a plausible curvature; a frame with no painted markings reports none.
+
+With the optional ``previous`` input (the previous frame's lanes, a feedback edge), a side the Hough
+transform found no line on is fitted in the ROI around the previous lane there: only its offset and a
+change of slope, the previous curvature kept, and only when the result still lies where an ego-lane
+boundary can (``track_min_offset_m`` .. ``track_max_offset_m`` from the vehicle).
 """
 
 from __future__ import annotations
@@ -354,7 +359,7 @@ class FitParams(NodeParams):
         0.6, ge=0.0, le=20.0, description="a lane fitted around a previous one must cross the bottom row at least this far from the vehicle (as hough.min_offset_m), metres"
     )
     track_max_offset_m: float = Field(
-        3.2, gt=0.0, le=50.0, description="... and at most this far (as hough.max_offset_m), metres"
+        3.2, gt=0.0, le=50.0, description="a lane fitted around a previous one must cross the bottom row at most this far from the vehicle (as hough.max_offset_m), metres"
     )
 
 
