@@ -7,8 +7,8 @@ with noise, the top 30 % empty as disparity.sgbm leaves it), an 800 x 400 BEV, 2
 features, a half-resolution (621 x 187) image for the census. Twins that loop in Python run on a
 slice and their time is scaled by the work (stated in the output). Times are the best of
 ``--repeat`` runs (the machines are shared: the best run is the least disturbed one).
-Kernels with no vectorised twin (the DP, whose twin is a brute force over all paths; the SGM
-aggregation and winner-take-all, whose twins loop pixel by pixel in Python) are timed on slices too.
+The DP's twin loops over rows in Python (bins vectorised) and the SGM aggregation's and
+winner-take-all's twins loop pixel by pixel: they are timed on slices too.
 """
 
 from __future__ import annotations
@@ -190,28 +190,9 @@ def road_kernels(rng: np.random.Generator) -> None:
     row(
         "_dp_path_kernel",
         timed(lambda: profile._dp_path_kernel(score, 3, 0.02)),
-        timed(lambda: dp_np(sc, 3, 0.02)) * (score.size / sc.size),
+        timed(lambda: tr.dp_np(sc, 3, 0.02)) * (score.size / sc.size),
         "(twin: the DP vectorised over bins, 40 bins, scaled)",
     )
-
-
-def dp_np(score: np.ndarray, max_step: int, smoothness: float) -> np.ndarray:
-    """The DP of ``_dp_path_kernel`` with the bins vectorised (rows in Python): the path."""
-    H, D = score.shape
-    pen = smoothness * np.arange(max_step + 1) ** 2
-    prev = score[H - 1].copy()
-    back = np.zeros((H, D), np.int64)
-    for v in range(H - 2, -1, -1):
-        cand = np.full((max_step + 1, D), -np.inf)
-        for step in range(max_step + 1):
-            cand[step, : D - step] = prev[step:] - pen[step]
-        back[v] = np.argmax(cand, axis=0)
-        prev = score[v] + cand.max(axis=0)
-    path = np.zeros(H, np.int64)
-    path[0] = int(np.argmax(prev))
-    for v in range(1, H):
-        path[v] = path[v - 1] + back[v - 1, path[v - 1]]
-    return path
 
 
 def sgm_kernels(rng: np.random.Generator) -> None:

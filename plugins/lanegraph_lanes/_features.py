@@ -155,9 +155,9 @@ def _eslt(img, gx, gy, window, threshold, max_angle, out_mask, out_theta):
         inner_hi = max(cols - window, inner_lo)
         for c in range(inner_lo, inner_hi):
             _eslt_pixel(img, gx, gy, mag2, csum, r, c, c - window, c + 1 + window, threshold, cos2_max, out_mask, out_theta)
-        for c in range(cols):
-            if inner_lo <= c < inner_hi:
-                continue
+        # the border columns only: [0, inner_lo) and [inner_hi, cols)
+        for k in range(inner_lo + cols - inner_hi):
+            c = k if k < inner_lo else inner_hi + (k - inner_lo)
             lo = max(c - window, 0)
             hi = min(c + 1 + window, cols)
             if c - lo == 0 or hi - (c + 1) == 0:

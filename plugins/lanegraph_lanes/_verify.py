@@ -23,7 +23,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, model_validator
 
-from lanegraph import NodeParams, Port, node_type
+from lanegraph import InputError, NodeParams, Port, node_type
 from lanegraph._numba import jit
 from lanegraph.types import Lane
 
@@ -73,7 +73,7 @@ def band_textures(image: np.ndarray, lane: Lane, gap_px: int, band_px: int, meas
     rows = image.shape[0]
     img = np.ascontiguousarray(image)
     if img.ndim != 2:
-        raise ValueError(f"lanes.verify: image: expected an Hb x Wb grey BEV image, got shape {img.shape}")
+        raise InputError(f"lanes.verify: image: expected an Hb x Wb grey BEV image, got shape {img.shape}")
     r0, r1 = int(lane.bev_rows[0]), int(lane.bev_rows[1])
     r0, r1 = max(r0, 0), min(r1, rows - 1)
     t = rows - 1 - np.arange(r0, r1 + 1, dtype=np.float64)
@@ -90,7 +90,11 @@ def band_textures(image: np.ndarray, lane: Lane, gap_px: int, band_px: int, meas
 def side_texture(image: np.ndarray, lane: Lane, gap_px: int, band_px: int, measure: str = "std") -> tuple[float, float]:
     """Median over the lane's rows of the lateral texture in the (left, right) side bands (rows
     where a band leaves the image do not count; 0 when none is left): see :func:`band_textures`."""
-    return tuple(float(np.median(tex[~np.isnan(tex)])) if (~np.isnan(tex)).any() else 0.0 for tex in band_textures(image, lane, gap_px, band_px, measure))
+    out = []
+    for tex in band_textures(image, lane, gap_px, band_px, measure):
+        inside = tex[~np.isnan(tex)]
+        out.append(float(np.median(inside)) if inside.size else 0.0)
+    return out[0], out[1]
 
 
 class VerifyParams(NodeParams):

@@ -225,6 +225,33 @@ def test_dp_kernel_is_optimal(max_step, smoothness):
         )
 
 
+def dp_np(score: np.ndarray, max_step: int, smoothness: float) -> np.ndarray:
+    """The DP of ``_dp_path_kernel`` with the bins vectorised (rows in Python): the path."""
+    H, D = score.shape
+    pen = smoothness * np.arange(max_step + 1) ** 2
+    prev = score[H - 1].copy()
+    back = np.zeros((H, D), np.int64)
+    for v in range(H - 2, -1, -1):
+        cand = np.full((max_step + 1, D), -np.inf)
+        for step in range(max_step + 1):
+            cand[step, : D - step] = prev[step:] - pen[step]
+        back[v] = np.argmax(cand, axis=0)
+        prev = score[v] + cand.max(axis=0)
+    path = np.zeros(H, np.int64)
+    path[0] = int(np.argmax(prev))
+    for v in range(1, H):
+        path[v] = path[v - 1] + back[v - 1, path[v - 1]]
+    return path
+
+
+@pytest.mark.parametrize("max_step, smoothness", [(1, 0.0), (3, 0.02), (5, 0.5)])
+def test_dp_kernel_matches_vectorised_twin(max_step, smoothness):
+    rng = np.random.default_rng(max_step)
+    for shape in ((1, 6), (30, 1), (120, 40)):
+        score = rng.random(shape)
+        np.testing.assert_array_equal(profile._dp_path_kernel(score, max_step, smoothness), dp_np(score, max_step, smoothness))
+
+
 def test_dp_follows_a_slanted_line_not_a_vertical_obstacle():
     H, D = 60, 40
     score = np.zeros((H, D))
