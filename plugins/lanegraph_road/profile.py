@@ -488,8 +488,9 @@ def _profile_pass(
     H: int, W: int, pixels, vd, params: ProfileParams, height: float | None = None, vd_columns: int | None = None, step: int | None = None
 ):
     """DP + refinement + robust fit in (roll-corrected) rows over the pass's ``pixels`` (``(rows,
-    disparities)`` from :func:`select_pixels`) of an ``H x W`` disparity map; ``vd`` counts the
-    pixels of ``vd_columns`` columns (default: the sampled ones, every ``column_step``-th).
+    disparities)`` from :func:`select_pixels`, every ``step``-th column, default ``column_step``) of
+    an ``H x W`` disparity map; ``vd`` counts the pixels of ``vd_columns`` columns (default: the
+    sampled ones).
 
     With a ``height`` estimate (pass 2) the row disparities are refined once more, keeping only the
     disparities within ``plane_tolerance_m`` (metric, eq. 4) of the first mean, so that a kerb or
