@@ -159,6 +159,13 @@ def road_kernels(rng: np.random.Generator) -> None:
         timed(lambda: tr.ransac_line_np(v, dv, w, 1.0, 300)),
         "(255 rows, 300 samples)",
     )
+    inl0 = rng.random(v.size) < 0.8
+    row(
+        "_line_refit_kernel",
+        timed(lambda: profile._line_refit_kernel(v, dv, w, inl0, 1.0, 4)),
+        timed(lambda: profile._robust_refit_np(v, dv, w, 1, 1.0, inl0)),
+        "(255 rows, 4 rounds at most)",
+    )
     hargs = (-40.0, 0.23, 0.0, calib.cx, calib.cy, s_, c_, 1.65, 0.08, 0.5, 2.0)
     row("_height_class_kernel", timed(lambda: mask._height_class_kernel(disp, *hargs)), timed(lambda: tr.height_class_np(disp, *hargs)))
     labels = mask._height_class_kernel(disp, *hargs)

@@ -116,12 +116,48 @@ def _solve_augmented(M, tiny, out):
 
 
 @jit
+def _normal_equations(x, w, y, m, M):
+    """The weighted normal equations of the polynomial of ``m <= 4`` coefficients in ``x`` into the
+    augmented ``m x (m + 1)`` matrix ``M``: ``M[r, c] = sum w x^(r + c)``, ``M[r, m] = sum w x^r y``.
+    The power sums are accumulated in scalars (one pass; adding into ``M`` itself would chain every
+    point's update through memory)."""
+    s0 = s1 = s2 = s3 = s4 = s5 = s6 = 0.0
+    t0 = t1 = t2 = t3 = 0.0
+    for i in range(x.size):
+        wi = w[i]
+        if wi == 0.0:
+            continue
+        xi = x[i]
+        p1 = wi * xi
+        p2 = p1 * xi
+        p3 = p2 * xi
+        s0 += wi
+        s1 += p1
+        s2 += p2
+        s3 += p3
+        s4 += p3 * xi
+        s5 += p3 * xi * xi
+        s6 += p3 * xi * xi * xi
+        yi = y[i]
+        t0 += wi * yi
+        t1 += p1 * yi
+        t2 += p2 * yi
+        t3 += p3 * yi
+    S = (s0, s1, s2, s3, s4, s5, s6)
+    T = (t0, t1, t2, t3)
+    for r in range(m):
+        for c in range(m):
+            M[r, c] = S[r + c]
+        M[r, m] = T[r]
+
+
+@jit
 def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px):
     """:func:`irls_fit` by weighted normal equations in the scaled abscissa ``x = (t - mid) / half``
-    (``x`` in [-1, 1]: well conditioned, unlike powers of ``t`` itself). Returns ``(ok, coef, w)``,
-    coefficients in ``t``, lowest power first; ``ok`` False when a system is singular (the caller
-    then uses the NumPy least-squares path). Converged when no point's fitted value moves by more
-    than ``tol_px``."""
+    (``x`` in [-1, 1]: well conditioned, unlike powers of ``t`` itself); ``degree <= 3``. Returns
+    ``(ok, coef, w)``, coefficients in ``t``, lowest power first; ``ok`` False when a system is
+    singular (the caller then uses the NumPy least-squares path). Converged when no point's fitted
+    value moves by more than ``tol_px``."""
     n = t.size
     m = degree + 1
     lo = t.min()
@@ -130,12 +166,9 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px):
     half = 0.5 * (hi - lo)
     if half <= 0.0:
         half = 1.0
-    X = np.empty((n, m))
+    x = np.empty(n)
     for i in range(n):
-        xi = (t[i] - mid) / half
-        X[i, 0] = 1.0
-        for j in range(1, m):
-            X[i, j] = X[i, j - 1] * xi
+        x[i] = (t[i] - mid) / half
     # x^j = sum_i C(j, i) t^i (-mid)^(j - i) / half^j: T[i, j] maps x-coefficients to t-coefficients
     T = np.zeros((m, m))
     for j in range(m):
@@ -147,38 +180,35 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px):
     coef = np.zeros(m)
     a = np.zeros(m)
     res = np.empty(n)
+    dev = np.empty(n)
+    M = np.empty((m, m + 1))
     for it in range(iterations + 1):
         if it > 0:
             for i in range(n):
-                p = 0.0
-                for j in range(m):
-                    p += X[i, j] * a[j]
+                xi = x[i]
+                p = a[m - 1]
+                for j in range(m - 2, -1, -1):
+                    p = p * xi + a[j]
                 res[i] = y[i] - p
             med = np.median(res)
-            scale = 1.4826 * np.median(np.abs(res - med))
+            for i in range(n):
+                dev[i] = abs(res[i] - med)
+            scale = 1.4826 * np.median(dev)
             scale = max(scale, 0.5)  # BEV pixels: never trust sub-half-pixel residual scales
+            inv = 1.0 / (k * scale)
             wsum = 0.0
             for i in range(n):
-                u = res[i] / (k * scale)
+                u = res[i] * inv
                 au = abs(u)
                 if tukey:
-                    w[i] = (1.0 - u * u) ** 2 if au < 1.0 else 0.0
+                    q = 1.0 - u * u
+                    w[i] = q * q if au < 1.0 else 0.0
                 else:
                     w[i] = 1.0 if au <= 1.0 else 1.0 / max(au, 1e-12)
                 wsum += w[i]
             if wsum < degree + 1:
                 break
-        # weighted normal equations
-        M = np.zeros((m, m + 1))
-        for i in range(n):
-            wi = w[i]
-            if wi == 0.0:
-                continue
-            for r in range(m):
-                xr = wi * X[i, r]
-                for c in range(m):
-                    M[r, c] += xr * X[i, c]
-                M[r, m] += xr * y[i]
+        _normal_equations(x, w, y, m, M)
         new_a = np.zeros(m)
         if not _solve_augmented(M, 1e-12 * max(1.0, abs(M[0, 0])), new_a):
             return False, coef, w
@@ -191,9 +221,10 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px):
         if it > 0:
             moved = 0.0
             for i in range(n):
-                dp = 0.0
-                for j in range(m):
-                    dp += X[i, j] * (new_a[j] - a[j])
+                xi = x[i]
+                dp = new_a[m - 1] - a[m - 1]
+                for j in range(m - 2, -1, -1):
+                    dp = dp * xi + (new_a[j] - a[j])
                 moved = max(moved, abs(dp))
             a = new_a
             coef = new

@@ -108,45 +108,54 @@ def _free_space_kernel(labels, min_run, unknown_is_road):
     return out
 
 
-@jit(parallel=True)
+@jit
 def _fill_holes_kernel(mask, holes, n, classes, max_above):
     """``mask`` with the components ``1..n-1`` of the label image ``holes`` filled when they touch
     no image border and at most ``max_above`` of their pixels have the class ``ABOVE`` (2).
-    Label 0 (the mask itself) is skipped; the per-label counts are taken in row-interleaved blocks
-    in parallel (integer sums), and only labelled pixels are visited again to fill."""
+    Label 0 (the mask itself) is skipped. The components touching the border (the large
+    background) are ruled out first, so only the pixels of the candidate holes are counted; a run
+    of one label along a row is counted in registers (consecutive pixels mostly share a label)."""
     H, W = holes.shape
-    n_blocks = 4
-    psize = np.zeros((n_blocks, n), np.int64)
-    pabove = np.zeros((n_blocks, n), np.int64)
-    for blk in prange(n_blocks):
-        for v in range(blk, H, n_blocks):
-            for u in range(W):
-                lab = holes[v, u]
-                if lab == 0:
-                    continue
-                psize[blk, lab] += 1
-                pabove[blk, lab] += classes[v, u] == 2
-    fill = np.zeros(n, np.bool_)
-    for lab in range(1, n):
-        size = 0
-        n_above = 0
-        for blk in range(n_blocks):
-            size += psize[blk, lab]
-            n_above += pabove[blk, lab]
-        fill[lab] = n_above <= max_above * size
+    cand = np.ones(n, np.bool_)
+    cand[0] = False
     for u in range(W):
-        fill[holes[0, u]] = False
-        fill[holes[H - 1, u]] = False
+        cand[holes[0, u]] = False
+        cand[holes[H - 1, u]] = False
     for v in range(H):
-        fill[holes[v, 0]] = False
-        fill[holes[v, W - 1]] = False
+        cand[holes[v, 0]] = False
+        cand[holes[v, W - 1]] = False
     out = mask.copy()
-    if not fill.any():
+    if not cand.any():
         return out
-    for v in prange(H):
+    size = np.zeros(n, np.int64)
+    above = np.zeros(n, np.int64)
+    for v in range(H):
+        cur = 0
+        run = 0
+        run_above = 0
         for u in range(W):
             lab = holes[v, u]
-            if lab != 0 and fill[lab]:
+            if lab != cur:
+                if run > 0:
+                    size[cur] += run
+                    above[cur] += run_above
+                cur = lab
+                run = 0
+                run_above = 0
+            if cand[lab]:
+                run += 1
+                run_above += classes[v, u] == 2
+        if run > 0:
+            size[cur] += run
+            above[cur] += run_above
+    fill = np.zeros(n, np.bool_)
+    for lab in range(1, n):
+        fill[lab] = cand[lab] and above[lab] <= max_above * size[lab]
+    if not fill.any():
+        return out
+    for v in range(H):
+        for u in range(W):
+            if fill[holes[v, u]]:
                 out[v, u] = True
     return out
 
@@ -160,6 +169,20 @@ def _lookup_kernel(lut, labels):
         for u in range(W):
             out[v, u] = lut[labels[v, u]]
     return out
+
+
+def widen_columns(mask: np.ndarray, step: int, width: int) -> np.ndarray:
+    """An ``H x width`` mask from one computed on every ``step``-th column (column ``k`` is image
+    column ``step k``): those columns keep their value, a column between two computed ones is set
+    only when both are (an object's edge is never widened into the road); the columns after the
+    last computed one take its value. A nearest ``step``-fold widening, then an erosion by a
+    ``1 x step`` row anchored at its left end (each pixel AND the next ``step - 1``): OpenCV's
+    SIMD passes, 2.5x faster than a numba loop over the bytes."""
+    H, n = mask.shape
+    rep = cv2.resize(np.ascontiguousarray(mask).view(np.uint8), (n * step, H), interpolation=cv2.INTER_NEAREST)
+    if step > 1:
+        rep = cv2.erode(rep, np.ones((1, step), np.uint8), anchor=(0, 0))
+    return rep[:, :width].view(bool)
 
 
 class MaskParams(NodeParams):
@@ -219,13 +242,25 @@ class MaskParams(NodeParams):
         description="free-space scan: pixels with no disparity (smooth, textureless asphalt far away) below "
         "the first obstacle of their column count as road",
     )
+    column_step: int = Field(
+        2,
+        ge=1,
+        le=8,
+        description="the mask is computed on every n-th column and widened back (a column between two "
+        "computed ones is road when both are); the morphology's widths shrink by n. Rows are all kept "
+        "(the free-space runs and the kerbs' steps are vertical); at 2, KITTI's lateral detail is "
+        "2.8 cm at 20 m and 5.6 cm at 40 m, against the BEV's 5 cm pixels",
+    )
     invalid_road: Literal["all", "none"] = Field(
         "all", description="mask when the road model is invalid: every pixel (no masking) or none"
     )
 
 
-def _disk(diameter: int) -> np.ndarray:
-    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (diameter, diameter))
+def _disk(diameter: int, column_step: int = 1) -> np.ndarray:
+    """An elliptic structuring element ``diameter`` pixels across; with ``column_step`` > 1 (every
+    n-th column computed) its width shrinks by n, rounded down to an odd number."""
+    width = diameter if column_step == 1 else max(1, int(round(diameter / column_step)) | 1)
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (width, diameter))
 
 
 def _keep_components(mask: np.ndarray, keep: str, band_frac: float, cx: float, image_rows: int | None = None) -> np.ndarray:
@@ -265,20 +300,29 @@ def road_mask_array(
 
     Everything after the height classes runs on the rows from the first one with a road label
     down (above it, beyond ``max_distance_m`` or the horizon, nothing is road), with a margin of
-    empty rows wide enough for the morphology: the result is that of the whole image."""
+    empty rows wide enough for the morphology: the result is that of the whole image.
+
+    With ``column_step`` n > 1 the height classes and everything after them run on every n-th
+    column (column ``k`` of the reduced image is image column ``n k``: the roll-corrected row
+    ``cy + s (u - cx) + ...`` becomes ``cy + n s (k - cx / n) + ...``), then widened back by
+    :func:`widen_columns`."""
     disp = as_disparity(disparity, "road.mask")
     if not road.valid or not road.height > 0:
         return np.full(disp.shape, params.invalid_road == "all", dtype=bool)
     s, c = geometry.roll_row_coeffs(road.roll, calib)
     min_road_disp = calib.f * calib.baseline / params.max_distance_m
+    st = int(params.column_step)
+    W = disp.shape[1]
+    if st > 1:
+        disp = np.ascontiguousarray(disp[:, ::st])
     labels = _height_class_kernel(
         disp,
         float(road.a0),
         float(road.a1),
         float(road.a2),
-        float(calib.cx),
+        float(calib.cx) / st,
         float(calib.cy),
-        s,
+        s * st,
         c,
         float(road.height),
         float(params.height_tolerance_m),
@@ -287,7 +331,7 @@ def road_mask_array(
     )
     H = labels.shape[0]
     labelled = np.flatnonzero(labels.any(axis=1))
-    out = np.zeros(disp.shape, bool)
+    out = np.zeros((H, W), bool)
     if labelled.size == 0:
         return out
     top = max(0, int(labelled[0]) - 2 * (params.open_px + params.close_px) - 2)
@@ -297,13 +341,15 @@ def road_mask_array(
     )
     if params.open_px > 1:
         # bool and 0/1 uint8 share their bytes: views, no copies
-        mask = cv2.morphologyEx(np.ascontiguousarray(mask).view(np.uint8), cv2.MORPH_OPEN, _disk(params.open_px)).view(bool)
+        mask = cv2.morphologyEx(np.ascontiguousarray(mask).view(np.uint8), cv2.MORPH_OPEN, _disk(params.open_px, st)).view(bool)
     if params.keep != "all":
-        mask = _keep_components(mask, params.keep, params.bottom_band_frac, calib.cx, H)
+        mask = _keep_components(mask, params.keep, params.bottom_band_frac, calib.cx / st, H)
     if params.close_px > 1:
-        mask = cv2.morphologyEx(np.ascontiguousarray(mask).view(np.uint8), cv2.MORPH_CLOSE, _disk(params.close_px)).view(bool)
+        mask = cv2.morphologyEx(np.ascontiguousarray(mask).view(np.uint8), cv2.MORPH_CLOSE, _disk(params.close_px, st)).view(bool)
     if params.fill_holes_max_above > 0:
         mask = _fill_holes(mask, labels, params.fill_holes_max_above)
+    if st > 1:
+        mask = widen_columns(mask, st, W)
     out[top:] = mask
     return out
 

@@ -295,6 +295,28 @@ def test_ransac_line_kernel_matches_numpy():
     assert profile._ransac_line(v, -v, np.ones(10), 1.0, 20) is None
 
 
+def test_line_refit_kernel_matches_numpy():
+    """The line rounds of ``_robust_fit`` (numba) against its NumPy rounds: same inliers, same line."""
+    rng = np.random.default_rng(12)
+    for n in (2, 3, 30, 200):
+        for trial in range(5):
+            v = rng.integers(0, 100, n).astype(np.float64)
+            d = 0.3 * v - 5.0 + rng.normal(0, 0.4, n)
+            d[rng.random(n) < 0.3] += rng.uniform(-10, 10)
+            w = rng.integers(0, 500, n).astype(np.float64)  # zero weights too
+            inl = rng.random(n) < 0.7
+            ok, a0, a1, got_inl = profile._line_refit_kernel(v, d, w, inl, 1.0, 4)
+            ref, ref_inl = profile._robust_refit_np(v, d, w, 1, 1.0, inl)
+            assert ok == (ref is not None)
+            np.testing.assert_array_equal(got_inl, ref_inl)
+            if ok:
+                np.testing.assert_allclose([a0, a1], ref, rtol=1e-9, atol=1e-9)
+    # all inliers on one abscissa: no line
+    v = np.full(5, 3.0)
+    ok, *_ = profile._line_refit_kernel(v, v, np.ones(5), np.ones(5, bool), 1.0, 4)
+    assert not ok
+
+
 @pytest.mark.parametrize("shape", EDGE_SHAPES + [(40, 57)])
 def test_plane_sums_kernel_matches_numpy(shape):
     rng = np.random.default_rng(6)
@@ -360,6 +382,24 @@ def test_fill_holes_matches_numpy(shape, max_above):
     m[shape[0] // 2, shape[1] // 2] = False  # one hole off the border (when the shape allows)
     classes = np.ones(shape, np.uint8)
     np.testing.assert_array_equal(mask._fill_holes(m, classes, max_above), fill_holes_np(m, classes, max_above))
+
+
+def widen_np(red, step, width):
+    """NumPy twin of ``widen_columns`` (OpenCV)."""
+    k = np.arange(width) // step
+    nxt = np.minimum(k + 1, red.shape[1] - 1)
+    exact = (np.arange(width) % step == 0) | (k + 1 >= red.shape[1])
+    return red[:, k] & (red[:, nxt] | exact[None, :])
+
+
+@pytest.mark.parametrize("step", [1, 2, 3])
+def test_widen_columns_matches_numpy(step):
+    rng = np.random.default_rng(13)
+    for width in (1, 2, 7, 10, 31):
+        n = -(-width // step)
+        for rows in (1, 5):
+            red = rng.random((rows, n)) < 0.6
+            np.testing.assert_array_equal(mask.widen_columns(red, step, width), widen_np(red, step, width))
 
 
 def test_lookup_kernel_matches_numpy():
@@ -552,6 +592,23 @@ def test_mask_removes_box_and_kerb_keeps_road(scene):
         calib=CALIB,
     )["mask"]
     assert raw[kerb_top].mean() <= 0.05 and raw[road_px].mean() >= 0.95
+
+
+def test_mask_column_step_matches_every_column(scene):
+    """Every 2nd column (the default) against every column: the same mask but at object edges, and
+    the height classes of the computed columns are those of every column there."""
+    disp, label, _ = scene
+    d = noisy(disp)
+    road = rd.road_profile.func(rd.ProfileParams(), disparity=d, calib=CALIB)["road"]
+    full = rd.road_mask.func(rd.MaskParams(column_step=1), disparity=d, road=road, calib=CALIB)["mask"]
+    half = rd.road_mask.func(rd.MaskParams(column_step=2), disparity=d, road=road, calib=CALIB)["mask"]
+    assert half.shape == full.shape and full.any()
+    assert np.mean(half == full) >= 0.99
+    raw = dict(free_space=False, open_px=0, close_px=0, keep="all", fill_holes_max_above=0)
+    a = rd.road_mask.func(rd.MaskParams(column_step=1, **raw), disparity=d, road=road, calib=CALIB)["mask"]
+    b = rd.road_mask.func(rd.MaskParams(column_step=2, **raw), disparity=d, road=road, calib=CALIB)["mask"]
+    assert np.mean(a[:, ::2] == b[:, ::2]) >= 0.9999  # rounding of the roll-corrected row at most
+    np.testing.assert_array_equal(b[:, 1:-1:2], b[:, 0:-2:2] & b[:, 2::2])
 
 
 def test_mask_height_tolerance_is_metric():
