@@ -299,7 +299,7 @@ def test_line_refit_kernel_matches_numpy():
     """The line rounds of ``_robust_fit`` (numba) against its NumPy rounds: same inliers, same line."""
     rng = np.random.default_rng(12)
     for n in (2, 3, 30, 200):
-        for trial in range(5):
+        for _ in range(5):
             v = rng.integers(0, 100, n).astype(np.float64)
             d = 0.3 * v - 5.0 + rng.normal(0, 0.4, n)
             d[rng.random(n) < 0.3] += rng.uniform(-10, 10)
