@@ -276,7 +276,7 @@ def irls_fit(
     t = np.ascontiguousarray(t, dtype=np.float64)
     y = np.ascontiguousarray(y, dtype=np.float64)
     k = c if c is not None else (4.685 if loss == "tukey" else 1.345)
-    if t.size >= degree + 1:
+    if t.size >= degree + 1 and degree <= 3:  # the kernel's power sums stop at x^6
         ok, coef, w = _irls_kernel(t, y, int(degree), int(iterations), loss == "tukey", float(k), float(tol_px))
         if ok:
             return coef, w

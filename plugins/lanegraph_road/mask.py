@@ -257,8 +257,8 @@ class MaskParams(NodeParams):
 
 
 def _disk(diameter: int, column_step: int = 1) -> np.ndarray:
-    """An elliptic structuring element ``diameter`` pixels across; with ``column_step`` > 1 (every
-    n-th column computed) its width shrinks by n, rounded down to an odd number."""
+    """An elliptic structuring element ``diameter`` pixels across; with ``column_step`` n > 1 (every
+    n-th column computed) its width is ``diameter / n`` rounded and made odd (3 -> 3, 7 -> 5 at 2)."""
     width = diameter if column_step == 1 else max(1, int(round(diameter / column_step)) | 1)
     return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (width, diameter))
 

@@ -173,7 +173,7 @@ def _row_refine_kernel(rows, d, centre, radius):
         n0 = 0
         n1 = 0
         j = i
-        while j + 1 < N and rows[j + 1] == r:
+        while j + 1 < N and rows[j] == r and rows[j + 1] == r:
             d0 = d[j]
             d1 = d[j + 1]
             if abs(d0 - c) <= rad:
@@ -183,8 +183,6 @@ def _row_refine_kernel(rows, d, centre, radius):
                 t1 += d1
                 n1 += 1
             j += 2
-            if j < N and rows[j] != r:
-                break
         if j < N and rows[j] == r:  # the run's last pixel, when its length is odd
             dj = d[j]
             if abs(dj - c) <= rad:

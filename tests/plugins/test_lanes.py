@@ -379,6 +379,9 @@ def test_irls_kernel_matches_lstsq_twin(degree, loss):
     ok, _, _ = _irls_kernel(t, y, 1, 10, True, 4.685, 0.01)
     assert not ok
     np.testing.assert_allclose(irls_fit(t, y, 1)[0], irls_fit_lstsq(t, y, 1)[0])
+    # beyond the kernel's degree 3: the lstsq path
+    t, y, _ = parabola_with_outliers(n=200, seed=1)
+    np.testing.assert_array_equal(irls_fit(t, y, 4)[0], irls_fit_lstsq(t, y, 4)[0])
 
 
 @pytest.mark.parametrize("node", [fit_irls, fit_ransac])
