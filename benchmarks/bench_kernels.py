@@ -60,13 +60,13 @@ def bev_kernels(rng: np.random.Generator) -> None:
     small = bev[:40]
     scale = bev.size / small.size
     out = np.zeros(bev.shape, np.uint8)
-    row("_slt", timed(lambda: _features._slt(bev, 6, 10.0, out)), timed(lambda: tl.slt_twin(small, 6, 10.0), 1) * scale, f"(twin on 40 rows, x{scale:.0f})")
+    row("_slt", timed(lambda: _features._slt(bev, 6, 10.0, _features._EVERYWHERE, out)), timed(lambda: tl.slt_twin(small, 6, 10.0), 1) * scale, f"(twin on 40 rows, x{scale:.0f})")
     gx, gy = _features.sobel(bev)
     ori = np.empty(bev.shape, np.float32)
     sgx, sgy = _features.sobel(small)
     row(
         "_eslt",
-        timed(lambda: _features._eslt(bev, gx, gy, 6, 10.0, math.radians(15), out, ori)),
+        timed(lambda: _features._eslt(bev, gx, gy, 6, 10.0, math.radians(15), _features._EVERYWHERE, out, ori)),
         timed(lambda: tl.eslt_twin(small, sgx, sgy, 6, 10.0, math.radians(15)), 1) * scale,
         f"(twin on 40 rows, x{scale:.0f})",
     )

@@ -14,6 +14,7 @@ from lanegraph_lanes._hough import line1d, line2d, orientation
 from lanegraph_lanes._temporal import temporal_mask, to_image
 from lanegraph_lanes._verify import verify
 
+from lanegraph import InputError
 from lanegraph.testing import check_node_type, make_bev_image
 from lanegraph.types import BevGeometry, FeatureMap, Lane, Line
 
@@ -68,7 +69,7 @@ def test_slt_kernel_matches_twin(shape, w, T):
     rng = np.random.default_rng(1)
     img = rng.integers(0, 255, shape).astype(np.float32)
     out = np.zeros(shape, np.uint8)
-    _features._slt(img, w, T, out)
+    _features._slt(img, w, T, _features._EVERYWHERE, out)
     np.testing.assert_array_equal(out, slt_twin(img, w, T))
 
 
@@ -86,7 +87,7 @@ def test_eslt_kernel_matches_twin(w):
     gx, gy = _features.sobel(img)
     mask = np.zeros(img.shape, np.uint8)
     ori = np.empty(img.shape, np.float32)
-    _features._eslt(img, gx, gy, w, 8.0, math.radians(15), mask, ori)
+    _features._eslt(img, gx, gy, w, 8.0, math.radians(15), _features._EVERYWHERE, mask, ori)
     tm, to = eslt_twin(img, gx, gy, w, 8.0, math.radians(15))
     np.testing.assert_array_equal(mask, tm)
     np.testing.assert_allclose(ori, to, atol=1e-5)
@@ -99,7 +100,7 @@ def test_eslt_kernel_on_uint8_and_int16_gradients_matches_twin(w):
     gx, gy = cv2.spatialGradient(np.ascontiguousarray(img, dtype=np.uint8), ksize=3)
     mask = np.zeros(img.shape, np.uint8)
     ori = np.empty(img.shape, np.float32)
-    _features._eslt(img.astype(np.uint8), gx, gy, w, 8.0, math.radians(15), mask, ori)
+    _features._eslt(img.astype(np.uint8), gx, gy, w, 8.0, math.radians(15), _features._EVERYWHERE, mask, ori)
     f32 = img.astype(np.float32)
     tm, to = eslt_twin(f32, gx.astype(np.float32), gy.astype(np.float32), w, 8.0, math.radians(15))
     np.testing.assert_array_equal(mask, tm)
@@ -117,6 +118,60 @@ def test_eslt_node_uint8_path_equals_float_path(shape):
     np.testing.assert_array_equal(a.mask, b.mask)
     # the same integer gradients; the kernels compiled for int16 and float32 may round the last bit
     np.testing.assert_allclose(a.orientation, b.orientation, rtol=0, atol=1e-6)
+
+
+def _random_where(shape, seed):
+    """A road-like BEV mask (a blob with holes and ragged rows) and some empty rows."""
+    rng = np.random.default_rng(seed)
+    where = np.zeros(shape, np.uint8)
+    for r in range(shape[0]):
+        if rng.random() < 0.15:
+            continue  # an empty row
+        a = int(rng.integers(0, shape[1]))
+        b = int(rng.integers(a, shape[1] + 1))
+        where[r, a:b] = 1
+    where[rng.random(shape) < 0.1] = 0
+    return where
+
+
+@pytest.mark.parametrize("w", [1, 3, 30])
+def test_slt_eslt_kernels_with_where_match_masked_twins(w):
+    """Tested only where ``where`` is set: the twins' features AND the map, at every image border."""
+    img = make_bev_image(rows=30, cols=41, lane_cols=(10.0, 31.0), slope=0.3, noise=12.0, seed=6).astype(np.float32)
+    gx, gy = _features.sobel(img)
+    for seed in range(3):
+        where = _random_where(img.shape, seed)
+        where[0, :] = 1  # a whole row: both borders
+        out = np.full(img.shape, 7, np.uint8)
+        _features._slt(img, w, 5.0, where, out)
+        np.testing.assert_array_equal(out, slt_twin(img, w, 5.0) * where)
+        mask = np.full(img.shape, 7, np.uint8)
+        ori = np.zeros(img.shape, np.float32)
+        _features._eslt(img, gx, gy, w, 5.0, math.radians(15), where, mask, ori)
+        tm, to = eslt_twin(img, gx, gy, w, 5.0, math.radians(15))
+        assert tm.any() and (tm & ~where.astype(bool)).any()  # some features are masked away
+        np.testing.assert_array_equal(mask, tm * where)
+        np.testing.assert_allclose(ori, np.where(where > 0, to, -1.0), atol=1e-5)
+    empty = np.zeros(img.shape, np.uint8)  # nothing to test: no features, every row skipped
+    _features._eslt(img, gx, gy, w, 5.0, math.radians(15), empty, mask, ori)
+    assert not mask.any() and (ori == -1.0).all()
+
+
+@pytest.mark.parametrize("node", [slt, eslt])
+def test_feature_nodes_where_input(node):
+    """The node's ``where`` input gives the features of the unmasked node on the mask, and a
+    mask of the wrong shape is refused with the port named."""
+    img = make_bev_image(rows=60, cols=80, lane_cols=(20.0, 60.0), slope=0.2, noise=8.0, seed=7).astype(np.uint8)
+    where = _random_where(img.shape, 9).astype(bool)
+    p = node.params(window=4, threshold=6.0)
+    full = node.func(p, image=img)["features"]
+    part = node.func(p, image=img, where=where)["features"]
+    assert full.mask.any() and (full.mask & ~where).any()
+    np.testing.assert_array_equal(part.mask, full.mask & where)
+    if full.orientation is not None:
+        np.testing.assert_array_equal(part.orientation, np.where(where, full.orientation, np.float32(-1.0)))
+    with pytest.raises(InputError, match=r"where: expected a BEV mask of the image's shape \(60, 80\)"):
+        node.func(p, image=img, where=where[:, :10])
 
 
 def test_vote_kernels_match_twin():
