@@ -29,6 +29,7 @@ column. ``road.vdisparity`` counts every column.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Literal
 
@@ -491,6 +492,20 @@ class ProfileParams(NodeParams):
     )
 
 
+@functools.lru_cache(maxsize=512)
+def _sample_pairs(n: int, iterations: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """The RANSAC pairs ``(i, j)`` among ``n`` points: a generator seeded with ``seed`` draws them,
+    so a frame's samples do not depend on earlier frames. Cached by ``n`` (a frame's profile has
+    a few hundred rows, so the same few counts recur): seeding a generator and drawing took 0.08 ms
+    per fit. Read-only: shared by every call with the same arguments."""
+    rng = np.random.default_rng(seed)
+    i = rng.integers(0, n, iterations)
+    j = rng.integers(0, n, iterations)
+    i.flags.writeable = False
+    j.flags.writeable = False
+    return i, j
+
+
 def _ransac_line(
     v: np.ndarray, d: np.ndarray, w: np.ndarray, tol: float, iterations: int, seed: int = 0
 ) -> np.ndarray | None:
@@ -498,9 +513,7 @@ def _ransac_line(
     n = v.size
     if n < 2:
         return None
-    rng = np.random.default_rng(seed)
-    i = rng.integers(0, n, iterations)
-    j = rng.integers(0, n, iterations)
+    i, j = _sample_pairs(n, int(iterations), int(seed))
     found, inl = _ransac_line_kernel(
         np.ascontiguousarray(v, dtype=np.float64),
         np.ascontiguousarray(d, dtype=np.float64),
@@ -644,7 +657,10 @@ def _fit_road_plane(disp, line, v_top: int, params: ProfileParams, calib: Calibr
             return None
         su, sv, suu, suv, svv, sd, sud, svd = S
         M = np.array([[n, su, sv], [su, suu, suv], [sv, suv, svv]], np.float64)
-        a, b1, b2 = np.linalg.lstsq(M, np.array([sd, sud, svd]), rcond=None)[0]
+        try:  # a direct solve: lstsq's SVD took 0.05 ms per round
+            a, b1, b2 = np.linalg.solve(M, np.array([sd, sud, svd]))
+        except np.linalg.LinAlgError:  # every selected pixel on one row or column: no plane
+            return None
         b = np.array([a - b1 * uc - b2 * vc, b1, b2])
         if not np.all(np.isfinite(b)):
             return None

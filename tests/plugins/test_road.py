@@ -356,6 +356,28 @@ def test_fit_road_plane_matches_lstsq():
     np.testing.assert_allclose(b, b_true, atol=0.05)
 
 
+def test_fit_road_plane_without_a_plane_is_none():
+    """Every selected pixel in one column: the normal equations are singular, no plane (and no roll)."""
+    H, W = 120, 90
+    disp = np.zeros((H, W), np.float32)
+    disp[20:, 45] = 0.6 * np.arange(20, H) - 8.0
+    calib = Calibration(f=100.0, cx=W / 2, cy=H / 2, baseline=0.5)
+    params = profile.ProfileParams(roll_subsample=1, roll_iterations=2)
+    # enough pixels (>= 50): the plane is refused for being singular, not for want of pixels
+    n, _ = profile._plane_sums_kernel(disp, 1, 20, params.min_fit_disparity_px, -8.0, 0.0, 0.6, params.roll_tolerance_px, 0.1, 1.6, 0.5, 44.5, 59.5)
+    assert n >= 50
+    assert profile._fit_road_plane(disp, np.array([-8.0, 0.6]), 20, params, calib) is None
+
+
+def test_ransac_sample_pairs_are_cached_read_only_draws():
+    i, j = profile._sample_pairs(37, 50, 0)
+    rng = np.random.default_rng(0)
+    np.testing.assert_array_equal(i, rng.integers(0, 37, 50))
+    np.testing.assert_array_equal(j, rng.integers(0, 37, 50))
+    assert profile._sample_pairs(37, 50, 0)[0] is i  # the same arrays again
+    assert not i.flags.writeable and not j.flags.writeable
+
+
 @pytest.mark.parametrize("shape", EDGE_SHAPES)
 def test_mask_kernels_match_numpy(shape):
     rng = np.random.default_rng(5)
