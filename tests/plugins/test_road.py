@@ -431,6 +431,21 @@ def test_lookup_kernel_matches_numpy():
     np.testing.assert_array_equal(mask._lookup_kernel(lut, labels), lut[labels])
 
 
+def test_keep_components_one_or_several():
+    """One component kept (the comparison path) or several (the lookup kernel): the same rule."""
+    m = np.zeros((40, 60), bool)
+    m[25:40, 0:12] = True  # bottom band, left of the central half (cols 15-45)
+    m[30:40, 35:55] = True  # bottom band, in the central half
+    m[2:6, 28:32] = True  # a far speck
+    left, right = np.zeros_like(m), np.zeros_like(m)
+    left[25:40, 0:12] = True
+    right[30:40, 35:55] = True
+    np.testing.assert_array_equal(mask._keep_components(m, "bottom_centre", 0.15, 30.0), right)
+    np.testing.assert_array_equal(mask._keep_components(m, "bottom", 0.15, 30.0), left | right)
+    # without any component in the band: unchanged
+    np.testing.assert_array_equal(mask._keep_components(m[:20], "bottom", 0.15, 30.0), m[:20])
+
+
 # --------------------------------------------------------------------------- geometry
 
 
