@@ -5,6 +5,14 @@ Use :func:`jit` for every kernel. Kernels are cached on disk in a *user* cache d
 set), so only the first run on a machine pays the compilation, also when the install directory
 is read-only. ``LANEGRAPH_NUMBA_CACHE=0`` turns the disk cache off; ``NUMBA_DISABLE_JIT=1`` turns
 every kernel into plain Python (for coverage and debugging).
+
+The parallel kernels' worker threads (numba's OpenMP layer) sleep as soon as a kernel ends
+(``OMP_WAIT_POLICY=PASSIVE``, set unless the environment already sets it, before the OpenMP
+runtime starts): spinning, they took a core from the next node's OpenCV threads and from the
+thread that reads the next frame. On the 2-core reference machine (``bench_pipeline.py``, two
+runs each, default -> passive): after disparity 10.9-11.1 -> 10.4-10.5 ms (paper.yaml), ESLT's
+spikes of 4-8 ms on a frame in eight gone, end to end 10.3 -> 11.2-12.0 frames/s (paper.yaml) and
+33 -> 34-38 frames/s (half_res.yaml). Set ``OMP_WAIT_POLICY=ACTIVE`` to keep the threads spinning.
 """
 
 from __future__ import annotations
@@ -20,6 +28,8 @@ def cache_root() -> Path:
     )
     return Path(base)
 
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # read when the OpenMP runtime loads: see above
 
 if not os.environ.get("NUMBA_CACHE_DIR"):
     os.environ["NUMBA_CACHE_DIR"] = str(cache_root() / "numba")

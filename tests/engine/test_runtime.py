@@ -1,4 +1,4 @@
-"""The allocator tuning a run applies (lanegraph._runtime)."""
+"""Process settings: the allocator tuning a run applies (lanegraph._runtime) and the OpenMP wait policy (lanegraph._numba)."""
 
 from __future__ import annotations
 
@@ -45,3 +45,16 @@ def test_a_run_applies_it(tmp_path, pm, monkeypatch):
     monkeypatch.setattr(executor, "tune_allocator", lambda: calls.append(1) or True)
     executor.Executor(load(tmp_path, pm), executor.RunContext(), pm).run()
     assert calls == [1]
+
+
+@pytest.mark.parametrize("preset, expected", [(None, "PASSIVE"), ("ACTIVE", "ACTIVE")])
+def test_openmp_threads_sleep_unless_the_environment_says(preset, expected):
+    """Importing the kernels' module makes numba's OpenMP threads sleep after a kernel (before the
+    OpenMP runtime loads), and leaves a policy the user set alone."""
+    env = dict(os.environ)
+    env.pop("OMP_WAIT_POLICY", None)
+    if preset is not None:
+        env["OMP_WAIT_POLICY"] = preset
+    code = "import os, lanegraph._numba; print(os.environ['OMP_WAIT_POLICY'])"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True).stdout.split()
+    assert out == [expected]
