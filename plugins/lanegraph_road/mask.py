@@ -114,7 +114,8 @@ def _fill_holes_kernel(mask, holes, n, classes, max_above):
     no image border and at most ``max_above`` of their pixels have the class ``ABOVE`` (2).
     Label 0 (the mask itself) is skipped. The components touching the border (the large
     background) are ruled out first, so only the pixels of the candidate holes are counted; a run
-    of one label along a row is counted in registers (consecutive pixels mostly share a label)."""
+    of one label along a row is counted in registers (consecutive pixels mostly share a label).
+    Only the rows between the first and the last row of a filled hole are written."""
     H, W = holes.shape
     cand = np.ones(n, np.bool_)
     cand[0] = False
@@ -129,6 +130,8 @@ def _fill_holes_kernel(mask, holes, n, classes, max_above):
         return out
     size = np.zeros(n, np.int64)
     above = np.zeros(n, np.int64)
+    first = np.full(n, H, np.int64)  # first and last row of each candidate
+    last = np.zeros(n, np.int64)
     for v in range(H):
         cur = 0
         run = 0
@@ -139,6 +142,8 @@ def _fill_holes_kernel(mask, holes, n, classes, max_above):
                 if run > 0:
                     size[cur] += run
                     above[cur] += run_above
+                    first[cur] = min(first[cur], v)
+                    last[cur] = v
                 cur = lab
                 run = 0
                 run_above = 0
@@ -148,12 +153,17 @@ def _fill_holes_kernel(mask, holes, n, classes, max_above):
         if run > 0:
             size[cur] += run
             above[cur] += run_above
+            first[cur] = min(first[cur], v)
+            last[cur] = v
     fill = np.zeros(n, np.bool_)
+    v_lo = H
+    v_hi = -1
     for lab in range(1, n):
         fill[lab] = cand[lab] and above[lab] <= max_above * size[lab]
-    if not fill.any():
-        return out
-    for v in range(H):
+        if fill[lab]:
+            v_lo = min(v_lo, first[lab])
+            v_hi = max(v_hi, last[lab])
+    for v in range(v_lo, v_hi + 1):
         for u in range(W):
             if fill[holes[v, u]]:
                 out[v, u] = True
