@@ -151,6 +151,15 @@ def _normal_equations(x, w, y, m, M):
         M[r, m] = T[r]
 
 
+@jit(inline="always")
+def _poly(a, x):
+    """``sum a[j] x^j`` by Horner's rule."""
+    p = 0.0
+    for j in range(a.size - 1, -1, -1):
+        p = p * x + a[j]
+    return p
+
+
 @jit
 def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px):
     """:func:`irls_fit` by weighted normal equations in the scaled abscissa ``x = (t - mid) / half``
@@ -185,11 +194,7 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px):
     for it in range(iterations + 1):
         if it > 0:
             for i in range(n):
-                xi = x[i]
-                p = a[m - 1]
-                for j in range(m - 2, -1, -1):
-                    p = p * xi + a[j]
-                res[i] = y[i] - p
+                res[i] = y[i] - _poly(a, x[i])
             med = np.median(res)
             for i in range(n):
                 dev[i] = abs(res[i] - med)
@@ -219,13 +224,10 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px):
         if not np.all(np.isfinite(new)):
             return False, coef, w
         if it > 0:
+            step = new_a - a
             moved = 0.0
             for i in range(n):
-                xi = x[i]
-                dp = new_a[m - 1] - a[m - 1]
-                for j in range(m - 2, -1, -1):
-                    dp = dp * xi + (new_a[j] - a[j])
-                moved = max(moved, abs(dp))
+                moved = max(moved, abs(_poly(step, x[i])))
             a = new_a
             coef = new
             if moved <= tol_px:
@@ -299,6 +301,9 @@ def _ransac_kernel(t, y, samples, inlier_px):
     hi = t.max()
     mid = 0.5 * (lo + hi)
     half = 0.5 * (hi - lo) if hi > lo else 1.0
+    x = np.empty(n)  # the scaled abscissae, once (not again for every sample)
+    for i in range(n):
+        x[i] = (t[i] - mid) / half
     M = np.empty((m, m + 1))
     a = np.zeros(m)
     best_a = np.zeros(m)
@@ -312,32 +317,24 @@ def _ransac_kernel(t, y, samples, inlier_px):
         if not distinct:
             continue
         for i in range(m):
-            x = (t[samples[k, i]] - mid) / half
+            xs = x[samples[k, i]]
             p = 1.0
             for j in range(m):
                 M[i, j] = p
-                p *= x
+                p *= xs
             M[i, m] = y[samples[k, i]]
         if not _solve_augmented(M, 1e-12, a):
             continue
         count = 0
         for i in range(n):
-            x = (t[i] - mid) / half
-            p = 0.0
-            for j in range(m - 1, -1, -1):
-                p = p * x + a[j]
-            count += abs(p - y[i]) <= inlier_px
+            count += abs(_poly(a, x[i]) - y[i]) <= inlier_px
         if count > best:
             best = count
             best_a[:] = a
     if best < 0:
         return inl
     for i in range(n):
-        x = (t[i] - mid) / half
-        p = 0.0
-        for j in range(m - 1, -1, -1):
-            p = p * x + best_a[j]
-        inl[i] = abs(p - y[i]) <= inlier_px
+        inl[i] = abs(_poly(best_a, x[i]) - y[i]) <= inlier_px
     return inl
 
 

@@ -647,8 +647,7 @@ def _fit_road_plane(disp, line, v_top: int, params: ProfileParams, calib: Calibr
     _, h1 = geometry.pose_from_line(float(line[0]), float(line[1]), calib)
     b = np.array([float(line[0]), 0.0, float(line[1])])
     fixed = float(params.roll_tolerance_px)  # the first round: within this of the profile line
-    fitted = False
-    for _ in range(params.roll_iterations):
+    for _ in range(params.roll_iterations):  # at least one (the param's bound): b is then a fit
         n, S = _plane_sums_kernel(
             disp, st, int(v_top), float(params.min_fit_disparity_px), float(b[0]), float(b[1]), float(b[2]),
             fixed, float(params.plane_tolerance_m), float(h1), float(params.min_plane_tolerance_px), uc, vc,
@@ -664,9 +663,8 @@ def _fit_road_plane(disp, line, v_top: int, params: ProfileParams, calib: Calibr
         b = np.array([a - b1 * uc - b2 * vc, b1, b2])
         if not np.all(np.isfinite(b)):
             return None
-        fitted = True
         fixed = 0.0  # later rounds: the metric tolerance around the plane
-    if not fitted or not b[2] > 0:
+    if not b[2] > 0:
         return None
     return b
 
