@@ -46,14 +46,19 @@ ROAD, ABOVE, BELOW, UNKNOWN = 1, 2, 3, 4  # labels of _height_class_kernel (0: b
 
 
 @jit
-def _height_class_kernel(disp, a0, a1, a2, cx, cy, s, c, height, height_tol, min_disp_tol, min_road_disp):
-    """Label each pixel by its height above the road (eq. 4): 1 road (``|d - d_road| <= tol`` with
-    ``tol = max(height_tol * d / height, min_disp_tol)``), 2 above, 3 below, 4 no disparity (``d <= 0``)
-    where the road would be visible; 0 where the road disparity at the pixel (roll-corrected row
-    ``cy + s (u-cx) + c (v-cy)``) is < ``min_road_disp`` (beyond ``max_distance_m`` or the horizon).
+def _height_class_kernel(disp, step, a0, a1, a2, cx, cy, s, c, height, height_tol, min_disp_tol, min_road_disp):
+    """Label every ``step``-th column of ``disp`` (column ``u`` of the result is image column
+    ``step u``; ``cx``, ``s`` are given in result columns) by its height above the road (eq. 4): 1 road
+    (``|d - d_road| <= tol`` with ``tol = max(height_tol * d / height, min_disp_tol)``), 2 above, 3
+    below, 4 no disparity (``d <= 0``) where the road would be visible; 0 where the road disparity at
+    the pixel (roll-corrected row ``cy + s (u-cx) + c (v-cy)``) is < ``min_road_disp`` (beyond
+    ``max_distance_m`` or the horizon). Returns ``(labels, first)``: ``first`` is the first row with
+    a non-zero label (``H`` when none). Reads the strided columns in place (no copy of the map).
     One thread: rows in parallel were slower on the 2-core reference machine."""
-    H, W = disp.shape
+    H = disp.shape[0]
+    W = (disp.shape[1] + step - 1) // step
     out = np.zeros((H, W), np.uint8)
+    first = H
     for v in range(H):
         if a2 == 0.0:
             # a linear profile along a straight (roll-corrected) row: its ends bound the row
@@ -62,11 +67,13 @@ def _height_class_kernel(disp, a0, a1, a2, cx, cy, s, c, height, height_tol, min
             if a0 + a1 * r_a < min_road_disp and a0 + a1 * r_b < min_road_disp:
                 continue
         for u in range(W):
-            d = disp[v, u]
+            d = disp[v, u * step]
             r = cy + s * (u - cx) + c * (v - cy)
             dr = a0 + a1 * r + a2 * r * r
             if dr < min_road_disp:
                 continue
+            if first == H:
+                first = v
             if d <= 0.0:
                 out[v, u] = 4
                 continue
@@ -79,7 +86,7 @@ def _height_class_kernel(disp, a0, a1, a2, cx, cy, s, c, height, height_tol, min
                 out[v, u] = 3
             else:
                 out[v, u] = 1
-    return out
+    return out, first
 
 
 @jit
@@ -167,18 +174,6 @@ def _fill_holes_kernel(mask, holes, n, classes, max_above):
         for u in range(W):
             if fill[holes[v, u]]:
                 out[v, u] = True
-    return out
-
-
-@jit
-def _lookup_kernel(lut, labels):
-    """``lut[labels]`` (a bool per label). One thread: waking the parallel threads cost more than
-    they saved (0.09 ms for 200 x 620 labels)."""
-    H, W = labels.shape
-    out = np.empty((H, W), np.bool_)
-    for v in range(H):
-        for u in range(W):
-            out[v, u] = lut[labels[v, u]]
     return out
 
 
@@ -299,7 +294,7 @@ def _keep_components(mask: np.ndarray, keep: str, band_frac: float, cx: float, i
                 return np.equal(labels, kept[0])
             lut = np.zeros(n, bool)
             lut[kept] = True
-            return _lookup_kernel(lut, labels)
+            return lut[labels]  # several components kept: rare, a NumPy lookup
     return mask
 
 
@@ -332,10 +327,9 @@ def road_mask_array(
     min_road_disp = calib.f * calib.baseline / params.max_distance_m
     st = int(params.column_step)
     W = disp.shape[1]
-    if st > 1:
-        disp = np.ascontiguousarray(disp[:, ::st])
-    labels = _height_class_kernel(
+    labels, first = _height_class_kernel(
         disp,
+        st,
         float(road.a0),
         float(road.a1),
         float(road.a2),
@@ -349,11 +343,10 @@ def road_mask_array(
         float(min_road_disp),
     )
     H = labels.shape[0]
-    labelled = np.flatnonzero(labels.any(axis=1))
     out = np.zeros((H, W), bool)
-    if labelled.size == 0:
+    if first >= H:
         return out
-    top = max(0, int(labelled[0]) - 2 * (params.open_px + params.close_px) - 2)
+    top = max(0, int(first) - 2 * (params.open_px + params.close_px) - 2)
     labels = labels[top:]
     mask = (
         _free_space_kernel(labels, int(params.min_obstacle_run_px), bool(params.textureless_is_road)) if params.free_space else labels == ROAD

@@ -49,35 +49,39 @@ from . import geometry
 def _dp_path_kernel(score, max_step, smoothness):
     """Best non-increasing-upwards path: ``path[v]`` is a bin per row, ``path[v] <= path[v+1] <=
     path[v] + max_step``; maximises ``sum score[v, path[v]] - smoothness * sum step**2``.
-    Keeps one row of accumulated scores and the chosen step (uint8, ``max_step <= 255``) per cell."""
+    Keeps one row of accumulated scores and the chosen step (uint8, ``max_step <= 255``) per cell.
+    A row's best predecessors are found one step at a time over every bin (steps in increasing
+    order, the first best kept: the smallest step on a tie), a loop over bins that the compiler
+    vectorises."""
     H, D = score.shape
-    pen = np.empty(max_step + 1, np.float64)
-    for step in range(max_step + 1):
-        pen[step] = smoothness * step * step
     prev = np.empty(D, np.float64)
     cur = np.empty(D, np.float64)
+    best = np.empty(D, np.float64)
+    arg = np.empty(D, np.uint8)
     back = np.zeros((H, D), np.uint8)
     for k in range(D):
         prev[k] = score[H - 1, k]
     for v in range(H - 2, -1, -1):
         for k in range(D):
-            best = -1e300
-            arg = 0
-            hi = min(D, k + max_step + 1)
-            for j in range(k, hi):
-                val = prev[j] - pen[j - k]
-                if val > best:
-                    best = val
-                    arg = j - k
-            cur[k] = score[v, k] + best
-            back[v, k] = arg
+            best[k] = -1e300
+            arg[k] = 0
+        for step in range(min(max_step, D - 1) + 1):
+            pen = smoothness * step * step
+            for k in range(D - step):
+                val = prev[k + step] - pen
+                better = val > best[k]
+                best[k] = val if better else best[k]
+                arg[k] = step if better else arg[k]
+        for k in range(D):
+            cur[k] = score[v, k] + best[k]
+            back[v, k] = arg[k]
         prev, cur = cur, prev
     path = np.zeros(H, np.int32)
     k = 0
-    best = -1e300
+    top = -1e300
     for j in range(D):
-        if prev[j] > best:
-            best = prev[j]
+        if prev[j] > top:
+            top = prev[j]
             k = j
     path[0] = k
     for v in range(1, H):
@@ -86,17 +90,33 @@ def _dp_path_kernel(score, max_step, smoothness):
 
 
 @jit
-def _select_kernel(disp, step, band_k, b0, b1, b2, cx, cy, s, c, out_rows, out_d):
-    """The pixels of a profile pass, compacted: those with ``d > 0`` and, when ``band_k > 0``, within
-    the band ``|d - (b0 + b1 u + b2 v)| <= band_k d`` of the road plane (disparity space; ``band_k`` is
-    the band in metres over the camera height, eq. 4), whose roll-corrected row
-    ``v' = cy + s (u - cx) + c (v - cy)``, rounded to the nearest row, lies in ``[0, H)``. Writes each
-    one's row and disparity into ``out_rows`` / ``out_d`` in row-major order; returns their number.
-    Only every ``step``-th column (from column 0) is looked at. The v-disparity and the row
-    refinements then loop over this list, not over the image."""
+def _select_kernel(disp, check_finite, step, band_k, b0, b1, b2, cx, cy, s, c, bin_size, max_disp, out_rows, out_d, vd):
+    """The pixels of a profile pass, compacted, and their v-disparity, in one pass over the image.
+
+    Selects the pixels with ``d > 0`` and, when ``band_k > 0``, within the band
+    ``|d - (b0 + b1 u + b2 v)| <= band_k d`` of the road plane (disparity space; ``band_k`` is the
+    band in metres over the camera height, eq. 4), whose roll-corrected row
+    ``v' = cy + s (u - cx) + c (v - cy)``, rounded to the nearest row, lies in ``[0, H)``; only every
+    ``step``-th column (from column 0) is looked at. Writes each one's row and disparity into
+    ``out_rows`` / ``out_d`` in row-major order and counts it in ``vd[row, int(d / bin_size)]``
+    (``H x n_bins`` float32, zeroed by the caller; ``n_bins`` may be 0: no counts) when
+    ``d < max_disp`` and the bin exists. Returns the number of pixels selected.
+
+    With ``check_finite`` every pixel of a row (not only the sampled columns: their cache lines are
+    read anyway) is first tested for a NaN or an infinity (exponent bits all ones); the first one
+    found ends the kernel with -1 (the caller replaces them and calls again)."""
     H, W = disp.shape
+    n_bins = vd.shape[1]
+    bits = disp.view(np.uint32)
     n = 0
     for v in range(H):
+        if check_finite:
+            # the exponent field + 1 carries into bit 31 exactly when it is all ones
+            acc = np.uint32(0)
+            for u in range(W):
+                acc |= (bits[v, u] & np.uint32(0x7F800000)) + np.uint32(0x00800000)
+            if acc & np.uint32(0x80000000):
+                return -1
         for u in range(0, W, step):
             d = disp[v, u]
             if not d > 0.0:
@@ -109,154 +129,152 @@ def _select_kernel(disp, step, band_k, b0, b1, b2, cx, cy, s, c, out_rows, out_d
             out_rows[n] = r
             out_d[n] = d
             n += 1
+            if d < max_disp:
+                k = int(d / bin_size)
+                if k < n_bins:
+                    vd[r, k] += 1.0  # exact: float32 counts up to 2**24
     return n
 
 
-def select_pixels(
-    disp: np.ndarray,
-    cx: float,
-    cy: float,
-    s: float,
-    c: float,
-    band: tuple[float, float, float, float] | None = None,
-    step: int = 1,
-) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_select_kernel` into new arrays: ``(rows, disparities)`` of the selected pixels of
-    every ``step``-th column; ``band = (band_k, b0, b1, b2)`` or None for every valid pixel. Rows are int16 (half the memory
-    traffic of int32) unless the image has too many rows for it."""
-    cap = disp.shape[0] * -(-disp.shape[1] // step)
-    rows = np.empty(cap, np.int16 if disp.shape[0] < 32767 else np.int32)
-    d = np.empty(cap, np.float32)
-    k, b0, b1, b2 = band if band is not None else (0.0, 0.0, 0.0, 0.0)
-    n = _select_kernel(disp, int(step), float(k), float(b0), float(b1), float(b2), float(cx), float(cy), float(s), float(c), rows, d)
-    return rows[:n], d[:n]
-
-
 @jit
-def _vdisparity_kernel(rows, d, H, n_bins, bin_size, max_disp):
-    """The ``H x n_bins`` v-disparity of selected pixels (:func:`_select_kernel`): count per (row,
-    bin) those with ``d < max_disp``. The bins are computed in a first loop; the counts go to four
-    interleaved partial histograms (neighbouring pixels mostly hit the same cell: one histogram
-    would make every increment wait for the previous one), added at the end."""
-    n = rows.size
-    k = np.empty(n, np.int32)
-    for i in range(n):
-        di = d[i]
-        # bin n_bins collects the left-out disparities (>= max_disp or beyond the last bin)
-        k[i] = min(int(di / bin_size), n_bins) if di < max_disp else n_bins
-    part = np.zeros((4, H, n_bins + 1), np.int32)
-    for i in range(n):
-        part[i & 3, rows[i], k[i]] += 1
-    out = np.empty((H, n_bins), np.float32)
-    for r in range(H):
-        for j in range(n_bins):
-            out[r, j] = part[0, r, j] + part[1, r, j] + part[2, r, j] + part[3, r, j]
-    return out
-
-
-@jit
-def _row_refine_kernel(rows, d, centre, radius):
-    """Per row, the sum and the count of the selected pixels' disparities (:func:`_select_kernel`)
-    within ``radius[row]`` of ``centre[row]``."""
-    H = centre.size
+def _row_runs(rows):
+    """The runs of equal rows in a pixel list (:func:`_select_kernel`): ``starts`` (int64, the run
+    ``q`` is ``starts[q]:starts[q + 1]``) and the number of runs."""
     N = rows.size
+    starts = np.empty(N + 1, np.int64)
+    nr = 0
+    for i in range(N):
+        if i == 0 or rows[i] != rows[i - 1]:
+            starts[nr] = i
+            nr += 1
+    starts[nr] = N
+    return starts, nr
+
+
+@jit
+def _refine_runs(rows, d, starts, nr, centre, radius):
+    """:func:`_row_refine_kernel` over the runs of :func:`_row_runs`."""
+    H = centre.size
     total = np.zeros(H, np.float64)
     count = np.zeros(H, np.float64)
     # a run of pixels of one row (they come in image-row order) is summed in registers, in two
-    # interleaved accumulators (one floating-point sum would make every addition wait for the last)
-    i = 0
-    while i < N:
-        r = rows[i]
+    # interleaved accumulators (one floating-point sum would make every addition wait for the last);
+    # without branches (which pixel is in is unpredictable): adding 0.0 to a sum of positive
+    # disparities leaves it unchanged
+    for q in range(nr):
+        a = starts[q]
+        b = starts[q + 1]
+        r = rows[a]
         c = centre[r]
         rad = radius[r]
         t0 = 0.0
         t1 = 0.0
         n0 = 0
         n1 = 0
-        j = i
-        while j + 1 < N and rows[j] == r and rows[j + 1] == r:
-            d0 = d[j]
-            d1 = d[j + 1]
-            if abs(d0 - c) <= rad:
-                t0 += d0
-                n0 += 1
-            if abs(d1 - c) <= rad:
-                t1 += d1
-                n1 += 1
-            j += 2
-        if j < N and rows[j] == r:  # the run's last pixel, when its length is odd
-            dj = d[j]
+        e = a + ((b - a) // 2) * 2
+        for j in range(a, e, 2):
+            d0 = np.float64(d[j])
+            d1 = np.float64(d[j + 1])
+            in0 = abs(d0 - c) <= rad
+            in1 = abs(d1 - c) <= rad
+            t0 += d0 if in0 else 0.0
+            t1 += d1 if in1 else 0.0
+            n0 += in0
+            n1 += in1
+        if e < b:  # the run's last pixel, when its length is odd
+            dj = np.float64(d[e])
             if abs(dj - c) <= rad:
                 t0 += dj
                 n0 += 1
-            j += 1
         total[r] += t0 + t1
         count[r] += n0 + n1
-        i = j
     return total, count
 
 
 @jit
-def _plane_sums_kernel(disp, step, v_top, min_disp, b0, b1, b2, fixed_tol, plane_tol, height, min_tol, uc, vc):
-    """One selection round of the roll plane over every ``step``-th row and column from row 0 and
-    column 0: the pixels with ``d > min_disp``, ``v >= v_top`` and ``|d - (b0 + b1 u + b2 v)| < tol``,
-    ``tol = fixed_tol`` when it is > 0 else ``max(plane_tol * d / height, min_tol)``. Returns the sums
-    of the least-squares normal equations of ``d = a + b1 (u - uc) + b2 (v - vc)``: ``(n, S)`` with
-    ``S = [Su, Sv, Suu, Suv, Svv, Sd, Sud, Svd]`` over the centred ``u - uc``, ``v - vc``."""
-    H, W = disp.shape
+def _row_refine_kernel(rows, d, centre, radius):
+    """Per row, the sum and the count of the selected pixels' disparities (:func:`_select_kernel`)
+    within ``radius[row]`` of ``centre[row]``."""
+    starts, nr = _row_runs(rows)
+    return _refine_runs(rows, d, starts, nr, centre, radius)
+
+
+@jit
+def _profile_kernel(
+    vd, columns, max_step, smoothness, bin_size, radius0, rows, d, height, plane_tol, min_tol, step,
+    min_row_count, min_fit_disp,
+):
+    """Steps 2-3 of a pass up to the robust fit: DP path, row refinement, profile, fit rows.
+
+    The rows above the first one with any support in the ``H x D`` v-disparity ``vd`` (the sky, or
+    the rows the disparity was not computed for) add nothing: the DP (:func:`_dp_path_kernel`, score
+    ``vd / columns``: support per column) runs from that row down and the path stays level above it;
+    the bins above the largest one with support are left out too. A row's disparity is then the
+    mean of its selected pixels (``rows``, ``d``: :func:`_select_kernel`) within ``radius0`` of the
+    path's bin centre; with ``height > 0`` twice more within ``max(plane_tol * mean / height,
+    min_tol)`` (metric, eq. 4) of the last mean (rows without pixels keep the bin centre).
+
+    Returns ``(profile, fit_rows, fit_d, fit_w)``: the ``H`` row disparities (float32, -1 where the
+    row has fewer than ``min_row_count`` full-resolution pixels: ``count * step``) and the rows whose
+    disparity is ``>= min_fit_disp`` (a float32, compared in float32): row, disparity and pixel count
+    (float64)."""
+    H, D = vd.shape
+    v0 = 0
+    for v in range(H):
+        if np.any(vd[v] != 0):
+            v0 = v
+            break
+    last = -1
+    for v in range(v0, H):
+        for k in range(last + 1, D):
+            if vd[v, k] != 0:
+                last = k
+    d_hi = last + 1 if last >= 0 else D
+    score = np.empty((H - v0, d_hi), np.float64)
+    for v in range(v0, H):
+        for k in range(d_hi):
+            score[v - v0, k] = np.float64(vd[v, k]) / columns
+    sub = _dp_path_kernel(score, max_step, smoothness)
+    centre = np.empty(H, np.float64)
+    radius = np.full(H, radius0)
+    for v in range(H):
+        centre[v] = (np.float64(sub[max(v - v0, 0)]) + 0.5) * bin_size
+    starts, nr = _row_runs(rows)  # the list is read three times in pass 2
+    total, count = _refine_runs(rows, d, starts, nr, centre, radius)
+    if height > 0.0:
+        for _ in range(2):
+            for v in range(H):
+                if count[v] > 0:
+                    centre[v] = total[v] / max(count[v], 1.0)
+                radius[v] = max(plane_tol * centre[v] / height, min_tol)
+            total, count = _refine_runs(rows, d, starts, nr, centre, radius)
+    profile = np.full(H, np.float32(-1.0))
+    use = np.zeros(H, np.bool_)
     n = 0
-    su = 0.0
-    sv = 0.0
-    suu = 0.0
-    suv = 0.0
-    svv = 0.0
-    sd = 0.0
-    sud = 0.0
-    svd = 0.0
-    for v in range(0, H, step):
-        if v < v_top:
-            continue
-        fv = float(v)
-        for u in range(0, W, step):
-            d = float(disp[v, u])
-            if not d > min_disp:
-                continue
-            fu = float(u)
-            if fixed_tol > 0.0:
-                tol = fixed_tol
-            else:
-                tol = plane_tol * d / height
-                if tol < min_tol:
-                    tol = min_tol
-            if abs(d - (b0 + b1 * fu + b2 * fv)) < tol:
-                x = fu - uc
-                y = fv - vc
+    for v in range(H):
+        if count[v] * step >= min_row_count:  # full-resolution pixels
+            profile[v] = np.float32(total[v] / count[v])
+            if profile[v] >= min_fit_disp:
+                use[v] = True
                 n += 1
-                su += x
-                sv += y
-                suu += x * x
-                suv += x * y
-                svv += y * y
-                sd += d
-                sud += x * d
-                svd += y * d
-    out = np.empty(8, np.float64)
-    out[0] = su
-    out[1] = sv
-    out[2] = suu
-    out[3] = suv
-    out[4] = svv
-    out[5] = sd
-    out[6] = sud
-    out[7] = svd
-    return n, out
+    fit_rows = np.empty(n, np.float64)
+    fit_d = np.empty(n, np.float64)
+    fit_w = np.empty(n, np.float64)
+    k = 0
+    for v in range(H):
+        if use[v]:
+            fit_rows[k] = v
+            fit_d[k] = profile[v]
+            fit_w[k] = count[v]
+            k += 1
+    return profile, fit_rows, fit_d, fit_w
 
 
 @jit
 def _ransac_line_kernel(v, d, w, i, j, tol):
     """Score the lines through the point pairs ``(i[k], j[k])`` (pairs with ``v[i] == v[j]`` or a slope
-    ``<= 0`` are skipped): the weight ``w`` of the points within ``tol``. Returns ``(found, inliers
-    of the first best line)``."""
+    ``<= 0`` are skipped): the weight ``w`` (>= 0) of the points within ``tol``. Returns ``(found,
+    inliers of the first best line)``."""
     n = v.size
     best_score = -1.0
     best_a0 = 0.0
@@ -271,10 +289,21 @@ def _ransac_line_kernel(v, d, w, i, j, tol):
         if not a1 > 0:
             continue
         a0 = d[i[k]] - a1 * vi
-        score = 0.0
-        for p in range(n):
-            if abs(d[p] - (a0 + a1 * v[p])) < tol:
-                score += w[p]
+        # four interleaved sums without branches (one sum would make every addition wait for the
+        # last): exact, so in any order, for integer weights (the pixel counts of the profile rows)
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        s3 = 0.0
+        e = n - n % 4
+        for p in range(0, e, 4):
+            s0 += w[p] if abs(d[p] - (a0 + a1 * v[p])) < tol else 0.0
+            s1 += w[p + 1] if abs(d[p + 1] - (a0 + a1 * v[p + 1])) < tol else 0.0
+            s2 += w[p + 2] if abs(d[p + 2] - (a0 + a1 * v[p + 2])) < tol else 0.0
+            s3 += w[p + 3] if abs(d[p + 3] - (a0 + a1 * v[p + 3])) < tol else 0.0
+        for p in range(e, n):
+            s0 += w[p] if abs(d[p] - (a0 + a1 * v[p])) < tol else 0.0
+        score = (s0 + s1) + (s2 + s3)
         if score > best_score:
             best_score = score
             best_a0 = a0
@@ -342,6 +371,109 @@ def _line_refit_kernel(v, d, w, inl, tol, rounds):
     return ok, a0, a1, inl
 
 
+@jit
+def _line_fit_kernel(v, d, w, i, j, tol, rounds):
+    """The robust line of a pass: RANSAC over the pairs ``(i, j)`` (:func:`_ransac_line_kernel`),
+    then up to ``rounds`` least-squares rounds (:func:`_line_refit_kernel`). Returns ``(status, a0,
+    a1, inliers)``: status 0 when RANSAC found no line or fewer than two inliers, 1 when the least
+    squares failed (``inliers``: the last ones), 2 for a line."""
+    found, inl = _ransac_line_kernel(v, d, w, i, j, tol)
+    if not found or np.count_nonzero(inl) < 2:
+        return 0, 0.0, 0.0, inl
+    ok, a0, a1, inl = _line_refit_kernel(v, d, w, inl, tol, rounds)
+    return (2 if ok else 1), a0, a1, inl
+
+
+@jit
+def _plane_fit_kernel(disp, step, v_top, min_disp, b0, b1, b2, first_tol, plane_tol, height, min_tol, uc, vc, rounds):
+    """The roll plane ``d = b0 + b1 u + b2 v`` (disparity space), ``rounds`` selection and
+    least-squares rounds over every ``step``-th row and column from row 0 and column 0.
+
+    The candidates (``d > min_disp``, ``v >= v_top``) are compacted once, in row-major order. A round
+    selects those with ``|d - (b0 + b1 u + b2 v)| < tol`` (the plane of the previous round, the
+    first round the one given), ``tol = first_tol`` in the first round, then ``max(plane_tol * d /
+    height, min_tol)``; sums the least-squares normal equations of ``d = a + c1 (u - uc) + c2 (v -
+    vc)`` (centred coordinates) and solves them (LAPACK ``gesv``, as ``np.linalg.solve``):
+    ``b = (a - c1 uc - c2 vc, c1, c2)``. Returns ``(ok, b0, b1, b2)``; not ok when a round selects
+    fewer than 50 pixels, its system is singular, a coefficient is not finite, or the final
+    ``b2 <= 0``."""
+    H, W = disp.shape
+    cap = ((H + step - 1) // step) * ((W + step - 1) // step)
+    us = np.empty(cap, np.float64)
+    vs = np.empty(cap, np.float64)
+    ds = np.empty(cap, np.float64)
+    m = 0
+    for v in range(0, H, step):
+        if v < v_top:
+            continue
+        for u in range(0, W, step):
+            dd = np.float64(disp[v, u])
+            if not dd > min_disp:
+                continue
+            us[m] = u
+            vs[m] = v
+            ds[m] = dd
+            m += 1
+    M = np.empty((3, 3), np.float64)
+    rhs = np.empty(3, np.float64)
+    for it in range(rounds):
+        n = 0
+        su = 0.0
+        sv = 0.0
+        suu = 0.0
+        suv = 0.0
+        svv = 0.0
+        sd = 0.0
+        sud = 0.0
+        svd = 0.0
+        for p in range(m):
+            fu = us[p]
+            fv = vs[p]
+            dd = ds[p]
+            if it == 0:
+                tol = first_tol
+            else:
+                tol = max(plane_tol * dd / height, min_tol)
+            if abs(dd - (b0 + b1 * fu + b2 * fv)) < tol:
+                x = fu - uc
+                y = fv - vc
+                n += 1
+                su += x
+                sv += y
+                suu += x * x
+                suv += x * y
+                svv += y * y
+                sd += dd
+                sud += x * dd
+                svd += y * dd
+        if n < 50:
+            return False, 0.0, 0.0, 0.0
+        M[0, 0] = n
+        M[0, 1] = su
+        M[0, 2] = sv
+        M[1, 0] = su
+        M[1, 1] = suu
+        M[1, 2] = suv
+        M[2, 0] = sv
+        M[2, 1] = suv
+        M[2, 2] = svv
+        rhs[0] = sd
+        rhs[1] = sud
+        rhs[2] = svd
+        try:
+            sol = np.linalg.solve(M, rhs)
+        except Exception:  # singular (every selected pixel on one row or column) or not finite
+            return False, 0.0, 0.0, 0.0
+        b0 = sol[0] - sol[1] * uc - sol[2] * vc
+        b1 = sol[1]
+        b2 = sol[2]
+        if not (math.isfinite(b0) and math.isfinite(b1) and math.isfinite(b2)):
+            return False, 0.0, 0.0, 0.0
+    if not b2 > 0:
+        return False, 0.0, 0.0, 0.0
+    return True, b0, b1, b2
+
+
 # --------------------------------------------------------------------------- helpers
 
 
@@ -350,22 +482,80 @@ class RoadInputError(InputError, ValueError):
     (so the executor reports it like any bad input) that stays a ``ValueError`` for Python callers."""
 
 
-def as_disparity(disparity: np.ndarray, node: str = "road") -> np.ndarray:
-    """Validate a disparity map and return it as C-contiguous float32 with non-finite values set to 0."""
+def _float32_disparity(disparity: np.ndarray, node: str) -> np.ndarray:
+    """Validate a disparity map's shape and dtype; C-contiguous float32 (no copy when it is already)."""
     disparity = np.asarray(disparity)
     if disparity.ndim != 2 or disparity.shape[0] < 1 or disparity.shape[1] < 1 or disparity.dtype.kind not in "biuf":
         raise RoadInputError(
             f"{node}: disparity: expected a non-empty HxW array of numbers, "
             f"got shape {disparity.shape} of dtype {disparity.dtype}"
         )
-    d = np.ascontiguousarray(disparity, dtype=np.float32)
+    return np.ascontiguousarray(disparity, dtype=np.float32)
+
+
+def _zero_non_finite(d: np.ndarray) -> np.ndarray:
+    """A copy of a float32 map with its NaNs and infinities set to 0 (invalid)."""
+    return np.where(np.isfinite(d), d, 0.0).astype(np.float32)
+
+
+def as_disparity(disparity: np.ndarray, node: str = "road") -> np.ndarray:
+    """Validate a disparity map and return it as C-contiguous float32 with non-finite values set to 0."""
+    d = _float32_disparity(disparity, node)
     if not np.isfinite(d).all():
-        d = np.where(np.isfinite(d), d, 0.0).astype(np.float32)
+        d = _zero_non_finite(d)
     return d
 
 
 def n_bins(max_disparity: float, bin_size: float) -> int:
     return max(1, int(math.ceil(max_disparity / bin_size)))
+
+
+def _select(disp, cx, cy, s, c, bins, bin_size, max_disparity, band, step, check_finite):
+    """:func:`_select_kernel` into new arrays: ``(rows, disparities, vdisparity)``, or None when
+    ``check_finite`` and the map holds a NaN or an infinity. Rows are int16 (half the memory traffic
+    of int32) unless the image has too many rows for it."""
+    H, W = disp.shape
+    cap = H * -(-W // step)
+    rows = np.empty(cap, np.int16 if H < 32767 else np.int32)
+    d = np.empty(cap, np.float32)
+    vd = np.zeros((H, bins), np.float32)
+    k, b0, b1, b2 = band if band is not None else (0.0, 0.0, 0.0, 0.0)
+    n = _select_kernel(
+        disp, bool(check_finite), int(step), float(k), float(b0), float(b1), float(b2), float(cx), float(cy),
+        float(s), float(c), float(bin_size), float(max_disparity), rows, d, vd,
+    )
+    return None if n < 0 else (rows[:n], d[:n], vd)
+
+
+def select_and_count(
+    disp: np.ndarray,
+    cx: float,
+    cy: float,
+    s: float,
+    c: float,
+    max_disparity: float,
+    bin_size: float,
+    band: tuple[float, float, float, float] | None = None,
+    step: int = 1,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pixels of a pass and their v-disparity in one pass over a validated map
+    (:func:`_select_kernel`): ``(rows, disparities, H x D vdisparity)`` of the selected pixels of every
+    ``step``-th column, in roll-corrected rows ``v' = cy + s (u - cx) + c (v - cy)`` (pixels);
+    ``band = (band_k, b0, b1, b2)`` or None for every valid pixel."""
+    return _select(disp, cx, cy, s, c, n_bins(max_disparity, bin_size), bin_size, max_disparity, band, step, False)
+
+
+def select_pixels(
+    disp: np.ndarray,
+    cx: float,
+    cy: float,
+    s: float,
+    c: float,
+    band: tuple[float, float, float, float] | None = None,
+    step: int = 1,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`select_and_count` without the counts: ``(rows, disparities)``."""
+    return _select(disp, cx, cy, s, c, 0, 1.0, 0.0, band, step, False)[:2]
 
 
 def compute_vdisparity(
@@ -376,8 +566,7 @@ def compute_vdisparity(
         raise ValueError("a roll needs the calibration (principal point)")
     s, c = geometry.roll_row_coeffs(roll, calib) if calib is not None else (0.0, 1.0)
     cx, cy = (calib.cx, calib.cy) if calib is not None else (0.0, 0.0)
-    rows, d = select_pixels(disp, cx, cy, s, c)
-    return _vdisparity_kernel(rows, d, disp.shape[0], n_bins(max_disparity, bin_size), float(bin_size), float(max_disparity))
+    return select_and_count(disp, cx, cy, s, c, max_disparity, bin_size)[2]
 
 
 # --------------------------------------------------------------------------- road.vdisparity
@@ -506,25 +695,6 @@ def _sample_pairs(n: int, iterations: int, seed: int) -> tuple[np.ndarray, np.nd
     return i, j
 
 
-def _ransac_line(
-    v: np.ndarray, d: np.ndarray, w: np.ndarray, tol: float, iterations: int, seed: int = 0
-) -> np.ndarray | None:
-    """Robust line ``d = a0 + a1 v`` (a1 > 0) over weighted points: inlier mask, or None."""
-    n = v.size
-    if n < 2:
-        return None
-    i, j = _sample_pairs(n, int(iterations), int(seed))
-    found, inl = _ransac_line_kernel(
-        np.ascontiguousarray(v, dtype=np.float64),
-        np.ascontiguousarray(d, dtype=np.float64),
-        np.ascontiguousarray(w, dtype=np.float64),
-        i,
-        j,
-        float(tol),
-    )
-    return inl if found else None
-
-
 def _weighted_polyfit(v: np.ndarray, d: np.ndarray, w: np.ndarray, deg: int) -> np.ndarray | None:
     """Weighted least squares, coefficients lowest power first (a line in closed form, about the
     weighted mean: no SVD for two unknowns)."""
@@ -547,19 +717,30 @@ def _weighted_polyfit(v: np.ndarray, d: np.ndarray, w: np.ndarray, deg: int) -> 
     return coef if np.all(np.isfinite(coef)) else None
 
 
-def _robust_fit(v, d, w, deg, tol, iterations, init: np.ndarray | None):
-    """RANSAC (for the line) then least squares with inlier re-selection (four rounds at most).
-    Returns (coef, inliers)."""
-    inl = init if init is not None else _ransac_line(v, d, w, tol, iterations)
-    if inl is None or np.count_nonzero(inl) < deg + 1:
+def _robust_fit(v, d, w, deg, tol, iterations, init: np.ndarray | None, seed: int = 0):
+    """RANSAC (for the line: ``iterations`` pairs drawn by :func:`_sample_pairs`) then least squares
+    with inlier re-selection (four rounds at most); with ``init`` (inliers) only the least squares.
+    The line is one kernel (:func:`_line_fit_kernel`). Returns (coef, inliers), coef None when no
+    fit (inliers None when RANSAC found none)."""
+    v = np.ascontiguousarray(v, dtype=np.float64)
+    d = np.ascontiguousarray(d, dtype=np.float64)
+    w = np.ascontiguousarray(w, dtype=np.float64)
+    if init is None:
+        if deg != 1:
+            raise ValueError("RANSAC fits a line (deg 1) only; give the inliers of a line for deg > 1")
+        if v.size < 2:
+            return None, None
+        i, j = _sample_pairs(v.size, int(iterations), int(seed))
+        status, a0, a1, inl = _line_fit_kernel(v, d, w, i, j, float(tol), 4)
+        if status == 0:
+            return None, None
+        return (np.array([a0, a1]), inl) if status == 2 else (None, inl)
+    if np.count_nonzero(init) < deg + 1:
         return None, None
     if deg == 1:
-        ok, a0, a1, inl = _line_refit_kernel(
-            np.ascontiguousarray(v, dtype=np.float64), np.ascontiguousarray(d, dtype=np.float64),
-            np.ascontiguousarray(w, dtype=np.float64), np.ascontiguousarray(inl, dtype=np.bool_), float(tol), 4,
-        )
+        ok, a0, a1, inl = _line_refit_kernel(v, d, w, np.ascontiguousarray(init, dtype=np.bool_), float(tol), 4)
         return (np.array([a0, a1]), inl) if ok else (None, inl)
-    return _robust_refit_np(v, d, w, deg, tol, inl)
+    return _robust_refit_np(v, d, w, deg, tol, init)
 
 
 def _robust_refit_np(v, d, w, deg, tol, inl):
@@ -582,47 +763,40 @@ def _profile_pass(
     H: int, W: int, pixels, vd, params: ProfileParams, height: float | None = None, vd_columns: int | None = None, step: int | None = None
 ):
     """DP + refinement + robust fit in (roll-corrected) rows over the pass's ``pixels`` (``(rows,
-    disparities)`` from :func:`select_pixels`, every ``step``-th column, default ``column_step``) of
-    an ``H x W`` disparity map; ``vd`` counts the pixels of ``vd_columns`` columns (default: the
-    sampled ones).
+    disparities)`` from :func:`select_and_count`, every ``step``-th column, default ``column_step``)
+    of an ``H x W`` disparity map; ``vd`` (C-contiguous float32) counts the pixels of ``vd_columns``
+    columns (default: the sampled ones).
 
     With a ``height`` estimate (pass 2) the row disparities are refined once more, keeping only the
     disparities within ``plane_tolerance_m`` (metric, eq. 4) of the first mean, so that a kerb or
     a low object next to the road does not pull the far rows.
 
+    Two kernels: :func:`_profile_kernel` (DP, refinements, profile, fit rows) and
+    :func:`_line_fit_kernel` (through :func:`_robust_fit`).
+
     Returns ``((line, coef), profile, inlier_rows)``, coefficients lowest power first; the first
     item is None when there is no fit.
     """
     step = int(step or params.column_step)
-    # the rows above the first one with any support (the sky, or the rows the disparity was not
-    # computed for) add nothing: the DP runs from that row down and the path stays level above it
-    # (and the bins above the largest disparity seen hold no support either: left out)
-    vd = np.asarray(vd)
-    supported = np.flatnonzero(vd.any(axis=1))
-    v0 = int(supported[0]) if supported.size else 0
-    bins = np.flatnonzero(vd[v0:].any(axis=0))
-    d_hi = int(bins[-1]) + 1 if bins.size else vd.shape[1]
-    score = vd[v0:, :d_hi].astype(np.float64) / float(vd_columns or -(-W // step))  # support per column
-    path = np.empty(H, np.int32)
-    path[v0:] = _dp_path_kernel(score, int(params.max_step), float(params.smoothness))
-    path[:v0] = path[v0]
-    centre = (path.astype(np.float64) + 0.5) * params.bin_size
-    radius = np.full(H, max(params.refine_radius_px, 0.5 * params.bin_size))
-    total, count = _row_refine_kernel(*pixels, centre, radius)
-    if height is not None and height > 0:
-        for _ in range(2):
-            ok = count > 0
-            centre = np.where(ok, total / np.maximum(count, 1.0), centre)
-            radius = np.maximum(params.plane_tolerance_m * centre / height, params.min_plane_tolerance_px)
-            total, count = _row_refine_kernel(*pixels, centre, radius)
-    profile = np.full(H, -1.0, np.float32)
-    have = count * step >= params.min_row_count  # full-resolution pixels
-    profile[have] = (total[have] / count[have]).astype(np.float32)
-    use = have & (profile >= params.min_fit_disparity_px)
-    rows = np.flatnonzero(use).astype(np.float64)
+    profile, rows, dv, wv = _profile_kernel(
+        vd,
+        float(vd_columns or -(-W // step)),  # the score is the support per column
+        int(params.max_step),
+        float(params.smoothness),
+        float(params.bin_size),
+        float(max(params.refine_radius_px, 0.5 * params.bin_size)),
+        pixels[0],
+        pixels[1],
+        float(height) if height is not None and height > 0 else 0.0,
+        float(params.plane_tolerance_m),
+        float(params.min_plane_tolerance_px),
+        step,
+        int(params.min_row_count),
+        # compared with the float32 profile in float32, as NumPy compares a float32 array with a float
+        np.float32(params.min_fit_disparity_px),
+    )
     if rows.size < params.min_fit_rows:
         return None, profile, None
-    dv, wv = profile[use].astype(np.float64), count[use]
     line, inl = _robust_fit(rows, dv, wv, 1, params.fit_tolerance_px, params.ransac_iterations, None)
     if line is None or np.count_nonzero(inl) < params.min_fit_rows or not line[1] > 0:
         return None, profile, None
@@ -637,36 +811,19 @@ def _profile_pass(
 def _fit_road_plane(disp, line, v_top: int, params: ProfileParams, calib: Calibration) -> np.ndarray | None:
     """The road plane ``d = b0 + b1 u + b2 v`` (disparity space) fitted over the pixels within
     ``roll_tolerance_px`` of the profile line, then re-fitted ``roll_iterations`` times over the
-    pixels within ``plane_tolerance_m`` (metric, eq. 4) of the plane.
-
-    Each round is one pass of :func:`_plane_sums_kernel` (selection and least-squares normal
-    equations together, in coordinates centred on the image centre) and a 3 x 3 solve."""
+    pixels within ``plane_tolerance_m`` (metric, eq. 4) of the plane: every round in one call of
+    :func:`_plane_fit_kernel` (normal equations in coordinates centred on the image centre, a
+    3 x 3 solve). None when a round has fewer than 50 pixels or no plane, or the plane is not
+    a road (``b2 <= 0``)."""
     H, W = disp.shape
-    st = int(params.roll_subsample)
-    uc, vc = 0.5 * (W - 1), 0.5 * (H - 1)
     _, h1 = geometry.pose_from_line(float(line[0]), float(line[1]), calib)
-    b = np.array([float(line[0]), 0.0, float(line[1])])
-    fixed = float(params.roll_tolerance_px)  # the first round: within this of the profile line
-    for _ in range(params.roll_iterations):  # at least one (the param's bound): b is then a fit
-        n, S = _plane_sums_kernel(
-            disp, st, int(v_top), float(params.min_fit_disparity_px), float(b[0]), float(b[1]), float(b[2]),
-            fixed, float(params.plane_tolerance_m), float(h1), float(params.min_plane_tolerance_px), uc, vc,
-        )
-        if n < 50:
-            return None
-        su, sv, suu, suv, svv, sd, sud, svd = S
-        M = np.array([[n, su, sv], [su, suu, suv], [sv, suv, svv]], np.float64)
-        try:  # a direct solve: lstsq's SVD took 0.05 ms per round
-            a, b1, b2 = np.linalg.solve(M, np.array([sd, sud, svd]))
-        except np.linalg.LinAlgError:  # every selected pixel on one row or column: no plane
-            return None
-        b = np.array([a - b1 * uc - b2 * vc, b1, b2])
-        if not np.all(np.isfinite(b)):
-            return None
-        fixed = 0.0  # later rounds: the metric tolerance around the plane
-    if not b[2] > 0:
-        return None
-    return b
+    ok, b0, b1, b2 = _plane_fit_kernel(
+        disp, int(params.roll_subsample), int(v_top), float(params.min_fit_disparity_px),
+        float(line[0]), 0.0, float(line[1]), float(params.roll_tolerance_px), float(params.plane_tolerance_m),
+        float(h1), float(params.min_plane_tolerance_px), 0.5 * (W - 1), 0.5 * (H - 1),
+        int(params.roll_iterations),  # at least one (the param's bound): b is then a fit
+    )
+    return np.array([b0, b1, b2]) if ok else None
 
 
 def _invalid(profile: np.ndarray | None, roll: float = 0.0) -> RoadModel:
@@ -684,26 +841,35 @@ def estimate_road(
     (with the roll when ``estimate_roll``); pass 2 accumulates, in roll-corrected rows, only the
     pixels within ``road_band_m`` of that plane, so that walls, trees and the upper part of
     vehicles no longer compete with the far road in the DP.
+
+    The disparity map is validated as :func:`as_disparity` does, but its NaNs and infinities are
+    looked for by pass 1's selection kernel while it reads the rows anyway (one read of the map
+    instead of two); only when it finds one is the map sanitised (set to 0) and pass 1 selected again.
     """
-    disp = as_disparity(disparity, "road.profile")
+    disp = _float32_disparity(disparity, "road.profile")
     H, W = disp.shape
     D = n_bins(params.max_disparity, params.bin_size)
     cx, cy = float(calib.cx), float(calib.cy)
-    # pass 1: every pixel in its own row (no roll: v' = v)
-    s, c = geometry.roll_row_coeffs(0.0, calib)
-    step1 = int(params.first_pass_column_step)
-    pixels = select_pixels(disp, cx, cy, s, c, step=step1)
     if vdisparity is not None:
-        vd = np.asarray(vdisparity, dtype=np.float32)
+        vd = np.ascontiguousarray(vdisparity, dtype=np.float32)
         if vd.shape != (H, D):
             raise RoadInputError(
                 f"road.profile: vdisparity: expected shape {(H, D)} (rows of the disparity x ceil(max_disparity / bin_size)), "
                 f"got {vd.shape} (hint: give road.vdisparity the same max_disparity and bin_size)"
             )
-    else:
-        vd = _vdisparity_kernel(*pixels, H, D, float(params.bin_size), float(params.max_disparity))
+    # pass 1: every pixel in its own row (no roll: v' = v); counted unless a v-disparity is given
+    s, c = geometry.roll_row_coeffs(0.0, calib)
+    step1 = int(params.first_pass_column_step)
+    bins = D if vdisparity is None else 0
+    sel = _select(disp, cx, cy, s, c, bins, params.bin_size, params.max_disparity, None, step1, True)
+    if sel is None:  # a NaN or an infinity: invalid, as as_disparity makes it
+        disp = _zero_non_finite(disp)
+        sel = _select(disp, cx, cy, s, c, bins, params.bin_size, params.max_disparity, None, step1, False)
+    rows, d, counted = sel
+    if vdisparity is None:
+        vd = counted
 
-    fit, profile, inl = _profile_pass(H, W, pixels, vd, params, vd_columns=W if vdisparity is not None else None, step=step1)
+    fit, profile, inl = _profile_pass(H, W, (rows, d), vd, params, vd_columns=W if vdisparity is not None else None, step=step1)
     if fit is None:
         return _invalid(profile), vd
     line = fit[0]
@@ -719,9 +885,8 @@ def estimate_road(
     # pass 2: only the pixels within road_band_m of that plane, in roll-corrected rows
     band = (params.road_band_m / h1, *plane) if params.road_band_m > 0 else None
     s, c = geometry.roll_row_coeffs(roll, calib)
-    pixels = select_pixels(disp, cx, cy, s, c, band, step=params.column_step)
-    vd = _vdisparity_kernel(*pixels, H, D, float(params.bin_size), float(params.max_disparity))
-    fit, profile, inl = _profile_pass(H, W, pixels, vd, params, h1)
+    rows, d, vd = select_and_count(disp, cx, cy, s, c, params.max_disparity, params.bin_size, band, params.column_step)
+    fit, profile, inl = _profile_pass(H, W, (rows, d), vd, params, h1)
     if fit is None:
         return _invalid(profile, roll), vd
     line, coef = fit

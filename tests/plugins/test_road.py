@@ -22,12 +22,13 @@ PITCH, ROLL, HEIGHT = math.radians(1.5), math.radians(1.0), 1.6
 # --------------------------------------------------------------------------- NumPy twins
 
 
-def vdisparity_np(disp, keep, n_bins, bin_size, max_disp, cx, cy, s, c):
+def vdisparity_np(disp, keep, n_bins, bin_size, max_disp, cx, cy, s, c, step=1):
+    """The v-disparity of the ``keep`` pixels of every ``step``-th column, in roll-corrected rows."""
     H, W = disp.shape
     v, u = np.mgrid[0:H, 0:W]
     r = np.floor(cy + s * (u - cx) + c * (v - cy) + 0.5).astype(int)
     k = np.floor(np.where(disp > 0, disp, 0) / bin_size).astype(int)
-    ok = keep & (disp > 0) & (disp < max_disp) & (r >= 0) & (r < H) & (k < n_bins)
+    ok = keep & (u % step == 0) & (disp > 0) & (disp < max_disp) & (r >= 0) & (r < H) & (k < n_bins)
     out = np.zeros((H, n_bins), np.float32)
     np.add.at(out, (r[ok], k[ok]), 1.0)
     return out
@@ -70,6 +71,8 @@ def plane_band_np(disp, b0, b1, b2, height, band):
 
 
 def plane_sums_np(disp, step, v_top, min_disp, b0, b1, b2, fixed_tol, plane_tol, height, min_tol, uc, vc):
+    """One selection round of the roll plane (``fixed_tol > 0``: that tolerance, else the metric one):
+    ``(n, [Su, Sv, Suu, Suv, Svv, Sd, Sud, Svd])`` of the centred normal equations."""
     sub = disp[::step, ::step].astype(np.float64)
     vv, uu = np.mgrid[0 : disp.shape[0] : step, 0 : disp.shape[1] : step].astype(np.float64)
     tol = fixed_tol if fixed_tol > 0 else np.maximum(plane_tol * sub / height, min_tol)
@@ -160,12 +163,13 @@ def random_disparity(rng, shape, max_d=40.0, invalid=0.2):
 EDGE_SHAPES = [(1, 7), (9, 1), (13, 17)]
 
 
-def select_np(disp, band, cx, cy, s, c):
-    """NumPy twin of ``_select_kernel``: (rows, disparities) of the selected pixels, row-major."""
+def select_np(disp, band, cx, cy, s, c, step=1):
+    """NumPy twin of ``_select_kernel``'s list: (rows, disparities) of the selected pixels of every
+    ``step``-th column, row-major."""
     H, W = disp.shape
     v, u = np.mgrid[0:H, 0:W]
     r = np.floor(cy + s * (u - cx) + c * (v - cy) + 0.5).astype(int)
-    ok = (disp > 0) & (r >= 0) & (r < H)
+    ok = (u % step == 0) & (disp > 0) & (r >= 0) & (r < H)
     if band is not None:
         k, b0, b1, b2 = band
         ok &= np.abs(disp - (b0 + b1 * u + b2 * v)) <= k * disp
@@ -175,28 +179,68 @@ def select_np(disp, band, cx, cy, s, c):
 @pytest.mark.parametrize("shape", EDGE_SHAPES)
 @pytest.mark.parametrize("roll", [0.0, 0.05, -0.2])
 @pytest.mark.parametrize("band", [None, (0.6, 1.0, 0.3, 1.2)])
-def test_select_and_vdisparity_kernels_match_numpy(shape, roll, band):
+def test_select_kernel_matches_numpy(shape, roll, band):
+    """The fused selection + v-disparity kernel: the pixel list and the counts of the twins."""
     rng = np.random.default_rng(1)
     disp = random_disparity(rng, shape)
     s, c = math.sin(roll), math.cos(roll)
-    rows, d = profile.select_pixels(disp, 6.3, 4.1, s, c, band)
-    r_np, d_np = select_np(disp, band, 6.3, 4.1, s, c)
-    np.testing.assert_array_equal(rows, r_np)
-    np.testing.assert_array_equal(d, d_np)
     keep = np.ones(shape, bool) if band is None else plane_band_np(disp, band[1], band[2], band[3], 1.0, band[0])
-    for bin_size, max_d in ((1.0, 32.0), (0.5, 40.0), (3.0, 10.0), (3.0, 12.0)):
-        nb = profile.n_bins(max_d, bin_size)
-        got = profile._vdisparity_kernel(rows, d, shape[0], nb, bin_size, max_d)
-        exp = vdisparity_np(disp, keep, nb, bin_size, max_d, 6.3, 4.1, s, c)
-        np.testing.assert_array_equal(got, exp)
+    for step in (1, 2, 3):
+        r_np, d_np = select_np(disp, band, 6.3, 4.1, s, c, step)
+        rows, d = profile.select_pixels(disp, 6.3, 4.1, s, c, band, step)
+        np.testing.assert_array_equal(rows, r_np)
+        np.testing.assert_array_equal(d, d_np)
+        for bin_size, max_d in ((1.0, 32.0), (0.5, 40.0), (3.0, 10.0), (3.0, 12.0)):
+            nb = profile.n_bins(max_d, bin_size)
+            rows, d, vd = profile.select_and_count(disp, 6.3, 4.1, s, c, max_d, bin_size, band, step)
+            np.testing.assert_array_equal(rows, r_np)
+            np.testing.assert_array_equal(d, d_np)
+            exp = vdisparity_np(disp, keep, nb, bin_size, max_d, 6.3, 4.1, s, c, step)
+            np.testing.assert_array_equal(vd, exp)
+            assert vd.shape == (shape[0], nb) and vd.dtype == np.float32
+
+
+def test_select_kernel_edge_cases():
+    # all invalid: nothing selected, nothing counted
+    rows, d, vd = profile.select_and_count(np.zeros((6, 9), np.float32), 4.0, 3.0, 0.1, 0.99, 16.0, 1.0, None, 2)
+    assert rows.size == d.size == 0 and vd.shape == (6, 16) and not vd.any()
+    # every pixel rotated off the image: nothing selected
+    rows, d, vd = profile.select_and_count(np.ones((3, 5), np.float32), 2.0, -5.0, 0.0, 0.0, 16.0, 1.0)
+    assert rows.size == 0 and not vd.any()
 
 
 def test_vdisparity_counts_exact_bin_edges():
     """A disparity exactly on a bin edge goes to the upper bin (d / bin_size, never d * (1 / bin_size))."""
-    d = np.array([3.0, 6.0, 9.0, 2.9999], np.float32)
-    rows = np.zeros(4, np.int16)
-    vd = profile._vdisparity_kernel(rows, d, 1, 4, 3.0, 12.0)
+    disp = np.array([[3.0, 6.0, 9.0, 2.9999, 12.0]], np.float32)  # 12 = max: left out
+    vd = profile.select_and_count(disp, 0.0, 0.0, 0.0, 1.0, 12.0, 3.0)[2]
     np.testing.assert_array_equal(vd[0], [1, 1, 1, 1])
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_select_kernel_finds_non_finite_values(bad):
+    """Pass 1's selection looks for NaNs and infinities in every column (not only the sampled ones)."""
+    disp = np.full((4, 9), 5.0, np.float32)
+    assert profile._select(disp, 4.0, 2.0, 0.0, 1.0, 8, 1.0, 8.0, None, 4, True) is not None
+    for v, u in ((0, 0), (3, 8), (2, 5)):  # u = 5: a column that step 4 does not sample
+        bad_disp = disp.copy()
+        bad_disp[v, u] = bad
+        assert profile._select(bad_disp, 4.0, 2.0, 0.0, 1.0, 8, 1.0, 8.0, None, 4, True) is None
+
+
+def test_profile_treats_non_finite_disparities_as_invalid(scene):
+    """A NaN or an infinity is invalid (as ``as_disparity`` makes it): the road of the zeroed map."""
+    disp = noisy(scene[0])
+    bad = disp.copy()
+    rng = np.random.default_rng(4)
+    idx = rng.random(disp.shape) < 0.01
+    bad[idx] = rng.choice(np.array([np.nan, np.inf, -np.inf], np.float32), idx.sum())
+    zeroed = np.where(idx, 0.0, disp).astype(np.float32)
+    a, vd_a = profile.estimate_road(rd.ProfileParams(), bad, CALIB)
+    b, vd_b = profile.estimate_road(rd.ProfileParams(), zeroed, CALIB)
+    assert a.valid and (a.a0, a.a1, a.roll, a.pitch, a.height, a.v_min) == (b.a0, b.a1, b.roll, b.pitch, b.height, b.v_min)
+    np.testing.assert_array_equal(a.profile, b.profile)
+    np.testing.assert_array_equal(vd_a, vd_b)
+    assert np.isnan(bad).any()  # the input is left as it was
 
 
 def test_vdisparity_edge_cases():
@@ -277,6 +321,77 @@ def test_row_refine_kernel_matches_numpy(shape):
         np.testing.assert_array_equal(n1, n2)
 
 
+def row_refine_list_np(rows, d, centre, radius):
+    """NumPy twin of ``_row_refine_kernel`` over the pixel list: per row, the sum and the count of the
+    disparities within ``radius`` of ``centre``."""
+    rows, d = rows.astype(np.int64), d.astype(np.float64)
+    ok = np.abs(d - centre[rows]) <= radius[rows]
+    H = centre.size
+    return np.bincount(rows[ok], weights=d[ok], minlength=H), np.bincount(rows[ok], minlength=H).astype(np.float64)
+
+
+def profile_np(vd, columns, max_step, smoothness, bin_size, radius0, rows, d, height, plane_tol, min_tol, step, min_row_count, min_fit_disp):
+    """NumPy twin of ``_profile_kernel`` (the former NumPy steps of ``_profile_pass``)."""
+    H = vd.shape[0]
+    supported = np.flatnonzero(vd.any(axis=1))
+    v0 = int(supported[0]) if supported.size else 0
+    bins = np.flatnonzero(vd[v0:].any(axis=0))
+    d_hi = int(bins[-1]) + 1 if bins.size else vd.shape[1]
+    path = np.empty(H, np.int64)
+    path[v0:] = dp_np(vd[v0:, :d_hi].astype(np.float64) / columns, max_step, smoothness)
+    path[:v0] = path[v0]
+    centre = (path + 0.5) * bin_size
+    radius = np.full(H, radius0)
+    total, count = row_refine_list_np(rows, d, centre, radius)
+    if height > 0:
+        for _ in range(2):
+            centre = np.where(count > 0, total / np.maximum(count, 1.0), centre)
+            radius = np.maximum(plane_tol * centre / height, min_tol)
+            total, count = row_refine_list_np(rows, d, centre, radius)
+    profile = np.full(H, -1.0, np.float32)
+    have = count * step >= min_row_count
+    profile[have] = (total[have] / count[have]).astype(np.float32)
+    use = have & (profile >= min_fit_disp)
+    return profile, np.flatnonzero(use).astype(np.float64), profile[use].astype(np.float64), count[use]
+
+
+def assert_profiles_match(got, ref):
+    # the sums of a row in another order: the profile to rounding, the same rows and counts
+    np.testing.assert_allclose(got[0], ref[0], rtol=1e-6)
+    np.testing.assert_array_equal(got[1], ref[1])
+    np.testing.assert_allclose(got[2], ref[2], rtol=1e-6)
+    np.testing.assert_array_equal(got[3], ref[3])
+
+
+@pytest.mark.parametrize("height", [0.0, HEIGHT])
+@pytest.mark.parametrize("roll", [0.0, ROLL])
+def test_profile_kernel_matches_numpy(scene, height, roll):
+    """DP, refinements, profile and fit rows in one kernel against the NumPy steps, on the noisy
+    synthetic road (pass-2-like with a height) and on random counts and pixels."""
+    disp = noisy(scene[0])
+    s, c = geometry.roll_row_coeffs(roll, CALIB)
+    for step in (1, 4):
+        rows, d, vd = profile.select_and_count(disp, CALIB.cx, CALIB.cy, s, c, 64.0, 1.0, None, step)
+        args = (vd, float(-(-CALIB.width // step)), 3, 0.02, 1.0, 1.0, rows, d, height, 0.05, 0.25, step, 10, np.float32(3.0))
+        got = profile._profile_kernel(*args)
+        assert got[1].size > 50
+        assert_profiles_match(got, profile_np(*args))
+    rng = np.random.default_rng(13)
+    for H, D in ((1, 5), (7, 1), (30, 12)):
+        vd = (rng.random((H, D)) < 0.3).astype(np.float32) * rng.integers(1, 9, (H, D)).astype(np.float32)
+        vd[: H // 3] = 0.0  # unsupported rows on top
+        rows = np.sort(rng.integers(0, H, 200)).astype(np.int16)
+        d = rng.uniform(0.1, D, 200).astype(np.float32)
+        for radius0 in (0.5, 3.0):
+            args = (vd, 3.0, 2, 0.1, 1.0, radius0, rows, d, height, 0.3, 0.5, 2, 2, np.float32(1.5))
+            assert_profiles_match(profile._profile_kernel(*args), profile_np(*args))
+    # nothing supported, no pixels: level path at bin 0, no profile, no fit rows
+    prof, fit_rows, _, _ = profile._profile_kernel(
+        np.zeros((5, 4), np.float32), 3.0, 2, 0.1, 1.0, 1.0, np.zeros(0, np.int16), np.zeros(0, np.float32), height, 0.3, 0.5, 2, 2, np.float32(1.5)
+    )
+    assert (prof == -1).all() and fit_rows.size == 0
+
+
 def test_ransac_line_kernel_matches_numpy():
     rng = np.random.default_rng(10)
     for n in (1, 2, 3, 30, 200):
@@ -285,14 +400,62 @@ def test_ransac_line_kernel_matches_numpy():
         d[rng.random(n) < 0.3] += rng.uniform(-10, 10)
         w = rng.integers(10, 500, n).astype(np.float64)
         for iterations in (1, 50, 300):
-            got = profile._ransac_line(v, d, w, 1.0, iterations)
+            got = ransac_kernel(v, d, w, 1.0, iterations)
             ref = ransac_line_np(v, d, w, 1.0, iterations)
             assert (got is None) == (ref is None)
             if ref is not None:
                 np.testing.assert_array_equal(got, ref)
     # no admissible pair: every slope <= 0
     v = np.arange(10.0)
-    assert profile._ransac_line(v, -v, np.ones(10), 1.0, 20) is None
+    assert ransac_kernel(v, -v, np.ones(10), 1.0, 20) is None
+
+
+def ransac_kernel(v, d, w, tol, iterations):
+    """``_ransac_line_kernel`` on the pairs ``_sample_pairs`` draws: the inliers or None."""
+    if v.size < 2:
+        return None
+    i, j = profile._sample_pairs(v.size, iterations, 0)
+    found, inl = profile._ransac_line_kernel(v, d, w, i, j, tol)
+    return inl if found else None
+
+
+def line_fit_np(v, d, w, tol, iterations):
+    """NumPy twin of ``_line_fit_kernel``: ``(status, coef, inliers)`` of RANSAC then the least squares."""
+    inl = ransac_line_np(v, d, w, tol, iterations)
+    if inl is None or np.count_nonzero(inl) < 2:
+        return 0, None, None
+    coef, inl = profile._robust_refit_np(v, d, w, 1, tol, inl)
+    return (2 if coef is not None else 1), coef, inl
+
+
+def test_line_fit_kernel_matches_numpy():
+    """RANSAC + least squares in one kernel (and ``_robust_fit`` around it) against the twins."""
+    rng = np.random.default_rng(11)
+    for n in (2, 3, 30, 200):
+        for iterations in (1, 50, 300):
+            v = rng.integers(0, 100, n).astype(np.float64)
+            d = 0.3 * v - 5.0 + rng.normal(0, 0.4, n)
+            d[rng.random(n) < 0.3] += rng.uniform(-10, 10)
+            w = rng.integers(0, 500, n).astype(np.float64)
+            i, j = profile._sample_pairs(n, iterations, 0)
+            status, a0, a1, inl = profile._line_fit_kernel(v, d, w, i, j, 1.0, 4)
+            ref_status, ref, ref_inl = line_fit_np(v, d, w, 1.0, iterations)
+            assert status == ref_status
+            coef, fit_inl = profile._robust_fit(v, d, w, 1, 1.0, iterations, None)
+            if status > 0:
+                np.testing.assert_array_equal(inl, ref_inl)
+                np.testing.assert_array_equal(fit_inl, ref_inl)
+            if status == 2:
+                np.testing.assert_allclose([a0, a1], ref, rtol=1e-9, atol=1e-9)
+                np.testing.assert_array_equal(coef, [a0, a1])
+            else:
+                assert coef is None
+    # no admissible pair (every slope <= 0), one point, one abscissa: no line
+    v = np.arange(10.0)
+    assert profile._robust_fit(v, -v, np.ones(10), 1, 1.0, 20, None) == (None, None)
+    assert profile._robust_fit(v[:1], v[:1], np.ones(1), 1, 1.0, 20, None) == (None, None)
+    i, j = profile._sample_pairs(5, 20, 0)
+    assert profile._line_fit_kernel(np.full(5, 3.0), np.arange(5.0), np.ones(5), i, j, 1.0, 4)[0] == 0
 
 
 def test_line_refit_kernel_matches_numpy():
@@ -317,17 +480,48 @@ def test_line_refit_kernel_matches_numpy():
     assert not ok
 
 
-@pytest.mark.parametrize("shape", EDGE_SHAPES + [(40, 57)])
-def test_plane_sums_kernel_matches_numpy(shape):
+def plane_fit_np(disp, step, v_top, min_disp, b0, b1, b2, first_tol, plane_tol, height, min_tol, uc, vc, rounds):
+    """NumPy twin of ``_plane_fit_kernel``: ``(ok, b)``, the rounds of ``plane_sums_np`` and a solve."""
+    b = np.array([b0, b1, b2])
+    fixed = first_tol
+    for _ in range(rounds):
+        n, S = plane_sums_np(disp, step, v_top, min_disp, *b, fixed, plane_tol, height, min_tol, uc, vc)
+        if n < 50:
+            return False, None
+        su, sv, suu, suv, svv, sd, sud, svd = S
+        M = np.array([[n, su, sv], [su, suu, suv], [sv, suv, svv]], np.float64)
+        try:
+            a, c1, c2 = np.linalg.solve(M, np.array([sd, sud, svd]))
+        except np.linalg.LinAlgError:
+            return False, None
+        b = np.array([a - c1 * uc - c2 * vc, c1, c2])
+        if not np.all(np.isfinite(b)):
+            return False, None
+        fixed = 0.0
+    return (True, b) if b[2] > 0 else (False, None)
+
+
+@pytest.mark.parametrize("shape", EDGE_SHAPES + [(40, 57), (90, 130)])
+def test_plane_fit_kernel_matches_numpy(shape):
+    """Every round of the roll plane in one kernel against the NumPy rounds, on noisy planes with
+    outliers and invalid pixels (the small shapes have too few pixels: no plane)."""
     rng = np.random.default_rng(6)
-    disp = random_disparity(rng, shape)
-    for step in (1, 2, 3):
-        for fixed_tol in (0.0, 4.0):
-            args = (step, 2, 3.0, 5.0, 0.2, 0.6, fixed_tol, 0.5, 1.6, 2.0, 20.0, 7.5)
-            n1, s1 = profile._plane_sums_kernel(disp, *args)
-            n2, s2 = plane_sums_np(disp, *args)
-            assert n1 == n2
-            np.testing.assert_allclose(s1, s2, rtol=1e-9, atol=1e-6)
+    H, W = shape
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    for b_true in ((-2.0, 0.05, 0.6), (1.0, -0.08, 0.3), (30.0, 0.0, -0.2)):
+        disp = (b_true[0] + b_true[1] * u + b_true[2] * v + rng.normal(0, 0.05, shape)).astype(np.float32)
+        disp[rng.random(shape) < 0.15] += rng.uniform(2, 10)
+        disp[rng.random(shape) < 0.1] = 0.0
+        for step in (1, 2, 3):
+            for rounds in (1, 3):
+                args = (step, 4, 3.0, b_true[0], 0.0, b_true[2], 1.0, 0.5, 1.6, 0.25, 0.5 * (W - 1), 0.5 * (H - 1), rounds)
+                ok, *b = profile._plane_fit_kernel(disp, *args)
+                ref_ok, ref = plane_fit_np(disp, *args)
+                assert ok == ref_ok
+                if ok:
+                    np.testing.assert_allclose(b, ref, rtol=1e-9, atol=1e-9)
+    # all invalid: no plane
+    assert not profile._plane_fit_kernel(np.zeros((40, 57), np.float32), 1, 0, 3.0, 0.0, 0.0, 0.5, 1.0, 0.5, 1.6, 0.25, 28.0, 19.5, 3)[0]
 
 
 def test_fit_road_plane_matches_lstsq():
@@ -364,7 +558,7 @@ def test_fit_road_plane_without_a_plane_is_none():
     calib = Calibration(f=100.0, cx=W / 2, cy=H / 2, baseline=0.5)
     params = profile.ProfileParams(roll_subsample=1, roll_iterations=2)
     # enough pixels (>= 50): the plane is refused for being singular, not for want of pixels
-    n, _ = profile._plane_sums_kernel(disp, 1, 20, params.min_fit_disparity_px, -8.0, 0.0, 0.6, params.roll_tolerance_px, 0.1, 1.6, 0.5, 44.5, 59.5)
+    n, _ = plane_sums_np(disp, 1, 20, params.min_fit_disparity_px, -8.0, 0.0, 0.6, params.roll_tolerance_px, 0.1, 1.6, 0.5, 44.5, 59.5)
     assert n >= 50
     assert profile._fit_road_plane(disp, np.array([-8.0, 0.6]), 20, params, calib) is None
 
@@ -383,8 +577,16 @@ def test_mask_kernels_match_numpy(shape):
     rng = np.random.default_rng(5)
     disp = random_disparity(rng, shape)
     args = (-5.0, 0.4, 0.001, 3.0, 2.0, 0.02, 0.999, 1.6, 0.08, 0.5, 2.0)
-    labels = mask._height_class_kernel(disp, *args)
-    np.testing.assert_array_equal(labels, height_class_np(disp, *args))
+    for step in (1, 2, 3):  # every step-th column read in place: the twin on the strided copy
+        labels, first = mask._height_class_kernel(disp, step, *args)
+        twin = height_class_np(np.ascontiguousarray(disp[:, ::step]), *args)
+        np.testing.assert_array_equal(labels, twin)
+        labelled = np.flatnonzero(twin.any(axis=1))
+        assert first == (labelled[0] if labelled.size else shape[0])
+    labels, _ = mask._height_class_kernel(disp, 1, *args)
+    # beyond range everywhere: no labelled row
+    far, first = mask._height_class_kernel(disp, 2, *args[:-1], 1e9)
+    assert not far.any() and first == shape[0]
     for min_run in (1, 2, 4):
         for unknown in (False, True):
             np.testing.assert_array_equal(
@@ -424,15 +626,8 @@ def test_widen_columns_matches_numpy(step):
             np.testing.assert_array_equal(mask.widen_columns(red, step, width), widen_np(red, step, width))
 
 
-def test_lookup_kernel_matches_numpy():
-    rng = np.random.default_rng(9)
-    labels = rng.integers(0, 6, (7, 11)).astype(np.int32)
-    lut = np.array([False, True, True, False, True, False])
-    np.testing.assert_array_equal(mask._lookup_kernel(lut, labels), lut[labels])
-
-
 def test_keep_components_one_or_several():
-    """One component kept (the comparison path) or several (the lookup kernel): the same rule."""
+    """One component kept (the comparison path) or several (the label lookup): the same rule."""
     m = np.zeros((40, 60), bool)
     m[25:40, 0:12] = True  # bottom band, left of the central half (cols 15-45)
     m[30:40, 35:55] = True  # bottom band, in the central half
