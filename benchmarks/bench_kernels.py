@@ -110,10 +110,10 @@ def bev_kernels(rng: np.random.Generator) -> None:
     img8 = bev.astype(np.uint8)
     lane = Lane((150.0, 0.05, 0.0), (0, 799), "left", 0.9)
     row(
-        "_band_texture_kernel",
-        timed(lambda: _verify.band_textures(img8, lane, 6, 30, "diff")),
-        timed(lambda: tl.band_textures_twin(img8, lane, 6, 30, "diff")),
-        "(800 rows, both sides)",
+        "_side_texture_kernel",
+        timed(lambda: _verify.side_texture(img8, lane, 6, 30, "diff")),
+        timed(lambda: tl.side_texture_twin(img8, lane, 6, 30, "diff")),
+        "(800 rows, both sides, medians)",
     )
 
 
@@ -125,19 +125,19 @@ def road_kernels(rng: np.random.Generator) -> None:
     keep = np.ones(disp.shape, bool)
     s_, c_ = 0.01, 0.9999
     band = (1.0 / 1.65, -40.0, 0.0, 0.23)
+    in_band = tr.plane_band_np(disp, band[1], band[2], band[3], 1.0, band[0])
     row(
         "_select_kernel",
-        timed(lambda: profile.select_pixels(disp, calib.cx, calib.cy, s_, c_, band)),
-        timed(lambda: tr.select_np(disp, band, calib.cx, calib.cy, s_, c_)),
-        "(road band, roll-corrected rows)",
+        timed(lambda: profile.select_and_count(disp, calib.cx, calib.cy, s_, c_, 128.0, 1.0, band)),
+        timed(
+            lambda: (
+                tr.select_np(disp, band, calib.cx, calib.cy, s_, c_),
+                tr.vdisparity_np(disp, in_band, 128, 1.0, 128.0, calib.cx, calib.cy, s_, c_),
+            )
+        ),
+        "(pixel list + v-disparity; road band, roll-corrected rows)",
     )
     rows, d = profile.select_pixels(disp, calib.cx, calib.cy, s_, c_)
-    row(
-        "_vdisparity_kernel",
-        timed(lambda: profile._vdisparity_kernel(rows, d, disp.shape[0], 129, 1.0, 128.0)),
-        timed(lambda: tr.vdisparity_np(disp, keep, 129, 1.0, 128.0, calib.cx, calib.cy, s_, c_)),
-        "(twin from the image)",
-    )
     centre = np.clip(-40.0 + 0.23 * np.arange(disp.shape[0]), 0, None).astype(np.float64)
     radius = np.full(disp.shape[0], 1.0)
     row(
@@ -146,18 +146,30 @@ def road_kernels(rng: np.random.Generator) -> None:
         timed(lambda: tr.row_refine_np(disp, keep, centre, radius, calib.cx, calib.cy, s_, c_)),
         "(twin from the image)",
     )
-    pargs = (2, 120, 3.0, -40.0, 0.0, 0.23, 0.0, 0.05, 1.65, 0.25, 620.5, 187.0)
-    row("_plane_sums_kernel", timed(lambda: profile._plane_sums_kernel(disp, *pargs)), timed(lambda: tr.plane_sums_np(disp, *pargs)), "(every 2nd row and column)")
+    prow, pd, pvd = profile.select_and_count(disp, calib.cx, calib.cy, s_, c_, 128.0, 1.0, band, 4)
+    kargs = (pvd, 311.0, 3, 0.02, 1.0, 1.0, prow, pd, 1.65, 0.05, 0.25, 4, 10, np.float32(3.0))
+    row(
+        "_profile_kernel",
+        timed(lambda: profile._profile_kernel(*kargs)),
+        timed(lambda: tr.profile_np(*kargs)),
+        "(pass 2: DP, 3 refinements, every 4th column)",
+    )
+    pargs = (4, 120, 3.0, -40.0, 0.0, 0.23, 1.0, 0.05, 1.65, 0.25, 620.5, 187.0, 3)
+    row(
+        "_plane_fit_kernel",
+        timed(lambda: profile._plane_fit_kernel(disp, *pargs)),
+        timed(lambda: tr.plane_fit_np(disp, *pargs)),
+        "(3 rounds, every 4th row and column)",
+    )
     v = np.arange(120, 375, dtype=np.float64)
     dv = -40.0 + 0.23 * v + rng.normal(0, 0.2, v.size)
     w = rng.uniform(100, 600, v.size)
-    ii = rng.integers(0, v.size, 300)
-    jj = rng.integers(0, v.size, 300)
+    ii, jj = profile._sample_pairs(v.size, 300, 0)
     row(
-        "_ransac_line_kernel",
-        timed(lambda: profile._ransac_line_kernel(v, dv, w, ii, jj, 1.0)),
-        timed(lambda: tr.ransac_line_np(v, dv, w, 1.0, 300)),
-        "(255 rows, 300 samples)",
+        "_line_fit_kernel",
+        timed(lambda: profile._line_fit_kernel(v, dv, w, ii, jj, 1.0, 4)),
+        timed(lambda: tr.line_fit_np(v, dv, w, 1.0, 300)),
+        "(255 rows, 300 RANSAC samples, 4 rounds at most)",
     )
     inl0 = rng.random(v.size) < 0.8
     row(
@@ -167,8 +179,8 @@ def road_kernels(rng: np.random.Generator) -> None:
         "(255 rows, 4 rounds at most)",
     )
     hargs = (-40.0, 0.23, 0.0, calib.cx, calib.cy, s_, c_, 1.65, 0.08, 0.5, 2.0)
-    row("_height_class_kernel", timed(lambda: mask._height_class_kernel(disp, *hargs)), timed(lambda: tr.height_class_np(disp, *hargs)))
-    labels = mask._height_class_kernel(disp, *hargs)
+    row("_height_class_kernel", timed(lambda: mask._height_class_kernel(disp, 1, *hargs)), timed(lambda: tr.height_class_np(disp, *hargs)))
+    labels, _ = mask._height_class_kernel(disp, 1, *hargs)
     sl = labels[:, :60]
     row(
         "_free_space_kernel",
@@ -189,9 +201,6 @@ def road_kernels(rng: np.random.Generator) -> None:
         timed(lambda: tr.fill_holes_labels_np(m, holes, n, classes, 0.1)),
         f"(given the labels of {n - 1} regions)",
     )
-    lut = rng.random(5000) < 0.5
-    lab = rng.integers(0, 5000, (187, 1242)).astype(np.int32)
-    row("_lookup_kernel", timed(lambda: mask._lookup_kernel(lut, lab)), timed(lambda: lut[lab]))
     score = rng.random((255, 128))
     sc = score[:, :40]
     row(

@@ -163,18 +163,115 @@ class BevGeometry:
         return (q[:2] / q[2]).T
 
 
-@dataclass
+@dataclass(init=False)
 class FeatureMap:
     """Lane feature points in the BEV.
 
     ``mask``: Hb x Wb bool, True on a feature. ``orientation``: Hb x Wb float32, the
     feature's direction in radians in ``[0, pi)`` measured from the BEV's +x axis
-    (image columns) towards -y (up the BEV); NaN-free, ``-1`` where unknown (SLT).
+    (image columns) towards -y (up the BEV); NaN-free, ``-1`` where unknown (SLT);
+    ``None`` when no feature has an orientation.
+
+    Two ways to build one, both giving the same map (equal masks and orientations):
+
+    - dense, ``FeatureMap(mask, orientation)``: the feature points are found in the mask on
+      first use of :meth:`points`;
+    - sparse, :meth:`FeatureMap.from_points`: the points and their orientations; ``mask`` and
+      ``orientation`` are materialised on first read (``-1`` off the points), so nodes that
+      only need :meth:`points` and :meth:`point_orientations` never make a dense pass.
+
+    A map is shared by every node that reads it: treat it as immutable.
     """
 
+    # no class-level defaults: a sparse map materialises these two on first read (__getattr__)
     mask: np.ndarray
-    orientation: np.ndarray | None = None
-    _points: tuple[np.ndarray, np.ndarray] | None = field(default=None, init=False, repr=False, compare=False)
+    orientation: np.ndarray | None
+
+    def __init__(self, mask: np.ndarray, orientation: np.ndarray | None = None):
+        self.mask = mask
+        self.orientation = orientation
+        self._points: tuple[np.ndarray, np.ndarray] | None = None
+        self._values: np.ndarray | None = None  # orientations at the points, once gathered
+
+    @classmethod
+    def from_points(
+        cls,
+        shape: tuple[int, int],
+        rows: np.ndarray,
+        cols: np.ndarray,
+        orientation_values: np.ndarray | None = None,
+        *,
+        mask: np.ndarray | None = None,
+        orientation: np.ndarray | None = None,
+    ) -> FeatureMap:
+        """A map of the ``shape`` (Hb, Wb) with features at BEV pixels ``(rows[i], cols[i])``.
+
+        ``rows``, ``cols``: integer arrays of N in-bounds, distinct pixels in row-major order (as
+        ``np.nonzero`` gives them; :meth:`points` returns them as int64). ``orientation_values``:
+        N radians (``-1`` where unknown), or ``None`` for a map without orientation (SLT).
+        ``mask``, ``orientation``: the same map in dense form when the producer has it already
+        (not checked against the points); otherwise built from the points on first read. The
+        arrays are kept, not copied.
+        """
+        rows = np.asarray(rows).astype(np.int64, copy=False)
+        cols = np.asarray(cols).astype(np.int64, copy=False)
+        shape = (int(shape[0]), int(shape[1]))
+        if rows.ndim != 1 or rows.shape != cols.shape:
+            raise ValueError(f"FeatureMap.from_points: rows and cols: expected two 1-D arrays of one length, got shapes {rows.shape} and {cols.shape}")
+        values = None
+        if orientation_values is not None:
+            values = np.asarray(orientation_values)
+            if values.shape != rows.shape:
+                raise ValueError(f"FeatureMap.from_points: orientation_values: expected shape {rows.shape} (one per point), got {values.shape}")
+        fm = cls.__new__(cls)
+        # mask and orientation stay unset until read (__getattr__ builds them) unless given
+        fm.__dict__.update(_shape=shape, _points=(rows, cols), _values=values)
+        if mask is not None:
+            fm.__dict__["mask"] = mask
+        if orientation is not None and values is not None:
+            fm.__dict__["orientation"] = orientation
+        return fm
+
+    def select(self, keep: np.ndarray) -> FeatureMap:
+        """The map of the features whose entry in ``keep`` (bool, one per :meth:`points`) is True,
+        sparse (see :meth:`from_points`); of a dense map's orientations only the kept are read."""
+        r, c = self.points()
+        values = self.__dict__.get("_values")
+        if values is not None:
+            values = values[keep]
+        elif "_shape" not in self.__dict__ and self.orientation is not None:  # dense, not gathered yet
+            o = np.asarray(self.orientation)
+            rk, ck = r[keep], c[keep]
+            values = o.reshape(-1).take(rk * o.shape[1] + ck) if o.flags.c_contiguous else o[rk, ck]
+            return FeatureMap.from_points(self.shape, rk, ck, values)
+        return FeatureMap.from_points(self.shape, r[keep], c[keep], values)
+
+    def __getattr__(self, name: str) -> Any:
+        # called only for attributes not set: ``mask`` / ``orientation`` of a sparse map
+        d = self.__dict__
+        if name not in ("mask", "orientation") or "_shape" not in d:
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+        rows, cols = d["_points"]
+        shape = d["_shape"]
+        flat = rows * shape[1] + cols
+        if name == "mask":
+            m = np.zeros(shape, bool)
+            m.reshape(-1)[flat] = True
+            d["mask"] = m
+            return m
+        values = d["_values"]
+        o = None
+        if values is not None:
+            o = np.full(shape, -1, values.dtype if values.dtype.kind == "f" else np.float32)
+            o.reshape(-1)[flat] = values
+        d["orientation"] = o
+        return o
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(Hb, Wb)``, BEV pixels (without materialising the mask of a sparse map)."""
+        s = self.__dict__.get("_shape")
+        return s if s is not None else tuple(np.shape(self.mask))
 
     def points(self) -> tuple[np.ndarray, np.ndarray]:
         """``(rows, cols)`` of the features (int64, row-major order, as ``np.nonzero(mask)``),
@@ -187,6 +284,16 @@ class FeatureMap:
             r, c = np.divmod(np.flatnonzero(m), max(m.shape[1], 1))
             self._points = (r, c)
         return self._points
+
+    def point_orientations(self) -> np.ndarray | None:
+        """The orientations (radians, ``-1`` where unknown) at :meth:`points`, in their order, in
+        the orientation map's dtype; ``None`` for a map without orientation. Computed once."""
+        if self._values is None and "_shape" not in self.__dict__:  # dense: gather once
+            if self.orientation is None:
+                return None
+            r, c = self.points()
+            self._values = np.asarray(self.orientation)[r, c]
+        return self._values
 
 
 @dataclass

@@ -204,6 +204,17 @@ def _eslt(img, gx, gy, window, threshold, max_angle, where, out_mask, out_theta)
             _eslt_pixel(img, gx, gy, mag2, csum, r, c, lo, hi, threshold, cos2_max, out_mask, out_theta)
 
 
+def _feature_map(mask: np.ndarray, theta: np.ndarray | None) -> FeatureMap:
+    """The feature nodes' output: the dense uint8 0/1 ``mask`` (and float32 ``theta``) with their
+    points gathered once here (``np.flatnonzero`` of the bool view: a kernel was only 1.3x faster),
+    so no consumer scans the map for them again."""
+    m = mask.view(bool)
+    flat = np.flatnonzero(m)
+    r, c = np.divmod(flat, max(mask.shape[1], 1))
+    v = None if theta is None else theta.reshape(-1).take(flat)
+    return FeatureMap.from_points(mask.shape, r, c, v, mask=m, orientation=theta)
+
+
 def sobel(gray: np.ndarray, ksize: int = 3) -> tuple[np.ndarray, np.ndarray]:
     """Sobel gradients ``(gx, gy)`` of a float32 image (rows growing downwards)."""
     g = gray.astype(np.float32, copy=False)
@@ -280,7 +291,7 @@ def slt(params: SltParams, image: np.ndarray, where: np.ndarray | None = None) -
     img = _as_gray32(image, "features.slt")
     out = np.zeros(img.shape, np.uint8)
     _slt(img, params.window, float(params.threshold), _where_map(where, img.shape, "features.slt"), out)
-    return {"features": FeatureMap(mask=out.view(bool), orientation=None)}
+    return {"features": _feature_map(out, None)}
 
 
 class EsltParams(SltParams):
@@ -314,7 +325,7 @@ def eslt(params: EsltParams, image: np.ndarray, where: np.ndarray | None = None)
     mask = np.empty(img.shape, np.uint8)
     ori = np.empty(img.shape, np.float32)
     _eslt(img, gx, gy, params.window, float(params.threshold), math.radians(params.max_angle_deg), wm, mask, ori)
-    return {"features": FeatureMap(mask=mask.view(bool), orientation=ori)}
+    return {"features": _feature_map(mask, ori)}
 
 
 class MaskParams(NodeParams):
@@ -334,24 +345,25 @@ class MaskParams(NodeParams):
 )
 def mask_features(params: MaskParams, features: FeatureMap, mask: np.ndarray, temporal: np.ndarray | None = None) -> dict:
     """Features multiplied by the BEV road mask (eroded) and, when given, the previous-frame mask."""
+    shape = features.shape
     for port, m in (("mask", mask), ("temporal", temporal)):
-        if m is not None and np.shape(m) != features.mask.shape:
+        if m is not None and np.shape(m) != shape:
             raise InputError(
-                f"features.mask: {port}: expected a BEV mask of the features' shape "
-                f"{features.mask.shape}, got {np.shape(m)}"
+                f"features.mask: {port}: expected a BEV mask of the features' shape {shape}, got {np.shape(m)}"
             )
     keep = np.ascontiguousarray(mask, dtype=bool)  # no copy for the usual bool BEV mask
     if params.erode_px > 0 and keep.size:
         k = 2 * params.erode_px + 1
         # bool and 0/1 uint8 share their bytes: erode the view, read the result back as bool
         keep = cv2.erode(keep.view(np.uint8), cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)), borderValue=0).view(bool)
-    m = np.logical_and(features.mask, keep)
+    # the masks read at the feature points only: a sparse map out, no dense pass over the features
+    r, c = features.points()
+    flat = r * shape[1] + c
+    sel = keep.reshape(-1).take(flat)
     if temporal is not None:
-        np.logical_and(m, np.asarray(temporal, dtype=bool), out=m)
-    ori = None
-    if features.orientation is not None:
-        ori = np.full(m.shape, -1.0, np.float32)
-        if m.size:
-            # a masked copy (cv2: twice as fast as np.copyto with where=); cv2 wants the same dtype
-            cv2.copyTo(np.ascontiguousarray(features.orientation, dtype=np.float32), m.view(np.uint8), ori)
-    return {"features": FeatureMap(mask=m, orientation=ori)}
+        sel &= np.ascontiguousarray(temporal, dtype=bool).reshape(-1).take(flat)
+    out = features.select(sel)
+    ori = out.point_orientations()
+    if ori is not None and ori.dtype != np.float32:  # the masked map's orientations are float32
+        out = FeatureMap.from_points(shape, *out.points(), ori.astype(np.float32))
+    return {"features": out}

@@ -18,7 +18,7 @@ import math
 import numpy as np
 from pydantic import Field
 
-from lanegraph import NodeParams, Port, node_type
+from lanegraph import InputError, NodeParams, Port, node_type
 from lanegraph._numba import jit
 from lanegraph.types import BevGeometry, Calibration, FeatureMap, Lane
 
@@ -31,16 +31,15 @@ def lane_cols(lane: Lane, rows: int) -> np.ndarray:
 
 
 @jit
-def _side_band_kernel(lane_cols_rows, c_lo, c_hi, band_px, feat, use_feat, band):
-    """The band of a side: ``band[r, c]`` for the columns ``c_lo <= c < c_hi`` within ``band_px`` of a
-    lane (``|c - lane_cols_rows[i, r]| <= band_px`` for some lane ``i``). Returns the number of
-    features (``feat``, when ``use_feat``) in the side's columns and in its band.
+def _side_band_kernel(lane_cols_rows, c_lo, c_hi, band_px, feat_rows, feat_cols, band):
+    """The band of a side: sets ``band[r, c]`` for the columns ``c_lo <= c < c_hi`` within
+    ``band_px`` of a lane (``|c - lane_cols_rows[i, r]| <= band_px`` for some lane ``i``); the other
+    columns are not touched. Returns the number of features (BEV pixels ``(feat_rows[k],
+    feat_cols[k])``) in the side's columns and, of those, in its band.
 
     Per row and lane the band is the run of columns ``ceil(x - band_px) .. floor(x + band_px)``:
-    only those are written (``band`` must come zeroed) and only the side's columns are counted."""
+    only those are written (the side's columns of ``band`` must come zeroed)."""
     n_lanes, rows = lane_cols_rows.shape
-    n_side = 0
-    n_band = 0
     for r in range(rows):
         for i in range(n_lanes):
             x = lane_cols_rows[i, r]
@@ -50,11 +49,13 @@ def _side_band_kernel(lane_cols_rows, c_lo, c_hi, band_px, feat, use_feat, band)
             hi = min(int(math.floor(x + band_px)) + 1, c_hi)
             for c in range(lo, hi):
                 band[r, c] = True
-        if use_feat:
-            for c in range(c_lo, c_hi):
-                f = feat[r, c]
-                n_side += f
-                n_band += f & band[r, c]
+    n_side = 0
+    n_band = 0
+    for k in range(feat_rows.shape[0]):
+        c = feat_cols[k]
+        if c_lo <= c < c_hi:
+            n_side += 1
+            n_band += band[feat_rows[k], c]
     return n_side, n_band
 
 
@@ -85,23 +86,23 @@ def temporal_mask(params: TemporalParams, geometry: BevGeometry, previous: list[
     x0 = -geometry.x_min / geometry.resolution - 0.5
     # the left side is the columns c < x0, the right side c >= x0
     split = min(max(math.ceil(x0), 0), cols)
-    feat = features.mask if features is not None else np.zeros((0, 0), bool)
     use_feat = params.reacquire and features is not None
     if use_feat:
-        feat = np.ascontiguousarray(feat, dtype=bool)
-    mask = np.zeros((rows, cols), bool)
-    band = np.zeros((rows, cols), bool)  # each side writes only its own columns
+        if features.shape != (rows, cols):
+            raise InputError(f"lanes.temporal_mask: features: expected a map of the BEV's shape {(rows, cols)}, got {features.shape}")
+        fr, fc = features.points()
+    else:
+        fr = fc = np.zeros(0, np.int64)
+    mask = np.zeros((rows, cols), bool)  # each side's band is written straight into its columns
     for side, c_lo, c_hi in (("left", 0, split), ("right", split, cols)):
         lanes = [ln for ln in good if ln.side == side]
         if not lanes:
             mask[:, c_lo:c_hi] = True
             continue
         lcols = np.stack([lane_cols(ln, rows) for ln in lanes])
-        n_side, n_band = _side_band_kernel(lcols, c_lo, c_hi, float(params.band_px), feat, use_feat, band)
+        n_side, n_band = _side_band_kernel(lcols, c_lo, c_hi, float(params.band_px), fr, fc, mask)
         if use_feat and n_side > 0 and n_band < params.min_band_fraction * n_side:
             mask[:, c_lo:c_hi] = True
-        else:
-            mask[:, c_lo:c_hi] = band[:, c_lo:c_hi]
     return {"mask": mask}
 
 
@@ -137,10 +138,17 @@ def to_image(params: ToImageParams, lanes: list[Lane], geometry: BevGeometry, ca
         pts = pts[ok]
         if len(pts) < 2:
             continue
-        order = np.argsort(-pts[:, 1])  # bottom (near) first
-        x, y = pts[order, 0], pts[order, 1]
-        y_uniq, idx = np.unique(y, return_index=True)
-        x_uniq = x[idx]
+        x, y = pts[:, 0], pts[:, 1]
+        dy = np.diff(y)
+        if (dy > 0).all():  # the usual case: y grows with the BEV row (nearer is lower)
+            y_uniq, x_uniq = y, x
+        elif (dy < 0).all():
+            y_uniq, x_uniq = y[::-1], x[::-1]
+        else:  # not monotonic (a strong roll, a lane across the image): sort, drop repeated rows
+            order = np.argsort(-y)  # bottom (near) first
+            x, y = x[order], y[order]
+            y_uniq, idx = np.unique(y, return_index=True)
+            x_uniq = x[idx]
         ys = np.arange(y_uniq[-1], y_uniq[0], -params.row_step)
         ys = np.append(ys, y_uniq[0])
         xs = np.interp(ys, y_uniq, x_uniq)

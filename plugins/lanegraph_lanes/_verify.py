@@ -87,14 +87,44 @@ def band_textures(image: np.ndarray, lane: Lane, gap_px: int, band_px: int, meas
     return out[0], out[1]
 
 
+@jit
+def _side_texture_kernel(img, r0, r1, c0, c1, c2, gap_px, band_px, use_diff):
+    """:func:`side_texture` in one call: the per-row textures of both side bands of the lane
+    ``col = c0 + c1 t + c2 t^2`` (``t = rows - 1 - row``) over the rows ``r0 .. r1`` (as
+    :func:`_band_texture_kernel`), then the median of each side's rows that stay inside the image
+    (0 when none does). Returns ``(left, right)``."""
+    rows = img.shape[0]
+    n = r1 - r0 + 1 if r1 >= r0 else 0
+    centre = np.empty(n, np.float64)
+    for i in range(n):
+        t = rows - 1 - (r0 + i)
+        centre[i] = c0 + c1 * t + c2 * t * t
+    tex = np.empty(n, np.float64)
+    res = np.zeros(2, np.float64)
+    for k in range(2):
+        _band_texture_kernel(img, r0, centre, gap_px, band_px, -1.0 if k == 0 else 1.0, use_diff, tex)
+        m = 0
+        for i in range(n):
+            if not np.isnan(tex[i]):
+                tex[m] = tex[i]
+                m += 1
+        if m > 0:
+            res[k] = np.median(tex[:m])
+    return res[0], res[1]
+
+
 def side_texture(image: np.ndarray, lane: Lane, gap_px: int, band_px: int, measure: str = "std") -> tuple[float, float]:
     """Median over the lane's rows of the lateral texture in the (left, right) side bands (rows
-    where a band leaves the image do not count; 0 when none is left): see :func:`band_textures`."""
-    out = []
-    for tex in band_textures(image, lane, gap_px, band_px, measure):
-        inside = tex[~np.isnan(tex)]
-        out.append(float(np.median(inside)) if inside.size else 0.0)
-    return out[0], out[1]
+    where a band leaves the image do not count; 0 when none is left): see :func:`band_textures`,
+    whose per-row values this takes (one kernel call for both sides)."""
+    img = np.ascontiguousarray(image)
+    if img.ndim != 2:
+        raise InputError(f"lanes.verify: image: expected an Hb x Wb grey BEV image, got shape {img.shape}")
+    rows = img.shape[0]
+    r0, r1 = max(int(lane.bev_rows[0]), 0), min(int(lane.bev_rows[1]), rows - 1)
+    c0, c1, c2 = (float(c) for c in lane.coeffs)
+    left, right = _side_texture_kernel(img, r0, r1, c0, c1, c2, int(gap_px), int(band_px), measure == "diff")
+    return float(left), float(right)
 
 
 class VerifyParams(NodeParams):

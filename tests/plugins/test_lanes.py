@@ -408,7 +408,8 @@ def test_side_band_kernel_matches_numpy_twin():
         for c_lo, c_hi in ((0, 26), (26, 53), (0, 0), (0, 53)):
             for band_px in (3.0, 7.5):
                 band = np.zeros((rows, cols), bool)
-                n_side, n_band = _side_band_kernel(lcols, c_lo, c_hi, band_px, feat, True, band)
+                fr, fc = np.nonzero(feat)
+                n_side, n_band = _side_band_kernel(lcols, c_lo, c_hi, band_px, fr, fc, band)
                 ref, ref_side, ref_band = side_band_np(lcols, c_lo, c_hi, band_px, feat)
                 np.testing.assert_array_equal(band, ref)
                 assert (n_side, n_band) == (ref_side, ref_band)
@@ -566,6 +567,39 @@ def test_band_texture_kernel_matches_twin(measure, gap, band):
             np.testing.assert_allclose(g, e, rtol=1e-12, atol=1e-9)
 
 
+def side_texture_twin(image, lane, gap_px, band_px, measure):
+    """NumPy twin of ``_side_texture_kernel`` (through ``side_texture``): each side's per-row
+    textures, then the median of the rows inside the image (0 when none)."""
+    rows = image.shape[0]
+    r0, r1 = max(lane.bev_rows[0], 0), min(lane.bev_rows[1], rows - 1)
+    clipped = Lane(lane.coeffs, (r0, r1), lane.side, lane.score)
+    out = []
+    for tex in band_textures_twin(image, clipped, gap_px, band_px, measure):
+        inside = tex[~np.isnan(tex)]
+        out.append(float(np.median(inside)) if inside.size else 0.0)
+    return tuple(out)
+
+
+@pytest.mark.parametrize("measure", ["diff", "std"])
+@pytest.mark.parametrize("gap, band", [(6, 30), (0, 2), (3, 60)])
+def test_side_texture_kernel_matches_twin(measure, gap, band):
+    rng = np.random.default_rng(9)
+    img = rng.integers(0, 256, (90, 70)).astype(np.uint8)
+    lanes = [
+        Lane((35.0, 0.05, 0.0), (0, 89), "left", 0.9),
+        Lane((3.0, 0.2, 0.001), (10, 80), "left", 0.9),  # leaves the image on the left at the bottom
+        Lane((66.4, -0.1, 0.0), (5, 60), "right", 0.9),
+        Lane((35.5, 0.0, 0.0), (89, 89), "right", 0.9),  # one row
+        Lane((35.0, 0.0, 0.0), (-20, 200), "right", 0.9),  # rows beyond the image: clipped
+        Lane((-300.0, 0.0, 0.0), (0, 89), "left", 0.9),  # every band outside: 0
+        Lane((35.0, 0.0, 0.0), (50, 40), "left", 0.9),  # no rows: 0
+    ]
+    for lane in lanes:
+        got = _verify.side_texture(img, lane, gap, band, measure)
+        exp = side_texture_twin(img, lane, gap, band, measure)
+        np.testing.assert_allclose(got, exp, rtol=1e-12, atol=1e-9)
+
+
 def test_verify_drops_lane_beside_texture():
     rng = np.random.default_rng(0)
     img = np.full((100, 80), 100, np.uint8)
@@ -606,3 +640,258 @@ def test_nodes_follow_the_contract():
     check_node_type(eslt, {"image": bev})
     f = eslt.func(eslt.params(), image=bev)["features"]
     check_node_type(orientation, {"features": f})
+
+
+# ----------------------------------------------------------------------------- sparse feature maps
+def _random_feature_map(shape=(37, 53), density=0.2, seed=0, oriented=True):
+    rng = np.random.default_rng(seed)
+    mask = rng.random(shape) < density
+    ori = np.where(mask, rng.uniform(0, math.pi, shape), -1).astype(np.float32) if oriented else None
+    return mask, ori
+
+
+@pytest.mark.parametrize("oriented", [True, False])
+def test_feature_map_sparse_dense_round_trip(oriented):
+    """A map built from its points equals the dense one; mask and orientation appear only when read."""
+    import copy
+    import pickle
+
+    from lanegraph.testing import _equal
+
+    mask, ori = _random_feature_map(oriented=oriented)
+    dense = FeatureMap(mask, ori)
+    r, c = dense.points()
+    np.testing.assert_array_equal(np.stack([r, c]), np.stack(np.nonzero(mask)))
+    vals = dense.point_orientations()
+    assert (vals is None) == (not oriented)
+    sparse = FeatureMap.from_points(mask.shape, r, c, vals)
+    assert "mask" not in vars(sparse) and "orientation" not in vars(sparse)
+    assert sparse.shape == mask.shape and "mask" not in vars(sparse)  # no materialisation
+    assert sparse.points()[0] is r and sparse.point_orientations() is vals
+    # copies and pickles stay lazy and equal
+    for twin in (copy.deepcopy(sparse), pickle.loads(pickle.dumps(sparse))):
+        assert "mask" not in vars(twin)
+        assert _equal(twin, dense)
+    # materialised on first read, once; -1 off the points
+    np.testing.assert_array_equal(sparse.mask, mask)
+    assert sparse.mask is sparse.mask
+    if oriented:
+        np.testing.assert_array_equal(sparse.orientation, ori)
+        assert sparse.orientation.dtype == np.float32
+    else:
+        assert sparse.orientation is None
+    assert _equal(sparse, dense) and _equal(dense, sparse)
+    # and back: the materialised map gives the same points again
+    again = FeatureMap(sparse.mask, sparse.orientation)
+    np.testing.assert_array_equal(again.points()[1], c)
+
+
+def test_feature_map_from_points_validates_and_keeps_dense_companions():
+    with pytest.raises(ValueError, match="rows and cols"):
+        FeatureMap.from_points((4, 4), np.arange(3), np.arange(2))
+    with pytest.raises(ValueError, match="orientation_values"):
+        FeatureMap.from_points((4, 4), np.arange(3), np.arange(3), np.zeros(2))
+    with pytest.raises(AttributeError):
+        FeatureMap.from_points((4, 4), np.arange(3), np.arange(3)).nothing  # noqa: B018
+    mask, ori = _random_feature_map(seed=3)
+    r, c = np.nonzero(mask)
+    fm = FeatureMap.from_points(mask.shape, r, c, ori[r, c], mask=mask, orientation=ori)
+    assert fm.mask is mask and fm.orientation is ori
+    empty = FeatureMap.from_points((5, 6), np.zeros(0, int), np.zeros(0, int), np.zeros(0, np.float32))
+    assert empty.mask.shape == (5, 6) and not empty.mask.any() and (empty.orientation == -1).all()
+
+
+@pytest.mark.parametrize("dense", [True, False])
+def test_feature_map_select(dense):
+    mask, ori = _random_feature_map(seed=5)
+    r, c = np.nonzero(mask)
+    fm = FeatureMap(mask, ori) if dense else FeatureMap.from_points(mask.shape, r, c, ori[r, c])
+    keep = np.random.default_rng(1).random(r.size) < 0.5
+    sub = fm.select(keep)
+    ref = np.zeros_like(mask)
+    ref[r[keep], c[keep]] = True
+    np.testing.assert_array_equal(sub.mask, ref)
+    np.testing.assert_array_equal(sub.orientation, np.where(ref, ori, np.float32(-1)))
+    assert FeatureMap(mask).select(keep).orientation is None
+
+
+@pytest.mark.parametrize("cols", [48, 53, 8, 1])
+@pytest.mark.parametrize("oriented", [True, False])
+def test_feature_map_points_match_nonzero(cols, oriented):
+    """The feature nodes' points, gathered once with the map, against np.nonzero."""
+    for seed, density in ((0, 0.0), (1, 0.02), (2, 0.5), (3, 1.0)):
+        mask, ori = _random_feature_map((23, cols), density, seed, oriented)
+        fm = _features._feature_map(mask.astype(np.uint8), ori)
+        r, c = np.nonzero(mask)
+        np.testing.assert_array_equal(fm.points()[0], r)
+        np.testing.assert_array_equal(fm.points()[1], c)
+        if oriented:
+            np.testing.assert_array_equal(fm.point_orientations(), ori[r, c])
+        else:
+            assert fm.point_orientations() is None
+        np.testing.assert_array_equal(fm.mask, mask)
+
+
+@pytest.mark.parametrize("node", [slt, eslt])
+def test_feature_nodes_carry_their_points(node):
+    bev = make_bev_image(rows=60, cols=50, lane_cols=(15.0, 35.0))
+    f = node.func(node.params(), image=bev)["features"]
+    ref = FeatureMap(np.array(f.mask), None if f.orientation is None else np.array(f.orientation))
+    for a, b in zip(f.points(), ref.points()):
+        np.testing.assert_array_equal(a, b)
+    if f.orientation is not None:
+        np.testing.assert_array_equal(f.point_orientations(), ref.point_orientations())
+
+
+def mask_features_twin(features, mask, temporal, erode_px):
+    """The dense features.mask it replaced: eroded road mask, logical and, masked orientation copy."""
+    keep = np.asarray(mask, bool)
+    if erode_px > 0:
+        k = 2 * erode_px + 1
+        keep = cv2.erode(keep.astype(np.uint8), np.ones((k, k), np.uint8), borderValue=0).astype(bool)
+    m = np.asarray(features.mask, bool) & keep
+    if temporal is not None:
+        m &= np.asarray(temporal, bool)
+    ori = None if features.orientation is None else np.where(m, np.asarray(features.orientation, np.float32), np.float32(-1))
+    return m, ori
+
+
+@pytest.mark.parametrize("erode_px", [0, 1, 4])
+@pytest.mark.parametrize("oriented", [True, False])
+def test_mask_features_sparse_equals_dense_twin(erode_px, oriented):
+    from lanegraph.testing import _equal
+
+    rng = np.random.default_rng(erode_px)
+    mask, ori = _random_feature_map((41, 30), 0.3, erode_px, oriented)
+    road = rng.random(mask.shape) < 0.9
+    road[:, :3] = False
+    temporal = rng.random(mask.shape) < 0.7
+    for tm in (temporal, None):
+        for fm in (FeatureMap(mask, ori), _features._feature_map(mask.astype(np.uint8), ori)):
+            out = mask_features.func(mask_features.params(erode_px=erode_px), features=fm, mask=road, temporal=tm)["features"]
+            assert "mask" not in vars(out)  # sparse: nothing dense made
+            m, o = mask_features_twin(fm, road, tm, erode_px)
+            np.testing.assert_array_equal(out.mask, m)
+            if oriented:
+                assert out.orientation.dtype == np.float32
+                np.testing.assert_array_equal(out.orientation, o)
+            else:
+                assert out.orientation is None
+            assert _equal(out, FeatureMap(m, o))
+    # a float64 orientation map: float32 out, as before
+    f64 = FeatureMap(mask, np.where(mask, 1.2345678912345, -1.0))
+    out = mask_features.func(mask_features.params(erode_px=erode_px), features=f64, mask=road)["features"]
+    assert out.point_orientations().dtype == np.float32
+
+
+def test_orientation_reads_sparse_and_dense_maps_alike():
+    f = features_for([50.0, 110.0])
+    r, c = f.points()
+    sparse = FeatureMap.from_points(f.shape, r, c, f.point_orientations())
+    p = orientation.params()
+    assert orientation.func(p, features=sparse)["orientation"] == orientation.func(p, features=f)["orientation"]
+    assert "orientation" not in vars(sparse)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("nb", [1, 7, 70, 140])
+def test_uniform_histogram_is_np_histogram(dtype, nb):
+    """Counts and edges bit for bit, also for values exactly on the edges and at both ends."""
+    lo, hi = math.radians(55), math.radians(125)
+    rng = np.random.default_rng(nb)
+    edges = np.linspace(lo, hi, nb + 1, dtype=dtype)
+    for n in (0, 1, 50, 3000):
+        v = rng.uniform(lo, hi, n).astype(dtype)
+        v = np.concatenate([v, edges, [dtype(lo), dtype(hi)], np.nextafter(edges, dtype(0)), np.nextafter(edges, dtype(10))])
+        v = v[(v >= lo) & (v <= hi)]  # as the node filters them
+        hist, e = _hough.uniform_histogram(v, lo, hi, nb)
+        ref_hist, ref_e = np.histogram(v, bins=nb, range=(lo, hi))
+        np.testing.assert_array_equal(hist, ref_hist)
+        assert hist.dtype == ref_hist.dtype
+        np.testing.assert_array_equal(e, ref_e)
+        assert e.dtype == ref_e.dtype
+    ints = np.arange(10)
+    np.testing.assert_array_equal(_hough.uniform_histogram(ints, 0.0, 9.0, 3)[0], np.histogram(ints, 3, (0.0, 9.0))[0])
+
+
+def find_peaks_twin(acc, min_separation, min_value):
+    """The peak search it replaced: all peaks by a full stable sort, then those reaching min_value."""
+    if acc.size == 0 or acc.max() <= 0:
+        return []
+    taken, suppressed = [], np.zeros(acc.size, bool)
+    for i in np.argsort(-acc, kind="stable"):
+        if acc[i] <= 0:
+            break
+        if not suppressed[i]:
+            taken.append(int(i))
+            suppressed[max(0, i - min_separation) : i + min_separation + 1] = True
+    return [i for i in taken if acc[i] >= min_value]
+
+
+def test_find_peaks_with_min_value_matches_twin():
+    rng = np.random.default_rng(4)
+    for trial in range(200):
+        acc = np.round(rng.random(rng.integers(1, 300)) * 20) * (rng.random() < 0.9)  # ties, zeros
+        acc = _hough._smooth(acc, 2.0) if trial % 2 else acc
+        for sep in (1, 5, 24):
+            for mv in (0.0, 3.0, 10.0, 40.0):
+                assert _hough.find_peaks(acc, sep, mv) == find_peaks_twin(acc, sep, mv)
+
+
+def test_side_band_kernel_writes_only_its_columns():
+    from lanegraph_lanes._temporal import _side_band_kernel
+
+    rows, cols = 30, 40
+    band = np.zeros((rows, cols), bool)
+    band[:, 20:] = True  # the other side's columns, already written
+    lcols = np.full((1, rows), 18.0)
+    none = np.zeros(0, np.int64)
+    assert _side_band_kernel(lcols, 0, 20, 5.0, none, none, band) == (0, 0)
+    assert band[:, 20:].all() and band[:, 13:20].all() and not band[:, :13].any()
+
+
+def test_temporal_mask_rejects_features_of_another_shape():
+    g = geometry()
+    lane = Lane((80.0, 0.0, 0.0), (0, 199), "right", 0.9)
+    with pytest.raises(InputError, match="features"):
+        temporal_mask.func(temporal_mask.params(), geometry=g, previous=[lane], features=FeatureMap(np.zeros((10, 10), bool)))
+
+
+def to_image_twin(lane, geometry, row_step, w=None, h=None):
+    """The projection it replaced: sort by image row, np.unique, interpolate."""
+    r = np.arange(lane.bev_rows[0], lane.bev_rows[1] + 1, dtype=np.float64)
+    t = geometry.rows - 1 - r
+    c0, c1, c2 = lane.coeffs
+    pts = geometry.bev_to_image(c0 + c1 * t + c2 * t * t, r)
+    ok = np.isfinite(pts).all(axis=1)
+    if h is not None:
+        ok &= (pts[:, 1] >= 0) & (pts[:, 1] <= h - 1)
+    if w is not None:
+        ok &= (pts[:, 0] >= 0) & (pts[:, 0] <= w - 1)
+    pts = pts[ok]
+    if len(pts) < 2:
+        return None
+    order = np.argsort(-pts[:, 1])
+    x, y = pts[order, 0], pts[order, 1]
+    y_uniq, idx = np.unique(y, return_index=True)
+    ys = np.append(np.arange(y_uniq[-1], y_uniq[0], -row_step), y_uniq[0])
+    return np.stack([np.interp(ys, y_uniq, x[idx]), ys], axis=1)
+
+
+@pytest.mark.parametrize(
+    "H",
+    [
+        np.array([[2.0, 0, 10], [0, 0.5, 100], [0, 0, 1]]),  # y grows with the row (the usual case)
+        np.array([[2.0, 0, 10], [0, -0.5, 300], [0, 0, 1]]),  # y falls with the row
+        np.array([[2.0, 0, 10], [0.8, 0.3, 100], [0, 0, 1]]),  # y depends on the column: a curve turns it
+        np.array([[1.0, 0, 0], [0, 0, 100], [0, 0, 1]]),  # every point on one image row
+    ],
+)
+def test_to_image_matches_sort_unique_twin(H):
+    g = BevGeometry(-4, 4, 5, 15, 0.05, H)
+    lanes = [Lane((40.0, 0.1, 0.0), (20, 180), "left", 0.8), Lane((120.0, -0.9, 0.004), (0, 199), "right", 0.5)]
+    out = to_image.func(to_image.params(), lanes=lanes, geometry=g)["lanes"]
+    ref = [p for p in (to_image_twin(ln, g, 5.0) for ln in lanes) if p is not None]
+    assert len(out) == len(ref)
+    for ln, p in zip(out, ref):
+        np.testing.assert_array_equal(ln.points, p)
