@@ -148,10 +148,12 @@ def _eslt_pixel(img, gx, gy, mag2, csum, r, c, lo, hi, threshold, cos2_max, out_
 
 
 @jit(parallel=True)
-def _eslt(img, gx, gy, window, threshold, max_angle, where, out_mask, out_theta):
+def _eslt(img, gx, gy, window, threshold, max_angle, where, out_mask, out_theta, fill_theta=True):
     """ESLT: SLT plus parallel strongest-gradient borders. ``gx``, ``gy`` are Sobel gradients (rows
     growing downwards); the edge orientation of a border pixel is ``atan2(gx, gy)`` modulo pi (from
-    +x towards up). Writes the mask and the mean border orientation (-1 where not a feature).
+    +x towards up). Writes the mask and the mean border orientation, -1 where not a feature; with
+    ``fill_theta`` False ``out_theta`` is written at the features only (the node reads it there:
+    1.3 MB fewer writes on an 800 x 400 BEV).
     Only the pixels where the uint8 map ``where`` is set are tested (their windows may reach
     beyond it); ``where`` of shape (0, 0): every pixel.
 
@@ -168,7 +170,9 @@ def _eslt(img, gx, gy, window, threshold, max_angle, where, out_mask, out_theta)
     for r in prange(rows):
         for c in range(cols):
             out_mask[r, c] = 0
-            out_theta[r, c] = -1.0
+        if fill_theta:
+            for c in range(cols):
+                out_theta[r, c] = -1.0
         c0, c1 = _row_span(where, r, cols)
         if c0 >= c1:
             continue
@@ -204,15 +208,16 @@ def _eslt(img, gx, gy, window, threshold, max_angle, where, out_mask, out_theta)
             _eslt_pixel(img, gx, gy, mag2, csum, r, c, lo, hi, threshold, cos2_max, out_mask, out_theta)
 
 
-def _feature_map(mask: np.ndarray, theta: np.ndarray | None) -> FeatureMap:
+def _feature_map(mask: np.ndarray, theta: np.ndarray | None, dense_theta: bool = True) -> FeatureMap:
     """The feature nodes' output: the dense uint8 0/1 ``mask`` (and float32 ``theta``) with their
     points gathered once here (``np.flatnonzero`` of the bool view: a kernel was only 1.3x faster),
-    so no consumer scans the map for them again."""
+    so no consumer scans the map for them again. ``dense_theta`` False: ``theta`` is valid at the
+    features only, and the map's dense orientation is built from the points when first read."""
     m = mask.view(bool)
     flat = np.flatnonzero(m)
     r, c = np.divmod(flat, max(mask.shape[1], 1))
     v = None if theta is None else theta.reshape(-1).take(flat)
-    return FeatureMap.from_points(mask.shape, r, c, v, mask=m, orientation=theta)
+    return FeatureMap.from_points(mask.shape, r, c, v, mask=m, orientation=theta if dense_theta else None)
 
 
 def sobel(gray: np.ndarray, ksize: int = 3) -> tuple[np.ndarray, np.ndarray]:
@@ -324,8 +329,10 @@ def eslt(params: EsltParams, image: np.ndarray, where: np.ndarray | None = None)
     wm = _where_map(where, img.shape, "features.eslt")
     mask = np.empty(img.shape, np.uint8)
     ori = np.empty(img.shape, np.float32)
-    _eslt(img, gx, gy, params.window, float(params.threshold), math.radians(params.max_angle_deg), wm, mask, ori)
-    return {"features": _feature_map(mask, ori)}
+    _eslt(img, gx, gy, params.window, float(params.threshold), math.radians(params.max_angle_deg), wm, mask, ori, False)
+    # ori holds orientations at the features only: the map reads them there and builds its dense
+    # orientation (-1 elsewhere) only if a consumer asks for it
+    return {"features": _feature_map(mask, ori, dense_theta=False)}
 
 
 class MaskParams(NodeParams):

@@ -105,6 +105,13 @@ def test_eslt_kernel_on_uint8_and_int16_gradients_matches_twin(w):
     tm, to = eslt_twin(f32, gx.astype(np.float32), gy.astype(np.float32), w, 8.0, math.radians(15))
     np.testing.assert_array_equal(mask, tm)
     np.testing.assert_allclose(ori, to, atol=1e-5)
+    # the node's call: orientations written at the features only, the rest of ori left alone
+    mask2 = np.ones(img.shape, np.uint8)
+    ori2 = np.full(img.shape, 7.0, np.float32)
+    _features._eslt(img.astype(np.uint8), gx, gy, w, 8.0, math.radians(15), _features._EVERYWHERE, mask2, ori2, False)
+    np.testing.assert_array_equal(mask2, tm)
+    np.testing.assert_array_equal(ori2[tm == 1], ori[tm == 1])
+    assert np.all(ori2[tm == 0] == 7.0)
 
 
 @pytest.mark.parametrize("shape", [(2, 2), (3, 5), (2, 9), (24, 40), (1, 7), (7, 1)])
@@ -895,3 +902,18 @@ def test_to_image_matches_sort_unique_twin(H):
     assert len(out) == len(ref)
     for ln, p in zip(out, ref):
         np.testing.assert_array_equal(ln.points, p)
+
+
+def test_eslt_node_dense_orientation_is_minus_one_off_the_features():
+    """The node leaves its orientation buffer unfilled off the features; the map's dense
+    orientation, built on first read, is the kernel's filled one (-1 where no feature)."""
+    img = make_bev_image(rows=60, cols=50, lane_cols=(15.0, 35.0), noise=6.0, seed=2)
+    f = eslt.func(eslt.params(), image=img)["features"]
+    gx, gy = cv2.spatialGradient(np.ascontiguousarray(img, dtype=np.uint8), ksize=3)
+    mask = np.empty(img.shape, np.uint8)
+    ori = np.empty(img.shape, np.float32)
+    p = eslt.params()
+    _features._eslt(img.astype(np.uint8), gx, gy, p.window, float(p.threshold), math.radians(p.max_angle_deg), _features._EVERYWHERE, mask, ori)
+    assert mask.any()
+    np.testing.assert_array_equal(f.mask, mask.view(bool))
+    np.testing.assert_array_equal(f.orientation, ori)
