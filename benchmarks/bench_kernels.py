@@ -102,9 +102,10 @@ def bev_kernels(rng: np.random.Generator) -> None:
     lcols = np.stack([150.0 + 0.05 * np.arange(800), 250.0 + 0.05 * np.arange(800)])[None, 0]
     band = np.zeros((800, 400), bool)
     fm = feats.mask
+    fr, fc = feats.points()
     row(
         "_side_band_kernel",
-        timed(lambda: _temporal._side_band_kernel(lcols, 0, 200, 30.0, fm, True, band)),
+        timed(lambda: _temporal._side_band_kernel(lcols, 0, 200, 30.0, fr, fc, band)),
         timed(lambda: tl.side_band_np(lcols, 0, 200, 30.0, fm)),
     )
     img8 = bev.astype(np.uint8)
