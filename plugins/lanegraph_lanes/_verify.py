@@ -65,18 +65,23 @@ def _band_texture_kernel(img, r0, centre, gap_px, band_px, sign, use_diff, out):
             out[i] = math.sqrt(acc / n)
 
 
+def _lane_rows_in(image: np.ndarray, lane: Lane) -> tuple[np.ndarray, int, int]:
+    """The grey BEV image (C-contiguous; an InputError for anything but Hb x Wb) and the lane's
+    first and last rows clipped to it (``r1 < r0``: none)."""
+    img = np.ascontiguousarray(image)
+    if img.ndim != 2:
+        raise InputError(f"lanes.verify: image: expected an Hb x Wb grey BEV image, got shape {img.shape}")
+    rows = img.shape[0]
+    return img, max(int(lane.bev_rows[0]), 0), min(int(lane.bev_rows[1]), rows - 1)
+
+
 def band_textures(image: np.ndarray, lane: Lane, gap_px: int, band_px: int, measure: str = "std") -> tuple[np.ndarray, np.ndarray]:
     """Per lane row, the lateral texture of the (left, right) side band (NaN where a band leaves
     the image): ``measure="std"``, the intensity's standard deviation across the band; ``"diff"``,
     the mean absolute difference of neighbouring pixels across the band, which a smooth shadow
     edge or illumination gradient barely changes while gravel or grass raise it."""
-    rows = image.shape[0]
-    img = np.ascontiguousarray(image)
-    if img.ndim != 2:
-        raise InputError(f"lanes.verify: image: expected an Hb x Wb grey BEV image, got shape {img.shape}")
-    r0, r1 = int(lane.bev_rows[0]), int(lane.bev_rows[1])
-    r0, r1 = max(r0, 0), min(r1, rows - 1)
-    t = rows - 1 - np.arange(r0, r1 + 1, dtype=np.float64)
+    img, r0, r1 = _lane_rows_in(image, lane)
+    t = img.shape[0] - 1 - np.arange(r0, r1 + 1, dtype=np.float64)
     c0, c1, c2 = lane.coeffs
     centre = c0 + c1 * t + c2 * t * t
     out = []
@@ -117,11 +122,7 @@ def side_texture(image: np.ndarray, lane: Lane, gap_px: int, band_px: int, measu
     """Median over the lane's rows of the lateral texture in the (left, right) side bands (rows
     where a band leaves the image do not count; 0 when none is left): see :func:`band_textures`,
     whose per-row values this takes (one kernel call for both sides)."""
-    img = np.ascontiguousarray(image)
-    if img.ndim != 2:
-        raise InputError(f"lanes.verify: image: expected an Hb x Wb grey BEV image, got shape {img.shape}")
-    rows = img.shape[0]
-    r0, r1 = max(int(lane.bev_rows[0]), 0), min(int(lane.bev_rows[1]), rows - 1)
+    img, r0, r1 = _lane_rows_in(image, lane)
     c0, c1, c2 = (float(c) for c in lane.coeffs)
     left, right = _side_texture_kernel(img, r0, r1, c0, c1, c2, int(gap_px), int(band_px), measure == "diff")
     return float(left), float(right)

@@ -556,18 +556,20 @@ def band_textures_twin(image, lane, gap_px, band_px, measure):
     return out
 
 
+#: lanes for the side-band texture twins, all within the 90 x 70 test image's rows
+TEXTURE_LANES = [
+    Lane((35.0, 0.05, 0.0), (0, 89), "left", 0.9),
+    Lane((3.0, 0.2, 0.001), (10, 80), "left", 0.9),  # leaves the image on the left at the bottom
+    Lane((66.4, -0.1, 0.0), (5, 60), "right", 0.9),
+    Lane((35.5, 0.0, 0.0), (89, 89), "right", 0.9),  # one row, a .5 centre (round half to even)
+]
+
+
 @pytest.mark.parametrize("measure", ["diff", "std"])
 @pytest.mark.parametrize("gap, band", [(6, 30), (0, 2), (3, 60)])
 def test_band_texture_kernel_matches_twin(measure, gap, band):
-    rng = np.random.default_rng(8)
-    img = rng.integers(0, 256, (90, 70)).astype(np.uint8)
-    lanes = [
-        Lane((35.0, 0.05, 0.0), (0, 89), "left", 0.9),
-        Lane((3.0, 0.2, 0.001), (10, 80), "left", 0.9),  # leaves the image on the left at the bottom
-        Lane((66.4, -0.1, 0.0), (5, 60), "right", 0.9),
-        Lane((35.5, 0.0, 0.0), (89, 89), "right", 0.9),  # one row, a .5 centre (round half to even)
-    ]
-    for lane in lanes:
+    img = np.random.default_rng(8).integers(0, 256, (90, 70)).astype(np.uint8)
+    for lane in TEXTURE_LANES:
         got = _verify.band_textures(img, lane, gap, band, measure)
         exp = band_textures_twin(img, lane, gap, band, measure)
         for g, e in zip(got, exp):
@@ -590,13 +592,8 @@ def side_texture_twin(image, lane, gap_px, band_px, measure):
 @pytest.mark.parametrize("measure", ["diff", "std"])
 @pytest.mark.parametrize("gap, band", [(6, 30), (0, 2), (3, 60)])
 def test_side_texture_kernel_matches_twin(measure, gap, band):
-    rng = np.random.default_rng(9)
-    img = rng.integers(0, 256, (90, 70)).astype(np.uint8)
-    lanes = [
-        Lane((35.0, 0.05, 0.0), (0, 89), "left", 0.9),
-        Lane((3.0, 0.2, 0.001), (10, 80), "left", 0.9),  # leaves the image on the left at the bottom
-        Lane((66.4, -0.1, 0.0), (5, 60), "right", 0.9),
-        Lane((35.5, 0.0, 0.0), (89, 89), "right", 0.9),  # one row
+    img = np.random.default_rng(9).integers(0, 256, (90, 70)).astype(np.uint8)
+    lanes = TEXTURE_LANES + [
         Lane((35.0, 0.0, 0.0), (-20, 200), "right", 0.9),  # rows beyond the image: clipped
         Lane((-300.0, 0.0, 0.0), (0, 89), "left", 0.9),  # every band outside: 0
         Lane((35.0, 0.0, 0.0), (50, 40), "left", 0.9),  # no rows: 0
