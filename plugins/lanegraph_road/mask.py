@@ -29,6 +29,7 @@ Then, optionally:
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 import cv2
@@ -40,7 +41,7 @@ from lanegraph._numba import jit
 from lanegraph.types import Calibration, RoadModel
 
 from . import geometry
-from .profile import as_disparity
+from .profile import checked_disparity
 
 ROAD, ABOVE, BELOW, UNKNOWN = 1, 2, 3, 4  # labels of _height_class_kernel (0: beyond max_distance_m)
 
@@ -50,7 +51,7 @@ def _height_class_kernel(disp, step, a0, a1, a2, cx, cy, s, c, height, height_to
     """Label every ``step``-th column of ``disp`` (column ``u`` of the result is image column
     ``step u``; ``cx``, ``s`` are given in result columns) by its height above the road (eq. 4): 1 road
     (``|d - d_road| <= tol`` with ``tol = max(height_tol * d / height, min_disp_tol)``), 2 above, 3
-    below, 4 no disparity (``d <= 0``) where the road would be visible; 0 where the road disparity at
+    below, 4 no disparity (``d <= 0``, NaN or infinite) where the road would be visible; 0 where the road disparity at
     the pixel (roll-corrected row ``cy + s (u-cx) + c (v-cy)``) is < ``min_road_disp`` (beyond
     ``max_distance_m`` or the horizon). Returns ``(labels, first)``: ``first`` is the first row with
     a non-zero label (``H`` when none). Reads the strided columns in place (no copy of the map).
@@ -74,7 +75,7 @@ def _height_class_kernel(disp, step, a0, a1, a2, cx, cy, s, c, height, height_to
                 continue
             if first == H:
                 first = v
-            if d <= 0.0:
+            if not (d > 0.0 and d < math.inf):  # no disparity: 0, negative, NaN, +-inf
                 out[v, u] = 4
                 continue
             tol = height_tol * d / height
@@ -320,7 +321,7 @@ def road_mask_array(
     column (column ``k`` of the reduced image is image column ``n k``: the roll-corrected row
     ``cy + s (u - cx) + ...`` becomes ``cy + n s (k - cx / n) + ...``), then widened back by
     :func:`widen_columns`."""
-    disp = as_disparity(disparity, "road.mask")
+    disp = checked_disparity(disparity, "road.mask")  # NaN, +-inf: no disparity to the kernel
     if not road.valid or not road.height > 0:
         return np.full(disp.shape, params.invalid_road == "all", dtype=bool)
     s, c = geometry.roll_row_coeffs(road.roll, calib)

@@ -90,7 +90,7 @@ def _dp_path_kernel(score, max_step, smoothness):
 
 
 @jit
-def _select_kernel(disp, check_finite, step, band_k, b0, b1, b2, cx, cy, s, c, bin_size, max_disp, out_rows, out_d, vd):
+def _select_kernel(disp, step, band_k, b0, b1, b2, cx, cy, s, c, bin_size, max_disp, out_rows, out_d, vd):
     """The pixels of a profile pass, compacted, and their v-disparity, in one pass over the image.
 
     Selects the pixels with ``d > 0`` and, when ``band_k > 0``, within the band
@@ -102,24 +102,14 @@ def _select_kernel(disp, check_finite, step, band_k, b0, b1, b2, cx, cy, s, c, b
     (``H x n_bins`` float32, zeroed by the caller; ``n_bins`` may be 0: no counts) when
     ``d < max_disp`` and the bin exists. Returns the number of pixels selected.
 
-    With ``check_finite`` every pixel of a row (not only the sampled columns: their cache lines are
-    read anyway) is first tested for a NaN or an infinity (exponent bits all ones); the first one
-    found ends the kernel with -1 (the caller replaces them and calls again)."""
+    A NaN or an infinity is invalid, as 0 is (one more comparison on the pixels read anyway)."""
     H, W = disp.shape
     n_bins = vd.shape[1]
-    bits = disp.view(np.uint32)
     n = 0
     for v in range(H):
-        if check_finite:
-            # the exponent field + 1 carries into bit 31 exactly when it is all ones
-            acc = np.uint32(0)
-            for u in range(W):
-                acc |= (bits[v, u] & np.uint32(0x7F800000)) + np.uint32(0x00800000)
-            if acc & np.uint32(0x80000000):
-                return -1
         for u in range(0, W, step):
             d = disp[v, u]
-            if not d > 0.0:
+            if not (d > 0.0 and d < math.inf):  # 0, negative, NaN, +-inf: invalid
                 continue
             if band_k > 0.0 and abs(d - (b0 + b1 * u + b2 * v)) > band_k * d:
                 continue
@@ -408,7 +398,7 @@ def _plane_fit_kernel(disp, step, v_top, min_disp, b0, b1, b2, first_tol, plane_
             continue
         for u in range(0, W, step):
             dd = np.float64(disp[v, u])
-            if not dd > min_disp:
+            if not (dd > min_disp and dd < math.inf):  # NaN, +-inf: invalid
                 continue
             us[m] = u
             vs[m] = v
@@ -482,8 +472,10 @@ class RoadInputError(InputError, ValueError):
     (so the executor reports it like any bad input) that stays a ``ValueError`` for Python callers."""
 
 
-def _float32_disparity(disparity: np.ndarray, node: str) -> np.ndarray:
-    """Validate a disparity map's shape and dtype; C-contiguous float32 (no copy when it is already)."""
+def checked_disparity(disparity: np.ndarray, node: str) -> np.ndarray:
+    """Validate a disparity map's shape and dtype; C-contiguous float32 (no copy when it is already).
+    NaNs and infinities stay: every road kernel treats them as invalid pixels, as it does 0 (no
+    pass over the map to look for them)."""
     disparity = np.asarray(disparity)
     if disparity.ndim != 2 or disparity.shape[0] < 1 or disparity.shape[1] < 1 or disparity.dtype.kind not in "biuf":
         raise RoadInputError(
@@ -493,27 +485,13 @@ def _float32_disparity(disparity: np.ndarray, node: str) -> np.ndarray:
     return np.ascontiguousarray(disparity, dtype=np.float32)
 
 
-def _zero_non_finite(d: np.ndarray) -> np.ndarray:
-    """A copy of a float32 map with its NaNs and infinities set to 0 (invalid)."""
-    return np.where(np.isfinite(d), d, 0.0).astype(np.float32)
-
-
-def as_disparity(disparity: np.ndarray, node: str = "road") -> np.ndarray:
-    """Validate a disparity map and return it as C-contiguous float32 with non-finite values set to 0."""
-    d = _float32_disparity(disparity, node)
-    if not np.isfinite(d).all():
-        d = _zero_non_finite(d)
-    return d
-
-
 def n_bins(max_disparity: float, bin_size: float) -> int:
     return max(1, int(math.ceil(max_disparity / bin_size)))
 
 
-def _select(disp, cx, cy, s, c, bins, bin_size, max_disparity, band, step, check_finite):
-    """:func:`_select_kernel` into new arrays: ``(rows, disparities, vdisparity)``, or None when
-    ``check_finite`` and the map holds a NaN or an infinity. Rows are int16 (half the memory traffic
-    of int32) unless the image has too many rows for it."""
+def _select(disp, cx, cy, s, c, bins, bin_size, max_disparity, band, step):
+    """:func:`_select_kernel` into new arrays: ``(rows, disparities, vdisparity)``. Rows are int16
+    (half the memory traffic of int32) unless the image has too many rows for it."""
     H, W = disp.shape
     cap = H * -(-W // step)
     rows = np.empty(cap, np.int16 if H < 32767 else np.int32)
@@ -521,10 +499,10 @@ def _select(disp, cx, cy, s, c, bins, bin_size, max_disparity, band, step, check
     vd = np.zeros((H, bins), np.float32)
     k, b0, b1, b2 = band if band is not None else (0.0, 0.0, 0.0, 0.0)
     n = _select_kernel(
-        disp, bool(check_finite), int(step), float(k), float(b0), float(b1), float(b2), float(cx), float(cy),
+        disp, int(step), float(k), float(b0), float(b1), float(b2), float(cx), float(cy),
         float(s), float(c), float(bin_size), float(max_disparity), rows, d, vd,
     )
-    return None if n < 0 else (rows[:n], d[:n], vd)
+    return rows[:n], d[:n], vd
 
 
 def select_and_count(
@@ -542,7 +520,7 @@ def select_and_count(
     (:func:`_select_kernel`): ``(rows, disparities, H x D vdisparity)`` of the selected pixels of every
     ``step``-th column, in roll-corrected rows ``v' = cy + s (u - cx) + c (v - cy)`` (pixels);
     ``band = (band_k, b0, b1, b2)`` or None for every valid pixel."""
-    return _select(disp, cx, cy, s, c, n_bins(max_disparity, bin_size), bin_size, max_disparity, band, step, False)
+    return _select(disp, cx, cy, s, c, n_bins(max_disparity, bin_size), bin_size, max_disparity, band, step)
 
 
 def select_pixels(
@@ -555,7 +533,7 @@ def select_pixels(
     step: int = 1,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`select_and_count` without the counts: ``(rows, disparities)``."""
-    return _select(disp, cx, cy, s, c, 0, 1.0, 0.0, band, step, False)[:2]
+    return _select(disp, cx, cy, s, c, 0, 1.0, 0.0, band, step)[:2]
 
 
 def compute_vdisparity(
@@ -588,7 +566,7 @@ class VDisparityParams(NodeParams):
 )
 def road_vdisparity(params: VDisparityParams, disparity: np.ndarray) -> dict:
     """The v-disparity image: per image row, a histogram of its valid disparities (H x D float32)."""
-    disp = as_disparity(disparity, "road.vdisparity")
+    disp = checked_disparity(disparity, "road.vdisparity")  # NaN, +-inf: invalid to the kernel
     return {"vdisparity": compute_vdisparity(disp, params.max_disparity, params.bin_size)}
 
 
@@ -842,11 +820,10 @@ def estimate_road(
     pixels within ``road_band_m`` of that plane, so that walls, trees and the upper part of
     vehicles no longer compete with the far road in the DP.
 
-    The disparity map is validated as :func:`as_disparity` does, but its NaNs and infinities are
-    looked for by pass 1's selection kernel while it reads the rows anyway (one read of the map
-    instead of two); only when it finds one is the map sanitised (set to 0) and pass 1 selected again.
+    The disparity map is validated by :func:`checked_disparity`; its NaNs and infinities are
+    invalid pixels to the kernels that read it.
     """
-    disp = _float32_disparity(disparity, "road.profile")
+    disp = checked_disparity(disparity, "road.profile")
     H, W = disp.shape
     D = n_bins(params.max_disparity, params.bin_size)
     cx, cy = float(calib.cx), float(calib.cy)
@@ -861,11 +838,7 @@ def estimate_road(
     s, c = geometry.roll_row_coeffs(0.0, calib)
     step1 = int(params.first_pass_column_step)
     bins = D if vdisparity is None else 0
-    sel = _select(disp, cx, cy, s, c, bins, params.bin_size, params.max_disparity, None, step1, True)
-    if sel is None:  # a NaN or an infinity: invalid, as as_disparity makes it
-        disp = _zero_non_finite(disp)
-        sel = _select(disp, cx, cy, s, c, bins, params.bin_size, params.max_disparity, None, step1, False)
-    rows, d, counted = sel
+    rows, d, counted = _select(disp, cx, cy, s, c, bins, params.bin_size, params.max_disparity, None, step1)
     if vdisparity is None:
         vd = counted
 

@@ -67,7 +67,7 @@ def row_refine_np(disp, keep, centre, radius, cx, cy, s, c):
 def plane_band_np(disp, b0, b1, b2, height, band):
     H, W = disp.shape
     v, u = np.mgrid[0:H, 0:W]
-    return (disp > 0) & (np.abs(disp - (b0 + b1 * u + b2 * v)) <= band / height * disp)
+    return (disp > 0) & np.isfinite(disp) & (np.abs(disp - (b0 + b1 * u + b2 * v)) <= band / height * disp)
 
 
 def plane_sums_np(disp, step, v_top, min_disp, b0, b1, b2, fixed_tol, plane_tol, height, min_tol, uc, vc):
@@ -76,7 +76,7 @@ def plane_sums_np(disp, step, v_top, min_disp, b0, b1, b2, fixed_tol, plane_tol,
     sub = disp[::step, ::step].astype(np.float64)
     vv, uu = np.mgrid[0 : disp.shape[0] : step, 0 : disp.shape[1] : step].astype(np.float64)
     tol = fixed_tol if fixed_tol > 0 else np.maximum(plane_tol * sub / height, min_tol)
-    sel = (sub > min_disp) & (vv >= v_top) & (np.abs(sub - (b0 + b1 * uu + b2 * vv)) < tol)
+    sel = (sub > min_disp) & np.isfinite(sub) & (vv >= v_top) & (np.abs(sub - (b0 + b1 * uu + b2 * vv)) < tol)
     x, y, d = uu[sel] - uc, vv[sel] - vc, sub[sel]
     sums = [x.sum(), y.sum(), (x * x).sum(), (x * y).sum(), (y * y).sum(), d.sum(), (x * d).sum(), (y * d).sum()]
     return int(sel.sum()), np.array(sums)
@@ -112,7 +112,7 @@ def height_class_np(disp, a0, a1, a2, cx, cy, s, c, height, height_tol, min_tol,
     dr = a0 + a1 * r + a2 * r * r
     tol = np.maximum(height_tol * disp / height, min_tol)
     out = np.where(disp - dr > tol, 2, np.where(dr - disp > tol, 3, 1)).astype(np.uint8)
-    out[disp <= 0] = 4
+    out[~((disp > 0) & np.isfinite(disp))] = 4  # NaN and +-inf: no disparity, as 0
     out[dr < min_road] = 0
     return out
 
@@ -169,7 +169,7 @@ def select_np(disp, band, cx, cy, s, c, step=1):
     H, W = disp.shape
     v, u = np.mgrid[0:H, 0:W]
     r = np.floor(cy + s * (u - cx) + c * (v - cy) + 0.5).astype(int)
-    ok = (u % step == 0) & (disp > 0) & (r >= 0) & (r < H)
+    ok = (u % step == 0) & (disp > 0) & np.isfinite(disp) & (r >= 0) & (r < H)
     if band is not None:
         k, b0, b1, b2 = band
         ok &= np.abs(disp - (b0 + b1 * u + b2 * v)) <= k * disp
@@ -216,19 +216,40 @@ def test_vdisparity_counts_exact_bin_edges():
     np.testing.assert_array_equal(vd[0], [1, 1, 1, 1])
 
 
-@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
-def test_select_kernel_finds_non_finite_values(bad):
-    """Pass 1's selection looks for NaNs and infinities in every column (not only the sampled ones)."""
-    disp = np.full((4, 9), 5.0, np.float32)
-    assert profile._select(disp, 4.0, 2.0, 0.0, 1.0, 8, 1.0, 8.0, None, 4, True) is not None
-    for v, u in ((0, 0), (3, 8), (2, 5)):  # u = 5: a column that step 4 does not sample
-        bad_disp = disp.copy()
-        bad_disp[v, u] = bad
-        assert profile._select(bad_disp, 4.0, 2.0, 0.0, 1.0, 8, 1.0, 8.0, None, 4, True) is None
+def test_road_kernels_treat_non_finite_disparities_as_zero():
+    """NaNs and infinities are invalid pixels to every kernel that reads the disparity map (no pass
+    looks for them first): the selection, the roll plane and the height classes give what they give
+    on the map with those pixels set to 0, in sampled and unsampled columns alike, and their twins agree."""
+    rng = np.random.default_rng(11)
+    H, W = 40, 57
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    disp = (1.0 + 0.02 * u + 0.6 * v + rng.normal(0, 0.05, (H, W))).astype(np.float32)
+    bad = disp.copy()
+    idx = rng.random(disp.shape) < 0.05
+    bad[idx] = rng.choice(np.array([np.nan, np.inf, -np.inf], np.float32), idx.sum())
+    zeroed = np.where(idx, 0.0, disp).astype(np.float32)
+    band = (0.1, 1.0, 0.02, 0.6)
+    for b in (None, band):
+        for step in (1, 4):
+            got = profile.select_and_count(bad, 28.0, 19.5, 0.01, 0.9999, 64.0, 1.0, b, step)
+            exp = profile.select_and_count(zeroed, 28.0, 19.5, 0.01, 0.9999, 64.0, 1.0, b, step)
+            for g, e in zip(got, exp):
+                np.testing.assert_array_equal(g, e)
+            np.testing.assert_array_equal(got[1], select_np(bad, b, 28.0, 19.5, 0.01, 0.9999, step)[1])
+    args = (2, 4, 3.0, 1.0, 0.02, 0.6, 1.0, 0.5, 1.6, 0.25, 28.0, 19.5, 3)
+    got, exp = profile._plane_fit_kernel(bad, *args), profile._plane_fit_kernel(zeroed, *args)
+    assert got[0] and got == exp
+    np.testing.assert_allclose(got[1:], plane_fit_np(bad, *args)[1], rtol=1e-9, atol=1e-9)
+    hargs = (1.0, 0.6, 0.0, 28.0, 19.5, 0.0, 1.0, 1.6, 0.08, 0.5, 2.0)
+    labels, _ = mask._height_class_kernel(bad, 1, *hargs)
+    np.testing.assert_array_equal(labels, mask._height_class_kernel(zeroed, 1, *hargs)[0])
+    np.testing.assert_array_equal(labels, height_class_np(bad, *hargs))
+    seen = idx & (labels > 0)  # where the road would be visible
+    assert seen.any() and (labels[seen] == mask.UNKNOWN).all()
 
 
 def test_profile_treats_non_finite_disparities_as_invalid(scene):
-    """A NaN or an infinity is invalid (as ``as_disparity`` makes it): the road of the zeroed map."""
+    """A NaN or an infinity is invalid: the road of the map with them set to 0."""
     disp = noisy(scene[0])
     bad = disp.copy()
     rng = np.random.default_rng(4)
