@@ -100,15 +100,9 @@ def atan2_fast(y, x):
 
 
 @jit(inline="always")
-def _eslt_pixel(img, gx, gy, mag2, csum, r, c, lo, hi, threshold, cos2_max, out_mask, out_theta):
-    """ESLT at pixel ``(r, c)`` with the left window ``[lo, c)`` and the right one ``(c, hi)``
-    (both non-empty); ``csum``: the row's cumulative intensity, ``mag2``: its squared gradient."""
-    nl = c - lo
-    nr = hi - (c + 1)
-    v = img[r, c] - threshold
-    # v > mean of each window, without the divisions
-    if not (v * nl > csum[c] - csum[lo] and v * nr > csum[hi] - csum[c + 1]):
-        return
+def _eslt_borders(gx, gy, mag2, r, c, lo, hi, cos2_max, out_mask, out_theta):
+    """The border test of ESLT at an SLT feature ``(r, c)`` with the left window ``[lo, c)`` and the
+    right one ``(c, hi)`` (both non-empty); ``mag2``: the row's squared gradient."""
     # strongest gradient in each window, first one on ties; selects rather than branches (which
     # way a comparison goes is unpredictable)
     bl = lo
@@ -147,6 +141,20 @@ def _eslt_pixel(img, gx, gy, mag2, csum, r, c, lo, hi, threshold, cos2_max, out_
     out_theta[r, c] = m
 
 
+@jit(inline="always")
+def _slt_clipped(img, csum, r, c, window, cols, threshold, where, use_where, slt):
+    """SLT at ``(r, c)`` with its windows clipped at the row's ends (an empty one: no feature)."""
+    lo = max(c - window, 0)
+    hi = min(c + 1 + window, cols)
+    nl = c - lo
+    nr = hi - (c + 1)
+    if nl == 0 or nr == 0 or (use_where and where[r, c] == 0):
+        return
+    v = img[r, c] - threshold
+    if v * nl > csum[c] - csum[lo] and v * nr > csum[hi] - csum[c + 1]:
+        slt[c] = 1
+
+
 @jit(parallel=True)
 def _eslt(img, gx, gy, window, threshold, max_angle, where, out_mask, out_theta, fill_theta=True):
     """ESLT: SLT plus parallel strongest-gradient borders. ``gx``, ``gy`` are Sobel gradients (rows
@@ -157,55 +165,80 @@ def _eslt(img, gx, gy, window, threshold, max_angle, where, out_mask, out_theta,
     Only the pixels where the uint8 map ``where`` is set are tested (their windows may reach
     beyond it); ``where`` of shape (0, 0): every pixel.
 
+    Per row: the cumulative intensity (an integer running sum for an integer image: one-cycle adds
+    instead of a chain of float additions, the same exact sums), then SLT on every pixel of the
+    row's span in one loop without branches (the compiler vectorises it; the windows have fixed
+    bounds away from the row's ends), then the border test on the SLT features only (a few
+    percent of the pixels).
+
     No trigonometry per border: two borders (gradients ``a``, ``b``) are within ``max_angle`` of
     each other, modulo pi, when ``(a.b)^2 > cos^2(max_angle) |a|^2 |b|^2``; the mean orientation
     is half the angle of the sum of their doubled-angle unit vectors
     ``((gy^2 - gx^2) / |g|^2, 2 gx gy / |g|^2)``, one :func:`atan2_fast` per feature. Windows are clipped
-    at the borders (a pixel with an empty window is no feature); without ``where`` the columns with
-    both windows whole are one loop with fixed window bounds. Rows with nothing to test are skipped."""
+    at the borders (a pixel with an empty window is no feature). Rows with nothing to test are skipped."""
     rows, cols = img.shape
     cmax = math.cos(max_angle)
     cos2_max = cmax * cmax if max_angle < math.pi / 2 else 0.0
     use_where = where.shape[0] > 0
-    for r in prange(rows):
-        for c in range(cols):
-            out_mask[r, c] = 0
-        if fill_theta:
-            for c in range(cols):
-                out_theta[r, c] = -1.0
-        c0, c1 = _row_span(where, r, cols)
-        if c0 >= c1:
-            continue
-        # the whole row (from a span's start, LLVM no longer vectorised these loops: 0.7 ms more)
+    w = min(window, cols)
+    zero = np.zeros(1, img.dtype)[0] + np.int64(0)  # int64 for an integer image, float64 for a float one
+    words = (cols + 7) // 8
+    chunk = 16  # rows per task: the scratch rows are allocated once per chunk
+    for t in prange((rows + chunk - 1) // chunk):
         csum = np.empty(cols + 1, np.float64)
-        csum[0] = 0.0
-        for c in range(cols):
-            csum[c + 1] = csum[c] + img[r, c]
         mag2 = np.empty(cols, np.float32)
-        for c in range(cols):
-            mag2[c] = gx[r, c] * gx[r, c] + gy[r, c] * gy[r, c]
-        if use_where:
-            for c in range(c0, c1):
-                if where[r, c] == 0:
-                    continue
-                lo = max(c - window, 0)
-                hi = min(c + 1 + window, cols)
-                if c - lo == 0 or hi - (c + 1) == 0:
-                    continue
-                _eslt_pixel(img, gx, gy, mag2, csum, r, c, lo, hi, threshold, cos2_max, out_mask, out_theta)
-            continue
-        inner_lo = min(window, cols)
-        inner_hi = max(cols - window, inner_lo)
-        for c in range(inner_lo, inner_hi):
-            _eslt_pixel(img, gx, gy, mag2, csum, r, c, c - window, c + 1 + window, threshold, cos2_max, out_mask, out_theta)
-        # the border columns only: [0, inner_lo) and [inner_hi, cols)
-        for k in range(inner_lo + cols - inner_hi):
-            c = k if k < inner_lo else inner_hi + (k - inner_lo)
-            lo = max(c - window, 0)
-            hi = min(c + 1 + window, cols)
-            if c - lo == 0 or hi - (c + 1) == 0:
+        slt = np.zeros(8 * words, np.uint8)
+        slt_words = slt.view(np.uint64)
+        for r in range(t * chunk, min(rows, (t + 1) * chunk)):
+            for c in range(cols):
+                out_mask[r, c] = 0
+            if fill_theta:
+                for c in range(cols):
+                    out_theta[r, c] = -1.0
+            c0, c1 = _row_span(where, r, cols)
+            if c0 >= c1:
                 continue
-            _eslt_pixel(img, gx, gy, mag2, csum, r, c, lo, hi, threshold, cos2_max, out_mask, out_theta)
+            # the whole row (from a span's start, LLVM no longer vectorised these loops)
+            acc = zero
+            csum[0] = 0.0
+            for c in range(cols):
+                acc += img[r, c]
+                csum[c + 1] = acc
+            for c in range(cols):
+                mag2[c] = gx[r, c] * gx[r, c] + gy[r, c] * gy[r, c]
+            # SLT: v n_l > (sum of the left window) and v n_r > (sum of the right one), v = I - T;
+            # where both windows are whole, on row slices (contiguous views: the loop vectorises)
+            a = max(c0, w)
+            b = max(min(c1, cols - w), a)
+            n = b - a
+            iv = img[r, a:b]
+            left = csum[a - w : b - w]
+            mid0 = csum[a:b]
+            mid1 = csum[a + 1 : b + 1]
+            right = csum[a + 1 + w : b + 1 + w]
+            ov = slt[a:b]
+            wf = float(w)
+            if use_where:
+                wv = where[r, a:b]
+                for k in range(n):
+                    v = iv[k] - threshold
+                    ov[k] = (v * wf > mid0[k] - left[k]) & (v * wf > right[k] - mid1[k]) & (wv[k] != 0)
+            else:
+                for k in range(n):
+                    v = iv[k] - threshold
+                    ov[k] = (v * wf > mid0[k] - left[k]) & (v * wf > right[k] - mid1[k])
+            for k in range(c0, a):  # clipped windows: the ends of the row
+                _slt_clipped(img, csum, r, k, window, cols, threshold, where, use_where, slt)
+            for k in range(max(b, c0), c1):
+                _slt_clipped(img, csum, r, k, window, cols, threshold, where, use_where, slt)
+            # the border test at the SLT features: eight flags at a time, most words are 0
+            for q in range(c0 // 8, (c1 + 7) // 8):
+                if slt_words[q] == 0:
+                    continue
+                for c in range(max(8 * q, c0), min(8 * q + 8, c1)):
+                    if slt[c]:
+                        slt[c] = 0
+                        _eslt_borders(gx, gy, mag2, r, c, max(c - window, 0), min(c + 1 + window, cols), cos2_max, out_mask, out_theta)
 
 
 def _feature_map(mask: np.ndarray, theta: np.ndarray | None, dense_theta: bool = True) -> FeatureMap:
