@@ -54,11 +54,12 @@ def _height_class_kernel(disp, step, a0, a1, a2, cx, cy, s, c, height, height_to
     below, 4 no disparity (``d <= 0``, NaN or infinite) where the road would be visible; 0 where the road disparity at
     the pixel (roll-corrected row ``cy + s (u-cx) + c (v-cy)``) is < ``min_road_disp`` (beyond
     ``max_distance_m`` or the horizon). Returns ``(labels, first)``: ``first`` is the first row with
-    a non-zero label (``H`` when none). Reads the strided columns in place (no copy of the map).
-    One thread: rows in parallel were slower on the 2-core reference machine."""
+    a non-zero label (``H`` when none). Each row's sampled columns are copied into one contiguous
+    row first. One thread: rows in parallel were slower on the 2-core reference machine."""
     H = disp.shape[0]
     W = (disp.shape[1] + step - 1) // step
     out = np.zeros((H, W), np.uint8)
+    row = np.empty(W, disp.dtype)
     first = H
     for v in range(H):
         if a2 == 0.0:
@@ -67,26 +68,27 @@ def _height_class_kernel(disp, step, a0, a1, a2, cx, cy, s, c, height, height_to
             r_b = cy + s * (W - 1 - cx) + c * (v - cy)
             if a0 + a1 * r_a < min_road_disp and a0 + a1 * r_b < min_road_disp:
                 continue
+        for u in range(W):  # the row's sampled columns, contiguous
+            row[u] = disp[v, u * step]
+        o = out[v]
+        cv = c * (v - cy)
+        seen = 0
+        # every label computed and the one that applies selected, no branches: the loop vectorises
+        # (2.5x faster than branching per pixel, which way a pixel goes being unpredictable)
         for u in range(W):
-            d = disp[v, u * step]
-            r = cy + s * (u - cx) + c * (v - cy)
+            d = row[u]
+            r = cy + s * (u - cx) + cv
             dr = a0 + a1 * r + a2 * r * r
-            if dr < min_road_disp:
-                continue
-            if first == H:
-                first = v
-            if not (d > 0.0 and d < math.inf):  # no disparity: 0, negative, NaN, +-inf
-                out[v, u] = 4
-                continue
-            tol = height_tol * d / height
-            if tol < min_disp_tol:
-                tol = min_disp_tol
-            if d - dr > tol:
-                out[v, u] = 2
-            elif dr - d > tol:
-                out[v, u] = 3
-            else:
-                out[v, u] = 1
+            tol = max(height_tol * d / height, min_disp_tol)
+            lab = np.uint8(ROAD)
+            lab = np.uint8(BELOW) if dr - d > tol else lab
+            lab = np.uint8(ABOVE) if d - dr > tol else lab
+            lab = np.uint8(UNKNOWN) if not (d > 0.0 and d < math.inf) else lab  # 0, negative, NaN, +-inf
+            lab = np.uint8(0) if dr < min_road_disp else lab
+            o[u] = lab
+            seen |= lab
+        if seen != 0 and first == H:
+            first = v
     return out, first
 
 
