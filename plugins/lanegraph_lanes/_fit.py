@@ -160,6 +160,26 @@ def _poly(a, x):
     return p
 
 
+@jit(inline="always")
+def _coeffs4(a):
+    """The coefficients of ``a`` (at most 4) as four scalars, zero-padded, for :func:`_poly4`."""
+    m = a.size
+    return (a[0] if m > 0 else 0.0, a[1] if m > 1 else 0.0, a[2] if m > 2 else 0.0, a[3] if m > 3 else 0.0)
+
+
+@jit(inline="always")
+def _poly4(c, x):
+    """:func:`_poly` with the coefficients ``c`` of :func:`_coeffs4` (scalars): Horner's rule from the
+    zero-padded terms gives the same value as from ``a``'s own highest term, and a loop over points
+    that calls it vectorises."""
+    c0, c1, c2, c3 = c
+    p = 0.0
+    p = p * x + c3
+    p = p * x + c2
+    p = p * x + c1
+    return p * x + c0
+
+
 @jit
 def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px):
     """:func:`irls_fit` by weighted normal equations in the scaled abscissa ``x = (t - mid) / half``
@@ -193,23 +213,26 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px):
     M = np.empty((m, m + 1))
     for it in range(iterations + 1):
         if it > 0:
+            ca = _coeffs4(a)
             for i in range(n):
-                res[i] = y[i] - _poly(a, x[i])
+                res[i] = y[i] - _poly4(ca, x[i])
             med = np.median(res)
             for i in range(n):
                 dev[i] = abs(res[i] - med)
             scale = 1.4826 * np.median(dev)
             scale = max(scale, 0.5)  # BEV pixels: never trust sub-half-pixel residual scales
             inv = 1.0 / (k * scale)
-            wsum = 0.0
-            for i in range(n):
-                u = res[i] * inv
-                au = abs(u)
-                if tukey:
+            if tukey:
+                for i in range(n):
+                    u = res[i] * inv
                     q = 1.0 - u * u
-                    w[i] = q * q if au < 1.0 else 0.0
-                else:
+                    w[i] = q * q if abs(u) < 1.0 else 0.0
+            else:
+                for i in range(n):
+                    au = abs(res[i] * inv)
                     w[i] = 1.0 if au <= 1.0 else 1.0 / max(au, 1e-12)
+            wsum = 0.0  # apart from the weights: a sum in order does not vectorise
+            for i in range(n):
                 wsum += w[i]
             if wsum < degree + 1:
                 break
@@ -224,10 +247,10 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px):
         if not np.all(np.isfinite(new)):
             return False, coef, w
         if it > 0:
-            step = new_a - a
+            cs = _coeffs4(new_a - a)
             moved = 0.0
             for i in range(n):
-                moved = max(moved, abs(_poly(step, x[i])))
+                moved = max(moved, abs(_poly4(cs, x[i])))
             a = new_a
             coef = new
             if moved <= tol_px:
@@ -326,8 +349,13 @@ def _ransac_kernel(t, y, samples, inlier_px):
         if not _solve_augmented(M, 1e-12, a):
             continue
         count = 0
-        for i in range(n):
-            count += abs(_poly(a, x[i]) - y[i]) <= inlier_px
+        if m <= 4:  # scalar coefficients: the count vectorises
+            ca = _coeffs4(a)
+            for i in range(n):
+                count += abs(_poly4(ca, x[i]) - y[i]) <= inlier_px
+        else:
+            for i in range(n):
+                count += abs(_poly(a, x[i]) - y[i]) <= inlier_px
         if count > best:
             best = count
             best_a[:] = a
