@@ -164,7 +164,7 @@ def road_kernels(rng: np.random.Generator) -> None:
     )
     v = np.arange(120, 375, dtype=np.float64)
     dv = -40.0 + 0.23 * v + rng.normal(0, 0.2, v.size)
-    w = rng.uniform(100, 600, v.size)
+    w = rng.integers(100, 600, v.size).astype(np.float64)  # the rows' pixel counts, as the profile gives them
     ii, jj = profile._sample_pairs(v.size, 300, 0)
     row(
         "_line_fit_kernel",

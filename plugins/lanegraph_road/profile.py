@@ -264,12 +264,19 @@ def _profile_kernel(
 def _ransac_line_kernel(v, d, w, i, j, tol):
     """Score the lines through the point pairs ``(i[k], j[k])`` (pairs with ``v[i] == v[j]`` or a slope
     ``<= 0`` are skipped): the weight ``w`` (>= 0) of the points within ``tol``. Returns ``(found,
-    inliers of the first best line)``."""
+    inliers of the first best line)``. Integer weights are summed as integers (exact)."""
     n = v.size
     best_score = -1.0
     best_a0 = 0.0
     best_a1 = 0.0
     found = False
+    # the profile's weights are pixel counts: summed as integers, in any order and exactly, the
+    # loop over the points vectorises (float sums keep their order: they do not)
+    wi = np.empty(n, np.int64)
+    integral = True
+    for p in range(n):
+        integral = integral and w[p] == math.floor(w[p]) and abs(w[p]) < 2.0**52
+        wi[p] = int(w[p]) if integral else 0
     for k in range(i.size):
         vi = v[i[k]]
         vj = v[j[k]]
@@ -279,6 +286,17 @@ def _ransac_line_kernel(v, d, w, i, j, tol):
         if not a1 > 0:
             continue
         a0 = d[i[k]] - a1 * vi
+        if integral:
+            si = 0
+            for p in range(n):
+                si += wi[p] if abs(d[p] - (a0 + a1 * v[p])) < tol else 0
+            score = float(si)
+            if score > best_score:
+                best_score = score
+                best_a0 = a0
+                best_a1 = a1
+                found = True
+            continue
         # four interleaved sums without branches (one sum would make every addition wait for the
         # last): exact, so in any order, for integer weights (the pixel counts of the profile rows)
         s0 = 0.0

@@ -457,20 +457,23 @@ def test_line_fit_kernel_matches_numpy():
             v = rng.integers(0, 100, n).astype(np.float64)
             d = 0.3 * v - 5.0 + rng.normal(0, 0.4, n)
             d[rng.random(n) < 0.3] += rng.uniform(-10, 10)
-            w = rng.integers(0, 500, n).astype(np.float64)
-            i, j = profile._sample_pairs(n, iterations, 0)
-            status, a0, a1, inl = profile._line_fit_kernel(v, d, w, i, j, 1.0, 4)
-            ref_status, ref, ref_inl = line_fit_np(v, d, w, 1.0, iterations)
-            assert status == ref_status
-            coef, fit_inl = profile._robust_fit(v, d, w, 1, 1.0, iterations, None)
-            if status > 0:
-                np.testing.assert_array_equal(inl, ref_inl)
-                np.testing.assert_array_equal(fit_inl, ref_inl)
-            if status == 2:
-                np.testing.assert_allclose([a0, a1], ref, rtol=1e-9, atol=1e-9)
-                np.testing.assert_array_equal(coef, [a0, a1])
-            else:
-                assert coef is None
+            counts = rng.integers(0, 500, n).astype(np.float64)
+            # pixel counts (summed as integers), and weights that are not (the float sums; halves
+            # keep every sum exact, so the twin's order gives the same scores)
+            for w in (counts, counts + 0.5):
+                i, j = profile._sample_pairs(n, iterations, 0)
+                status, a0, a1, inl = profile._line_fit_kernel(v, d, w, i, j, 1.0, 4)
+                ref_status, ref, ref_inl = line_fit_np(v, d, w, 1.0, iterations)
+                assert status == ref_status
+                coef, fit_inl = profile._robust_fit(v, d, w, 1, 1.0, iterations, None)
+                if status > 0:
+                    np.testing.assert_array_equal(inl, ref_inl)
+                    np.testing.assert_array_equal(fit_inl, ref_inl)
+                if status == 2:
+                    np.testing.assert_allclose([a0, a1], ref, rtol=1e-9, atol=1e-9)
+                    np.testing.assert_array_equal(coef, [a0, a1])
+                else:
+                    assert coef is None
     # no admissible pair (every slope <= 0), one point, one abscissa: no line
     v = np.arange(10.0)
     assert profile._robust_fit(v, -v, np.ones(10), 1, 1.0, 20, None) == (None, None)
