@@ -36,21 +36,51 @@ def _band_texture_kernel(img, r0, centre, gap_px, band_px, sign, use_diff, out):
     leaves the image."""
     rows, cols = img.shape
     n = band_px - gap_px + 1
-    vals = np.empty(n, np.float64)
+    # int64 for an integer image (the differences summed as integers: exact, and no chain of
+    # float additions), float64 for a float one
+    zero = np.zeros(1, img.dtype)[0] + np.int64(0)
+    vals = np.full(n, zero)
+    step = 1 if sign > 0 else -1
     for i in range(centre.size):
         r = r0 + i
+        ce = centre[i]
         full = True
-        for j in range(n):
-            c = int(np.round(centre[i] + sign * (gap_px + j)))
-            if c < 0 or c >= cols:
+        if abs(ce - math.floor(ce) - 0.5) > 1e-9:
+            # no half to round: round(ce + k) = round(ce) + k for every integer offset k, so the
+            # band is a run of columns, checked against the image at its two ends only
+            a = int(np.round(ce)) + step * gap_px
+            b = a + step * (n - 1)
+            lo = min(a, b)
+            hi = max(a, b)
+            if lo < 0 or hi >= cols:
                 full = False
-                break
-            vals[j] = img[r, c]
+            elif use_diff:
+                # on the row slice, the terms in the band's order (|x - y| = |y - x|): the same sum
+                row = img[r, lo : hi + 1]
+                acc = zero
+                if step > 0:
+                    for j in range(n - 1):
+                        acc += abs((row[j + 1] + zero) - row[j])
+                else:
+                    for j in range(n - 2, -1, -1):
+                        acc += abs((row[j + 1] + zero) - row[j])
+                out[i] = acc / (n - 1) if n > 1 else 0.0
+                continue
+            else:
+                for j in range(n):
+                    vals[j] = img[r, a + step * j]
+        else:
+            for j in range(n):
+                c = int(np.round(ce + sign * (gap_px + j)))
+                if c < 0 or c >= cols:
+                    full = False
+                    break
+                vals[j] = img[r, c]
         if not full:
             out[i] = np.nan
             continue
         if use_diff:
-            acc = 0.0
+            acc = zero
             for j in range(n - 1):
                 acc += abs(vals[j + 1] - vals[j])
             out[i] = acc / (n - 1) if n > 1 else 0.0

@@ -592,16 +592,19 @@ def side_texture_twin(image, lane, gap_px, band_px, measure):
 @pytest.mark.parametrize("measure", ["diff", "std"])
 @pytest.mark.parametrize("gap, band", [(6, 30), (0, 2), (3, 60)])
 def test_side_texture_kernel_matches_twin(measure, gap, band):
-    img = np.random.default_rng(9).integers(0, 256, (90, 70)).astype(np.uint8)
+    rng = np.random.default_rng(9)
+    img8 = rng.integers(0, 256, (90, 70)).astype(np.uint8)
     lanes = TEXTURE_LANES + [
         Lane((35.0, 0.0, 0.0), (-20, 200), "right", 0.9),  # rows beyond the image: clipped
         Lane((-300.0, 0.0, 0.0), (0, 89), "left", 0.9),  # every band outside: 0
         Lane((35.0, 0.0, 0.0), (50, 40), "left", 0.9),  # no rows: 0
     ]
-    for lane in lanes:
-        got = _verify.side_texture(img, lane, gap, band, measure)
-        exp = side_texture_twin(img, lane, gap, band, measure)
-        np.testing.assert_allclose(got, exp, rtol=1e-12, atol=1e-9)
+    # integer grey levels (summed as integers) and float ones
+    for img in (img8, (img8 + rng.random(img8.shape)).astype(np.float32)):
+        for lane in lanes:
+            got = _verify.side_texture(img, lane, gap, band, measure)
+            exp = side_texture_twin(img, lane, gap, band, measure)
+            np.testing.assert_allclose(got, exp, rtol=1e-12, atol=1e-9)
 
 
 def test_verify_drops_lane_beside_texture():
