@@ -334,12 +334,18 @@ def test_row_refine_kernel_matches_numpy(shape):
     centre = rng.uniform(0, 40, shape[0])
     radius = rng.uniform(0.5, 8.0, shape[0])
     keep = np.ones(shape, bool)
-    for s, c in ((0.0, 1.0), (0.1, 0.99), (-0.3, 0.95)):
-        rows, d = profile.select_pixels(disp, 3.0, 2.0, s, c)
-        t1, n1 = profile._row_refine_kernel(rows, d, centre, radius)
-        t2, n2 = row_refine_np(disp, keep, centre, radius, 3.0, 2.0, s, c)
-        np.testing.assert_allclose(t1, t2, rtol=1e-9, atol=1e-6)
-        np.testing.assert_array_equal(n1, n2)
+    # any disparities (float sums), and OpenCV's 1/16 pixels (summed in fixed point), some exactly
+    # on the window's edge
+    sixteenths = (np.round(disp * 16) / 16).astype(np.float32)
+    assert not profile._fixed_point(disp.ravel())[0] and profile._fixed_point(sixteenths.ravel())[0]
+    for dmap in (disp, sixteenths):
+        for cen in (centre, np.round(centre * 16) / 16):
+            for s, c in ((0.0, 1.0), (0.1, 0.99), (-0.3, 0.95)):
+                rows, d = profile.select_pixels(dmap, 3.0, 2.0, s, c)
+                t1, n1 = profile._row_refine_kernel(rows, d, cen, np.round(radius))
+                t2, n2 = row_refine_np(dmap, keep, cen, np.round(radius), 3.0, 2.0, s, c)
+                np.testing.assert_allclose(t1, t2, rtol=1e-9, atol=1e-6)
+                np.testing.assert_array_equal(n1, n2)
 
 
 def row_refine_list_np(rows, d, centre, radius):
