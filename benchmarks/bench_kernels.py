@@ -70,8 +70,8 @@ def bev_kernels(rng: np.random.Generator) -> None:
         timed(lambda: tl.eslt_twin(small, sgx, sgy, 6, 10.0, math.radians(15)), 1) * scale,
         f"(twin on 40 rows, x{scale:.0f})",
     )
-    r = rng.integers(0, 800, 20000).astype(float)
-    c = rng.integers(0, 400, 20000).astype(float)
+    r = rng.integers(0, 800, 20000).astype(np.int32)  # pixel coordinates, as the Hough nodes pass them
+    c = rng.integers(0, 400, 20000).astype(np.int32)
     acc = np.zeros(2000)
     row("_vote_1d", timed(lambda: _hough._vote_1d(r, c, 800.0, 0.05, 800, acc)), timed(lambda: tl.vote_twin(r, c, 800.0, 0.05, 800, 2000)), "(20000 features)")
     inv = np.linspace(-0.5, 0.5, 121)

@@ -204,8 +204,10 @@ def _select(acc: np.ndarray, offset: int, theta: float, geometry: BevGeometry, p
 
 
 def _feature_coords(features: FeatureMap) -> tuple[np.ndarray, np.ndarray]:
+    """The features' rows and columns as int32 (pixel coordinates: the voting kernels read half
+    the memory of int64 or float64 and convert them to float64 exactly)."""
     r, c = features.points()
-    return r.astype(np.float64), c.astype(np.float64)
+    return r.astype(np.int32), c.astype(np.int32)
 
 
 @node_type(

@@ -183,17 +183,20 @@ def test_feature_nodes_where_input(node):
 
 def test_vote_kernels_match_twin():
     rng = np.random.default_rng(2)
-    r = rng.integers(0, 50, 300).astype(float)
-    c = rng.integers(-10, 80, 300).astype(float)
-    for inv_tan in (0.0, 0.3, -0.7):
-        acc = np.zeros(200)
-        _hough._vote_1d(r, c, 50.0, inv_tan, 60, acc)
-        np.testing.assert_array_equal(acc, vote_twin(r, c, 50.0, inv_tan, 60, 200))
-    inv = np.array([0.0, 0.2, -0.2])
-    acc2 = np.zeros((3, 200))
-    _hough._vote_2d(r, c, 50.0, inv, 60, acc2)
-    for t in range(3):
-        np.testing.assert_array_equal(acc2[t], vote_twin(r, c, 50.0, inv[t], 60, 200))
+    r = rng.integers(0, 50, 300)
+    c = rng.integers(-10, 80, 300)
+    # float coordinates, and int32 pixel coordinates as the nodes pass them
+    for dtype in (np.float64, np.int32):
+        r, c = r.astype(dtype), c.astype(dtype)
+        for inv_tan in (0.0, 0.3, -0.7):
+            acc = np.zeros(200)
+            _hough._vote_1d(r, c, 50.0, inv_tan, 60, acc)
+            np.testing.assert_array_equal(acc, vote_twin(r, c, 50.0, inv_tan, 60, 200))
+        inv = np.array([0.0, 0.2, -0.2])
+        acc2 = np.zeros((3, 200))
+        _hough._vote_2d(r, c, 50.0, inv, 60, acc2)
+        for t in range(3):
+            np.testing.assert_array_equal(acc2[t], vote_twin(r, c, 50.0, inv[t], 60, 200))
     empty = np.zeros(10)
     _hough._vote_1d(np.zeros(0), np.zeros(0), 5.0, 0.0, 0, empty)
     assert empty.sum() == 0
