@@ -106,6 +106,22 @@ def temporal_mask(params: TemporalParams, geometry: BevGeometry, previous: list[
     return {"mask": mask}
 
 
+def image_points(lane: Lane, geometry: BevGeometry, width: int | None = None, height: int | None = None) -> np.ndarray:
+    """The lane's BEV rows ``bev_rows[0] .. bev_rows[1]`` projected into left-image pixels, ``N x 2``
+    (x, y) in BEV row order; points that are not finite or fall outside the ``width`` x ``height``
+    image (when given) are left out."""
+    r = np.arange(lane.bev_rows[0], lane.bev_rows[1] + 1, dtype=np.float64)
+    t = geometry.rows - 1 - r
+    c0, c1, c2 = lane.coeffs
+    pts = geometry.bev_to_image(c0 + c1 * t + c2 * t * t, r)
+    ok = np.isfinite(pts).all(axis=1)
+    if height is not None:
+        ok &= (pts[:, 1] >= 0) & (pts[:, 1] <= height - 1)
+    if width is not None:
+        ok &= (pts[:, 0] >= 0) & (pts[:, 0] <= width - 1)
+    return pts[ok]
+
+
 class ToImageParams(NodeParams):
     """Params of ``lanes.to_image``."""
 
@@ -122,20 +138,8 @@ def to_image(params: ToImageParams, lanes: list[Lane], geometry: BevGeometry, ca
     out = []
     w = calib.width if calib is not None and calib.width else None
     h = calib.height if calib is not None and calib.height else None
-    rows = geometry.rows
     for ln in lanes or []:
-        r0, r1 = ln.bev_rows
-        r = np.arange(r0, r1 + 1, dtype=np.float64)
-        t = rows - 1 - r
-        c0, c1, c2 = ln.coeffs
-        c = c0 + c1 * t + c2 * t * t
-        pts = geometry.bev_to_image(c, r)
-        ok = np.isfinite(pts).all(axis=1)
-        if h is not None:
-            ok &= (pts[:, 1] >= 0) & (pts[:, 1] <= h - 1)
-        if w is not None:
-            ok &= (pts[:, 0] >= 0) & (pts[:, 0] <= w - 1)
-        pts = pts[ok]
+        pts = image_points(ln, geometry, w, h)
         if len(pts) < 2:
             continue
         x, y = pts[:, 0], pts[:, 1]

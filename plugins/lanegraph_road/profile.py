@@ -235,14 +235,21 @@ def _refine_runs_fixed(rows, dq, starts, nr, centre, radius):
 
 
 @jit
+def _refine(rows, d, fixed, dq, starts, nr, centre, radius):
+    """:func:`_refine_runs_fixed` on ``dq`` when ``fixed`` (:func:`_fixed_point`), else
+    :func:`_refine_runs` on ``d``: ``(total, count)`` per row, float64."""
+    if fixed:
+        return _refine_runs_fixed(rows, dq, starts, nr, centre, radius)
+    return _refine_runs(rows, d, starts, nr, centre, radius)
+
+
+@jit
 def _row_refine_kernel(rows, d, centre, radius):
     """Per row, the sum and the count of the selected pixels' disparities (:func:`_select_kernel`)
     within ``radius[row]`` of ``centre[row]`` (in fixed point when the disparities allow it)."""
     starts, nr = _row_runs(rows)
     fixed, dq = _fixed_point(d)
-    if fixed:
-        return _refine_runs_fixed(rows, dq, starts, nr, centre, radius)
-    return _refine_runs(rows, d, starts, nr, centre, radius)
+    return _refine(rows, d, fixed, dq, starts, nr, centre, radius)
 
 
 @jit
@@ -287,20 +294,14 @@ def _profile_kernel(
         centre[v] = (np.float64(sub[max(v - v0, 0)]) + 0.5) * bin_size
     starts, nr = _row_runs(rows)  # the list is read three times in pass 2
     fixed, dq = _fixed_point(d)
-    if fixed:
-        total, count = _refine_runs_fixed(rows, dq, starts, nr, centre, radius)
-    else:
-        total, count = _refine_runs(rows, d, starts, nr, centre, radius)
+    total, count = _refine(rows, d, fixed, dq, starts, nr, centre, radius)
     if height > 0.0:
         for _ in range(2):
             for v in range(H):
                 if count[v] > 0:
                     centre[v] = total[v] / max(count[v], 1.0)
                 radius[v] = max(plane_tol * centre[v] / height, min_tol)
-            if fixed:
-                total, count = _refine_runs_fixed(rows, dq, starts, nr, centre, radius)
-            else:
-                total, count = _refine_runs(rows, d, starts, nr, centre, radius)
+            total, count = _refine(rows, d, fixed, dq, starts, nr, centre, radius)
     profile = np.full(H, np.float32(-1.0))
     use = np.zeros(H, np.bool_)
     n = 0
@@ -867,19 +868,18 @@ def _profile_pass(
     return (line, coef), profile, rows[inl].astype(int)
 
 
-def _fit_road_plane(disp, line, v_top: int, params: ProfileParams, calib: Calibration) -> np.ndarray | None:
+def _fit_road_plane(disp, line, height: float, v_top: int, params: ProfileParams) -> np.ndarray | None:
     """The road plane ``d = b0 + b1 u + b2 v`` (disparity space) fitted over the pixels within
     ``roll_tolerance_px`` of the profile line, then re-fitted ``roll_iterations`` times over the
     pixels within ``plane_tolerance_m`` (metric, eq. 4) of the plane: every round in one call of
     :func:`_plane_fit_kernel` (normal equations in coordinates centred on the image centre, a
     3 x 3 solve). None when a round has fewer than 50 pixels or no plane, or the plane is not
-    a road (``b2 <= 0``)."""
+    a road (``b2 <= 0``). ``height``: the camera height of the line (metres)."""
     H, W = disp.shape
-    _, h1 = geometry.pose_from_line(float(line[0]), float(line[1]), calib)
     ok, b0, b1, b2 = _plane_fit_kernel(
         disp, int(params.roll_subsample), int(v_top), float(params.min_fit_disparity_px),
         float(line[0]), 0.0, float(line[1]), float(params.roll_tolerance_px), float(params.plane_tolerance_m),
-        float(h1), float(params.min_plane_tolerance_px), 0.5 * (W - 1), 0.5 * (H - 1),
+        float(height), float(params.min_plane_tolerance_px), 0.5 * (W - 1), 0.5 * (H - 1),
         int(params.roll_iterations),  # at least one (the param's bound): b is then a fit
     )
     return np.array([b0, b1, b2]) if ok else None
@@ -929,13 +929,13 @@ def estimate_road(
     line = fit[0]
     roll = 0.0
     plane = np.array([line[0], 0.0, line[1]])
+    _, h1 = geometry.pose_from_line(float(line[0]), float(line[1]), calib)
     if params.estimate_roll:
-        b = _fit_road_plane(disp, line, int(inl.min()), params, calib)
+        b = _fit_road_plane(disp, line, h1, int(inl.min()), params)
         if b is not None:
             est = geometry.roll_from_plane(float(b[1]), float(b[2]), calib)
             if abs(est) <= math.radians(params.max_abs_roll_deg):
                 roll, plane = est, b
-    _, h1 = geometry.pose_from_line(float(line[0]), float(line[1]), calib)
     # pass 2: only the pixels within road_band_m of that plane, in roll-corrected rows
     band = (params.road_band_m / h1, *plane) if params.road_band_m > 0 else None
     s, c = geometry.roll_row_coeffs(roll, calib)

@@ -11,7 +11,7 @@ from lanegraph_lanes import _features, _hough, _verify
 from lanegraph_lanes._features import edge_orientation, eslt, mask_features, slt  # noqa: F401
 from lanegraph_lanes._fit import fit_irls, fit_ransac, irls_fit, ransac_fit
 from lanegraph_lanes._hough import line1d, line2d, orientation
-from lanegraph_lanes._temporal import temporal_mask, to_image
+from lanegraph_lanes._temporal import image_points, temporal_mask, to_image
 from lanegraph_lanes._verify import verify
 
 from lanegraph import InputError
@@ -868,17 +868,9 @@ def test_temporal_mask_rejects_features_of_another_shape():
 
 
 def to_image_twin(lane, geometry, row_step, w=None, h=None):
-    """The projection it replaced: sort by image row, np.unique, interpolate."""
-    r = np.arange(lane.bev_rows[0], lane.bev_rows[1] + 1, dtype=np.float64)
-    t = geometry.rows - 1 - r
-    c0, c1, c2 = lane.coeffs
-    pts = geometry.bev_to_image(c0 + c1 * t + c2 * t * t, r)
-    ok = np.isfinite(pts).all(axis=1)
-    if h is not None:
-        ok &= (pts[:, 1] >= 0) & (pts[:, 1] <= h - 1)
-    if w is not None:
-        ok &= (pts[:, 0] >= 0) & (pts[:, 0] <= w - 1)
-    pts = pts[ok]
+    """The ordering it replaced: sort by image row, np.unique, interpolate (the projected points
+    from the node's own :func:`image_points`)."""
+    pts = image_points(lane, geometry, w, h)
     if len(pts) < 2:
         return None
     order = np.argsort(-pts[:, 1])

@@ -564,13 +564,13 @@ def test_fit_road_plane_matches_lstsq():
     disp[rng.random((H, W)) < 0.1] += 5.0  # outliers above the road
     calib = Calibration(f=100.0, cx=W / 2, cy=H / 2, baseline=0.5)
     params = profile.ProfileParams(roll_subsample=2, roll_iterations=3)
-    b = profile._fit_road_plane(disp, np.array([b_true[0], b_true[2]]), 20, params, calib)
+    _, h1 = geometry.pose_from_line(b_true[0], b_true[2], calib)
+    b = profile._fit_road_plane(disp, np.array([b_true[0], b_true[2]]), h1, 20, params)
     # reference: the same selection rounds with np.linalg.lstsq on the selected pixels
     sub = disp[::2, ::2].astype(np.float64)
     vv, uu = np.mgrid[0:H:2, 0:W:2].astype(np.float64)
     valid = (sub > params.min_fit_disparity_px) & (vv >= 20)
     sel = valid & (np.abs(sub - (b_true[0] + b_true[2] * vv)) < params.roll_tolerance_px)
-    _, h1 = geometry.pose_from_line(b_true[0], b_true[2], calib)
     tol = np.maximum(params.plane_tolerance_m * sub / h1, params.min_plane_tolerance_px)
     for _ in range(params.roll_iterations):
         A = np.stack([np.ones(np.count_nonzero(sel)), uu[sel], vv[sel]], axis=1)
@@ -590,7 +590,8 @@ def test_fit_road_plane_without_a_plane_is_none():
     # enough pixels (>= 50): the plane is refused for being singular, not for want of pixels
     n, _ = plane_sums_np(disp, 1, 20, params.min_fit_disparity_px, -8.0, 0.0, 0.6, params.roll_tolerance_px, 0.1, 1.6, 0.5, 44.5, 59.5)
     assert n >= 50
-    assert profile._fit_road_plane(disp, np.array([-8.0, 0.6]), 20, params, calib) is None
+    _, h1 = geometry.pose_from_line(-8.0, 0.6, calib)
+    assert profile._fit_road_plane(disp, np.array([-8.0, 0.6]), h1, 20, params) is None
 
 
 def test_ransac_sample_pairs_are_cached_read_only_draws():
