@@ -17,7 +17,7 @@ import math
 
 import cv2
 import numpy as np
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from lanegraph import InputError, NodeParams, Port, node_type
 from lanegraph._numba import jit, prange
@@ -37,36 +37,6 @@ def _row_span(where, r, cols):
     while c1 > c0 and where[r, c1 - 1] == 0:
         c1 -= 1
     return c0, c1
-
-
-@jit(parallel=True)
-def _slt(img, window, threshold, where, out):
-    """SLT on a float32 image; writes a uint8 0/1 map into ``out``. Windows are clipped at the
-    borders; a pixel with an empty window on either side is not a feature. Only the pixels where
-    the uint8 map ``where`` is set can be features; ``where`` of shape (0, 0): every pixel. Every
-    pixel is tested, then masked: the test is one loop the compiler vectorises, and any
-    data-dependent bound on it (the map's span in the row) made it 3-4x slower. Rows in parallel."""
-    rows, cols = img.shape
-    use_where = where.shape[0] > 0
-    for r in prange(rows):
-        csum = np.empty(cols + 1, np.float64)
-        csum[0] = 0.0
-        for c in range(cols):
-            csum[c + 1] = csum[c] + img[r, c]
-        for c in range(cols):
-            lo = max(c - window, 0)
-            hi = min(c + 1 + window, cols)
-            nl = c - lo
-            nr = hi - (c + 1)
-            out[r, c] = 0
-            if nl == 0 or nr == 0:
-                continue
-            v = img[r, c] - threshold
-            if v > (csum[c] - csum[lo]) / nl and v > (csum[hi] - csum[c + 1]) / nr:
-                out[r, c] = 1
-        if use_where:
-            for c in range(cols):
-                out[r, c] &= where[r, c] != 0
 
 
 #: odd minimax polynomial of atan on [-1, 1] (Abramowitz & Stegun 4.4.49, |error| <= 2e-8 rad)
@@ -155,6 +125,71 @@ def _slt_clipped(img, csum, r, c, window, cols, threshold, where, use_where, slt
         slt[c] = 1
 
 
+@jit(inline="always")
+def _row_csum(img, r, cols, zero, csum):
+    """``csum[c] = img[r, :c].sum()``; ``zero``: an int64 0 for an integer image (an integer running
+    sum: one-cycle adds instead of a chain of float additions, the same exact sums), a float64 0
+    for a float image."""
+    acc = zero
+    csum[0] = 0.0
+    for c in range(cols):
+        acc += img[r, c]
+        csum[c + 1] = acc
+
+
+@jit(inline="always")
+def _slt_span(img, csum, r, c0, c1, window, cols, threshold, where, use_where, slt):
+    """SLT (``v n_l > sum_l`` and ``v n_r > sum_r``, ``v = I - T``) at the columns ``[c0, c1)`` of
+    row ``r`` into the 0/1 row ``slt``, which must be 0 there. Where both windows are whole the test
+    runs on row slices (contiguous views, a loop without branches: it vectorises); the few columns
+    near the row's ends go through :func:`_slt_clipped`. ``csum``: the row's :func:`_row_csum`."""
+    w = min(window, cols)
+    a = max(c0, w)
+    b = max(min(c1, cols - w), a)
+    n = b - a
+    iv = img[r, a:b]
+    left = csum[a - w : b - w]
+    mid0 = csum[a:b]
+    mid1 = csum[a + 1 : b + 1]
+    right = csum[a + 1 + w : b + 1 + w]
+    ov = slt[a:b]
+    wf = float(w)
+    if use_where:
+        wv = where[r, a:b]
+        for k in range(n):
+            v = iv[k] - threshold
+            ov[k] = (v * wf > mid0[k] - left[k]) & (v * wf > right[k] - mid1[k]) & (wv[k] != 0)
+    else:
+        for k in range(n):
+            v = iv[k] - threshold
+            ov[k] = (v * wf > mid0[k] - left[k]) & (v * wf > right[k] - mid1[k])
+    for k in range(c0, a):  # clipped windows: the ends of the row
+        _slt_clipped(img, csum, r, k, window, cols, threshold, where, use_where, slt)
+    for k in range(max(b, c0), c1):
+        _slt_clipped(img, csum, r, k, window, cols, threshold, where, use_where, slt)
+
+
+@jit(parallel=True)
+def _slt(img, window, threshold, where, out):
+    """SLT; writes a uint8 0/1 map into ``out``. Windows are clipped at the borders; a pixel with an
+    empty window on either side is not a feature. Only the pixels where the uint8 map ``where`` is
+    set can be features; ``where`` of shape (0, 0): every pixel. The test is :func:`_slt_span`, the
+    one ESLT makes: ESLT's features are always a subset of SLT's, also on a float image's exact
+    boundaries (a test by division could round the other way). Rows in parallel."""
+    rows, cols = img.shape
+    use_where = where.shape[0] > 0
+    zero = np.zeros(1, img.dtype)[0] + np.int64(0)  # int64 for an integer image, float64 for a float one
+    for r in prange(rows):
+        row = out[r]
+        for c in range(cols):
+            row[c] = 0
+        c0, c1 = _row_span(where, r, cols)
+        if c0 < c1:
+            csum = np.empty(cols + 1, np.float64)
+            _row_csum(img, r, cols, zero, csum)
+            _slt_span(img, csum, r, c0, c1, window, cols, threshold, where, use_where, row)
+
+
 @jit(parallel=True)
 def _eslt(img, gx, gy, window, threshold, max_angle, where, out_mask, out_theta, fill_theta=True):
     """ESLT: SLT plus parallel strongest-gradient borders. ``gx``, ``gy`` are Sobel gradients (rows
@@ -180,7 +215,6 @@ def _eslt(img, gx, gy, window, threshold, max_angle, where, out_mask, out_theta,
     cmax = math.cos(max_angle)
     cos2_max = cmax * cmax if max_angle < math.pi / 2 else 0.0
     use_where = where.shape[0] > 0
-    w = min(window, cols)
     zero = np.zeros(1, img.dtype)[0] + np.int64(0)  # int64 for an integer image, float64 for a float one
     words = (cols + 7) // 8
     chunk = 16  # rows per task: the scratch rows are allocated once per chunk
@@ -199,38 +233,10 @@ def _eslt(img, gx, gy, window, threshold, max_angle, where, out_mask, out_theta,
             if c0 >= c1:
                 continue
             # the whole row (from a span's start, LLVM no longer vectorised these loops)
-            acc = zero
-            csum[0] = 0.0
-            for c in range(cols):
-                acc += img[r, c]
-                csum[c + 1] = acc
+            _row_csum(img, r, cols, zero, csum)
             for c in range(cols):
                 mag2[c] = gx[r, c] * gx[r, c] + gy[r, c] * gy[r, c]
-            # SLT: v n_l > (sum of the left window) and v n_r > (sum of the right one), v = I - T;
-            # where both windows are whole, on row slices (contiguous views: the loop vectorises)
-            a = max(c0, w)
-            b = max(min(c1, cols - w), a)
-            n = b - a
-            iv = img[r, a:b]
-            left = csum[a - w : b - w]
-            mid0 = csum[a:b]
-            mid1 = csum[a + 1 : b + 1]
-            right = csum[a + 1 + w : b + 1 + w]
-            ov = slt[a:b]
-            wf = float(w)
-            if use_where:
-                wv = where[r, a:b]
-                for k in range(n):
-                    v = iv[k] - threshold
-                    ov[k] = (v * wf > mid0[k] - left[k]) & (v * wf > right[k] - mid1[k]) & (wv[k] != 0)
-            else:
-                for k in range(n):
-                    v = iv[k] - threshold
-                    ov[k] = (v * wf > mid0[k] - left[k]) & (v * wf > right[k] - mid1[k])
-            for k in range(c0, a):  # clipped windows: the ends of the row
-                _slt_clipped(img, csum, r, k, window, cols, threshold, where, use_where, slt)
-            for k in range(max(b, c0), c1):
-                _slt_clipped(img, csum, r, k, window, cols, threshold, where, use_where, slt)
+            _slt_span(img, csum, r, c0, c1, window, cols, threshold, where, use_where, slt)
             # the border test at the SLT features: eight flags at a time, most words are 0
             for q in range(c0 // 8, (c1 + 7) // 8):
                 if slt_words[q] == 0:
@@ -336,7 +342,14 @@ class EsltParams(SltParams):
     """Params of ``features.eslt``."""
 
     max_angle_deg: float = Field(15.0, gt=0.0, le=90.0, description="largest angle between the two borders, degrees")
-    sobel_ksize: int = Field(3, ge=1, le=7, description="Sobel aperture (1, 3, 5 or 7)")
+    sobel_ksize: int = Field(3, ge=1, le=7, description="Sobel aperture (1, 3, 5 or 7), pixels")
+
+    @field_validator("sobel_ksize")
+    @classmethod
+    def _odd_aperture(cls, v: int) -> int:
+        if v % 2 == 0:
+            raise ValueError(f"sobel_ksize: expected an odd Sobel aperture (1, 3, 5 or 7), got {v}")
+        return v
 
 
 @node_type(
@@ -346,7 +359,7 @@ class EsltParams(SltParams):
 )
 def eslt(params: EsltParams, image: np.ndarray, where: np.ndarray | None = None) -> dict:
     """Extended SLT: SLT plus parallel strongest-gradient borders; features get the borders' mean orientation."""
-    k = params.sobel_ksize if params.sobel_ksize in (1, 3, 5, 7) else 3
+    k = params.sobel_ksize
     raw = np.asarray(image)
     if raw.dtype == np.uint8 and raw.ndim == 2 and k == 3 and min(raw.shape) >= 2:
         # a grey uint8 BEV (the usual case): integer 3x3 Sobel gradients in one pass, exactly the

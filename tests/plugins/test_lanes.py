@@ -21,6 +21,8 @@ from lanegraph.types import BevGeometry, FeatureMap, Lane, Line
 
 # ----------------------------------------------------------------------------- NumPy twins
 def slt_twin(img, w, T):
+    # by the mean, as the paper states it; the kernel compares v n > sum (no division), the same
+    # decision on integer images (the twin tests' inputs), see _boundary_rows for float ones
     rows, cols = img.shape
     out = np.zeros((rows, cols), np.uint8)
     for r in range(rows):
@@ -125,6 +127,60 @@ def test_eslt_node_uint8_path_equals_float_path(shape):
     np.testing.assert_array_equal(a.mask, b.mask)
     # the same integer gradients; the kernels compiled for int16 and float32 may round the last bit
     np.testing.assert_allclose(a.orientation, b.orientation, rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("ksize", [2, 4, 6])
+def test_eslt_even_sobel_aperture_is_refused_where_it_is_set(tmp_path, ksize):
+    # an even aperture was once replaced by 3 without a word; now the graph does not load, and the
+    # error names the file, the node and the param
+    from lanegraph.errors import GraphError
+    from lanegraph.graph import load_graph
+
+    g = tmp_path / "g.yaml"
+    g.write_text(f"nodes:\n  feat: {{type: features.eslt, params: {{sobel_ksize: {ksize}}}}}\n")
+    with pytest.raises(GraphError) as info:
+        load_graph(g)
+    msg = str(info.value)
+    assert "g.yaml" in msg and "feat" in msg and "sobel_ksize" in msg and "odd" in msg, msg
+    for k in (1, 3, 5, 7):
+        assert eslt.params(sobel_ksize=k).sobel_ksize == k
+
+
+def _boundary_rows(count=3):
+    """Rows ``[window, 255, zeros]`` of float32 pixels, with a threshold T that puts the bright
+    pixel on SLT's boundary with its left window: ``v > sum / n`` and ``v n > sum`` (v = 255 - T)
+    round different ways. ``count`` rows where the product passes and ``count`` where it fails."""
+    rng = np.random.default_rng(3)
+    found = {True: [], False: []}
+    for _ in range(100_000):
+        n = int(rng.choice([3, 5, 6, 7]))
+        left = (rng.random(n) * 255).astype(np.float32)
+        s = float(np.cumsum(left.astype(np.float64))[-1])
+        T = 255.0 - s / n
+        v = 255.0 - T
+        passes = v * n > s
+        if (v > s / n) != passes and len(found[passes]) < count:
+            found[passes].append((np.concatenate([left, [255], np.zeros(n)]).astype(np.float32), n, T, passes))
+        if all(len(f) == count for f in found.values()):
+            break
+    return found[True] + found[False]
+
+
+def test_slt_and_eslt_make_one_threshold_test_on_a_float_boundary():
+    # ESLT's features must be a subset of SLT's (the ablation compares them). SLT once tested
+    # v > sum / n and ESLT v n > sum: on these rows one passed and the other did not
+    rows = _boundary_rows()
+    assert len(rows) == 6, "the search must find rows on both sides of the boundary"
+    for row, n, T, passes in rows:
+        img = np.tile(row, (3, 1))  # a vertical stripe: the borders' gradients are parallel
+        s = np.zeros(img.shape, np.uint8)
+        _features._slt(img, n, T, _features._EVERYWHERE, s)
+        gx, gy = _features.sobel(img, 3)
+        m = np.empty(img.shape, np.uint8)
+        o = np.empty(img.shape, np.float32)
+        _features._eslt(img, gx, gy, n, T, math.radians(90), _features._EVERYWHERE, m, o, True)
+        assert s[1, n] == m[1, n] == passes, (row.tolist(), n, T)
+        assert not (m.astype(bool) & ~s.astype(bool)).any()
 
 
 def _random_where(shape, seed):
