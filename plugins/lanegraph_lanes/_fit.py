@@ -417,6 +417,12 @@ class FitParams(NodeParams):
     track_max_offset_m: float = Field(
         3.2, gt=0.0, le=50.0, description="a lane fitted around a previous one must cross the bottom row at most this far from the vehicle (as hough.max_offset_m), metres"
     )
+    track_lane_change: bool = Field(
+        True,
+        description="a lane fitted around a previous one may also lie nearer than track_min_offset_m (the line being crossed "
+        "in a lane change), and then the other side's up to track_max_lane_width_m from it (as hough.lane_change)",
+    )
+    track_max_lane_width_m: float = Field(4.6, gt=0.0, le=20.0, description="lane change: widest plausible lane (as hough.max_lane_width_m), metres")
 
 
 class IrlsParams(FitParams):
@@ -481,6 +487,21 @@ def _fit_roi(
     )
 
 
+def _plausible_tracked(lateral: float, others: list[float], p: FitParams) -> bool:
+    """Whether a lane fitted around a previous one, crossing the bottom row ``lateral`` metres from
+    the vehicle, is still a plausible ego-lane boundary beside this frame's lanes at ``others``:
+    ``track_min_offset_m .. track_max_offset_m`` away, like a Hough line; with
+    ``track_lane_change`` also nearer (the line being crossed continues a previous lane by
+    construction), or farther when another lane is being crossed, up to a lane's width from it."""
+    if p.track_min_offset_m <= abs(lateral) <= p.track_max_offset_m:
+        return True
+    if not p.track_lane_change:
+        return False
+    if abs(lateral) < p.track_min_offset_m:
+        return True
+    return any(abs(o) < p.track_min_offset_m and o * lateral < 0 and abs(lateral - o) <= p.track_max_lane_width_m for o in others)
+
+
 def _fit_lanes(
     features: FeatureMap, lines: list[Line], geometry: BevGeometry, p: FitParams, fitter, previous: list[Lane] | None = None
 ) -> list[Lane]:
@@ -509,7 +530,11 @@ def _fit_lanes(
         # line the vehicle has moved away from would keep itself alive through the temporal mask
         lateral = (lane.coeffs[0] - x0) * res
         side = "left" if lateral < 0 else "right"
-        if side in found or not p.track_min_offset_m <= abs(lateral) <= p.track_max_offset_m:
+        if side in found or not _plausible_tracked(lateral, [(ln.coeffs[0] - x0) * res for ln in lanes], p):
+            continue
+        # the line being crossed, which the Hough transform found this frame on the other side
+        # (it moves from one side to the other): not a second lane
+        if abs(lateral) < p.track_min_offset_m and any(abs(lane.coeffs[0] - ln.coeffs[0]) <= 0.5 * p.roi_width for ln in lanes):
             continue
         lanes.append(Lane(lane.coeffs, lane.bev_rows, side, lane.score, lane.points, lane.extra))
         found.add(side)

@@ -12,6 +12,13 @@ Peak selection (``select``):
   (``min_votes`` and ``min_relative`` of the strongest peak on that side) and at a plausible lateral
   distance (``min_offset_m`` .. ``max_offset_m``). On real roads the two strongest peaks are often
   an outer solid line and a kerb or rail rather than the ego-lane boundaries.
+
+  Lane changes (``lane_change``, with the previous frame's lanes on ``previous``): the line being
+  crossed passes under the vehicle, nearer than ``min_offset_m``, and the other boundary of the new
+  (or old) lane is then a lane's width away, beyond ``max_offset_m``. A peak nearer than
+  ``min_offset_m`` is taken on its side only when it continues a previous lane (within
+  ``track_match_m``), which an arrow or a hatching between the lanes does not; the other side's
+  boundary may then lie up to ``max_lane_width_m`` from it.
 """
 
 from __future__ import annotations
@@ -25,7 +32,7 @@ from pydantic import Field
 
 from lanegraph import InputError, NodeParams, Port, node_type
 from lanegraph._numba import jit, prange
-from lanegraph.types import BevGeometry, FeatureMap, Line
+from lanegraph.types import BevGeometry, FeatureMap, Lane, Line
 
 
 @jit
@@ -175,9 +182,19 @@ class HoughParams(NodeParams):
     min_relative: float = Field(0.25, ge=0.0, le=1.0, description="nearest rule: a peak needs this fraction of the strongest peak on its side")
     min_offset_m: float = Field(0.6, ge=0.0, le=20.0, description="nearest rule: closest plausible lateral distance of a lane boundary, metres")
     max_offset_m: float = Field(3.2, gt=0.0, le=50.0, description="nearest rule: farthest plausible lateral distance of a lane boundary, metres")
+    lane_change: bool = Field(
+        True,
+        description="nearest rule with `previous` lanes: a peak nearer than min_offset_m that continues a previous lane is the "
+        "line being crossed in a lane change, and the other side's boundary may then lie up to max_lane_width_m from it",
+    )
+    track_match_m: float = Field(
+        0.8, gt=0.0, le=5.0,
+        description="lane change: a peak continues a previous lane within this lateral distance (the lane at its bottom row, the peak where its straight line meets the bottom edge: on a curve they differ), metres",
+    )
+    max_lane_width_m: float = Field(4.6, gt=0.0, le=20.0, description="lane change: widest plausible lane, metres")
 
 
-def _select(acc: np.ndarray, offset: int, theta: float, geometry: BevGeometry, p: HoughParams) -> list[Line]:
+def _select(acc: np.ndarray, offset: int, theta: float, geometry: BevGeometry, p: HoughParams, previous: list[Lane] | None = None) -> list[Line]:
     res = geometry.resolution
     sm = _smooth(acc, p.smooth_px)
     peaks = find_peaks(sm, max(1, int(round(p.min_separation_m / res))), p.min_votes)
@@ -190,17 +207,38 @@ def _select(acc: np.ndarray, offset: int, theta: float, geometry: BevGeometry, p
     if p.select == "paper":
         chosen = sorted(peaks, key=lambda i: -sm[i])[:2]
     else:
-        chosen = []
+        # lane change: the previous lanes' lateral offsets at the bottom row (their model's c0)
+        prev_lat = [(ln.coeffs[0] - x0) * res for ln in previous or [] if p.lane_change and math.isfinite(ln.coeffs[0])]
+
+        def crossing(i: int) -> bool:
+            """A peak under the vehicle that continues a previous lane: the line being crossed."""
+            return abs(lateral(i)) < p.min_offset_m and any(abs(lateral(i) - lp) <= p.track_match_m for lp in prev_lat)
+
+        strong = {}
+        chosen_side = {}
         for sign in (-1, 1):
             side = [i for i in peaks if sign * lateral(i) > 0]
             if not side:
                 continue
             best = max(sm[i] for i in side)
-            ok = [i for i in side if p.min_offset_m <= abs(lateral(i)) <= p.max_offset_m and sm[i] >= p.min_relative * best]
+            strong[sign] = [i for i in side if sm[i] >= p.min_relative * best]
+            ok = [i for i in strong[sign] if p.min_offset_m <= abs(lateral(i)) <= p.max_offset_m or crossing(i)]
             if ok:
-                chosen.append(min(ok, key=lambda i: abs(lateral(i))))
+                chosen_side[sign] = min(ok, key=lambda i: abs(lateral(i)))
+        for sign in (-1, 1):
+            c = chosen_side.get(-sign)
+            if sign in chosen_side or sign not in strong or c is None or not crossing(c):
+                continue
+            # the other side of a lane change: its boundary is a lane's width from the crossed line
+            ok = [i for i in strong[sign] if abs(lateral(i)) >= p.min_offset_m and abs(lateral(i) - lateral(c)) <= p.max_lane_width_m]
+            if ok:
+                chosen_side[sign] = min(ok, key=lambda i: abs(lateral(i)))
+        chosen = list(chosen_side.values())
     lines = [Line(rho=float(i - offset), theta=theta, votes=float(sm[i]), side="left" if lateral(i) < 0 else "right") for i in chosen]
     return sorted(lines, key=lambda ln: ln.rho)
+
+
+_PREVIOUS_PORT = Port("lanes", "the previous frame's lanes (a feedback edge): lane changes (see lane_change)", optional=True)
 
 
 def _feature_coords(features: FeatureMap) -> tuple[np.ndarray, np.ndarray]:
@@ -212,10 +250,10 @@ def _feature_coords(features: FeatureMap) -> tuple[np.ndarray, np.ndarray]:
 
 @node_type(
     "hough.line1d",
-    inputs={"features": "features", "orientation": "orientation", "geometry": Port("bev_geometry")},
+    inputs={"features": "features", "orientation": "orientation", "geometry": Port("bev_geometry"), "previous": _PREVIOUS_PORT},
     outputs={"lines": "lines"},
 )
-def line1d(params: HoughParams, features: FeatureMap, orientation: float, geometry: BevGeometry) -> dict:
+def line1d(params: HoughParams, features: FeatureMap, orientation: float, geometry: BevGeometry, previous: list[Lane] | None = None) -> dict:
     """1D Hough over rho = x - (H - y) / tan(theta) with the global orientation; at most two lines."""
     rows, cols = features.shape
     r, c = _feature_coords(features)
@@ -226,7 +264,7 @@ def line1d(params: HoughParams, features: FeatureMap, orientation: float, geomet
     offset = 2 * cols  # rho may lie left of the BEV when lines slant
     acc = np.zeros(5 * cols, np.float64)
     _vote_1d(r, c, float(rows), inv_tan, offset, acc)
-    return {"lines": _select(acc, offset, theta, geometry, params)}
+    return {"lines": _select(acc, offset, theta, geometry, params, previous)}
 
 
 class Hough2dParams(HoughParams):
@@ -238,10 +276,15 @@ class Hough2dParams(HoughParams):
 
 @node_type(
     "hough.line2d",
-    inputs={"features": "features", "orientation": Port("orientation", "ignored; kept for drop-in swaps", optional=True), "geometry": Port("bev_geometry")},
+    inputs={
+        "features": "features",
+        "orientation": Port("orientation", "ignored; kept for drop-in swaps", optional=True),
+        "geometry": Port("bev_geometry"),
+        "previous": _PREVIOUS_PORT,
+    },
     outputs={"lines": "lines"},
 )
-def line2d(params: Hough2dParams, features: FeatureMap, geometry: BevGeometry, orientation: float | None = None) -> dict:
+def line2d(params: Hough2dParams, features: FeatureMap, geometry: BevGeometry, orientation: float | None = None, previous: list[Lane] | None = None) -> dict:
     """Classic 2D (rho, theta) Hough: the strongest theta row is the lane orientation; peaks chosen as in 1D."""
     rows, cols = features.shape
     r, c = _feature_coords(features)
@@ -255,4 +298,4 @@ def line2d(params: Hough2dParams, features: FeatureMap, geometry: BevGeometry, o
     # the theta whose smoothed accumulator has the strongest peak structure (sum of the top peaks)
     score = [np.sort(_smooth(a, params.smooth_px))[-3:].sum() for a in acc]
     t = int(np.argmax(score))
-    return {"lines": _select(acc[t], offset, float(thetas[t]), geometry, params)}
+    return {"lines": _select(acc[t], offset, float(thetas[t]), geometry, params, previous)}

@@ -7,6 +7,10 @@ by a feedback edge). Re-acquisition, so that a wrong or lost lock does not persi
 - no previous lanes (first frame, a skipped frame, nothing found): the full mask;
 - a side (left / right of the vehicle) with no previous lane, or whose previous lane scored below
   ``min_score``: that whole side stays open, so a lane there can be (re)found;
+- a side with a previous lane accepts the bands of all previous lanes, so the band of a line the
+  vehicle is crossing (a lane change) follows it past the vehicle's column;
+- a side whose previous lane is that line, nearer than ``open_crossing_m`` to the vehicle, stays
+  open: the far boundary of the lane the vehicle moves into appears there;
 - ``reacquire``: when the current features inside the band are fewer than ``min_band_fraction`` of
   the features on that side, the side is opened again (the lock is not supported by this frame).
 """
@@ -66,6 +70,13 @@ class TemporalParams(NodeParams):
     min_score: float = Field(0.1, ge=0.0, le=1.0, description="previous lanes scoring below this do not restrict the search")
     reacquire: bool = Field(True, description="open a side again when this frame's features do not support the previous lane")
     min_band_fraction: float = Field(0.15, ge=0.0, le=1.0, description="reacquire when fewer than this fraction of a side's features lie in its band")
+    open_crossing_m: float = Field(
+        0.6,
+        ge=0.0,
+        le=5.0,
+        description="a side whose previous lane crossed the bottom row nearer than this to the vehicle (a lane change) stays open: "
+        "the new lane's far boundary appears there; 0 = never, metres",
+    )
 
 
 @node_type(
@@ -94,12 +105,15 @@ def temporal_mask(params: TemporalParams, geometry: BevGeometry, previous: list[
     else:
         fr = fc = np.zeros(0, np.int64)
     mask = np.zeros((rows, cols), bool)  # each side's band is written straight into its columns
+    lcols = np.stack([lane_cols(ln, rows) for ln in good])
+    res = geometry.resolution
     for side, c_lo, c_hi in (("left", 0, split), ("right", split, cols)):
-        lanes = [ln for ln in good if ln.side == side]
-        if not lanes:
+        mine = [ln for ln in good if ln.side == side]
+        if not mine or any(abs((ln.coeffs[0] - x0) * res) < params.open_crossing_m for ln in mine):
             mask[:, c_lo:c_hi] = True
             continue
-        lcols = np.stack([lane_cols(ln, rows) for ln in lanes])
+        # the bands of every previous lane, also one of the other side that reaches across the
+        # vehicle's column: in a lane change the line being crossed moves from one side to the other
         n_side, n_band = _side_band_kernel(lcols, c_lo, c_hi, float(params.band_px), fr, fc, mask)
         if use_feat and n_side > 0 and n_band < params.min_band_fraction * n_side:
             mask[:, c_lo:c_hi] = True

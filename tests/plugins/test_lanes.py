@@ -335,6 +335,32 @@ def test_line2d_finds_the_same_lines():
     assert lines[0].theta == pytest.approx(math.atan2(1, 0.2), abs=math.radians(1))
 
 
+@pytest.mark.parametrize("node", [line1d, line2d])
+def test_nearest_rule_takes_the_line_being_crossed_in_a_lane_change(node):
+    # the vehicle (column 119.5) is over a line at column 122 (0.125 m right of it); the other
+    # boundary of its lane is 3.6 m left (column 50), beyond max_offset_m (3.2 m)
+    rows, cols = 200, 240
+    g = geometry(rows, cols)
+
+    def lines(lane_cols, previous, **params):
+        f = slt.func(slt.params(window=8), image=make_bev_image(rows=rows, cols=cols, lane_cols=lane_cols, noise=2))["features"]
+        p = node.params(min_votes=20, **params)
+        return [round(ln.rho) for ln in node.func(p, features=f, orientation=math.pi / 2, geometry=g, previous=previous)["lines"]]
+
+    def lane(col, side):
+        return Lane((col, 0.0, 0.0), (0, rows - 1), side, 0.9)
+
+    crossing = [lane(126.0, "right"), lane(54.0, "left")]  # last frame: 0.33 m right, 3.3 m left
+    assert lines((50.0, 122.0), crossing) == [50, 122]
+    # without a previous lane near it, a peak under the vehicle is no boundary (an arrow, a seam)
+    assert lines((50.0, 122.0), None) == []
+    assert lines((50.0, 122.0), [lane(160.0, "right")]) == []
+    assert lines((50.0, 122.0), crossing, lane_change=False) == []
+    # the other side's line must lie within a lane's width of the crossed one
+    assert lines((20.0, 122.0), crossing) == [122]
+    assert lines((20.0, 122.0), crossing, max_lane_width_m=5.2) == [20, 122]
+
+
 def test_hough_on_empty_features():
     empty = FeatureMap(np.zeros((50, 40), bool), np.full((50, 40), -1, np.float32))
     g = geometry(50, 40)
@@ -551,21 +577,39 @@ def test_fit_follows_the_previous_lane_where_the_hough_found_nothing(node):
     moved = [Lane((48.0, 0.06, 4e-4), (0, rows - 1), "right", 0.5)]
     lanes = node.func(node.params(), features=f, lines=[], geometry=g, previous=moved)["lanes"]
     assert [ln.side for ln in lanes] == ["left"]
-    # a line the vehicle has moved away from (after a lane change: 0.1 m or 5 m from it) is no ego
-    # boundary: not kept alive by fitting around it
+    # a line the vehicle has moved away from (after a lane change: 3.5 m from it) is no ego
+    # boundary: not kept alive by fitting around it. A line under the vehicle (0.05 m) is the one
+    # being crossed in a lane change: kept (track_lane_change), else rejected like the far one
     bev_far = np.full((rows, cols), 80, np.uint8)
     bev_far[:, 77:80] = 220  # a solid line 0.05 m left of the vehicle (column 79.5)
     bev_far[:, 8:11] = 220  # and one 3.5 m left of it
     f_far = eslt.func(eslt.params(), image=bev_far)["features"]
-    for x in (78.0, 9.0):
+    strict = node.params(track_lane_change=False)
+    for x, kept in ((78.0, True), (9.0, False)):
         prev = [Lane((x, 0.0, 0.0), (0, rows - 1), "left", 0.5)]
-        assert node.func(node.params(), features=f_far, lines=[], geometry=g, previous=prev)["lanes"] == []
-        wide = node.params(track_min_offset_m=0.0, track_max_offset_m=10.0)  # the check is what rejects them
+        assert len(node.func(node.params(), features=f_far, lines=[], geometry=g, previous=prev)["lanes"]) == int(kept)
+        assert node.func(strict, features=f_far, lines=[], geometry=g, previous=prev)["lanes"] == []
+        wide = node.params(track_min_offset_m=0.0, track_max_offset_m=10.0, track_lane_change=False)  # the check is what rejects them
         assert len(node.func(wide, features=f_far, lines=[], geometry=g, previous=prev)["lanes"]) == 1
     # a side with a Hough line is fitted around the line only
     line = Line(rho=50.0, theta=math.atan2(1, 0.05), side="left")
     lanes = node.func(node.params(), features=f, lines=[line], geometry=g, previous=[Lane((120.0, 0.0, 0.0), (0, 299), "left", 0.9)])["lanes"]
     assert len(lanes) <= 1 and all("tracked" not in ln.extra for ln in lanes)
+
+
+@pytest.mark.parametrize("node", [fit_irls, fit_ransac])
+def test_fit_does_not_report_the_line_being_crossed_twice(node):
+    # the Hough line is the crossed line, labelled right; the previous frame had it left of the
+    # vehicle (column 79.5): fitting around the previous lane finds the same line again
+    rows, cols = 300, 160
+    bev = np.full((rows, cols), 80, np.uint8)
+    bev[:, 77:80] = 220
+    f = eslt.func(eslt.params(), image=bev)["features"]
+    g = geometry(rows, cols)
+    line = Line(rho=80.5, theta=math.pi / 2, side="right")
+    previous = [Lane((77.0, 0.0, 0.0), (0, rows - 1), "left", 0.9)]
+    lanes = node.func(node.params(), features=f, lines=[line], geometry=g, previous=previous)["lanes"]
+    assert len(lanes) == 1 and "tracked" not in lanes[0].extra
 
 
 def test_fit_rejects_weak_support():
@@ -587,6 +631,20 @@ def test_temporal_mask_falls_back_and_bands():
     assert m[:, 40:].all()  # the right side has no previous lane: open
     weak = Lane((20.0, 0.0, 0.0), (0, 99), "left", 0.01)
     assert temporal_mask.func(temporal_mask.params(), geometry=g, previous=[weak])["mask"].all()
+
+
+def test_temporal_mask_band_follows_a_line_across_the_vehicle():
+    # a lane change: last frame's right lane lies just right of the vehicle (column 39.5); its band
+    # reaches into the left side, which has a lane of its own (else it would be open anyway)
+    g = geometry(100, 80)
+    prev = [Lane((20.0, 0.0, 0.0), (0, 99), "left", 0.9), Lane((42.0, 0.0, 0.0), (0, 99), "right", 0.9)]
+    m = temporal_mask.func(temporal_mask.params(band_px=5, open_crossing_m=0.0), geometry=g, previous=prev)["mask"]
+    assert m[:, 37:48].all() and not m[:, 48:].any() and not m[:, 26:37].any()
+    # and the side of the crossed line (0.125 m from the vehicle) stays open: the lane the vehicle
+    # moves into has its far boundary there
+    m = temporal_mask.func(temporal_mask.params(band_px=5), geometry=g, previous=prev)["mask"]
+    assert m[:, 40:].all() and m[:, 37:40].all() and not m[:, 26:37].any()
+    assert temporal_mask.func(temporal_mask.params(band_px=5, open_crossing_m=0.1), geometry=g, previous=prev)["mask"][:, 48:].sum() == 0
 
 
 def test_temporal_mask_reacquires_when_band_is_unsupported():
