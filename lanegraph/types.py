@@ -145,6 +145,15 @@ class BevGeometry:
     def rows(self) -> int:
         return int(round((self.z_max - self.z_min) / self.resolution))
 
+    @property
+    def vehicle_col(self) -> float:
+        """The (fractional) BEV column of the camera's centre line, x = 0."""
+        return -self.x_min / self.resolution - 0.5
+
+    def lateral_m(self, col: float) -> float:
+        """How far right of the vehicle BEV column ``col`` lies, metres (negative: left)."""
+        return (col - self.vehicle_col) * self.resolution
+
     def bev_to_metric(self, c: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """BEV pixel (col, row) -> metric (x, z) on the road plane."""
         x = self.x_min + (np.asarray(c, float) + 0.5) * self.resolution

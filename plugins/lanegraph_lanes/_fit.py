@@ -517,7 +517,6 @@ def _fit_lanes(
     # votes): the ROI follows the previous frame's lane on that side instead
     found = {ln.side for ln in lanes}
     n_hough = len(lanes)
-    x0 = -geometry.x_min / res - 0.5  # the vehicle's column
     for prev in previous or []:
         if prev.side in found or prev.side not in ("left", "right") or prev.score < p.track_min_score:
             continue
@@ -528,9 +527,9 @@ def _fit_lanes(
         # the side is where the lane is now (after a lane change the previous left line is right),
         # and it must still be a plausible ego-lane boundary, like a Hough line: else a lock on a
         # line the vehicle has moved away from would keep itself alive through the temporal mask
-        lateral = (lane.coeffs[0] - x0) * res
+        lateral = geometry.lateral_m(lane.coeffs[0])
         side = "left" if lateral < 0 else "right"
-        if side in found or not _plausible_tracked(lateral, [(ln.coeffs[0] - x0) * res for ln in lanes], p):
+        if side in found or not _plausible_tracked(lateral, [geometry.lateral_m(ln.coeffs[0]) for ln in lanes], p):
             continue
         # the line being crossed, which the Hough transform found this frame on the other side
         # (it moves from one side to the other): not a second lane

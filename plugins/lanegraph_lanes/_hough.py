@@ -198,17 +198,14 @@ def _select(acc: np.ndarray, offset: int, theta: float, geometry: BevGeometry, p
     res = geometry.resolution
     sm = _smooth(acc, p.smooth_px)
     peaks = find_peaks(sm, max(1, int(round(p.min_separation_m / res))), p.min_votes)
-    # the vehicle's column at the bottom row, and each peak's lateral offset there
-    x0 = -geometry.x_min / res - 0.5
-
     def lateral(i: int) -> float:
-        return ((i - offset) - x0) * res
+        return geometry.lateral_m(i - offset)  # the peak's offset from the vehicle at the bottom row
 
     if p.select == "paper":
         chosen = sorted(peaks, key=lambda i: -sm[i])[:2]
     else:
         # lane change: the previous lanes' lateral offsets at the bottom row (their model's c0)
-        prev_lat = [(ln.coeffs[0] - x0) * res for ln in previous or [] if p.lane_change and math.isfinite(ln.coeffs[0])]
+        prev_lat = [geometry.lateral_m(ln.coeffs[0]) for ln in previous or [] if p.lane_change and math.isfinite(ln.coeffs[0])]
 
         def crossing(i: int) -> bool:
             """A peak under the vehicle that continues a previous lane: the line being crossed."""

@@ -94,7 +94,7 @@ def temporal_mask(params: TemporalParams, geometry: BevGeometry, previous: list[
     good = [ln for ln in (previous or []) if ln.score >= params.min_score]
     if not good:
         return {"mask": np.ones((rows, cols), bool)}
-    x0 = -geometry.x_min / geometry.resolution - 0.5
+    x0 = geometry.vehicle_col
     # the left side is the columns c < x0, the right side c >= x0
     split = min(max(math.ceil(x0), 0), cols)
     use_feat = params.reacquire and features is not None
@@ -106,10 +106,9 @@ def temporal_mask(params: TemporalParams, geometry: BevGeometry, previous: list[
         fr = fc = np.zeros(0, np.int64)
     mask = np.zeros((rows, cols), bool)  # each side's band is written straight into its columns
     lcols = np.stack([lane_cols(ln, rows) for ln in good])
-    res = geometry.resolution
     for side, c_lo, c_hi in (("left", 0, split), ("right", split, cols)):
         mine = [ln for ln in good if ln.side == side]
-        if not mine or any(abs((ln.coeffs[0] - x0) * res) < params.open_crossing_m for ln in mine):
+        if not mine or any(abs(geometry.lateral_m(ln.coeffs[0])) < params.open_crossing_m for ln in mine):
             mask[:, c_lo:c_hi] = True
             continue
         # the bands of every previous lane, also one of the other side that reaches across the
