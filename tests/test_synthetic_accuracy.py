@@ -31,10 +31,10 @@ def urban_frame():
     return synthetic.SceneRenderer(synthetic.preset("urban")).render(4)
 
 
-def _disparity(frame, mode):
+def _disparity(frame, mode, uniqueness_ratio=10):
     return run_node(
         "disparity.sgbm", {"left": frame.left, "right": frame.right},
-        num_disparities=128, block_size=5, mode=mode, top_fraction=0.3, strips=2,
+        num_disparities=128, block_size=5, mode=mode, top_fraction=0.3, strips=2, uniqueness_ratio=uniqueness_ratio,
     )["disparity"]  # fmt: skip
 
 
@@ -58,7 +58,7 @@ def test_pose_from_sgbm_within_tolerance(urban_frame):
 
 def test_road_mask_removes_objects_and_keeps_the_road(urban_frame):
     fr = urban_frame
-    d = _disparity(fr, "sgbm")  # paper.yaml's disparity
+    d = _disparity(fr, "sgbm", uniqueness_ratio=30)  # paper.yaml's disparity
     road = run_node("road.profile", {"disparity": d, "calib": fr.calib})["road"]
     mask = run_node("road.mask", {"disparity": d, "road": road, "calib": fr.calib})["mask"]
     H, W = d.shape
@@ -107,6 +107,17 @@ def test_paper_graph_follows_a_sharp_curve_at_speed(radius, speed, tmp_path):
     spec = synthetic.preset("curved", curvature=1 / radius, speed=speed, hatching=10.0, arrows=6.0)
     res = _paper_on(spec, 10, tmp_path)
     assert res["detection_ratio"] >= 0.9 and res["precision"] == 1.0, res["failed_frames"]
+
+
+def test_paper_graph_on_noisy_images(tmp_path):
+    """Sensor noise of 8 grey levels on a weakly textured road and a right camera 10 % darker:
+    SGBM's ambiguous matches on the road are left without a disparity (paper.yaml's
+    uniqueness_ratio 30), which the road mask's free-space scan takes as road. With OpenCV's usual
+    10 they were wrong disparities that ended the road's columns as obstacles a few metres ahead,
+    and the road mask cut the lane features away (these 10 frames: 0 % detection ratio, now 90 %)."""
+    spec = synthetic.preset("straight", noise_sigma=8.0, right_gain=0.9, seed=23)
+    res = _paper_on(spec, 10, tmp_path)
+    assert res["detection_ratio"] >= 0.8 and res["precision"] >= 0.9, res["failed_frames"]
 
 
 def test_paper_graph_through_a_lane_change(tmp_path):

@@ -95,10 +95,11 @@ def _height_class_kernel(disp, step, a0, a1, a2, cx, cy, s, c, height, height_to
 @jit
 def _free_space_kernel(labels, min_run, unknown_is_road):
     """Column-wise free space: scanning each column from the bottom row up, road pixels (label 1,
-    and label 4 -- no disparity -- when ``unknown_is_road`` and a road pixel was seen below it in the
-    column) are kept until the first run of ``min_run`` pixels above the road (label 2; pixels below
-    the road, label 3, or beyond range, label 0, neither count nor break a run); everything above it
-    is dropped."""
+    and label 4 -- no disparity -- when ``unknown_is_road`` and the column has a road pixel at or
+    below the first obstacle) are kept until the first run of ``min_run`` pixels above the road
+    (label 2; pixels below the road, label 3, or beyond range, label 0, neither count nor break a
+    run); everything above it is dropped. Pixels with no disparity below the column's first road
+    pixel (the bottom rows of a smooth road) are road too."""
     H, W = labels.shape
     out = np.zeros((H, W), np.bool_)
     for u in range(W):
@@ -107,6 +108,10 @@ def _free_space_kernel(labels, min_run, unknown_is_road):
         for v in range(H - 1, -1, -1):
             lab = labels[v, u]
             if lab == 1 or (lab == 4 and unknown_is_road and seen):
+                if unknown_is_road and not seen:
+                    for w in range(v + 1, H):  # the column's first road pixel: the unknown ones below it
+                        if labels[w, u] == 4:
+                            out[w, u] = True
                 run = 0
                 seen = True
                 out[v, u] = True

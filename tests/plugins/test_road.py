@@ -125,6 +125,8 @@ def free_space_np(labels, min_run, unknown_is_road):
         seen = False
         for v in range(H - 1, -1, -1):
             if labels[v, u] == 1 or (unknown_is_road and labels[v, u] == 4 and seen):
+                if unknown_is_road and not seen:
+                    out[v + 1 :, u] |= labels[v + 1 :, u] == 4
                 run = 0
                 seen = True
                 out[v, u] = True
@@ -623,6 +625,26 @@ def test_mask_kernels_match_numpy(shape):
             np.testing.assert_array_equal(
                 mask._free_space_kernel(labels, min_run, unknown), free_space_np(labels, min_run, unknown)
             )
+
+
+def test_free_space_takes_unknown_bottom_rows_below_the_first_road_pixel():
+    """Columns scanned bottom-up (row 9 first). Pixels with no disparity (4) at the bottom of a
+    column are road once a road pixel (1) follows them before an obstacle run ends the column; an
+    obstacle run (2, 2) first leaves them out, as does ``unknown_is_road=False``. Before, a
+    column's unknown bottom rows were never road (a smooth road's nearest rows lost with a strict
+    SGBM uniqueness ratio)."""
+    R, A, B, U = mask.ROAD, mask.ABOVE, mask.BELOW, mask.UNKNOWN
+    cols = [
+        [0, A, A, U, R, R, U, B, U, U],  # unknown bottom, a below-road pixel, then road
+        [0, R, R, R, U, A, A, U, U, U],  # the obstacle run comes first: nothing is road
+        [U, U, U, U, U, U, U, U, U, U],  # no road pixel at all
+    ]
+    labels = np.array(cols, np.uint8).T.copy()
+    out = mask._free_space_kernel(labels, 2, True)
+    np.testing.assert_array_equal(out[:, 0], [0, 0, 0, 1, 1, 1, 1, 0, 1, 1])
+    assert not out[:, 1].any() and not out[:, 2].any()
+    np.testing.assert_array_equal(mask._free_space_kernel(labels, 2, False)[:, 0], [0, 0, 0, 0, 1, 1, 0, 0, 0, 0])
+    np.testing.assert_array_equal(out, free_space_np(labels, 2, True))
 
 
 @pytest.mark.parametrize("shape", EDGE_SHAPES + [(30, 41)])
