@@ -18,7 +18,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from lanegraph_synthetic import preset, write_sequence
+from lanegraph_synthetic import Marking, preset, write_sequence
 
 from lanegraph.metrics import evaluate, read_jsonl
 
@@ -34,6 +34,8 @@ SCENES: dict[str, tuple[str, dict]] = {
     "no_markings_kerbs": ("no_markings", dict(kerb_height=0.12, parked_cars=10.0, shadows=10.0, trees=6.0, seed=15)),
     "no_markings_walls": ("no_markings", dict(walls=True, poles=5.0, traffic=1, seed=16)),
     "no_markings_urban": ("urban", dict(markings=[], seed=44)),
+    # a pedestrian crossing 22-26 m ahead: seven bars 0.5 m wide, 1 m apart (the ground truth has no lane)
+    "no_lines_crossing": ("no_markings", dict(markings=[Marking(-3.0 + i, "dashed", 0.5, 4.0, 296.0, 22.0) for i in range(7)], speed=8.0, seed=81)),
     "pitch_2.5_roll_1.5": ("straight", dict(pitch_deg=2.5, roll_deg=1.5, seed=17)),
     "narrow_lanes_2.8m": ("straight", dict(lane_width=2.8, n_lanes=2, seed=18)),
     "wide_lanes_4.3m": ("straight", dict(lane_width=4.3, seed=19)),

@@ -13,6 +13,16 @@ lane's rows is the side's *texture*. A lane whose rougher side exceeds ``max_tex
 is dropped. On KITTI drive 0001 the kept lines measure at most 3.4 and the rails and kerbs at
 least 14; on the synthetic "kerbs" scene painted lines 0.5 m from a 13 cm kerb measure 8-10
 (default threshold 12: a narrow margin on both sides).
+
+A pedestrian crossing's bars (0.4-0.6 m wide, about 1 m apart, 3-4 m long along the road) are
+parallel-bordered ridges too, on smooth asphalt, and a bar with the road's noise features below it
+makes a lane on a street without lines. What tells them apart is their neighbours: averaged over
+the lane's painted rows (:func:`neighbour_bars`), a bar has further bars within
+``crossing_band_px`` that repeat its spacing (the nearest one on each side about as far, or on one
+side a second one twice as far: :func:`crossing_pattern`). A lane line has none, or neighbours at
+unrelated distances (a kerb on one side and an arrow on the other); a second line of a double line
+lies nearer than ``crossing_min_offset_px``, another lane farther than ``crossing_band_px``, and a
+pavement beyond a kerb is one wide bright region, not a bar. ``crossing_check`` drops such lanes.
 """
 
 from __future__ import annotations
@@ -164,6 +174,11 @@ class VerifyParams(NodeParams):
     gap_px: int = Field(6, ge=0, le=200, description="start of the side bands, BEV pixels from the lane")
     band_px: int = Field(30, ge=2, le=400, description="end of the side bands, BEV pixels from the lane")
     max_texture: float = Field(12.0, gt=0.0, le=255.0, description="largest texture on either side, grey levels (see measure; about 18 suits 'std')")
+    crossing_check: bool = Field(True, description="drop a lane with parallel bars beside it that repeat its spacing (a pedestrian crossing's bar, not a lane line)")
+    crossing_band_px: int = Field(50, ge=4, le=400, description="crossing check: how far each side bars are looked for, BEV pixels (50: 2.5 m at 5 cm; a crossing's bars are about 1 m apart; a ridge cut off at the band's end counts as wide)")
+    crossing_min_offset_px: int = Field(12, ge=1, le=400, description="crossing check: nearer bright stripes are the lane's own paint or a double line's other line, BEV pixels")
+    max_bar_px: int = Field(16, ge=1, le=400, description="crossing check: widest bar, BEV pixels (wider bright regions, a pavement, do not count)")
+    min_contrast: float = Field(15.0, gt=0.0, le=255.0, description="crossing check: a painted row's centre is this much brighter than the row's road level, grey levels")
     measure: Literal["std", "diff"] = Field(
         "diff",
         description="'std': lateral intensity std in the band; 'diff': mean absolute difference of "
@@ -174,7 +189,134 @@ class VerifyParams(NodeParams):
     def _band_not_empty(self) -> VerifyParams:
         if self.band_px < self.gap_px + 2:
             raise ValueError(f"band_px ({self.band_px}) must be at least gap_px + 2 ({self.gap_px + 2}): the side bands would be empty")
+        if self.crossing_band_px <= self.crossing_min_offset_px:
+            raise ValueError(
+                f"crossing_band_px ({self.crossing_band_px}) must exceed crossing_min_offset_px ({self.crossing_min_offset_px}): no offset would be searched"
+            )
         return self
+
+
+@jit
+def _bar_profile_kernel(img, r0, r1, c0, c1, c2, band_px, min_contrast):
+    """The mean lateral profile of the lane ``col = c0 + c1 t + c2 t^2`` (``t = rows - 1 - row``)
+    over its painted rows, for :func:`neighbour_bars`: every 2nd row of ``r0 .. r1`` whose strip
+    (columns ``round(col) - band_px .. round(col) + band_px``) is inside the image, less the
+    strip's darkest pixel (the road level: a per-row constant, which the profile's top-hat does
+    not see); painted rows have a centre (+-1 px) above it by ``min_contrast`` and by half the
+    90th percentile of that over the rows. Returns ``(profile, painted rows)``; a zero profile and
+    0 with fewer than 10 rows. Two passes over the rows (the contrasts, then the painted rows'
+    sums) instead of keeping the strip."""
+    rows, cols = img.shape
+    w = 2 * band_px + 1
+    nmax = (r1 - r0) // 2 + 1 if r1 >= r0 else 0
+    start = np.empty(nmax, np.int64)
+    rr = np.empty(nmax, np.int64)
+    base = np.empty(nmax)
+    contrast = np.empty(nmax)
+    m = 0
+    for r in range(r0, r1 + 1, 2):
+        t = rows - 1 - r
+        ce = int(np.rint(c0 + c1 * t + c2 * t * t))
+        if ce - band_px < 0 or ce + band_px >= cols:
+            continue
+        a = ce - band_px
+        b = img[r, a] + 0.0
+        for j in range(1, w):
+            b = min(b, img[r, a + j] + 0.0)
+        c = max(img[r, ce - 1], img[r, ce], img[r, ce + 1]) - b
+        start[m] = a
+        rr[m] = r
+        base[m] = b
+        contrast[m] = c
+        m += 1
+    profile = np.zeros(w)
+    if m < 10:
+        return profile, 0
+    thr = max(min_contrast, 0.5 * np.percentile(contrast[:m], 90))
+    n = 0
+    for i in range(m):
+        if contrast[i] >= thr:
+            n += 1
+            r = rr[i]
+            a = start[i]
+            b = base[i]
+            for j in range(w):
+                profile[j] += img[r, a + j] - b
+    if n > 0:
+        profile /= n
+    return profile, n
+
+
+def neighbour_bars(image: np.ndarray, lane: Lane, band_px: int, min_offset_px: int, max_bar_px: int, min_contrast: float) -> np.ndarray:
+    """The offsets (BEV pixels, right positive) of the bright bars beside ``lane`` (see the module docstring). The BEV image is
+    sampled along the lane (every 2nd of its rows, offsets ``-band_px .. band_px`` from its centre;
+    rows whose strip leaves the image skipped), less each row's road level (its darkest pixel).
+    The painted rows are those whose centre (+-1 px) stands above the road level by
+    ``min_contrast`` and by half the 90th percentile of that over the lane's rows (its paint, not
+    the road's texture): :func:`_bar_profile_kernel` averages them. The profile's white top-hat of
+    width ``max_bar_px + 1`` keeps the ridges at most ``max_bar_px`` wide (a pavement's wide
+    brightness goes, and so does a ridge cut off at the band's end); a run of offsets from
+    ``min_offset_px`` out whose top-hat reaches a third of the lane's own (and ``min_contrast / 2``)
+    is a bar, on each side. None with fewer than 10 painted rows."""
+    img, r0, r1 = _lane_rows_in(image, lane)
+    c0, c1, c2 = (float(c) for c in lane.coeffs)
+    profile, painted = _bar_profile_kernel(img, r0, r1, c0, c1, c2, int(band_px), float(min_contrast))
+    if painted < 10:
+        return np.empty(0)
+    return _bar_offsets_kernel(profile, int(band_px), int(min_offset_px), int(max_bar_px), float(min_contrast))
+
+
+def crossing_pattern(offsets: np.ndarray, tolerance: float = 0.25) -> bool:
+    """Whether bars at ``offsets`` beside a lane (itself a bar at 0) repeat like a crossing's: the
+    nearest bar on each side about as far (within ``tolerance`` of the farther), or on one side a
+    second bar about twice as far as the first. A kerb on one side and an arrow on the other, at
+    unrelated distances, are not."""
+    right = np.sort(offsets[offsets > 0])
+    left = np.sort(-offsets[offsets < 0])
+    if left.size and right.size and abs(left[0] - right[0]) <= tolerance * max(left[0], right[0]):
+        return True
+    return any(side.size >= 2 and abs(side[1] - 2.0 * side[0]) <= tolerance * side[1] for side in (left, right))
+
+
+@jit
+def _bar_offsets_kernel(profile, band_px, min_offset_px, max_bar_px, min_contrast):
+    """The offsets (middles, right positive) of the bars of a lane's mean lateral ``profile`` (offsets ``-band_px .. band_px``, as
+    :func:`_bar_profile_kernel` returns it), as :func:`neighbour_bars` describes: the white
+    top-hat of width ``L = max_bar_px + 1`` (the profile less its opening: the minimum over each
+    window of ``L`` offsets, the profile's ends repeated beyond it, then the maximum of those
+    minima over the windows holding each offset), then the runs of offsets from ``min_offset_px``
+    out on each side whose top-hat reaches a third of the lane's own (centre +-1) and
+    ``min_contrast / 2``: right side first, outwards, then the left side from its outer end."""
+    n = profile.size
+    L = max_bar_px + 1
+    eroded = np.empty(n + L - 1)  # eroded[e]: the minimum over offsets e - L + 1 .. e (ends repeated)
+    for e in range(n + L - 1):
+        lo = e - (L - 1)
+        v = profile[min(max(lo, 0), n - 1)]
+        for q in range(lo + 1, e + 1):
+            v = min(v, profile[min(max(q, 0), n - 1)])
+        eroded[e] = v
+    tophat = np.empty(n)
+    for j in range(n):
+        v = eroded[j]
+        for e in range(j + 1, j + L):
+            v = max(v, eroded[e])
+        tophat[j] = profile[j] - v
+    lane = max(tophat[band_px - 1], tophat[band_px], tophat[band_px + 1])
+    thr = max(lane / 3.0, 0.5 * min_contrast)
+    centres = np.empty(n)
+    bars = 0
+    for lo, hi in ((band_px + min_offset_px, n), (0, band_px - min_offset_px + 1)):
+        start = -1
+        for j in range(lo, hi + 1):
+            cur = j < hi and tophat[j] >= thr
+            if cur and start < 0:
+                start = j
+            elif not cur and start >= 0:
+                centres[bars] = 0.5 * (start + j - 1) - band_px  # the run's middle, as an offset
+                bars += 1
+                start = -1
+    return centres[:bars]
 
 
 @node_type(
@@ -183,11 +325,16 @@ class VerifyParams(NodeParams):
     outputs={"lanes": "lanes"},
 )
 def verify(params: VerifyParams, lanes: list[Lane], image: np.ndarray) -> dict:
-    """Drop lanes that lie next to a textured surface (a kerb or rail beside gravel or grass), not paint on asphalt."""
+    """Drop lanes that lie next to a textured surface (a kerb or rail beside gravel or grass) or among a crossing's bars, not paint on asphalt."""
     kept = []
     for ln in lanes or []:
         left, right = side_texture(image, ln, params.gap_px, params.band_px, params.measure)
-        if max(left, right) <= params.max_texture:
-            extra = dict(ln.extra, texture=[round(left, 1), round(right, 1)])
-            kept.append(Lane(ln.coeffs, ln.bev_rows, ln.side, ln.score, ln.points, extra))
+        if max(left, right) > params.max_texture:
+            continue
+        if params.crossing_check and crossing_pattern(
+            neighbour_bars(image, ln, params.crossing_band_px, params.crossing_min_offset_px, params.max_bar_px, params.min_contrast)
+        ):
+            continue
+        extra = dict(ln.extra, texture=[round(left, 1), round(right, 1)])
+        kept.append(Lane(ln.coeffs, ln.bev_rows, ln.side, ln.score, ln.points, extra))
     return {"lanes": kept}

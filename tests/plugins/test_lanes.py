@@ -747,6 +747,99 @@ def test_verify_keeps_lane_beside_a_shadow_edge_by_default():
     assert verify.func(verify.params(measure="std", max_texture=18), lanes=[line], image=img)["lanes"] == []
 
 
+def bar_profile_twin(img, r0, r1, coeffs, band, min_contrast):
+    """NumPy twin of ``_bar_profile_kernel``."""
+    rows, cols = img.shape
+    r = np.arange(r0, r1 + 1, 2)
+    t = rows - 1 - r.astype(np.float64)
+    c0, c1, c2 = coeffs
+    ce = np.rint(c0 + c1 * t + c2 * t * t).astype(np.int64)
+    ok = (ce - band >= 0) & (ce + band < cols)
+    r, ce = r[ok], ce[ok]
+    w = 2 * band + 1
+    if r.size < 10:
+        return np.zeros(w), 0
+    strip = img[r[:, None], ce[:, None] + np.arange(-band, band + 1)[None, :]].astype(np.float64)
+    strip -= strip.min(axis=1, keepdims=True)
+    contrast = strip[:, band - 1 : band + 2].max(axis=1)
+    painted = contrast >= max(min_contrast, 0.5 * np.percentile(contrast, 90))
+    return strip[painted].mean(axis=0), int(painted.sum())
+
+
+def bar_offsets_twin(profile, band, min_offset, max_bar, min_contrast):
+    """NumPy twin of ``_bar_offsets_kernel``: the top-hat by sliding windows, runs by differences."""
+    L = max_bar + 1
+    pad = np.pad(profile, L - 1, mode="edge")
+    eroded = np.lib.stride_tricks.sliding_window_view(pad, L).min(axis=1)
+    opened = np.lib.stride_tricks.sliding_window_view(eroded, L).max(axis=1)
+    tophat = profile - opened[: profile.size]
+    ridge = tophat >= max(tophat[band - 1 : band + 2].max() / 3.0, 0.5 * min_contrast)
+    out = []
+    for lo, hi in ((band + min_offset, profile.size), (0, band - min_offset + 1)):
+        d = np.diff(np.concatenate(([0], ridge[lo:hi].view(np.int8), [0])))
+        starts, ends = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+        out += [0.5 * (a + b - 1) + lo - band for a, b in zip(starts, ends)]
+    return np.array(out)
+
+
+@pytest.mark.parametrize("band", [3, 12, 50])
+def test_bar_kernels_match_twins(band):
+    rng = np.random.default_rng(band)
+    for shape, rows_range in [((120, 150), (0, 119)), ((60, 2 * band + 1), (5, 59)), ((30, 40), (10, 12)), ((200, 90), (50, 40))]:
+        img = rng.integers(0, 255, shape).astype(np.uint8)
+        img[:, ::7] = 250  # bright stripes: painted rows and bars
+        for coeffs in [(shape[1] / 2, 0.0, 0.0), (shape[1] / 2 + 0.5, 0.05, -1e-4), (3.0, 0.3, 0.0)]:
+            got, n = _verify._bar_profile_kernel(img, rows_range[0], rows_range[1], *coeffs, band, 15.0)
+            exp, n_exp = bar_profile_twin(img, rows_range[0], rows_range[1], coeffs, band, 15.0)
+            assert n == n_exp
+            np.testing.assert_allclose(got, exp, rtol=1e-12, atol=1e-9)
+    for _ in range(200):
+        prof = rng.normal(0, 20, 2 * band + 1)
+        prof[rng.integers(0, prof.size, 3)] += 80
+        mo, mb = int(rng.integers(1, band)), int(rng.integers(1, 20))
+        np.testing.assert_array_equal(_verify._bar_offsets_kernel(prof, band, mo, mb, 15.0), bar_offsets_twin(prof, band, mo, mb, 15.0))
+
+
+def _bev_with_bars(cols_bars, width=10, value=200, rows=(300, 380), shape=(400, 300)):
+    img = np.full(shape, 90, np.uint8)
+    img += np.random.default_rng(0).integers(0, 6, shape).astype(np.uint8)  # asphalt
+    for c in cols_bars:
+        img[rows[0] : rows[1], c : c + width] = value
+    return img
+
+
+def test_crossing_pattern():
+    assert _verify.crossing_pattern(np.array([20.0, -21.0]))  # a bar between two
+    assert _verify.crossing_pattern(np.array([20.0, 41.0]))  # the outer bar: two on one side
+    assert not _verify.crossing_pattern(np.array([-20.0, 35.0]))  # a kerb and an arrow
+    assert not _verify.crossing_pattern(np.array([20.0, 30.0]))
+    assert not _verify.crossing_pattern(np.array([20.0])) and not _verify.crossing_pattern(np.empty(0))
+
+
+def test_verify_drops_a_crossing_bar_keeps_lane_lines():
+    """A pedestrian crossing's bars (10 px = 0.5 m wide, 20 px = 1 m apart) are dropped, whichever
+    bar the lane is on; a lane line alone, a double line (a second line 4 px away), a line with a
+    kerb-like ridge on one side, a line with a kerb on one side and an arrow on the other, and a
+    line beside a wide bright pavement are kept."""
+    zebra = _bev_with_bars([60, 80, 100, 120, 140, 160])
+    for c in (65.0, 105.0, 165.0):  # a bar at the edge, one inside, the last
+        lane = Lane((c - 0.5, 0.0, 0.0), (300, 399), "left", 0.9)
+        assert _verify.crossing_pattern(_verify.neighbour_bars(zebra, lane, 50, 12, 16, 15.0))
+        assert verify.func(verify.params(), lanes=[lane], image=zebra)["lanes"] == []
+        assert len(verify.func(verify.params(crossing_check=False), lanes=[lane], image=zebra)["lanes"]) == 1
+    cases = {
+        "single": _bev_with_bars([145], width=4, rows=(0, 400)),
+        "double": _bev_with_bars([145, 153], width=4, rows=(0, 400)),
+        "kerb ridge": _bev_with_bars([145, 175], width=4, rows=(0, 400)),
+        "kerb and arrow": _bev_with_bars([125, 145, 180], width=4, rows=(0, 400)),
+        "pavement": _bev_with_bars([145], width=4, rows=(0, 400)),
+    }
+    cases["pavement"][:, 175:] = 200  # a wide bright pavement from 1.4 m on
+    for name, img in cases.items():
+        lane = Lane((146.5, 0.0, 0.0), (0, 399), "left", 0.9)
+        assert len(verify.func(verify.params(), lanes=[lane], image=img)["lanes"]) == 1, name
+
+
 def test_to_image_spacing_and_extent():
     # a homography that maps BEV (c, r) to image (2c + 10, r/2 + 100): rows shrink by half
     H = np.array([[2.0, 0, 10], [0, 0.5, 100], [0, 0, 1]])
