@@ -247,46 +247,16 @@ def _bar_profile_kernel(img, r0, r1, c0, c1, c2, band_px, min_contrast):
     return profile, n
 
 
-def neighbour_bars(image: np.ndarray, lane: Lane, band_px: int, min_offset_px: int, max_bar_px: int, min_contrast: float) -> np.ndarray:
-    """The offsets (BEV pixels, right positive) of the bright bars beside ``lane`` (see the module docstring). The BEV image is
-    sampled along the lane (every 2nd of its rows, offsets ``-band_px .. band_px`` from its centre;
-    rows whose strip leaves the image skipped), less each row's road level (its darkest pixel).
-    The painted rows are those whose centre (+-1 px) stands above the road level by
-    ``min_contrast`` and by half the 90th percentile of that over the lane's rows (its paint, not
-    the road's texture): :func:`_bar_profile_kernel` averages them. The profile's white top-hat of
-    width ``max_bar_px + 1`` keeps the ridges at most ``max_bar_px`` wide (a pavement's wide
-    brightness goes, and so does a ridge cut off at the band's end); a run of offsets from
-    ``min_offset_px`` out whose top-hat reaches a third of the lane's own (and ``min_contrast / 2``)
-    is a bar, on each side. None with fewer than 10 painted rows."""
-    img, r0, r1 = _lane_rows_in(image, lane)
-    c0, c1, c2 = (float(c) for c in lane.coeffs)
-    profile, painted = _bar_profile_kernel(img, r0, r1, c0, c1, c2, int(band_px), float(min_contrast))
-    if painted < 10:
-        return np.empty(0)
-    return _bar_offsets_kernel(profile, int(band_px), int(min_offset_px), int(max_bar_px), float(min_contrast))
-
-
-def crossing_pattern(offsets: np.ndarray, tolerance: float = 0.25) -> bool:
-    """Whether bars at ``offsets`` beside a lane (itself a bar at 0) repeat like a crossing's: the
-    nearest bar on each side about as far (within ``tolerance`` of the farther), or on one side a
-    second bar about twice as far as the first. A kerb on one side and an arrow on the other, at
-    unrelated distances, are not."""
-    right = np.sort(offsets[offsets > 0])
-    left = np.sort(-offsets[offsets < 0])
-    if left.size and right.size and abs(left[0] - right[0]) <= tolerance * max(left[0], right[0]):
-        return True
-    return any(side.size >= 2 and abs(side[1] - 2.0 * side[0]) <= tolerance * side[1] for side in (left, right))
-
-
 @jit
 def _bar_offsets_kernel(profile, band_px, min_offset_px, max_bar_px, min_contrast):
-    """The offsets (middles, right positive) of the bars of a lane's mean lateral ``profile`` (offsets ``-band_px .. band_px``, as
-    :func:`_bar_profile_kernel` returns it), as :func:`neighbour_bars` describes: the white
-    top-hat of width ``L = max_bar_px + 1`` (the profile less its opening: the minimum over each
-    window of ``L`` offsets, the profile's ends repeated beyond it, then the maximum of those
-    minima over the windows holding each offset), then the runs of offsets from ``min_offset_px``
-    out on each side whose top-hat reaches a third of the lane's own (centre +-1) and
-    ``min_contrast / 2``: right side first, outwards, then the left side from its outer end."""
+    """The offsets (middles, right positive) of the bars of a lane's mean lateral ``profile``
+    (offsets ``-band_px .. band_px``, as :func:`_bar_profile_kernel` returns it), as
+    :func:`neighbour_bars` describes: the white top-hat of width ``L = max_bar_px + 1`` (the
+    profile less its opening: the minimum over each window of ``L`` offsets, the profile's ends
+    repeated beyond it, then the maximum of those minima over the windows holding each offset),
+    then the runs of offsets from ``min_offset_px`` out on each side whose top-hat reaches a third
+    of the lane's own (centre +-1) and ``min_contrast / 2``: right side first, outwards, then the
+    left side from its outer end."""
     n = profile.size
     L = max_bar_px + 1
     eroded = np.empty(n + L - 1)  # eroded[e]: the minimum over offsets e - L + 1 .. e (ends repeated)
@@ -317,6 +287,38 @@ def _bar_offsets_kernel(profile, band_px, min_offset_px, max_bar_px, min_contras
                 bars += 1
                 start = -1
     return centres[:bars]
+
+
+def neighbour_bars(image: np.ndarray, lane: Lane, band_px: int, min_offset_px: int, max_bar_px: int, min_contrast: float) -> np.ndarray:
+    """The offsets (BEV pixels, right positive) of the bright bars beside ``lane`` (see the module
+    docstring). The BEV image is sampled along the lane (every 2nd of its rows, offsets
+    ``-band_px .. band_px`` from its centre; rows whose strip leaves the image skipped), less each
+    row's road level (its darkest pixel). The painted rows are those whose centre (+-1 px) stands
+    above the road level by ``min_contrast`` and by half the 90th percentile of that over the
+    lane's rows (its paint, not the road's texture): :func:`_bar_profile_kernel` averages them. The profile's white top-hat of
+    width ``max_bar_px + 1`` keeps the ridges at most ``max_bar_px`` wide (a pavement's wide
+    brightness goes, and so does a ridge cut off at the band's end); a run of offsets from
+    ``min_offset_px`` out whose top-hat reaches a third of the lane's own (and ``min_contrast / 2``)
+    is a bar, on each side (:func:`_bar_offsets_kernel`). An empty array with fewer than 10
+    painted rows."""
+    img, r0, r1 = _lane_rows_in(image, lane)
+    c0, c1, c2 = (float(c) for c in lane.coeffs)
+    profile, painted = _bar_profile_kernel(img, r0, r1, c0, c1, c2, int(band_px), float(min_contrast))
+    if painted < 10:
+        return np.empty(0)
+    return _bar_offsets_kernel(profile, int(band_px), int(min_offset_px), int(max_bar_px), float(min_contrast))
+
+
+def crossing_pattern(offsets: np.ndarray, tolerance: float = 0.25) -> bool:
+    """Whether bars at ``offsets`` beside a lane (itself a bar at 0) repeat like a crossing's: the
+    nearest bar on each side about as far (within ``tolerance`` of the farther), or on one side a
+    second bar about twice as far as the first. A kerb on one side and an arrow on the other, at
+    unrelated distances, are not."""
+    right = np.sort(offsets[offsets > 0])
+    left = np.sort(-offsets[offsets < 0])
+    if left.size and right.size and abs(left[0] - right[0]) <= tolerance * max(left[0], right[0]):
+        return True
+    return any(side.size >= 2 and abs(side[1] - 2.0 * side[0]) <= tolerance * side[1] for side in (left, right))
 
 
 @node_type(
