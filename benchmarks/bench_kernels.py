@@ -110,12 +110,13 @@ def bev_kernels(rng: np.random.Generator) -> None:
     )
     img8 = bev.astype(np.uint8)
     lane = Lane((150.0, 0.05, 0.0), (0, 799), "left", 0.9)
-    row(
-        "_side_texture_kernel",
-        timed(lambda: _verify.side_texture(img8, lane, 6, 30, "diff")),
-        timed(lambda: tl.side_texture_twin(img8, lane, 6, 30, "diff")),
-        "(800 rows, both sides, medians)",
-    )
+    for measure in ("mdiff", "diff"):
+        row(
+            f"_side_texture_kernel {measure}",
+            timed(lambda m=measure: _verify.side_texture(img8, lane, 6, 30, m)),
+            timed(lambda m=measure: tl.side_texture_twin(img8, lane, 6, 30, m)),
+            "(800 rows, both sides, medians)",
+        )
 
 
 def road_kernels(rng: np.random.Generator) -> None:

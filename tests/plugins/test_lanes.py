@@ -668,7 +668,8 @@ def band_textures_twin(image, lane, gap_px, band_px, measure):
         offs = sign * np.arange(gap_px, band_px + 1)
         cc = np.round(centre[:, None] + offs[None, :]).astype(np.int64)
         vals = image[r[:, None], np.clip(cc, 0, cols - 1)].astype(np.float64)
-        tex = np.abs(np.diff(vals, axis=1)).mean(axis=1) if measure == "diff" else vals.std(axis=1)
+        diffs = np.abs(np.diff(vals, axis=1))
+        tex = {"diff": diffs.mean(axis=1), "mdiff": np.median(diffs, axis=1), "std": vals.std(axis=1)}[measure]
         out.append(np.where(((cc >= 0) & (cc < cols)).all(axis=1), tex, np.nan))
     return out
 
@@ -682,15 +683,18 @@ TEXTURE_LANES = [
 ]
 
 
-@pytest.mark.parametrize("measure", ["diff", "std"])
+@pytest.mark.parametrize("measure", ["diff", "mdiff", "std"])
 @pytest.mark.parametrize("gap, band", [(6, 30), (0, 2), (3, 60)])
 def test_band_texture_kernel_matches_twin(measure, gap, band):
-    img = np.random.default_rng(8).integers(0, 256, (90, 70)).astype(np.uint8)
-    for lane in TEXTURE_LANES:
-        got = _verify.band_textures(img, lane, gap, band, measure)
-        exp = band_textures_twin(img, lane, gap, band, measure)
-        for g, e in zip(got, exp):
-            np.testing.assert_allclose(g, e, rtol=1e-12, atol=1e-9)
+    rng = np.random.default_rng(8)
+    img8 = rng.integers(0, 256, (90, 70)).astype(np.uint8)
+    # uint8 (mdiff: medians by counting), uint16 and float (mdiff: by sorting)
+    for img in (img8, img8.astype(np.uint16) * 200, (img8 + rng.random(img8.shape)).astype(np.float32)):
+        for lane in TEXTURE_LANES:
+            got = _verify.band_textures(img, lane, gap, band, measure)
+            exp = band_textures_twin(img, lane, gap, band, measure)
+            for g, e in zip(got, exp):
+                np.testing.assert_allclose(g, e, rtol=1e-12, atol=1e-9)
 
 
 def side_texture_twin(image, lane, gap_px, band_px, measure):
@@ -706,7 +710,7 @@ def side_texture_twin(image, lane, gap_px, band_px, measure):
     return tuple(out)
 
 
-@pytest.mark.parametrize("measure", ["diff", "std"])
+@pytest.mark.parametrize("measure", ["diff", "mdiff", "std"])
 @pytest.mark.parametrize("gap, band", [(6, 30), (0, 2), (3, 60)])
 def test_side_texture_kernel_matches_twin(measure, gap, band):
     rng = np.random.default_rng(9)
@@ -745,6 +749,75 @@ def test_verify_keeps_lane_beside_a_shadow_edge_by_default():
     assert [ln.side for ln in verify.func(verify.params(), lanes=[line], image=img)["lanes"]] == ["right"]
     # the std measure mistakes it for texture
     assert verify.func(verify.params(measure="std", max_texture=18), lanes=[line], image=img)["lanes"] == []
+
+
+def _kerb_scene(gain: float = 1.0) -> tuple[np.ndarray, Lane, Lane]:
+    """A BEV of sunlit asphalt (level 160, noise 2) with a painted line at column 20 and a kerb at
+    column 70 with gravel beyond it (+-25 grey levels), at exposure ``gain``: ``(image, paint, kerb)``."""
+    rng = np.random.default_rng(3)
+    img = 160 + rng.normal(0, 2, (120, 110))
+    img[:, 18:23] = 230
+    img[:, 74:] = 150 + rng.uniform(-25, 25, (120, 36))  # gravel
+    img[:, 68:73] = 220  # the kerb's top
+    img = np.clip(img * gain, 0, 255).astype(np.uint8)
+    return img, Lane((20.0, 0.0, 0.0), (0, 119), "left", 0.9), Lane((70.0, 0.0, 0.0), (0, 119), "right", 0.9)
+
+
+@pytest.mark.parametrize("gain", [1.0, 0.6, 0.4, 1.3])
+def test_verify_decides_the_same_at_any_exposure(gain):
+    img, paint, kerb = _kerb_scene(gain)
+    out = verify.func(verify.params(), lanes=[paint, kerb], image=img)["lanes"]
+    assert [ln.side for ln in out] == ["left"]
+    # the textures are reported in the reference road's grey levels: about the same at every gain
+    ref = verify.func(verify.params(), lanes=[paint], image=_kerb_scene()[0])["lanes"][0].extra["texture"]
+    assert np.allclose(out[0].extra["texture"], ref, atol=1.0)
+
+
+def test_absolute_brightness_lets_a_dark_kerb_through():
+    """The reason for 'relative': at 0.4 exposure the gravel's texture is 0.4 times as large and an
+    absolute threshold no longer sees it."""
+    img, paint, kerb = _kerb_scene(0.4)
+    out = verify.func(verify.params(brightness="absolute"), lanes=[paint, kerb], image=img)["lanes"]
+    assert [ln.side for ln in out] == ["left", "right"]
+
+
+def test_verify_road_level_from_the_mask():
+    img, paint, kerb = _kerb_scene()
+    dark = img.copy()
+    dark[:, :60] //= 2  # the road in shadow: level about 80, not 160
+    mask = np.zeros(img.shape, bool)
+    mask[:, :60] = True
+    assert _verify.road_level(dark, mask, 0.8) == pytest.approx(np.quantile(dark[::4, ::4][mask[::4, ::4]], 0.8), abs=1)
+    assert _verify.road_level(dark, None, 0.8) == pytest.approx(np.quantile(dark[::4, ::4][dark[::4, ::4] > 0], 0.8), abs=1)
+    with pytest.raises(InputError, match="mask: expected the BEV image's shape"):
+        verify.func(verify.params(), lanes=[paint], image=img, mask=mask[:, :50])
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32])
+def test_road_level_matches_quantile(dtype):
+    rng = np.random.default_rng(5)
+    img = rng.integers(0, 256, (160, 90)).astype(dtype)
+    mask = rng.random(img.shape) < 0.5
+    for q in (0.1, 0.5, 0.8, 0.99):
+        vals = img[::4, ::4][mask[::4, ::4]].astype(np.float64)
+        got = _verify.road_level(img, mask, q)
+        # the uint8 histogram gives the lower of the two values a quantile falls between
+        lo, hi = np.quantile(vals, q, method="lower"), np.quantile(vals, q, method="higher")
+        assert lo - 1e-9 <= got <= hi + 1e-9
+    assert _verify.road_level(img, np.zeros(img.shape, bool), 0.8) is None  # no road: no level
+    assert _verify.road_level(np.zeros((10, 10), dtype), None, 0.8) is None
+
+
+def test_mdiff_ignores_a_few_sharp_edges():
+    """A kerb's face or a hatching's bars beside a line: a few large steps in a smooth band raise
+    the mean difference, not the median one."""
+    img = np.full((60, 80), 120, np.uint8)
+    img[:, 30:33] = 220  # a bright bar 10-12 px right of the line
+    img[:, 40:] = 150  # a step to a smooth pavement
+    line = Lane((20.0, 0.0, 0.0), (0, 59), "left", 0.9)
+    _, right_mean = _verify.side_texture(img, line, 6, 30, "diff")
+    _, right_median = _verify.side_texture(img, line, 6, 30, "mdiff")
+    assert right_mean > 9 and right_median == 0.0
 
 
 def bar_profile_twin(img, r0, r1, coeffs, band, min_contrast):
