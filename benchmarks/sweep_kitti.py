@@ -11,6 +11,8 @@ metric of the data README is printed (detection ratio, precision, ego recall, la
 - ``right_gain:G``: the right camera's images alone times ``G`` (a mismatched pair);
 - ``haze:C``: both images at contrast ``C`` around mid-grey, ``C I + (1 - C) 128`` (haze, glare);
 - ``blur:S``: both images blurred by a Gaussian of sigma ``S`` pixels;
+- ``noise:S``: Gaussian noise of sigma ``S`` grey levels added to every pixel of both images (the
+  same on each colour channel; independent per image, a fixed seed);
 - ``crop:WxH``: the top-left ``W x H`` of both images (the principal point stays; the calibration's
   image size follows);
 - ``step:N``: every ``N``-th frame (``N`` times the speed), on the drive as it is;
@@ -20,7 +22,7 @@ metric of the data README is printed (detection ratio, precision, ego recall, la
   road's features change sides: a rule that favours one side shows.
 
 Writing a variant takes a few seconds (the mirror's disparities about 10 s); the default list on
-drive 0001 (54 frames) takes about 1.5 minutes on the 2-core reference machine.
+drive 0001 (54 frames) takes about 2 minutes on the 2-core reference machine.
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ from lanegraph.metrics import evaluate, read_jsonl
 
 ROOT = Path(__file__).resolve().parents[1]
 DRIVE = ROOT.parent / "shared/data/kitti_raw/2011_09_26/2011_09_26_drive_0001_sync"
-DEFAULT = "recorded,gain:0.35,gain:0.5,gain:0.7,gain:1.2,right_gain:0.75,mirror,step:3,haze:0.6,blur:1.2"
+DEFAULT = "recorded,gain:0.35,gain:0.5,gain:0.7,gain:1.2,right_gain:0.75,mirror,step:3,noise:4,noise:8,haze:0.6,blur:1.2"
 CAMERAS = ("image_02", "image_03")
 
 
@@ -58,7 +60,7 @@ def parse_variant(spec: str) -> tuple[str, float | tuple[int, int] | None]:
         except ValueError:
             raise ValueError(f"{spec!r}: expected crop:WIDTHxHEIGHT, e.g. crop:1224x368") from None
         return kind, (w, h)
-    if kind in ("gain", "right_gain", "haze", "blur", "step"):
+    if kind in ("gain", "right_gain", "haze", "blur", "noise", "step"):
         try:
             value = float(arg)
         except ValueError:
@@ -66,7 +68,7 @@ def parse_variant(spec: str) -> tuple[str, float | tuple[int, int] | None]:
         if value <= 0 or (kind == "step" and value != int(value)):
             raise ValueError(f"{spec!r}: expected a positive {'integer' if kind == 'step' else 'number'}")
         return kind, value
-    raise ValueError(f"{spec!r}: unknown variant; expected recorded, gain:G, right_gain:G, haze:C, blur:S, crop:WxH, step:N or mirror")
+    raise ValueError(f"{spec!r}: unknown variant; expected recorded, gain:G, right_gain:G, haze:C, blur:S, noise:S, crop:WxH, step:N or mirror")
 
 
 def _calib_lines(src_dir: Path, kind: str, arg, width: int) -> list[str]:
@@ -140,6 +142,7 @@ def write_variant(drive: Path, dst: Path, kind: str, arg) -> Path:
         if (drive / cam / "timestamps.txt").is_file():
             shutil.copy(drive / cam / "timestamps.txt", out / cam / "timestamps.txt")
     new_gt = []
+    rng = np.random.default_rng(0)
     for rec in gt:
         fr = rec["frame"]
         L, R = (cv2.imread(str(drive / cam / "data" / f"{fr}.png"), cv2.IMREAD_UNCHANGED) for cam in CAMERAS)
@@ -154,6 +157,9 @@ def write_variant(drive: Path, dst: Path, kind: str, arg) -> Path:
             L, R = (np.clip(i * arg + (1 - arg) * 128, 0, 255).astype(np.uint8) for i in (L, R))
         elif kind == "blur":
             L, R = (cv2.GaussianBlur(i, (0, 0), arg) for i in (L, R))
+        elif kind == "noise":
+            # the same noise on every colour channel: the grey image gets sigma arg
+            L, R = (np.clip(i + rng.normal(0.0, arg, i.shape[:2] + (1,) * (i.ndim - 2)), 0, 255).astype(np.uint8) for i in (L, R))
         elif kind == "crop":
             w, h = arg
             L, R = L[:h, :w], R[:h, :w]

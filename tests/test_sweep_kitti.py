@@ -49,7 +49,7 @@ def calib_of(drive: Path):
 
 @pytest.mark.parametrize(
     "spec, expected",
-    [("recorded", ("recorded", None)), ("gain:0.5", ("gain", 0.5)), ("crop:1224x368", ("crop", (1224, 368))), ("step:3", ("step", 3.0))],
+    [("recorded", ("recorded", None)), ("gain:0.5", ("gain", 0.5)), ("crop:1224x368", ("crop", (1224, 368))), ("step:3", ("step", 3.0)), ("noise:4", ("noise", 4.0))],
 )
 def test_parse_variant(spec, expected):
     assert sweep_kitti.parse_variant(spec) == expected

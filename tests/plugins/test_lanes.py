@@ -697,16 +697,16 @@ def test_band_texture_kernel_matches_twin(measure, gap, band):
                 np.testing.assert_allclose(g, e, rtol=1e-12, atol=1e-9)
 
 
-def side_texture_twin(image, lane, gap_px, band_px, measure):
+def side_texture_twin(image, lane, gap_px, band_px, measure, quantile=0.5):
     """NumPy twin of ``_side_texture_kernel`` (through ``side_texture``): each side's per-row
-    textures, then the median of the rows inside the image (0 when none)."""
+    textures, then the ``quantile`` of the rows inside the image (0 when none)."""
     rows = image.shape[0]
     r0, r1 = max(lane.bev_rows[0], 0), min(lane.bev_rows[1], rows - 1)
     clipped = Lane(lane.coeffs, (r0, r1), lane.side, lane.score)
     out = []
     for tex in band_textures_twin(image, clipped, gap_px, band_px, measure):
         inside = tex[~np.isnan(tex)]
-        out.append(float(np.median(inside)) if inside.size else 0.0)
+        out.append(float(np.quantile(inside, quantile)) if inside.size else 0.0)
     return tuple(out)
 
 
@@ -720,12 +720,13 @@ def test_side_texture_kernel_matches_twin(measure, gap, band):
         Lane((-300.0, 0.0, 0.0), (0, 89), "left", 0.9),  # every band outside: 0
         Lane((35.0, 0.0, 0.0), (50, 40), "left", 0.9),  # no rows: 0
     ]
-    # integer grey levels (summed as integers) and float ones
+    # integer grey levels (summed as integers) and float ones; the median and other quantiles
     for img in (img8, (img8 + rng.random(img8.shape)).astype(np.float32)):
         for lane in lanes:
-            got = _verify.side_texture(img, lane, gap, band, measure)
-            exp = side_texture_twin(img, lane, gap, band, measure)
-            np.testing.assert_allclose(got, exp, rtol=1e-12, atol=1e-9)
+            for q in (0.5, 0.75, 0.0, 1.0):
+                got = _verify.side_texture(img, lane, gap, band, measure, q)
+                exp = side_texture_twin(img, lane, gap, band, measure, q)
+                np.testing.assert_allclose(got, exp, rtol=1e-12, atol=1e-9)
 
 
 def test_verify_drops_lane_beside_texture():
@@ -806,6 +807,17 @@ def test_road_level_matches_quantile(dtype):
         assert lo - 1e-9 <= got <= hi + 1e-9
     assert _verify.road_level(img, np.zeros(img.shape, bool), 0.8) is None  # no road: no level
     assert _verify.road_level(np.zeros((10, 10), dtype), None, 0.8) is None
+
+
+def test_row_quantile_sees_gravel_resolved_on_the_near_rows_only():
+    """Far rows (the top of the BEV) and shadows smooth the gravel beside a kerb; on the near 40 %
+    of the rows it is resolved: the median over rows misses it, the rougher quarter does not."""
+    img, paint, kerb = _kerb_scene()
+    far = np.random.default_rng(4).normal(150, 2, (72, 36))
+    img[:72, 74:] = np.clip(far, 0, 255).astype(np.uint8)  # the gravel smoothed on the far 60 %
+    assert [ln.side for ln in verify.func(verify.params(), lanes=[paint, kerb], image=img)["lanes"]] == ["left"]
+    kept = verify.func(verify.params(row_quantile=0.5), lanes=[paint, kerb], image=img)["lanes"]
+    assert [ln.side for ln in kept] == ["left", "right"]
 
 
 def test_mdiff_ignores_a_few_sharp_edges():
