@@ -123,6 +123,13 @@ def _sgbm(left: np.ndarray, right: np.ndarray) -> np.ndarray:
     return sgbm.compute(*gray).astype(np.float32) / 16.0
 
 
+def _read(path: Path) -> np.ndarray:
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise FileNotFoundError(f"{path}: no readable image (the frame is in lanes_gt.jsonl)")
+    return img
+
+
 def write_variant(drive: Path, dst: Path, kind: str, arg) -> Path:
     """The variant of ``drive`` (a KITTI raw ``..._sync`` folder, its calibration in the parent) in
     ``dst`` with the same layout; returns the new drive folder."""
@@ -131,8 +138,7 @@ def write_variant(drive: Path, dst: Path, kind: str, arg) -> Path:
         return out
     gt = read_jsonl(drive / "lanes_gt.jsonl")
     frames = [rec["frame"] for rec in gt]
-    first = cv2.imread(str(drive / CAMERAS[0] / "data" / f"{frames[0]}.png"), cv2.IMREAD_UNCHANGED)
-    width = first.shape[1]
+    width = _read(drive / CAMERAS[0] / "data" / f"{frames[0]}.png").shape[1]
     out.parent.mkdir(parents=True, exist_ok=True)
     for p in drive.parent.glob("calib_*.txt"):
         shutil.copy(p, out.parent / p.name)
@@ -145,7 +151,7 @@ def write_variant(drive: Path, dst: Path, kind: str, arg) -> Path:
     rng = np.random.default_rng(0)
     for rec in gt:
         fr = rec["frame"]
-        L, R = (cv2.imread(str(drive / cam / "data" / f"{fr}.png"), cv2.IMREAD_UNCHANGED) for cam in CAMERAS)
+        L, R = (_read(drive / cam / "data" / f"{fr}.png") for cam in CAMERAS)
         if kind == "mirror":
             rec = mirror_ground_truth(rec, _sgbm(L, R), width)
             L, R = cv2.flip(R, 1), cv2.flip(L, 1)

@@ -85,3 +85,10 @@ def test_gain_and_crop_variants(tmp_path):
     c = calib_of(crop)
     assert (c.width, c.height) == (300, 50) and c.cx == pytest.approx(calib_of(drive).cx)
     assert (crop / "lanes_gt.jsonl").read_text() == (drive / "lanes_gt.jsonl").read_text()
+
+
+def test_a_missing_frame_is_named(tmp_path):
+    drive = tiny_drive(tmp_path)
+    (drive / "image_03" / "data" / "0000000001.png").unlink()
+    with pytest.raises(FileNotFoundError, match="image_03/data/0000000001.png: no readable image"):
+        sweep_kitti.write_variant(drive, tmp_path / "g", "gain", 0.5)

@@ -465,6 +465,7 @@ def verify(params: VerifyParams, lanes: list[Lane], image: np.ndarray, mask: np.
     """Drop lanes that lie next to a textured surface (a kerb or rail beside gravel or grass) or among a crossing's bars, not paint on asphalt."""
     if not lanes:
         return {"lanes": []}
+    image = _lane_rows_in(image, lanes[0])[0]  # an InputError for anything but an Hb x Wb image
     gain = 1.0  # measured grey levels -> grey levels of the thresholds
     if params.brightness == "relative":
         level = road_level(image, mask, params.level_quantile)

@@ -794,6 +794,12 @@ def test_verify_road_level_from_the_mask():
         verify.func(verify.params(), lanes=[paint], image=img, mask=mask[:, :50])
 
 
+def test_verify_wants_a_grey_bev():
+    img, paint, _ = _kerb_scene()
+    with pytest.raises(InputError, match="image: expected an Hb x Wb grey BEV image"):
+        verify.func(verify.params(), lanes=[paint], image=np.dstack([img] * 3), mask=np.ones(img.shape, bool))
+
+
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32])
 def test_road_level_matches_quantile(dtype):
     rng = np.random.default_rng(5)
