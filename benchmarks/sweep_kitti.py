@@ -16,13 +16,18 @@ metric of the data README is printed (detection ratio, precision, ego recall, la
 - ``crop:WxH``: the top-left ``W x H`` of both images (the principal point stays; the calibration's
   image size follows);
 - ``step:N``: every ``N``-th frame (``N`` times the speed), on the drive as it is;
+- ``unpainted``: the annotated markings inpainted away in both images (OpenCV's Telea inpainting
+  over each polyline, extended to the image's bottom and 40 rows beyond its far end, 0.45 m wide at
+  the measured disparity; in the right image moved by that disparity); the ground truth then lists
+  no marking, and any lane reported is a false one. Where the inpainting leaves a strip brighter
+  than the asphalt (next to paint the polyline misses by a few pixels) a lane can follow it;
 - ``mirror``: both images flipped left-right and swapped (the right camera becomes the left one),
   ``cx`` mirrored; the ground truth moves into the right camera by OpenCV SGBM's disparity at each
   annotated point (median of the 7 x 7 pixels around it) and is mirrored, ego sides swapped. The
   road's features change sides: a rule that favours one side shows.
 
-Writing a variant takes a few seconds (the mirror's disparities about 10 s); the default list on
-drive 0001 (54 frames) takes about 2 minutes on the 2-core reference machine.
+Writing a variant takes a few seconds (the mirror's and the inpainting's disparities about 10 s); the default list on
+drive 0001 (54 frames) takes about 2.5 minutes on the 2-core reference machine.
 """
 
 from __future__ import annotations
@@ -42,7 +47,7 @@ from lanegraph.metrics import evaluate, read_jsonl
 
 ROOT = Path(__file__).resolve().parents[1]
 DRIVE = ROOT.parent / "shared/data/kitti_raw/2011_09_26/2011_09_26_drive_0001_sync"
-DEFAULT = "recorded,gain:0.35,gain:0.5,gain:0.7,gain:1.2,right_gain:0.75,mirror,step:3,noise:4,noise:8,haze:0.6,blur:1.2"
+DEFAULT = "recorded,gain:0.35,gain:0.5,gain:0.7,gain:1.2,right_gain:0.75,mirror,unpainted,step:3,noise:4,noise:8,haze:0.6,blur:1.2"
 CAMERAS = ("image_02", "image_03")
 
 
@@ -50,7 +55,7 @@ def parse_variant(spec: str) -> tuple[str, float | tuple[int, int] | None]:
     """``"gain:0.5"`` -> ``("gain", 0.5)``; ``"crop:1224x368"`` -> ``("crop", (1224, 368))``; a
     ValueError saying what was expected otherwise."""
     kind, _, arg = spec.partition(":")
-    if kind in ("recorded", "mirror"):
+    if kind in ("recorded", "mirror", "unpainted"):
         if arg:
             raise ValueError(f"{spec!r}: {kind} takes no argument")
         return kind, None
@@ -68,7 +73,18 @@ def parse_variant(spec: str) -> tuple[str, float | tuple[int, int] | None]:
         if value <= 0 or (kind == "step" and value != int(value)):
             raise ValueError(f"{spec!r}: expected a positive {'integer' if kind == 'step' else 'number'}")
         return kind, value
-    raise ValueError(f"{spec!r}: unknown variant; expected recorded, gain:G, right_gain:G, haze:C, blur:S, noise:S, crop:WxH, step:N or mirror")
+    raise ValueError(f"{spec!r}: unknown variant; expected recorded, gain:G, right_gain:G, haze:C, blur:S, noise:S, crop:WxH, step:N, mirror or unpainted")
+
+
+def _projections(lines: list[str]) -> dict[str, np.ndarray]:
+    """The colour pair's rectified projections (``P_rect_02``, ``P_rect_03``, 3 x 4) of a KITTI raw
+    ``calib_cam_to_cam.txt``."""
+    return {k: np.array(v.split(), float).reshape(3, 4) for k, _, v in (ln.partition(":") for ln in lines) if k in ("P_rect_02", "P_rect_03")}
+
+
+def _focal_and_baseline(p: dict[str, np.ndarray]) -> tuple[float, float]:
+    f = float(p["P_rect_02"][0, 0])
+    return f, float((p["P_rect_02"][0, 3] - p["P_rect_03"][0, 3]) / f)
 
 
 def _calib_lines(src_dir: Path, kind: str, arg, width: int) -> list[str]:
@@ -76,9 +92,8 @@ def _calib_lines(src_dir: Path, kind: str, arg, width: int) -> list[str]:
     right camera on the left: the same baseline), the crop's image size."""
     lines = (src_dir / "calib_cam_to_cam.txt").read_text().splitlines()
     if kind == "mirror":
-        p = {k: np.array(v.split(), float).reshape(3, 4) for k, _, v in (ln.partition(":") for ln in lines) if k in ("P_rect_02", "P_rect_03")}
-        f = p["P_rect_02"][0, 0]
-        baseline = (p["P_rect_02"][0, 3] - p["P_rect_03"][0, 3]) / f
+        p = _projections(lines)
+        f, baseline = _focal_and_baseline(p)
         out = []
         for ln in lines:
             key = ln.partition(":")[0]
@@ -117,6 +132,46 @@ def mirror_ground_truth(rec: dict, disparity: np.ndarray, width: int) -> dict:
     return {**rec, "markings": markings, "ego": {"left": ego.get("right"), "right": ego.get("left")}}
 
 
+def _disparity_at(disparity: np.ndarray, x: float, y: float) -> float:
+    """The median of the valid disparities in the 7 x 7 pixels around ``(x, y)``; NaN when none."""
+    h, w = disparity.shape
+    xi, yi = int(round(x)), int(round(y))
+    win = disparity[max(0, yi - 3) : min(h, yi + 4), max(0, xi - 3) : min(w, xi + 4)]
+    win = win[win > 0]
+    return float(np.median(win)) if win.size else float("nan")
+
+
+def unpaint(left: np.ndarray, right: np.ndarray, rec: dict, disparity: np.ndarray, baseline: float) -> tuple[np.ndarray, np.ndarray]:
+    """Both images with the markings of the ground-truth record ``rec`` inpainted away (see the
+    module docstring): discs along each polyline every 2 rows, of radius ``0.225 m * d / baseline + 4``
+    pixels (a 0.45 m wide strip) at the polyline's disparity ``d`` (interpolated between its points
+    that have one), at ``x`` in the left image and ``x - d`` in the right one."""
+    h = left.shape[0]
+    masks = (np.zeros(left.shape[:2], np.uint8), np.zeros(right.shape[:2], np.uint8))
+    for m in rec["markings"]:
+        pts = np.array(sorted(m["points"], key=lambda p: -p[1]), float)  # near (bottom) first
+        if len(pts) < 2:
+            continue
+        d = np.array([_disparity_at(disparity, x, y) for x, y in pts])
+        if np.all(np.isnan(d)):
+            continue
+        ok = ~np.isnan(d)
+        # rows from the image's bottom to 40 rows beyond the far end, x and d linear in y (the
+        # road's disparity is linear in the row), extrapolated from the end segments
+        ys = np.arange(h - 1, max(pts[-1, 1] - 40, 0), -2.0)
+        xs = np.interp(-ys, -pts[:, 1], pts[:, 0])
+        for (ya, xa), (yb, xb), sel in (((pts[0, 1], pts[0, 0]), (pts[1, 1], pts[1, 0]), ys > pts[0, 1]), ((pts[-1, 1], pts[-1, 0]), (pts[-2, 1], pts[-2, 0]), ys < pts[-1, 1])):
+            xs[sel] = xa + (xb - xa) / (yb - ya) * (ys[sel] - ya)
+        dp, yp = d[ok], pts[ok, 1]
+        ds = np.polyval(np.polyfit(yp, dp, 1), ys) if dp.size >= 2 else np.full(ys.shape, dp[0])
+        ds = np.clip(ds, 1.0, None)
+        for x, y, dd in zip(xs, ys, ds):
+            radius = int(round(0.225 * dd / baseline + 4))
+            cv2.circle(masks[0], (int(round(x)), int(round(y))), radius, 255, -1)
+            cv2.circle(masks[1], (int(round(x - dd)), int(round(y))), radius, 255, -1)
+    return tuple(cv2.inpaint(img, mk, 5, cv2.INPAINT_TELEA) for img, mk in zip((left, right), masks))
+
+
 def _sgbm(left: np.ndarray, right: np.ndarray) -> np.ndarray:
     sgbm = cv2.StereoSGBM_create(0, 128, 5, P1=8 * 25, P2=32 * 25, uniquenessRatio=10, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
     gray = [cv2.cvtColor(i, cv2.COLOR_BGR2GRAY) if i.ndim == 3 else i for i in (left, right)]
@@ -139,6 +194,7 @@ def write_variant(drive: Path, dst: Path, kind: str, arg) -> Path:
     gt = read_jsonl(drive / "lanes_gt.jsonl")
     frames = [rec["frame"] for rec in gt]
     width = _read(drive / CAMERAS[0] / "data" / f"{frames[0]}.png").shape[1]
+    _, baseline = _focal_and_baseline(_projections((drive.parent / "calib_cam_to_cam.txt").read_text().splitlines()))
     out.parent.mkdir(parents=True, exist_ok=True)
     for p in drive.parent.glob("calib_*.txt"):
         shutil.copy(p, out.parent / p.name)
@@ -155,6 +211,9 @@ def write_variant(drive: Path, dst: Path, kind: str, arg) -> Path:
         if kind == "mirror":
             rec = mirror_ground_truth(rec, _sgbm(L, R), width)
             L, R = cv2.flip(R, 1), cv2.flip(L, 1)
+        elif kind == "unpainted":
+            L, R = unpaint(L, R, rec, _sgbm(L, R), baseline)
+            rec = {**rec, "markings": [], "ego": {"left": None, "right": None}}
         elif kind == "gain":
             L, R = (np.clip(i * arg, 0, 255).astype(np.uint8) for i in (L, R))
         elif kind == "right_gain":

@@ -92,3 +92,17 @@ def test_a_missing_frame_is_named(tmp_path):
     (drive / "image_03" / "data" / "0000000001.png").unlink()
     with pytest.raises(FileNotFoundError, match="image_03/data/0000000001.png: no readable image"):
         sweep_kitti.write_variant(drive, tmp_path / "g", "gain", 0.5)
+
+
+def test_unpainted_inpaints_along_the_markings_only(tmp_path):
+    drive = tiny_drive(tmp_path)
+    left = cv2.imread(str(drive / "image_02" / "data" / "0000000000.png"))
+    bright = left.copy()
+    cv2.line(bright, (200, 20), (210, 40), (255, 255, 255), 3)  # paint on the annotated polyline
+    cv2.imwrite(str(drive / "image_02" / "data" / "0000000000.png"), bright)
+    out = sweep_kitti.write_variant(drive, tmp_path / "u", "unpainted", None)
+    got = cv2.imread(str(out / "image_02" / "data" / "0000000000.png")).astype(int)
+    assert got[30, 205].max() < 230  # the paint is gone
+    np.testing.assert_array_equal(got[:, :150], left[:, :150])  # far from the marking: untouched
+    rec = json.loads((out / "lanes_gt.jsonl").read_text().splitlines()[0])
+    assert rec["markings"] == [] and rec["ego"] == {"left": None, "right": None}
