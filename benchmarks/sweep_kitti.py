@@ -35,13 +35,13 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
 import cv2
 import numpy as np
+from _sweep import HEADER, metric_row, run_graph  # benchmarks/ (the script's folder)
 
 from lanegraph.metrics import evaluate, read_jsonl
 
@@ -111,27 +111,6 @@ def _calib_lines(src_dir: Path, kind: str, arg, width: int) -> list[str]:
     return lines
 
 
-def mirror_ground_truth(rec: dict, disparity: np.ndarray, width: int) -> dict:
-    """A ground-truth record of the left image moved into the mirrored right image: each point
-    ``(x, y)`` to ``(width - 1 - (x - d), y)``, ``d`` the median of the valid disparities in the 7 x 7
-    pixels around it (points without one are dropped, and markings left with fewer than 2 points);
-    ego sides swapped."""
-    h, w = disparity.shape
-    markings = []
-    for m in rec["markings"]:
-        pts = []
-        for x, y in m["points"]:
-            xi, yi = int(round(x)), int(round(y))
-            win = disparity[max(0, yi - 3) : min(h, yi + 4), max(0, xi - 3) : min(w, xi + 4)]
-            win = win[win > 0]
-            if win.size:
-                pts.append([round(width - 1 - (x - float(np.median(win))), 1), y])
-        if len(pts) >= 2:
-            markings.append({**m, "points": pts})
-    ego = rec.get("ego") or {}
-    return {**rec, "markings": markings, "ego": {"left": ego.get("right"), "right": ego.get("left")}}
-
-
 def _disparity_at(disparity: np.ndarray, x: float, y: float) -> float:
     """The median of the valid disparities in the 7 x 7 pixels around ``(x, y)``; NaN when none."""
     h, w = disparity.shape
@@ -139,6 +118,24 @@ def _disparity_at(disparity: np.ndarray, x: float, y: float) -> float:
     win = disparity[max(0, yi - 3) : min(h, yi + 4), max(0, xi - 3) : min(w, xi + 4)]
     win = win[win > 0]
     return float(np.median(win)) if win.size else float("nan")
+
+
+def mirror_ground_truth(rec: dict, disparity: np.ndarray, width: int) -> dict:
+    """A ground-truth record of the left image moved into the mirrored right image: each point
+    ``(x, y)`` to ``(width - 1 - (x - d), y)``, ``d`` the median of the valid disparities in the 7 x 7
+    pixels around it (points without one are dropped, and markings left with fewer than 2 points);
+    ego sides swapped."""
+    markings = []
+    for m in rec["markings"]:
+        pts = []
+        for x, y in m["points"]:
+            d = _disparity_at(disparity, x, y)
+            if not np.isnan(d):
+                pts.append([round(width - 1 - (x - d), 1), y])
+        if len(pts) >= 2:
+            markings.append({**m, "points": pts})
+    ego = rec.get("ego") or {}
+    return {**rec, "markings": markings, "ego": {"left": ego.get("right"), "right": ego.get("left")}}
 
 
 def unpaint(left: np.ndarray, right: np.ndarray, rec: dict, disparity: np.ndarray, baseline: float) -> tuple[np.ndarray, np.ndarray]:
@@ -235,10 +232,6 @@ def write_variant(drive: Path, dst: Path, kind: str, arg) -> Path:
     return out
 
 
-def _pct(value: float | None) -> str:
-    return "-" if value is None else f"{100 * value:.1f} %"
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("graph", nargs="?", default=str(ROOT / "graphs" / "paper.yaml"))
@@ -256,7 +249,7 @@ def main() -> int:
         ap.error(f"--variants: {exc}")
     work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="lanegraph-kitti-sweep-"))
     print(f"{args.graph} on {len(variants)} variants of {drive.name} (work: {work})")
-    print(f"{'variant':20s} {'detection':>9s} {'precision':>9s} {'ego rec.':>9s} {'lanes':>6s}")
+    print(f"{'variant':20s} {HEADER}")
     for spec, kind, arg in variants:
         name = spec.replace(":", "_")
         frames = []
@@ -267,19 +260,14 @@ def main() -> int:
         else:
             data = write_variant(drive, work / "data" / name, kind, arg)
         out = work / "runs" / name
-        cmd = [sys.executable, "-m", "lanegraph", "run", args.graph, "--input", str(data), "--out", str(out), "--quiet", *frames]
-        for s in args.set:
-            cmd += ["--set", s]
-        r = subprocess.run(cmd, capture_output=True, text=True)
-        if r.returncode != 0:
-            print(f"{spec:20s} lanegraph run failed (exit {r.returncode}): {r.stderr.strip()[-300:]}")
+        failed = run_graph(args.graph, data, out, args.set, frames)
+        if failed:
+            print(f"{spec:20s} {failed}")
             continue
         pred = read_jsonl(out / "lanes.jsonl")
         ran = {p["frame"] for p in pred}
         gt = [g for g in read_jsonl(data / "lanes_gt.jsonl") if kind != "step" or g["frame"] in ran]
-        res = evaluate(pred, gt)
-        figures = " ".join(f"{_pct(res.get(k)):>9s}" for k in ("detection_ratio", "precision", "ego_recall"))
-        print(f"{spec:20s} {figures} {sum(len(p['lanes']) for p in pred):6d}", flush=True)
+        print(f"{spec:20s} {metric_row(evaluate(pred, gt), sum(len(p['lanes']) for p in pred))}", flush=True)
     return 0
 
 

@@ -14,11 +14,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
+from _sweep import HEADER, metric_row, run_graph  # benchmarks/ (the script's folder)
 from lanegraph_synthetic import Marking, preset, write_sequence
 
 from lanegraph.metrics import evaluate, read_jsonl
@@ -54,10 +54,6 @@ SCENES: dict[str, tuple[str, dict]] = {
 LANE_COUNT_ONLY = {"no_lines_crossing"}
 
 
-def _pct(value: float | None) -> str:
-    return "-" if value is None else f"{100 * value:.1f} %"
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("graph", nargs="?", default=str(ROOT / "graphs" / "paper.yaml"))
@@ -72,26 +68,20 @@ def main() -> int:
         ap.error(f"--scenes: unknown scene(s) {unknown}; expected some of {list(SCENES)}")
     work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="lanegraph-sweep-"))
     print(f"{args.graph} on {len(names)} synthetic scenes, {args.frames} frames each (work: {work})")
-    print(f"{'scene':32s} {'detection':>9s} {'precision':>9s} {'ego rec.':>9s} {'lanes':>6s}")
+    print(f"{'scene':32s} {HEADER}")
     for name in names:
         base, over = SCENES[name]
         seq = work / "scenes" / name
         if not (seq / "lanes_gt.jsonl").is_file():
             write_sequence(preset(base, **over), seq, args.frames)
         out = work / "runs" / name
-        cmd = [sys.executable, "-m", "lanegraph", "run", args.graph, "--input", str(seq), "--out", str(out), "--quiet"]
-        for s in args.set:
-            cmd += ["--set", s]
-        r = subprocess.run(cmd, capture_output=True, text=True)
-        if r.returncode != 0:
-            print(f"{name:32s} lanegraph run failed (exit {r.returncode}): {r.stderr.strip()[-300:]}")
+        failed = run_graph(args.graph, seq, out, args.set)
+        if failed:
+            print(f"{name:32s} {failed}")
             continue
         pred, gt = read_jsonl(out / "lanes.jsonl"), read_jsonl(seq / "lanes_gt.jsonl")
-        res = evaluate(pred, gt)
         n_lanes = sum(len(p["lanes"]) for p in pred)
-        keys = ("detection_ratio", "precision", "ego_recall")
-        figures = " ".join(f"{'-' if name in LANE_COUNT_ONLY else _pct(res.get(k)):>9s}" for k in keys)
-        print(f"{name:32s} {figures} {n_lanes:6d}", flush=True)
+        print(f"{name:32s} {metric_row(evaluate(pred, gt), n_lanes, blank=name in LANE_COUNT_ONLY)}", flush=True)
     (work / "sweep.json").write_text(json.dumps({"graph": args.graph, "frames": args.frames, "set": args.set, "scenes": names}))
     return 0
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import sys
 from pathlib import Path
 
 import cv2
@@ -14,6 +15,7 @@ from lanegraph_io._sources import KittiRawSource
 from lanegraph.nodes import RunContext
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))  # as when the script runs: its folder first (benchmarks/_sweep.py)
 _spec = importlib.util.spec_from_file_location("sweep_kitti", ROOT / "benchmarks" / "sweep_kitti.py")
 sweep_kitti = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(sweep_kitti)

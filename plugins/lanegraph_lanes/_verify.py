@@ -174,14 +174,19 @@ def _median_hist(img: np.ndarray) -> np.ndarray:
     return np.zeros(256 if img.dtype == np.uint8 else 0, np.int64)
 
 
-def _lane_rows_in(image: np.ndarray, lane: Lane) -> tuple[np.ndarray, int, int]:
-    """The grey BEV image (C-contiguous; an InputError for anything but Hb x Wb) and the lane's
-    first and last rows clipped to it (``r1 < r0``: none)."""
+def _grey_bev(image: np.ndarray) -> np.ndarray:
+    """The grey BEV image, C-contiguous (no copy when it is); an InputError for anything but Hb x Wb."""
     img = np.ascontiguousarray(image)
     if img.ndim != 2:
         raise InputError(f"lanes.verify: image: expected an Hb x Wb grey BEV image, got shape {img.shape}")
-    rows = img.shape[0]
-    return img, max(int(lane.bev_rows[0]), 0), min(int(lane.bev_rows[1]), rows - 1)
+    return img
+
+
+def _lane_rows_in(image: np.ndarray, lane: Lane) -> tuple[np.ndarray, int, int]:
+    """The grey BEV image (:func:`_grey_bev`) and the lane's first and last rows clipped to it
+    (``r1 < r0``: none)."""
+    img = _grey_bev(image)
+    return img, max(int(lane.bev_rows[0]), 0), min(int(lane.bev_rows[1]), img.shape[0] - 1)
 
 
 def band_textures(image: np.ndarray, lane: Lane, gap_px: int, band_px: int, measure: str = "std") -> tuple[np.ndarray, np.ndarray]:
@@ -465,7 +470,7 @@ def verify(params: VerifyParams, lanes: list[Lane], image: np.ndarray, mask: np.
     """Drop lanes that lie next to a textured surface (a kerb or rail beside gravel or grass) or among a crossing's bars, not paint on asphalt."""
     if not lanes:
         return {"lanes": []}
-    image = _lane_rows_in(image, lanes[0])[0]  # an InputError for anything but an Hb x Wb image
+    image = _grey_bev(image)  # before the road level reads the mask: a wrong image is the image's fault
     gain = 1.0  # measured grey levels -> grey levels of the thresholds
     if params.brightness == "relative":
         level = road_level(image, mask, params.level_quantile)

@@ -1,0 +1,31 @@
+"""What the sweep scripts (sweep_kitti.py, sweep_synthetic.py) share: run a graph on one input in a
+fresh ``lanegraph run`` process and print the lane metric's row."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+KEYS = ("detection_ratio", "precision", "ego_recall")
+HEADER = f"{'detection':>9s} {'precision':>9s} {'ego rec.':>9s} {'lanes':>6s}"
+
+
+def run_graph(graph: str, data: Path, out: Path, sets: list[str], extra: list[str] = ()) -> str | None:
+    """``lanegraph run GRAPH --input DATA --out OUT --quiet`` with ``--set`` for each of ``sets`` and
+    ``extra`` arguments; None when it succeeds, else what failed (exit status, end of stderr)."""
+    cmd = [sys.executable, "-m", "lanegraph", "run", graph, "--input", str(data), "--out", str(out), "--quiet", *extra]
+    for s in sets:
+        cmd += ["--set", s]
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    return None if r.returncode == 0 else f"lanegraph run failed (exit {r.returncode}): {r.stderr.strip()[-300:]}"
+
+
+def pct(value: float | None) -> str:
+    return "-" if value is None else f"{100 * value:.1f} %"
+
+
+def metric_row(res: dict, n_lanes: int, blank: bool = False) -> str:
+    """Detection ratio, precision and ego recall of ``evaluate``'s result (``-`` each when ``blank``)
+    and the number of lanes reported, in the columns of :data:`HEADER`."""
+    return " ".join(f"{'-' if blank else pct(res.get(k)):>9s}" for k in KEYS) + f" {n_lanes:6d}"
