@@ -1,4 +1,4 @@
-"""A graph on synthetic scenes it was not tuned on: curves with hatching, no markings, noise, odd rigs.
+"""A graph on synthetic scenes it was not tuned on: curves with hatching, no markings, noise, odd rigs, rough verges.
 
     python benchmarks/sweep_synthetic.py [GRAPH] [--frames 30] [--scenes noisy,narrow] [--set NODE.PARAM=V ...]
 
@@ -47,6 +47,9 @@ SCENES: dict[str, tuple[str, dict]] = {
     "noise_8_right_gain_0.9": ("straight", dict(noise_sigma=8.0, right_gain=0.9, seed=23)),
     "wide_long_markings": ("straight", dict(marking_width=0.25, dash_length=6.0, gap_length=12.0, seed=24)),
     "tall_rig_2.2m": ("straight", dict(height=2.2, pitch_deg=0.0, seed=25)),
+    # the car in the rightmost lane, its right boundary an edge line beside grass or gravel
+    "rough_verge_0.5m": ("straight", dict(n_lanes=2, ego_lane=1, shoulder=0.5, verge_texture=3.0, seed=31)),
+    "very_rough_verge_0.3m": ("straight", dict(n_lanes=2, ego_lane=1, shoulder=0.3, verge_texture=4.0, seed=33)),
 }
 
 #: scenes whose rendered ground truth lists the crossing's bars as markings (the README's metric

@@ -107,6 +107,7 @@ class SceneSpec:
     # --- appearance
     noise_sigma: float = 2.0  # grey levels
     texture_contrast: float = 12.0  # grey levels
+    verge_texture: float = 1.0  # the verge's texture contrast relative to the asphalt's (grass, gravel: 2-4)
     blur_sigma: float = 0.5  # optics, pixels
     right_gain: float = 1.0  # the right camera's exposure relative to the left
     shadow_strength: float = 0.55
@@ -140,6 +141,8 @@ class SceneSpec:
                 raise ValueError(
                     f"SceneSpec.{name}: expected 'solid' or 'dashed', got {getattr(self, name)!r}"
                 )
+        if not self.verge_texture >= 0:
+            raise ValueError(f"SceneSpec.verge_texture: expected >= 0 (relative to the asphalt's texture), got {self.verge_texture}")
         if self.height <= 0 or self.fps <= 0 or self.z_far <= 5:
             raise ValueError("SceneSpec: height, fps must be > 0 and z_far > 5 m")
         if self.tile_length < self.z_far + 80:
@@ -480,7 +483,10 @@ class SceneRenderer:
         coarse = cv2.remap(self.tex_coarse, tu, tv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
         verge = (lat < self.edges[0]) | (lat > self.edges[1])
         base = np.where(verge, np.float32(VERGE), np.float32(ASPHALT))
-        lum = base + np.float32(s.texture_contrast) * (fine + np.float32(0.7) * coarse)
+        tc = np.float32(s.texture_contrast)
+        if s.verge_texture != 1.0:
+            tc = np.where(verge, tc * np.float32(s.verge_texture), tc)
+        lum = base + tc * (fine + np.float32(0.7) * coarse)
         # lane markings: exact coverage of the pixel footprint (a box filter) across and along
         paint = np.zeros_like(lum)
         for m in self.markings:

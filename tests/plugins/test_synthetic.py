@@ -230,6 +230,21 @@ def test_far_asphalt_keeps_detail_across_the_road():
     assert gx[far].mean() > 0.8 * gx[near].mean()
 
 
+def test_verge_texture_roughens_only_the_ground_beyond_the_paved_road():
+    """``verge_texture`` scales the texture of the verge (grass, gravel) and leaves the asphalt as it was."""
+    base = preset("straight", calib=HALF, noise_sigma=0.0, shoulder=0.4, seed=3)
+    smooth, rough = (SceneRenderer(replace(base, verge_texture=v)).render(0) for v in (1.0, 3.0))
+    rows = slice(HALF.height * 3 // 4, HALF.height)  # near the car: the verge is resolved
+    paved = smooth.paved_mask[rows, :-1] & smooth.paved_mask[rows, 1:]
+    verge = ~smooth.paved_mask[rows, :-1] & ~smooth.paved_mask[rows, 1:] & (smooth.disparity[rows, :-1] > 0)
+    assert paved.sum() > 1000 and verge.sum() > 1000
+    gs, gr = (np.abs(np.diff(gray(f.left)[rows], axis=1)) for f in (smooth, rough))
+    np.testing.assert_allclose(gr[paved].mean(), gs[paved].mean(), rtol=0.02)
+    assert gr[verge].mean() > 2.0 * gs[verge].mean()
+    with pytest.raises(ValueError, match="verge_texture"):
+        replace(base, verge_texture=-1.0)
+
+
 def test_kerbs_preset_raises_a_step_along_both_edges():
     spec = preset("kerbs", calib=HALF, parked_cars=0.0, poles=0.0)
     r = SceneRenderer(spec)
