@@ -483,9 +483,7 @@ class SceneRenderer:
         coarse = cv2.remap(self.tex_coarse, tu, tv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
         verge = (lat < self.edges[0]) | (lat > self.edges[1])
         base = np.where(verge, np.float32(VERGE), np.float32(ASPHALT))
-        tc = np.float32(s.texture_contrast)
-        if s.verge_texture != 1.0:
-            tc = np.where(verge, tc * np.float32(s.verge_texture), tc)
+        tc = np.where(verge, np.float32(s.texture_contrast * s.verge_texture), np.float32(s.texture_contrast))
         lum = base + tc * (fine + np.float32(0.7) * coarse)
         # lane markings: exact coverage of the pixel footprint (a box filter) across and along
         paint = np.zeros_like(lum)
