@@ -42,8 +42,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 from _sweep import HEADER, metric_row, run_graph  # benchmarks/ (the script's folder)
+from lanegraph_io._calib import calibration_from_projections, projection, read_key_rows
 
 from lanegraph.metrics import evaluate, read_jsonl
+from lanegraph.types import Calibration
 
 ROOT = Path(__file__).resolve().parents[1]
 DRIVE = ROOT.parent / "shared/data/kitti_raw/2011_09_26/2011_09_26_drive_0001_sync"
@@ -76,15 +78,12 @@ def parse_variant(spec: str) -> tuple[str, float | tuple[int, int] | None]:
     raise ValueError(f"{spec!r}: unknown variant; expected recorded, gain:G, right_gain:G, haze:C, blur:S, noise:S, crop:WxH, step:N, mirror or unpainted")
 
 
-def _projections(lines: list[str]) -> dict[str, np.ndarray]:
+def _colour_pair(calib_path: Path) -> tuple[dict[str, np.ndarray], Calibration]:
     """The colour pair's rectified projections (``P_rect_02``, ``P_rect_03``, 3 x 4) of a KITTI raw
-    ``calib_cam_to_cam.txt``."""
-    return {k: np.array(v.split(), float).reshape(3, 4) for k, _, v in (ln.partition(":") for ln in lines) if k in ("P_rect_02", "P_rect_03")}
-
-
-def _focal_and_baseline(p: dict[str, np.ndarray]) -> tuple[float, float]:
-    f = float(p["P_rect_02"][0, 0])
-    return f, float((p["P_rect_02"][0, 3] - p["P_rect_03"][0, 3]) / f)
+    ``calib_cam_to_cam.txt`` and their calibration, read as the ``io.kitti_raw`` source reads them."""
+    rows = read_key_rows(calib_path)
+    p = {k: projection(rows, k, calib_path) for k in ("P_rect_02", "P_rect_03")}
+    return p, calibration_from_projections(p["P_rect_02"], p["P_rect_03"], calib_path)
 
 
 def _calib_lines(src_dir: Path, kind: str, arg, width: int) -> list[str]:
@@ -92,8 +91,8 @@ def _calib_lines(src_dir: Path, kind: str, arg, width: int) -> list[str]:
     right camera on the left: the same baseline), the crop's image size."""
     lines = (src_dir / "calib_cam_to_cam.txt").read_text().splitlines()
     if kind == "mirror":
-        p = _projections(lines)
-        f, baseline = _focal_and_baseline(p)
+        p, calib = _colour_pair(src_dir / "calib_cam_to_cam.txt")
+        f, baseline = calib.f, calib.baseline
         out = []
         for ln in lines:
             key = ln.partition(":")[0]
@@ -191,7 +190,7 @@ def write_variant(drive: Path, dst: Path, kind: str, arg) -> Path:
     gt = read_jsonl(drive / "lanes_gt.jsonl")
     frames = [rec["frame"] for rec in gt]
     width = _read(drive / CAMERAS[0] / "data" / f"{frames[0]}.png").shape[1]
-    _, baseline = _focal_and_baseline(_projections((drive.parent / "calib_cam_to_cam.txt").read_text().splitlines()))
+    baseline = _colour_pair(drive.parent / "calib_cam_to_cam.txt")[1].baseline
     out.parent.mkdir(parents=True, exist_ok=True)
     for p in drive.parent.glob("calib_*.txt"):
         shutil.copy(p, out.parent / p.name)
