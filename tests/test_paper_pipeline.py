@@ -12,6 +12,7 @@ from click.testing import CliRunner
 from lanegraph.cli import main
 from lanegraph.graph import load_graph
 from lanegraph.metrics import evaluate, read_jsonl
+from tests.test_sweep_kitti import sweep_kitti  # benchmarks/sweep_kitti.py, as that test loads it
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = str(ROOT / "graphs" / "paper.yaml")
@@ -39,33 +40,13 @@ def test_paper_graph_on_kitti_reaches_the_target(kitti_drive, tmp_path):
     assert t["nodes"]["disp"]["type"] == "disparity.sgbm" and t["frames"] == 54
 
 
-def _exposed_copy(drive: Path, dst: Path, gain: float) -> Path:
-    """The drive in KITTI's layout with both cameras' images at ``gain`` times the exposure."""
-    import shutil
-
-    import cv2
-    import numpy as np
-
-    out = dst / drive.parent.name / drive.name
-    for name in ("calib_cam_to_cam.txt", "calib_velo_to_cam.txt", "calib_imu_to_velo.txt"):
-        if (drive.parent / name).exists():
-            out.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy(drive.parent / name, out.parent / name)
-    for cam in ("image_02", "image_03"):
-        (out / cam / "data").mkdir(parents=True)
-        for png in sorted((drive / cam / "data").glob("*.png")):
-            img = cv2.imread(str(png))
-            cv2.imwrite(str(out / cam / "data" / png.name), np.clip(img * gain, 0, 255).astype(np.uint8))
-    return out
-
-
 @pytest.mark.kitti
 def test_paper_graph_on_kitti_at_another_exposure(kitti_drive, tmp_path):
     """A camera exposed darker sees paint, gravel and kerbs at 0.6 times the contrast: the road
     mask and the lanes must not depend on the grey levels of one camera setting (lanes.verify
     measures texture relative to the road's level; an absolute threshold let the kerb beside the
     tram tracks through on 25 of 54 frames)."""
-    drive = _exposed_copy(kitti_drive, tmp_path / "dark", 0.6)
+    drive = sweep_kitti.write_variant(kitti_drive, tmp_path / "dark", "gain", 0.6)  # both cameras at 0.6
     pred = run(PAPER, tmp_path / "out", "--input", str(drive))
     res = evaluate(pred, read_jsonl(kitti_drive / "lanes_gt.jsonl"))
     assert res["detection_ratio"] >= 0.90, res["failed_frames"]
