@@ -13,18 +13,24 @@ from __future__ import annotations
 
 import csv
 import json
-import sys
-import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from .batch import (
+    Planned,
+    Planner,
+    ResolvedGraph,
+    SchedulerSpec,
+    clean_leftovers,
+    describe_error,
+    finish_runs,
+    run_tasks,
+)
 from .cache import ResultCache, digest
 from .dataset import POOLED, Dataset, evaluate_sequences, read_gt
-from .executor import Executor
-from .graph import load_graph
 from .metrics import evaluate, read_jsonl
-from .nodes import RunContext
 from .plugins import get_plugin_manager
 
 
@@ -76,73 +82,84 @@ def run_ablation(
     frames: slice | None = None,
     cache: ResultCache | None = None,
     progress: bool = True,
+    scheduler: SchedulerSpec | None = None,
+    chunk_frames: int | None = None,
+    warmup: int = 0,
+    echo: Callable[[str], None] | None = None,
 ) -> list[dict[str, Any]]:
     """Run every variant on every sequence of ``dataset``, evaluate and tabulate; returns the rows
     (one per variant and sequence, then the variant's pooled row, ``sequence`` = ``all``).
 
-    Outputs: ``OUT/runs/<variant>/<sequence>/lanes.jsonl`` and ``timings.json``, ``OUT/results.csv``,
-    ``OUT/results.md`` and the plots. ``frames`` (``--frames``) applies to sequences that do not
-    choose their own.
+    Outputs: ``OUT/runs/<variant>/<sequence>/lanes.jsonl``, ``timings.json`` and ``run.json``,
+    ``OUT/results.csv``, ``OUT/results.md`` and the plots. ``frames`` (``--frames``) applies to
+    sequences that do not choose their own. The runs are the tasks of :mod:`lanegraph.batch`: in
+    this process one after another, or on a Dask cluster with ``scheduler``, with the same outputs;
+    ``chunk_frames`` / ``warmup`` split sequences into chunks. A run that fails gets its row with
+    the error (``error``: variant, sequence, frame and message) and the others go on.
     """
-    from tqdm import tqdm
-
     out_dir.mkdir(parents=True, exist_ok=True)
     pm = get_plugin_manager()
     seq_frames = {s.name: s.frames if s.frames is not None else frames for s in dataset}
     gts = {s.name: read_gt(s, seq_frames[s.name]) for s in dataset}  # a malformed one is found before any run
     idents = {s.name: _input_identity(s.input) for s in dataset}
-    rows: list[dict[str, Any]] = []
-    total = len(variants) * len(dataset)
-    bar_runs = tqdm(total=total, desc="runs", unit="run", disable=not progress, file=sys.stderr, position=0)
+    planner = Planner(pm, chunk_frames, warmup, cache)
+    plans: list[tuple[Variant, list[Planned]]] = []
     for var in variants:
-        var_rows: list[dict[str, Any]] = []
-        evals: list[tuple[str, list, list]] = []
+        graph = ResolvedGraph.load(var.graph, var.sets)
+        g = graph.validate(pm)
+        var_plans = []
         for seq in dataset:
             sel = seq_frames[seq.name]
-            g = load_graph(var.graph, var.sets, pm)  # per run: the executor resolves io.auto in place
             run_dir = out_dir / "runs" / _safe(var.name) / seq.name
-            run_dir.mkdir(parents=True, exist_ok=True)
             run_key = digest(g.resolved_dict(), idents[seq.name], str(sel))
+            if chunk_frames is not None:
+                run_key = digest(run_key, "chunks", chunk_frames, warmup)
             stamp = run_dir / "run_key.txt"
-            bar_runs.set_postfix_str(f"{var.name} / {seq.name}")
-            t0 = time.perf_counter()
-            reused = cache is not None and stamp.is_file() and stamp.read_text() == run_key and (run_dir / "timings.json").is_file()
-            if not reused:
-                stamp.unlink(missing_ok=True)
-                ctx = RunContext(input_path=seq.input, out_dir=run_dir, frames=sel, graph_file=g.file)
-                ex = Executor(g, ctx, pm, cache=cache)
-                ex.open()
-                bar = tqdm(total=len(ex) or None, desc=f"{var.name} / {seq.name}", unit="frame", leave=False, disable=not progress, file=sys.stderr, position=1)
-                res = ex.run(on_frame=lambda i, f, bar=bar: bar.update(1))
-                bar.close()
-                timings = res.timings_json()
-                timings["cache"] = {"hits": res.cache_hits, "misses": res.cache_misses}
-                (run_dir / "timings.json").write_text(json.dumps(timings, indent=2) + "\n")
-                stamp.write_text(run_key)
-            wall = time.perf_counter() - t0
-            bar_runs.update(1)
-            timings = json.loads((run_dir / "timings.json").read_text())
-            row: dict[str, Any] = {"variant": var.name, "sequence": seq.name, "graph": str(var.graph), "sets": " ".join(var.sets)}
+            if cache is not None and stamp.is_file() and stamp.read_text() == run_key and (run_dir / "timings.json").is_file():
+                var_plans.append(Planned(var.name, seq.name, run_dir, reused=True))
+                continue
+            var_plans.append(planner.add(var.name, seq.name, graph, seq.input, sel, run_dir, run_key))
+        plans.append((var, var_plans))
+    for _, var_plans in plans:
+        for plan in var_plans:
+            if not plan.reused:
+                clean_leftovers(plan.run_dir)
+    outcomes = run_tasks(planner.tasks, scheduler, cache, progress, echo)
+    finish_runs([p for _, ps in plans for p in ps], outcomes)
+    if cache is not None and scheduler is not None:  # the workers' counts, for the summary line
+        for out in outcomes.values():
+            cache.hits += sum(out.result.cache_hits.values())
+            cache.misses += sum(out.result.cache_misses.values())
+    rows: list[dict[str, Any]] = []
+    for var, var_plans in plans:
+        var_rows: list[dict[str, Any]] = []
+        evals: list[tuple[str, list, list]] = []
+        for plan in var_plans:
+            run_dir = plan.run_dir
+            out = plan.outcome
+            row: dict[str, Any] = {"variant": var.name, "sequence": plan.sequence, "graph": str(var.graph), "sets": " ".join(var.sets)}
+            error = out.error if out is not None else None
+            timings = json.loads((run_dir / "timings.json").read_text()) if (run_dir / "timings.json").is_file() else {}
             lanes_file = run_dir / "lanes.jsonl"
-            gt = gts[seq.name]
-            if gt is not None and lanes_file.is_file():
+            gt = gts[plan.sequence]
+            if error is None and gt is not None and lanes_file.is_file():
                 pred = read_jsonl(lanes_file)
                 ev = evaluate(pred, gt)
                 row.update({k: ev[k] for k in ("frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px")})
                 row.update(_extra_metrics(pred, gt))
-                evals.append((seq.name, pred, gt))
+                evals.append((plan.sequence, pred, gt))
             nodes = timings.get("nodes", {})
             # the sum of the stages' median compute times (a cached stage counts with the time it took)
             row["ms_per_frame"] = round(sum(v["median_ms"] or 0.0 for v in nodes.values()), 2) if nodes else None
             row["stage_ms"] = {nid: v["median_ms"] for nid, v in nodes.items()}
             row["frames_run"] = timings.get("frames", 0)
-            row["wall_s"] = round(wall, 2)
-            row["reused"] = reused
+            row["wall_s"] = round(out.wall_s, 2) if out is not None else 0.0
+            row["reused"] = plan.reused
             row["cache_hits"] = sum(timings.get("cache", {}).get("hits", {}).values())
+            row["error"] = describe_error(error) if error is not None else None
             var_rows.append(row)
         rows += var_rows
         rows.append(_pooled_row(var, var_rows, evals))
-    bar_runs.close()
     write_reports(rows, out_dir)
     return rows
 
@@ -151,7 +168,9 @@ def _pooled_row(var: Variant, var_rows: list[dict[str, Any]], evals: list[tuple[
     """The variant's row over all sequences: metrics over every frame as one set; times are the
     sequences' medians weighted by their frame counts."""
     row: dict[str, Any] = {"variant": var.name, "sequence": POOLED, "graph": str(var.graph), "sets": " ".join(var.sets)}
-    if evals:
+    failed = [r["sequence"] for r in var_rows if r.get("error")]
+    row["error"] = f"{len(failed)} of {len(var_rows)} run(s) failed: {', '.join(failed)}" if failed else None
+    if evals and not failed:  # figures pooled over fewer sequences would not compare with the others'
         ev = evaluate_sequences(evals)[POOLED]
         row.update({k: ev[k] for k in ("frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px")})
         pred = [{**p, "frame": f"{n}/{p.get('frame')}"} for n, ps, _ in evals for p in ps]
@@ -192,9 +211,9 @@ def write_reports(rows: list[dict[str, Any]], out_dir: Path) -> None:
     cols = ["variant", "sequence", "frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px", "culane_f1", "ms_per_frame"]
     with (out_dir / "results.csv").open("w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(cols + [f"ms_{s}" for s in stages] + ["wall_s", "reused", "cache_hits"])
+        w.writerow(cols + [f"ms_{s}" for s in stages] + ["wall_s", "reused", "cache_hits", "error"])
         for r in rows:
-            w.writerow([r.get(c) for c in cols] + [r["stage_ms"].get(s) for s in stages] + [r["wall_s"], r["reused"], r["cache_hits"]])
+            w.writerow([r.get(c) for c in cols] + [r["stage_ms"].get(s) for s in stages] + [r["wall_s"], r["reused"], r["cache_hits"], r.get("error")])
     pooled = [r for r in rows if r.get("sequence") == POOLED]
     sequences = list(dict.fromkeys(r["sequence"] for r in rows if r.get("sequence") != POOLED))
     head = [
@@ -218,6 +237,10 @@ def write_reports(rows: list[dict[str, Any]], out_dir: Path) -> None:
     lines += ["", "Median ms per frame per stage (pooled):", "", "| variant | " + " | ".join(stages) + " |", "|---|" + "---|" * len(stages)]
     for r in pooled:
         lines.append(f"| {r['variant']} | " + " | ".join(_fmt(r["stage_ms"].get(s)) for s in stages) + " |")
+    errors = [r for r in rows if r.get("error") and r.get("sequence") != POOLED]
+    if errors:
+        lines += ["", f"Failed runs ({len(errors)}; no figures for them or their variant's pooled row):", ""]
+        lines += [f"- {r['error']}" for r in errors]
     (out_dir / "results.md").write_text("\n".join(lines) + "\n")
     _plots(pooled, out_dir)
 

@@ -86,6 +86,10 @@ def main() -> None:
 @click.option("--resume", is_flag=True, help="continue an interrupted run in OUT from its last complete frame")
 @click.option("--debug-dir", type=click.Path(path_type=Path), help="save every node's output of the chosen frames as pictures, and a mosaic")
 @click.option("--debug-frames", help="frames for --debug-dir: ids or indices, comma-separated (default: all)")
+@click.option("--dataset", "dataset_path", type=click.Path(path_type=Path), help="a dataset file (YAML list of sequences) in place of --input: writes OUT/<sequence>/lanes.jsonl for each")
+@click.option("--scheduler", metavar="SPEC", help="with --dataset: run the sequences on a Dask cluster: local, local:N (N worker processes) or a scheduler address tcp://HOST:PORT")
+@click.option("--chunk-frames", type=int, metavar="K", help="with --dataset: split sequences into chunks of K frames run as separate tasks")
+@click.option("--warmup", type=int, default=0, show_default=True, metavar="W", help="with --chunk-frames: run W frames before each chunk and discard their outputs")
 def run(
     graph: str,
     input_path: Path | None,
@@ -96,8 +100,21 @@ def run(
     resume: bool,
     debug_dir: Path | None,
     debug_frames: str | None,
+    dataset_path: Path | None,
+    scheduler: str | None,
+    chunk_frames: int | None,
+    warmup: int,
 ) -> None:
-    """Run GRAPH (a file or a name under graphs/, default: paper) and write OUT/lanes.jsonl and OUT/timings.json."""
+    """Run GRAPH (a file or a name under graphs/, default: paper) and write OUT/lanes.jsonl and
+    OUT/timings.json; with --dataset, every sequence into OUT/<sequence>/ (in this process, or on a
+    Dask cluster with --scheduler)."""
+    if dataset_path is not None:
+        _run_dataset(graph, sets, dataset_path, out_dir, frames, quiet, scheduler, chunk_frames, warmup, input_path, resume, debug_dir)
+        return
+    for flag, given in (("--scheduler", scheduler), ("--chunk-frames", chunk_frames), ("--warmup", warmup or None)):
+        if given is not None:
+            click.echo(f"error: {flag} runs the sequences of a --dataset: give --dataset FILE", err=True)
+            sys.exit(2)
     from tqdm import tqdm
 
     from .executor import Executor
@@ -175,6 +192,44 @@ def run(
         f"{result.frames} frame(s) processed -> {out_dir}/lanes.jsonl, {out_dir}/timings.json"
         + (f" (median {total['median_ms']:.1f} ms/frame)" if total else "")
     )
+    sys.exit(status)
+
+
+def _run_dataset(graph, sets, dataset_path, out_dir, frames, quiet, scheduler, chunk_frames, warmup, input_path, resume, debug_dir) -> None:
+    """``run GRAPH --dataset FILE``: every sequence into OUT/<sequence>/; exit 1 when a frame failed
+    or a sequence stopped."""
+    from .batch import ResolvedGraph, describe_error, parse_scheduler, run_dataset
+    from .dataset import load_dataset
+
+    for flag, given in (("--input", input_path), ("--resume", resume or None), ("--debug-dir", debug_dir)):
+        if given is not None:
+            click.echo(f"error: {flag} is for a run on one input; --dataset names the inputs (give one or the other)", err=True)
+            sys.exit(2)
+    pm = get_plugin_manager()
+    for err in pm.load_errors:
+        click.echo(f"warning: {err}", err=True)
+    try:
+        spec = parse_scheduler(scheduler)
+        dataset = load_dataset(dataset_path)
+        path = resolve_graph_path(graph)
+        resolved = ResolvedGraph.load(path, sets, allowed_roots(path))
+        summary = run_dataset(resolved, dataset, out_dir, parse_frames(frames), spec, chunk_frames, warmup, progress=not quiet)
+    except GraphError as exc:
+        _fail(exc)
+    except LanegraphError as exc:  # a usage error, an unusable input found before any frame ran
+        _fail(exc, 2)
+    status = 0
+    for s in summary:
+        line = f"{s['sequence']}: {s['frames']} frame(s) -> {out_dir / s['sequence']}/lanes.jsonl"
+        if s["failures"]:
+            line += f", {len(s['failures'])} frame(s) failed"
+            status = 1
+        click.echo(line)
+        for f in s["failures"]:
+            click.echo(f"  frame {f.frame} (#{f.index}): node '{f.node_id}' ({f.node_type}): {f.error}", err=True)
+        if s["error"] is not None:
+            click.echo(f"error: {describe_error(s['error'])}", err=True)
+            status = 1
     sys.exit(status)
 
 
@@ -398,12 +453,22 @@ def show(graph: str, fmt: str, sets: tuple[str, ...]) -> None:
 @click.option("--cache-dir", type=click.Path(path_type=Path), help="result cache folder (default: ~/.cache/lanegraph/results)")
 @click.option("--cache-max-gb", type=float, default=2.0, show_default=True, help="size bound of the result cache, GiB")
 @click.option("--quiet", is_flag=True, help="no progress bars")
-def ablate(base, variants, input_path, gt_path, dataset_path, sweeps, out_dir, frames, no_cache, cache_dir, cache_max_gb, quiet):
+@click.option("--scheduler", metavar="SPEC", help="run on a Dask cluster: local, local:N (N worker processes) or a scheduler address tcp://HOST:PORT")
+@click.option("--chunk-frames", type=int, metavar="K", help="split sequences into chunks of K frames run as separate tasks")
+@click.option("--warmup", type=int, default=0, show_default=True, metavar="W", help="with --chunk-frames: run W frames before each chunk and discard their outputs")
+def ablate(base, variants, input_path, gt_path, dataset_path, sweeps, out_dir, frames, no_cache, cache_dir, cache_max_gb, quiet, scheduler, chunk_frames, warmup):
     """Run BASE and every VARIANT (and every --sweep point) over the same input or dataset, evaluate
     each and write OUT/results.csv (per sequence and pooled), OUT/results.md and plots; runs go to
-    OUT/runs/<variant>/<sequence>/; work shared between variants is computed once."""
+    OUT/runs/<variant>/<sequence>/; work shared between variants is computed once. A run that
+    fails gets its row with the error and the others go on (exit 1)."""
     from .ablate import Variant, expand_sweeps, run_ablation
+    from .batch import parse_scheduler
     from .cache import ResultCache
+
+    try:
+        spec = parse_scheduler(scheduler)
+    except LanegraphError as exc:
+        _fail(exc, 2)
 
     paths = [resolve_graph_path(str(p)) for p in (base, *variants)]
     runs = [Variant(p.stem, p) for p in paths]
@@ -428,14 +493,19 @@ def ablate(base, variants, input_path, gt_path, dataset_path, sweeps, out_dir, f
     cache = None if no_cache else ResultCache(cache_dir, int(cache_max_gb * 1024**3))
     t0 = time.perf_counter()
     try:
-        rows = run_ablation(runs, dataset, out_dir, parse_frames(frames), cache, progress=not quiet)
-    except InputError as exc:  # unusable input, found before any frame ran: like `run`, exit 2
+        rows = run_ablation(runs, dataset, out_dir, parse_frames(frames), cache, progress=not quiet, scheduler=spec, chunk_frames=chunk_frames, warmup=warmup)
+    except (InputError, UsageError) as exc:  # unusable input, found before any frame ran: like `run`, exit 2
         _fail(exc, 2)
     except LanegraphError as exc:
         _fail(exc)
     click.echo((out_dir / "results.md").read_text())
     hits = f", cache {cache.hits} hits / {cache.misses} misses" if cache is not None else ", no cache"
     click.echo(f"{len(rows)} row(s) in {time.perf_counter() - t0:.1f} s{hits} -> {out_dir}/results.md, results.csv, accuracy.png, accuracy_vs_ms.png")
+    failed = [r for r in rows if r.get("error") and r.get("sequence") != "all"]
+    for r in failed:
+        click.echo(f"error: {r['error']}", err=True)
+    if failed:
+        sys.exit(1)
 
 
 def _dataset_option(dataset_path: Path | None, input_path: Path | None, gt_path: Path | None):

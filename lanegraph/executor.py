@@ -94,13 +94,18 @@ class Executor:
         cache_nodes: set[str] | None = None,
         checkpoint: Path | None = None,
         resume_state: dict | None = None,
+        warmup: int = 0,
     ):
         """``cache``: a :class:`~lanegraph.cache.ResultCache` for the results of ``cache_nodes``
         (default: every stateless node); results are keyed by node type, params, upstream keys and
         the identity of the source's input files. ``checkpoint``: a file rewritten (atomically) after
         every complete frame with the values of the feedback edges; ``resume_state``: such a
-        checkpoint's content, to continue a run with the same feedback values."""
+        checkpoint's content, to continue a run with the same feedback values. ``warmup``: the first
+        ``warmup`` frames only bring the feedback edges and stateful nodes up to date (a chunk of a
+        longer sequence starts from the frames before it): the sinks do not see them, their times
+        and failures are not recorded, ``on_frame`` is not called for them."""
         self.checkpoint = checkpoint
+        self.warmup = max(0, int(warmup))
         self.resume_state = resume_state or {}
         self.graph = graph
         self.prefetch = prefetch
@@ -292,9 +297,12 @@ class Executor:
             prev_keys: dict[tuple[str, str], str | None] = dict(self.resume_state.get("prev_keys", {}))
             feedback = {(e.src_node, e.src_port) for e in g.edges if e.previous}
             frame_key = getattr(source, "frame_key", None)
+            warm = RunResult(node_types=result.node_types) if self.warmup else result
             for index, frame_out in enumerate(self._frames(source, src_id, result)):
                 if frame_out is None:
                     continue
+                warming = index < self.warmup
+                res = warm if warming else result
                 frame = frame_out.get("frame")
                 t_frame = time.perf_counter()
                 cur = dict(values)
@@ -304,13 +312,15 @@ class Executor:
                     cur[(src_id, port)] = v
                     cur_keys[(src_id, port)] = None if identity is None else digest(g.source.type.name, src_params, identity, port)
                 # the source is an iterator read ahead, so it fires only the after-node hook
-                src_ms = result.timings_ms.get(src_id, [0.0])[-1]
+                src_ms = (result.timings_ms.get(src_id) or [0.0])[-1]
                 self.pm.hook.lanegraph_after_node(node_id=src_id, node_type=g.source.type.name, frame=frame, outputs=frame_out, elapsed_ms=src_ms)
                 try:
                     for nid in g.order:
                         if nid == src_id or nid in self.constant_nodes:
                             continue
                         n = g.nodes[nid]
+                        if warming and n.type.sink:
+                            continue
                         ins = {
                             p: (previous.get((e.src_node, e.src_port)) if e.previous else cur.get((e.src_node, e.src_port)))
                             for p, e in n.inputs.items()
@@ -319,16 +329,18 @@ class Executor:
                             if p not in ins and port.optional:
                                 ins[p] = None
                         key = self._key(n, cur_keys, prev_keys) if caching else None
-                        out = self._call(n, ins, frame, index, result, key)
+                        out = self._call(n, ins, frame, index, res, key)
                         for port, v in out.items():
                             cur[(nid, port)] = v
                             cur_keys[(nid, port)] = None if key is None else digest(key, port)
                 except _SkipFrame:
                     previous, prev_keys = {}, {}
-                    if on_frame:
+                    if on_frame and not warming:
                         on_frame(index, frame)
                     continue
                 previous, prev_keys = cur, cur_keys
+                if warming:
+                    continue
                 result.frames += 1
                 if self.checkpoint is not None:
                     self._write_checkpoint(index, frame, {k: cur[k] for k in feedback if k in cur}, {k: cur_keys.get(k) for k in feedback})
@@ -356,7 +368,9 @@ class Executor:
         node = self.graph.nodes[src_id]
         items = _prefetched(iter(source), self.prefetch) if self.prefetch > 0 else _timed(iter(source))
         index = 0
+        scratch = RunResult()  # what warm-up frames record
         for kind, item, elapsed in items:
+            rec = scratch if index < self.warmup else result
             if kind == "error":
                 exc = item
                 if not isinstance(exc, LanegraphError):
@@ -364,11 +378,11 @@ class Executor:
                 frame = getattr(exc, "frame", None)
                 if node.on_error == "fail":
                     raise NodeError(src_id, node.type.name, frame, exc) from exc
-                result.failures.append(FrameFailure(frame, index, src_id, node.type.name, str(exc)))
+                rec.failures.append(FrameFailure(frame, index, src_id, node.type.name, str(exc)))
                 index += 1
                 yield None
                 continue
-            result.timings_ms.setdefault(src_id, []).append(elapsed)
+            rec.timings_ms.setdefault(src_id, []).append(elapsed)
             index += 1
             yield item
 

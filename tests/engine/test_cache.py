@@ -62,3 +62,165 @@ def test_size_bound_evicts_least_recently_used(tmp_path):
     assert cache.size_bytes <= 3000
     assert cache.get(f"{9:064x}") == b"x" * 1000
     assert cache.get(f"{0:064x}") is ResultCache.MISS
+
+
+# -- a cache folder shared by several processes (the workers of a Dask cluster) ----------------------
+class _Exploit:
+    """Pickles as a call of os.system: what a crafted entry in a shared folder would hold."""
+
+    def __init__(self, marker):
+        self.marker = marker
+
+    def __reduce__(self):
+        import os
+
+        return (os.system, (f"touch {self.marker}",))
+
+
+class _PluginValue:
+    def __init__(self, v):
+        self.v = v
+
+
+def test_a_crafted_entry_runs_nothing_and_is_a_miss(tmp_path):
+    import pickle
+
+    import pytest
+
+    from lanegraph.cache import CacheWarning
+
+    cache = ResultCache(tmp_path / "cache")
+    key = "ab" + "0" * 62
+    marker = tmp_path / "pwned"
+    cache._path(key).parent.mkdir(parents=True, exist_ok=True)
+    cache._path(key).write_bytes(pickle.dumps({"outputs": {"y": _Exploit(marker)}, "ms": 1.0}, protocol=5))
+    with pytest.warns(CacheWarning, match="system is not a type a cache entry may hold"):
+        assert cache.get(key) is ResultCache.MISS
+    assert not marker.exists() and cache.misses == 1
+    # the plain pickle module would have run it: the entry is what the test says it is
+    pickle.loads(cache._path(key).read_bytes())
+    assert marker.exists()
+
+
+def test_crafted_entries_are_recomputed_and_replaced(tmp_path, pm):
+    import pickle
+    import warnings
+
+    from lanegraph.cache import CacheWarning
+
+    cache = ResultCache(tmp_path / "cache")
+    _, out1 = run(tmp_path, pm, cache)
+    marker = tmp_path / "pwned"
+    entries = sorted(cache.root.glob("*/*.pkl"))
+    for p in entries:
+        p.write_bytes(pickle.dumps(_Exploit(marker), protocol=5))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res, out2 = run(tmp_path, pm, ResultCache(tmp_path / "cache"))
+    assert out2 == out1 and not marker.exists()
+    assert res.cache_hits == {} and sum(res.cache_misses.values()) == len(entries)
+    assert len([w for w in caught if issubclass(w.category, CacheWarning)]) == len(entries)
+    third, _ = run(tmp_path, pm, ResultCache(tmp_path / "cache"))  # overwritten with good entries
+    assert third.cache_misses == {} and sum(third.cache_hits.values()) == len(entries)
+
+
+def test_port_values_round_trip_and_foreign_classes_are_not_stored(tmp_path):
+    import numpy as np
+    import pytest
+
+    from lanegraph.cache import CacheWarning
+    from lanegraph.types import Calibration, FeatureMap, Lane, Line, RoadModel
+
+    cache = ResultCache(tmp_path / "c")
+    fm = FeatureMap.from_points((4, 5), np.array([0, 3]), np.array([1, 4]), np.array([0.5, 1.5], np.float32))
+    value = {
+        "outputs": {
+            "disparity": np.arange(12, dtype=np.float32).reshape(3, 4),
+            "mask": np.eye(3, dtype=bool),
+            "calib": Calibration(700.0, 600.0, 170.0, 0.54, 1242, 375),
+            "road": RoadModel(1.0, 0.5, profile=np.array([-1, 2, 3])),
+            "features": fm,
+            "lines": [Line(10.0, 1.2, 3.0)],
+            "lanes": [Lane((1.0, 0.1, 0.01), (0, 99), "left", 0.8, np.zeros((3, 2)))],
+            "number": np.float64(2.5),
+            "mixed": ({1, 2}, frozenset({3}), b"raw", 1 + 2j, None, True),
+        },
+        "ms": 3.0,
+    }
+    assert cache.put("k" * 64, value)
+    got = cache.get("k" * 64)
+    assert np.array_equal(got["outputs"]["disparity"], value["outputs"]["disparity"])
+    assert got["outputs"]["calib"] == value["outputs"]["calib"]
+    assert got["outputs"]["features"].mask.tolist() == fm.mask.tolist()
+    assert got["outputs"]["lanes"][0].side == "left" and got["outputs"]["mixed"] == value["outputs"]["mixed"]
+
+    # a plugin's own value class: not stored (a reader would refuse it), the run goes on without it
+    with pytest.warns(CacheWarning, match="_PluginValue is not a type a cache entry may hold"):
+        assert not cache.put("e" * 64, {"outputs": {"y": _PluginValue(3)}, "ms": 1.0})
+    assert cache.get("e" * 64) is ResultCache.MISS
+
+
+_WRITER = """
+import sys
+from lanegraph.cache import ResultCache
+cache = ResultCache(sys.argv[1], 10**9)
+value = {"outputs": {"y": bytes(range(256)) * 4000}, "ms": float(sys.argv[2])}
+for _ in range(int(sys.argv[3])):
+    cache.put("f" * 64, value)
+"""
+
+
+def test_two_processes_writing_one_entry_never_corrupt_it(tmp_path):
+    import subprocess
+    import sys
+
+    root = tmp_path / "shared"
+    cache = ResultCache(root, 10**9)
+    writers = [subprocess.Popen([sys.executable, "-c", _WRITER, str(root), str(ms), "150"]) for ms in (1.0, 2.0)]
+    seen = set()
+    try:
+        while any(w.poll() is None for w in writers):
+            got = cache.get("f" * 64)
+            if got is not ResultCache.MISS:  # a whole entry of one writer or the other, never a mix
+                assert got["outputs"]["y"] == bytes(range(256)) * 4000
+                seen.add(got["ms"])
+    finally:
+        for w in writers:
+            w.wait(timeout=60)
+    assert all(w.returncode == 0 for w in writers)
+    assert seen and seen <= {1.0, 2.0}
+    assert list(root.glob("*/*.tmp")) == [] and len(list(root.glob("*/*.pkl"))) == 1
+
+
+def test_size_bound_holds_across_processes_sharing_the_folder(tmp_path):
+    # two caches on one folder stand for two worker processes: each sees the other's entries when
+    # it rescans (every tenth of the bound it writes), so the folder stays within the bound
+    a, b = ResultCache(tmp_path / "c", max_bytes=20_000), ResultCache(tmp_path / "c", max_bytes=20_000)
+    for i in range(15):
+        a.put(f"a{i:063x}", b"x" * 1000)
+        b.put(f"b{i:063x}", b"x" * 1000)
+    on_disk = sum(p.stat().st_size for p in (tmp_path / "c").glob("*/*.pkl"))
+    assert on_disk <= 20_000 + 2 * 2 * 1100  # at most two entries each past the last rescan
+    assert a.get(f"a{14:063x}") is not ResultCache.MISS and a.get(f"a{0:063x}") is ResultCache.MISS
+
+
+def test_eviction_removes_stale_temporary_files_and_waits_for_no_one(tmp_path):
+    import fcntl
+    import os
+    import time
+
+    cache = ResultCache(tmp_path / "c", max_bytes=5000)
+    for i in range(4):
+        cache.put(f"{i:064x}", b"x" * 1000)
+    stale, fresh = cache.root / "00" / ".dead.tmp", cache.root / "00" / ".writing.tmp"
+    stale.write_bytes(b"half")
+    fresh.write_bytes(b"half")
+    old = time.time() - 2 * 3600
+    os.utime(stale, (old, old))
+    with open(cache.root / ".evict.lock", "a+b") as held:  # another process is evicting: skip
+        fcntl.flock(held.fileno(), fcntl.LOCK_EX)
+        cache.max_bytes = 1000
+        cache.evict()
+        assert len(list(cache.root.glob("*/*.pkl"))) == 4 and stale.exists()
+    cache.evict()
+    assert len(list(cache.root.glob("*/*.pkl"))) <= 1 and not stale.exists() and fresh.exists()

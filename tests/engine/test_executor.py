@@ -132,3 +132,34 @@ def test_source_yielding_an_error_goes_on(tmp_path, pm, prefetch):
     res = Executor(load(tmp_path, pm, d), RunContext(), pm, prefetch=prefetch).run()
     assert [f for f, _ in toyplugin.Collect.out] == ["0000", "0002", "0003"]
     assert res.failures[0].frame == "0001" and res.frames == 3
+
+
+def test_warmup_frames_feed_the_feedback_edges_but_no_sink(tmp_path, pm):
+    import copy
+
+    d = copy.deepcopy(VALID)
+    d["nodes"]["src"]["params"]["n"] = 6
+    seen = []
+    res = Executor(load(tmp_path, pm, d), RunContext(frames=slice(1, 6)), pm, warmup=2).run(on_frame=lambda i, f: seen.append((i, f)))
+    # frames 1 and 2 only warm up acc (2, then 2 + 4); the sink and on_frame see 3, 4, 5
+    assert toyplugin.Collect.out == [("0003", 12.0), ("0004", 20.0), ("0005", 30.0)]
+    assert seen == [(2, "0003"), (3, "0004"), (4, "0005")]
+    t = res.timings_json()
+    assert res.frames == 3 and t["nodes"]["double"]["calls"] == 3 and t["nodes"]["src"]["calls"] == 3
+    # without warm-up the same selection starts acc afresh
+    Executor(load(tmp_path, pm, d), RunContext(frames=slice(3, 6)), pm).run()
+    assert toyplugin.Collect.out == [("0003", 6.0), ("0004", 14.0), ("0005", 24.0)]
+
+
+def test_failures_of_warmup_frames_are_not_recorded(tmp_path, pm):
+    import copy
+
+    d = copy.deepcopy(VALID)
+    d["nodes"]["src"]["params"]["n"] = 5
+    d["nodes"]["double"]["params"]["fail_on"] = 1.0
+    d["nodes"]["double"]["on_error"] = "empty"
+    d["nodes"]["acc"]["on_error"] = "empty"
+    res = Executor(load(tmp_path, pm, d), RunContext(), pm, warmup=2).run()
+    assert res.failures == [] and res.frames == 3
+    res = Executor(load(tmp_path, pm, d), RunContext(), pm, warmup=1).run()
+    assert [(f.frame, f.index, f.node_id) for f in res.failures] == [("0001", 1, "double"), ("0001", 1, "acc")]

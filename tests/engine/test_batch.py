@@ -1,0 +1,190 @@
+"""Batch runs in this process (`run --dataset`, `ablate`): units of work, chunks with warm-up, folders
+put in place whole, failures reported with variant, sequence and frame, and no Dask imported."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from lanegraph.batch import chunk_selections, clean_leftovers, parse_scheduler, place_dir
+from lanegraph.cli import main
+from lanegraph.errors import UsageError
+
+ROOT = Path(__file__).resolve().parents[2]
+PAPER = str(ROOT / "graphs" / "paper.yaml")
+
+
+def lanes_files(out: Path) -> dict[str, bytes]:
+    """Every lanes.jsonl under ``out``, by path relative to it."""
+    return {str(p.relative_to(out)): p.read_bytes() for p in sorted(out.rglob("lanes.jsonl"))}
+
+
+def test_scheduler_specs():
+    assert parse_scheduler(None) is None
+    assert parse_scheduler("local").local and parse_scheduler("local").workers is None
+    assert parse_scheduler("local:3").workers == 3
+    spec = parse_scheduler("tcp://10.0.0.5:8786")
+    assert not spec.local and spec.address == "tcp://10.0.0.5:8786"
+    for bad in ("local:0", "local:x", "local:-2", " "):
+        with pytest.raises(UsageError, match="--scheduler"):
+            parse_scheduler(bad)
+
+
+def test_chunk_selections_cover_every_frame_once():
+    # 10 input frames, all selected, chunks of 4 after 2 warm-up frames
+    assert chunk_selections(10, None, 4, 2) == [
+        (slice(0, 4, 1), 0, 0, 4), (slice(2, 8, 1), 2, 4, 4), (slice(6, 10, 1), 2, 8, 2)
+    ]  # fmt: skip
+    for n, sel, k, w in [(23, slice(3, 20, 2), 3, 2), (9, slice(None, None, -1), 4, 1), (7, slice(-5, None), 2, 5)]:
+        picked = list(range(n))[sel]
+        reported = []
+        for s, warm, start, count in chunk_selections(n, sel, k, w):
+            run = list(range(n))[s]
+            assert run[warm:] == picked[start : start + count]  # the chunk, after its warm-up
+            assert run[:warm] == picked[max(0, start - warm) : start]  # the frames just before it
+            reported += run[warm:]
+        assert reported == picked
+
+
+def test_place_dir_replaces_a_folder_whole_and_leftovers_go(tmp_path):
+    dest = tmp_path / "runs" / "seq"
+    dest.mkdir(parents=True)
+    (dest / "stale.txt").write_text("old run")
+    new = tmp_path / "runs" / ".seq.tmp-1-abc"
+    new.mkdir()
+    (new / "lanes.jsonl").write_text("{}\n")
+    place_dir(new, dest)
+    assert sorted(p.name for p in dest.iterdir()) == ["lanes.jsonl"] and not new.exists()
+    for left in (".seq.tmp-99-dead", ".seq.old-1", ".seq.chunks", ".other.tmp-1-x"):
+        (tmp_path / "runs" / left).mkdir()
+    clean_leftovers(dest)
+    assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == [".other.tmp-1-x", "seq"]
+
+
+def test_run_dataset_writes_each_sequence_like_a_single_run(tmp_path, synthetic_dataset):
+    out = tmp_path / "out"
+    r = CliRunner().invoke(main, ["run", PAPER, "--dataset", str(synthetic_dataset), "--out", str(out), "--quiet"])
+    assert r.exit_code == 0, r.output
+    assert "straight: 5 frame(s)" in r.output and "curve: 7 frame(s)" in r.output
+    for name, folder in (("straight", "a"), ("curve", "b")):
+        single = tmp_path / f"single_{name}"
+        r = CliRunner().invoke(main, ["run", PAPER, "--input", str(synthetic_dataset.parent / folder), "--out", str(single), "--quiet"])
+        assert r.exit_code == 0, r.output
+        assert (out / name / "lanes.jsonl").read_bytes() == (single / "lanes.jsonl").read_bytes()
+        record = json.loads((out / name / "run.json").read_text())
+        assert record["frames_ok"] == json.loads((single / "run.json").read_text())["frames_ok"] and record["failures"] == []
+        assert json.loads((out / name / "timings.json").read_text())["nodes"]["disp"]["calls"] == record["frames_ok"]
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no temporary folder left
+
+
+def test_chunks_are_the_runs_after_their_warmup(tmp_path, synthetic_dataset):
+    ds = tmp_path / "one.yaml"
+    ds.write_text(f"sequences:\n  - {{name: curve, input: {synthetic_dataset.parent / 'b'}}}\n")
+    out = tmp_path / "chunked"
+    r = CliRunner().invoke(main, ["run", PAPER, "--dataset", str(ds), "--out", str(out), "--chunk-frames", "3", "--warmup", "2", "--quiet"])
+    assert r.exit_code == 0, r.output
+    # 7 frames: [0, 3) alone, [3, 6) after frames 1-2, [6, 7) after frames 4-5
+    expected = []
+    for frames, warm in (("0:3", 0), ("1:6", 2), ("4:7", 2)):
+        part = tmp_path / f"part_{frames}"
+        r = CliRunner().invoke(main, ["run", PAPER, "--input", str(synthetic_dataset.parent / "b"), "--frames", frames, "--out", str(part), "--quiet"])
+        assert r.exit_code == 0, r.output
+        expected += (part / "lanes.jsonl").read_text().splitlines(keepends=True)[warm:]
+    assert (out / "curve" / "lanes.jsonl").read_text() == "".join(expected)
+    frames = [json.loads(line)["frame"] for line in expected]
+    assert frames == [f"{i:010d}" for i in range(7)]
+    timings = json.loads((out / "curve" / "timings.json").read_text())
+    assert timings["frames"] == 7 and timings["nodes"]["disp"]["calls"] == 7  # warm-up frames are not timed
+    assert not (out / ".curve.chunks").exists()
+
+
+def _corrupt_copy(synthetic_dataset: Path, tmp_path: Path) -> Path:
+    """The dataset with frame 0000000002 of ``curve`` truncated."""
+    data = tmp_path / "data"
+    shutil.copytree(synthetic_dataset.parent, data)
+    bad = data / "b" / "left" / "0000000002.png"
+    bad.write_bytes(bad.read_bytes()[:100])
+    return data / synthetic_dataset.name
+
+
+def test_a_failed_run_is_reported_and_the_others_finish(tmp_path, synthetic_dataset):
+    ds = _corrupt_copy(synthetic_dataset, tmp_path)
+    out = tmp_path / "out"
+    slt = str(ROOT / "graphs" / "ablations" / "slt.yaml")
+    r = CliRunner().invoke(main, ["ablate", PAPER, slt, "--dataset", str(ds), "--out", str(out), "--no-cache", "--quiet"])
+    assert r.exit_code == 1, r.output
+    for variant in ("paper", "slt"):
+        assert f"error: {variant} / curve: node 'src' (io.folder) failed on frame 0000000002" in r.stderr
+        assert "cannot decode image" in r.stderr
+        assert len((out / "runs" / variant / "straight" / "lanes.jsonl").read_text().splitlines()) == 5
+        # the failed run keeps what it wrote before the bad frame, and says where it stopped
+        assert len((out / "runs" / variant / "curve" / "lanes.jsonl").read_text().splitlines()) == 2
+        stopped = json.loads((out / "runs" / variant / "curve" / "run.json").read_text())["stopped"]
+        assert stopped["frame"] == "0000000002" and stopped["node"] == "src"
+        assert not (out / "runs" / variant / "curve" / "run_key.txt").exists()  # never reused
+    rows = {(row["variant"], row["sequence"]): row for row in csv.DictReader((out / "results.csv").open())}
+    assert rows[("paper", "straight")]["error"] == "" and rows[("paper", "straight")]["detection_ratio"] != ""
+    assert "frame 0000000002" in rows[("slt", "curve")]["error"] and rows[("slt", "curve")]["detection_ratio"] == ""
+    assert rows[("slt", "all")]["error"] == "1 of 2 run(s) failed: curve" and rows[("slt", "all")]["detection_ratio"] == ""
+    assert "Failed runs (2" in (out / "results.md").read_text()
+
+    r = CliRunner().invoke(main, ["run", PAPER, "--dataset", str(ds), "--out", str(tmp_path / "run"), "--quiet"])
+    assert r.exit_code == 1 and "error: curve: node 'src' (io.folder) failed on frame 0000000002" in r.stderr
+    assert len((tmp_path / "run" / "straight" / "lanes.jsonl").read_text().splitlines()) == 5
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["run", "paper", "--scheduler", "local:2"], "--scheduler runs the sequences of a --dataset"),
+        (["run", "paper", "--chunk-frames", "3"], "--chunk-frames runs the sequences of a --dataset"),
+        (["run", "paper", "--dataset", "{ds}", "--input", "x"], "--input is for a run on one input"),
+        (["run", "paper", "--dataset", "{ds}", "--resume"], "--resume is for a run on one input"),
+        (["run", "paper", "--dataset", "{ds}", "--scheduler", "local:0"], "expected local:N with N a number of worker processes >= 1"),
+        (["run", "paper", "--dataset", "{ds}", "--warmup", "2"], "--warmup is the number of frames run before each chunk"),
+        (["run", "paper", "--dataset", "{ds}", "--chunk-frames", "0"], "--chunk-frames: expected an integer >= 1"),
+        (["ablate", "paper", "--dataset", "{ds}", "--scheduler", "local:x"], "expected local:N"),
+        (["ablate", "paper", "--dataset", "{ds}", "--chunk-frames", "2", "--warmup", "-1"], "--warmup: expected an integer >= 0"),
+    ],
+)
+def test_usage_errors_exit_2_before_anything_runs(tmp_path, synthetic_dataset, args, message):
+    out = tmp_path / "out"
+    args = [a.replace("{ds}", str(synthetic_dataset)) for a in args] + ["--out", str(out)]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 2, r.output
+    assert message in r.output
+    assert not list(out.rglob("lanes.jsonl")) if out.exists() else True
+
+
+_NO_DASK = """
+import sys
+from lanegraph.cli import main
+for args in (sys.argv[1:5], sys.argv[5:]):
+    try:
+        main(args, standalone_mode=False)
+    except SystemExit as exc:
+        assert not exc.code, exc.code
+loaded = sorted(m for m in sys.modules if m.split(".")[0] in ("dask", "distributed") or m == "lanegraph.distributed")
+print("LOADED", loaded)
+"""
+
+
+def test_no_dask_without_a_scheduler(tmp_path, synthetic_dataset):
+    ds = tmp_path / "one.yaml"
+    ds.write_text(f"sequences:\n  - {{name: s, input: {synthetic_dataset.parent / 'a'}, frames: '0:1'}}\n")
+    run = ["run", "--dataset", str(ds), "--quiet"]
+    ablate = ["ablate", PAPER, "--dataset", str(ds), "--out", str(tmp_path / "ab"), "--no-cache", "--quiet"]
+    p = subprocess.run(
+        [sys.executable, "-c", _NO_DASK, *run, *ablate],
+        cwd=tmp_path, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    assert "LOADED []" in p.stdout
+    assert (tmp_path / "out" / "s" / "lanes.jsonl").is_file() and (tmp_path / "ab" / "runs" / "paper" / "s" / "lanes.jsonl").is_file()
