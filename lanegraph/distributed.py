@@ -108,7 +108,11 @@ def _probe() -> dict[str, Any]:
     import lanegraph
 
     pm = get_plugin_manager()
-    return {"lanegraph": lanegraph.__version__, "plugins": sorted({nt.plugin for nt in pm.node_types.values()}), "cores": _cores()}
+    try:
+        cpus = sorted(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        cpus = list(range(os.cpu_count() or 1))
+    return {"lanegraph": lanegraph.__version__, "plugins": sorted({nt.plugin for nt in pm.node_types.values()}), "cpus": cpus}
 
 
 def _host(address: str) -> str:
@@ -116,18 +120,38 @@ def _host(address: str) -> str:
 
 
 class ThreadShare(_WorkerPlugin):
-    """Sets a worker's thread share (see the module's doc) when it starts or joins: ``per_host``
-    maps a host to the threads of each of its tasks; a host it does not know (a worker that joined
-    later) gets its cores divided by the worker's Dask threads."""
+    """Sets a worker's thread share (see the module's doc) when it starts or joins: ``per_worker``
+    maps a worker's address to the threads of each of its tasks; a worker that joined later gets
+    the smallest share of its host (``per_host``), or on a new host its cores divided by its Dask
+    threads."""
 
     name = "lanegraph-thread-share"
 
-    def __init__(self, per_host: dict[str, int]):
+    def __init__(self, per_worker: dict[str, int], per_host: dict[str, int]):
+        self.per_worker = dict(per_worker)
         self.per_host = dict(per_host)
 
     def setup(self, worker: Any) -> None:
         global _THREADS
-        _THREADS = self.per_host.get(_host(worker.address)) or max(1, _cores() // max(1, int(getattr(worker, "nthreads", 1))))
+        own = self.per_worker.get(worker.address) or self.per_host.get(_host(worker.address))
+        _THREADS = own or max(1, _cores() // max(1, int(getattr(worker, "nthreads", 1))))
+
+
+def thread_shares(workers: dict[str, dict[str, Any]], cpus: dict[str, list[int]]) -> dict[str, int]:
+    """Each worker's threads per task: its cores divided by the Dask threads of the workers on its
+    host whose cores overlap its own (all of them on a plain host; only itself in a SLURM job bound
+    to its own cores), at least 1. ``workers``: ``scheduler_info()["workers"]``; ``cpus``: the CPU
+    ids each worker may run on."""
+    shares = {}
+    for addr in workers:
+        mine = set(cpus.get(addr, ()))
+        sharing = sum(
+            int(other["nthreads"])
+            for a, other in workers.items()
+            if _host(a) == _host(addr) and (a == addr or mine & set(cpus.get(a, ())))
+        )
+        shares[addr] = max(1, len(mine) // max(1, sharing))
+    return shares
 
 
 class _Cluster:
@@ -152,7 +176,10 @@ class _Cluster:
         else:
             echo(f"connecting to the Dask scheduler at {spec.address} ...")
             try:
-                self.client = distributed.Client(spec.address, timeout=CONNECT_TIMEOUT_S)
+                if spec.address.endswith(".json") and "://" not in spec.address:  # dask scheduler --scheduler-file
+                    self.client = distributed.Client(scheduler_file=spec.address, timeout=CONNECT_TIMEOUT_S)
+                else:
+                    self.client = distributed.Client(spec.address, timeout=CONNECT_TIMEOUT_S)
             except (OSError, TimeoutError, ValueError) as exc:
                 raise UsageError(f"--scheduler {spec.address}: could not reach a Dask scheduler there within {CONNECT_TIMEOUT_S:.0f} s ({exc})") from None
             self._echo_dashboard(echo)
@@ -192,15 +219,11 @@ class _Cluster:
             if missing:
                 echo(f"warning: Dask worker {addr} lacks plugin(s) {', '.join(missing)}: graphs using them fail there")
         workers = client.scheduler_info()["workers"]
-        threads_on: dict[str, int] = {}
-        cores_on: dict[str, int] = {}
-        for addr, w in workers.items():
-            host = _host(addr)
-            threads_on[host] = threads_on.get(host, 0) + int(w["nthreads"])
-            if addr in probes:
-                cores_on[host] = probes[addr]["cores"]
-        per_host = {h: max(1, cores_on.get(h, 1) // max(1, t)) for h, t in threads_on.items()}
-        client.register_plugin(ThreadShare(per_host))
+        shares = thread_shares(workers, {a: info["cpus"] for a, info in probes.items()})
+        per_host: dict[str, int] = {}
+        for addr, n in shares.items():
+            per_host[_host(addr)] = min(n, per_host.get(_host(addr), n))
+        client.register_plugin(ThreadShare(shares, per_host))
         total = sum(int(w["nthreads"]) for w in workers.values())
         if not spec.local:
             echo(f"{len(workers)} Dask worker(s), {total} task(s) at a time")

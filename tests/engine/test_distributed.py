@@ -32,7 +32,7 @@ START_TIMEOUT_S = 90
 @pytest.fixture(scope="module")
 def dask_cluster(tmp_path_factory):
     """``dask scheduler`` and two ``dask worker`` processes (one task at a time each) on 127.0.0.1;
-    yields ``(address, processes)``. Torn down however the tests end; the processes also end on
+    yields ``(address, scheduler file)``. Torn down however the tests end; the processes also end on
     their own if this one dies (idle and death time-outs)."""
     folder = tmp_path_factory.mktemp("dask")
     sched_file = folder / "scheduler.json"
@@ -57,7 +57,7 @@ def dask_cluster(tmp_path_factory):
                   "--dashboard-address", "127.0.0.1:0", "--host", "127.0.0.1", "--death-timeout", "60", "--local-directory", str(folder / f"w{i}"), log=f"worker{i}.log")  # fmt: skip
         with distributed.Client(address, timeout=START_TIMEOUT_S) as client:
             client.wait_for_workers(2, timeout=START_TIMEOUT_S)
-        yield address, procs
+        yield address, sched_file
     finally:
         for p in procs:
             try:
@@ -112,12 +112,12 @@ def test_ablation_on_a_scheduler_and_two_workers_equals_the_in_process_run(tmp_p
 
 
 def test_run_on_the_cluster_equals_the_in_process_run_also_in_chunks(tmp_path, dask_cluster, synthetic_dataset):
-    address, _ = dask_cluster
+    _, sched_file = dask_cluster  # --scheduler also takes the scheduler's --scheduler-file
     for extra in ([], ["--chunk-frames", "3", "--warmup", "2"]):
         outs = {}
         for where in ("here", "cluster"):
             outs[where] = tmp_path / f"{where}{len(extra)}"
-            sched = ["--scheduler", address] if where == "cluster" else []
+            sched = ["--scheduler", str(sched_file)] if where == "cluster" else []
             r = CliRunner().invoke(main, ["run", PAPER, "--dataset", str(synthetic_dataset), "--out", str(outs[where]), "--quiet", *extra, *sched])
             assert r.exit_code == 0, r.output
         assert lanes_files(outs["cluster"]) == lanes_files(outs["here"]) and len(lanes_files(outs["here"])) == 2
@@ -211,3 +211,22 @@ def test_workers_on_one_host_share_its_cores(dask_cluster):
         share = max(1, len(os.sched_getaffinity(0)) // 2)  # two workers, one task each, on this host
         assert set(c.client.run(_thread_share).values()) == {(share, share)}
     assert messages[-1] == "2 Dask worker(s), 2 task(s) at a time"
+
+
+def test_thread_shares_divide_a_hosts_cores_among_the_tasks_that_share_them():
+    from lanegraph.distributed import thread_shares
+
+    w = lambda host, port, n=1: (f"tcp://{host}:{port}", {"nthreads": n})  # noqa: E731
+    # two workers of one task each on a 2-core host, as the tests' cluster: one thread each
+    assert thread_shares(dict([w("10.0.0.1", 1), w("10.0.0.1", 2)]), {"tcp://10.0.0.1:1": [0, 1], "tcp://10.0.0.1:2": [0, 1]}) == {
+        "tcp://10.0.0.1:1": 1, "tcp://10.0.0.1:2": 1
+    }  # fmt: skip
+    # a 16-core node with 4 one-task workers and one 2-task worker (6 tasks): 2 threads each;
+    # another node is counted apart
+    workers = dict([w("a", 1), w("a", 2), w("a", 3), w("a", 4), w("a", 5, 2), w("b", 1)])
+    cpus = {addr: list(range(16)) for addr in workers} | {"tcp://b:1": list(range(8))}
+    shares = thread_shares(workers, cpus)
+    assert shares == {"tcp://a:1": 2, "tcp://a:2": 2, "tcp://a:3": 2, "tcp://a:4": 2, "tcp://a:5": 2, "tcp://b:1": 8}
+    # SLURM jobs bound to their own cores on one node do not share them
+    workers = dict([w("n1", 1), w("n1", 2)])
+    assert thread_shares(workers, {"tcp://n1:1": [0, 1, 2, 3], "tcp://n1:2": [4, 5, 6, 7]}) == {"tcp://n1:1": 4, "tcp://n1:2": 4}
