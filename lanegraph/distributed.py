@@ -168,9 +168,17 @@ class _Cluster:
             threads = max(1, _cores() // n)
             env = {k: str(threads) for k in ("LANEGRAPH_WORKER_THREADS", "NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
             echo(f"starting a local Dask cluster: {n} worker process(es), 1 task and {threads} OpenCV/numba thread(s) each ...")
-            self.cluster = distributed.LocalCluster(
-                n_workers=n, threads_per_worker=1, processes=True, env=env, silence_logs=logging.ERROR, dashboard_address="127.0.0.1:8787"
-            )
+            import dask
+
+            try:
+                # a worker gets its next task when it is free, not one queued behind the running one:
+                # the tasks are long and of unequal length
+                with dask.config.set({"distributed.scheduler.worker-saturation": 1.0}):
+                    self.cluster = distributed.LocalCluster(
+                        n_workers=n, threads_per_worker=1, processes=True, env=env, silence_logs=logging.ERROR, dashboard_address="127.0.0.1:8787"
+                    )
+            except Exception as exc:  # noqa: BLE001 - e.g. no free port, a worker that cannot start
+                raise UsageError(f"--scheduler {spec.text}: could not start a local Dask cluster: {type(exc).__name__}: {exc}") from None
             self.client = distributed.Client(self.cluster)
             self._echo_dashboard(echo)
         else:
@@ -255,7 +263,10 @@ def run_tasks(tasks: list[RunTask], spec: SchedulerSpec, progress: bool = True, 
         outcomes: dict[int, TaskOutcome] = {}
         futures = {}
         try:
-            for task in tasks:  # in order: a variant's runs before the next variant's, so the cache is filled first
+            # with a result cache in the planned order (a variant's runs before the next variant's: the
+            # cache is filled first); without one the longest first, so that no long run is left last
+            order = tasks if any(t.cache_dir for t in tasks) else sorted(tasks, key=lambda t: -(t.total or 0))
+            for task in order:
                 fut = client.submit(_run_on_worker, task, topic, key=f"lanegraph-{topic[-12:]}-{task.index}", pure=False)
                 futures[fut] = task
             for fut in distributed.as_completed(list(futures)):
