@@ -188,3 +188,26 @@ def test_no_dask_without_a_scheduler(tmp_path, synthetic_dataset):
     assert p.returncode == 0, p.stderr
     assert "LOADED []" in p.stdout
     assert (tmp_path / "out" / "s" / "lanes.jsonl").is_file() and (tmp_path / "ab" / "runs" / "paper" / "s" / "lanes.jsonl").is_file()
+
+
+def test_a_plain_run_imports_nothing_new():
+    # `lanegraph run` on one input keeps its start-up: neither the batch module nor Dask
+    code = "import sys, lanegraph.cli, lanegraph.executor; print(sorted(m for m in sys.modules if m.split('.')[0] in ('dask', 'distributed') or m in ('lanegraph.batch', 'lanegraph.distributed')))"
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0 and p.stdout.strip() == "[]", p.stdout + p.stderr
+
+
+_WITHOUT_DASK = """
+import sys
+sys.modules["distributed"] = None  # as if the distributed extra were not installed
+from lanegraph.cli import main
+main(sys.argv[1:])
+"""
+
+
+def test_a_scheduler_without_dask_installed_is_a_usage_error(tmp_path, synthetic_dataset):
+    args = ["run", PAPER, "--dataset", str(synthetic_dataset), "--out", str(tmp_path / "out"), "--scheduler", "local:2", "--quiet"]
+    p = subprocess.run([sys.executable, "-c", _WITHOUT_DASK, *args], capture_output=True, text=True, timeout=300)
+    assert p.returncode == 2, p.stderr
+    assert 'error: --scheduler needs Dask: pip install "lanegraph[distributed]"' in p.stderr
+    assert not list((tmp_path / "out").rglob("lanes.jsonl")) if (tmp_path / "out").exists() else True
