@@ -102,7 +102,8 @@ def run_ablation(
             g = load_graph(var.graph, var.sets, pm)  # per run: the executor resolves io.auto in place
             run_dir = out_dir / "runs" / _safe(var.name) / seq.name
             run_dir.mkdir(parents=True, exist_ok=True)
-            run_key = digest(g.resolved_dict(), idents[seq.name], str(sel))
+            code = sorted({n.type.code_version for n in g.nodes.values()})  # an edited plugin runs again
+            run_key = digest(g.resolved_dict(), idents[seq.name], str(sel), code)
             stamp = run_dir / "run_key.txt"
             bar_runs.set_postfix_str(f"{var.name} / {seq.name}")
             t0 = time.perf_counter()
