@@ -118,7 +118,7 @@ class OnnxParams(NodeParams):
         ge=1,
         le=256,
         description="pad the network input (after any resize) at the top and on the right up to a multiple of "
-        "this many pixels (zeros after normalisation, i.e. the mean colour), as PSMNet's KITTI script does; "
+        "this many pixels (zeros after normalisation, i.e. the mean colour), as PSMNet's test script does; "
         "the padding is cut off the output; 1: no padding",
     )
     output_unit: Literal["network_pixels", "output_pixels", "image_pixels"] = Field(
