@@ -187,6 +187,21 @@ def test_ablation_report_files(ablation_out):
     assert 'id="results-table"' in page and 'id="accuracy-vs-time"' in page and "paper_literal" in page
 
 
+def test_ablation_report_later_needs_the_input(scene, ablation_out, tmp_path):
+    """An ablation folder does not record its input: without --input no images; with it, the
+    images and the ground truth in the input folder, as `ablate --report` had them."""
+    r = CliRunner().invoke(main, ["report", str(ablation_out), "--out", str(tmp_path / "a")])
+    assert r.exit_code == 0 and "no input given (--input or --dataset)" in r.output
+    assert not any(f["img"] for f in _page_data(tmp_path / "a" / "index.html")["frames"])
+    r = CliRunner().invoke(
+        main,
+        ["report", str(ablation_out), "--input", str(scene["seq"]), "--out", str(tmp_path / "b"), "--quiet"],
+    )
+    assert r.exit_code == 0, r.output
+    later = _page_data(tmp_path / "b" / "index.html")
+    assert later["frames"] == _page_data(ablation_out / "report" / "index.html")["frames"]
+
+
 def test_frames_option_cuts_the_ground_truth_like_ablate(scene, run_out, tmp_path):
     out, _ = run_out
     r = CliRunner().invoke(
