@@ -45,11 +45,13 @@ class ReportSummary:
     bytes: int
     seconds: float
     notes: list[str] = field(default_factory=list)
+    variant: str = ""  # the first variant, whose failed frames are counted
 
     def line(self) -> str:
         mb = self.bytes / 1e6
+        failed = f"{self.failed} failed" + (f" by {self.variant}" if self.kind == "ablation" else "")
         return (
-            f"report: {self.index} ({self.frames} frame(s), {self.failed} failed, {self.node_picture_frames} with node "
+            f"report: {self.index} ({self.frames} frame(s), {failed}, {self.node_picture_frames} with node "
             f"pictures; {mb:.1f} MB in {self.files} files) in {self.seconds:.1f} s"
         )
 
@@ -140,6 +142,7 @@ def write_report(
         sum(p.stat().st_size for p in files),
         time.perf_counter() - t0,
         data.notes,
+        data.variants[0],
     )
 
 

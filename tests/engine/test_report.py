@@ -458,9 +458,10 @@ def _chromium() -> str | None:
 
 @pytest.fixture(scope="module")
 def browser():
-    sync_api = pytest.importorskip(
-        "playwright.sync_api", reason="playwright is not installed (pip install -e '.[test]')"
-    )
+    try:
+        from playwright import sync_api
+    except ImportError as exc:
+        pytest.skip(f"playwright is not installed ({exc}): pip install -e '.[test]'")
     exe = _chromium()
     if exe is None:
         pytest.skip(
