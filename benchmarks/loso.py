@@ -11,8 +11,8 @@ preferred) and the left-out sequence's detection ratio at that value is reported
 at the graph's own value. A threshold whose chosen value holds up on the sequence it never saw is
 not tuned to that sequence.
 
-The default sweep covers the thresholds of ``lanes.verify``'s paint check and ``fit.irls``'s
-distance weighting: on the 2-core reference machine about 10 minutes over ``dev.yaml``.
+The default sweep covers the thresholds of ``lanes.verify``'s paint check and ``fit.irls``'s near
+fit: on the 2-core reference machine about 10 minutes over ``dev.yaml``.
 """
 
 from __future__ import annotations
@@ -33,7 +33,8 @@ DEFAULT_SWEEPS = [
     "verify.max_foot_width_m=0.24,0.28,0.32,0.36,0.4,0.5,0.7,1.0",
     "verify.min_side_ratio=0.0,0.5,0.6,0.7,0.75,0.8,0.85,0.9",
     "verify.min_row_contrast=0.05,0.1,0.15,0.2,0.3",
-    "fit.distance_weight=0.0,0.5,1.0,1.5,2.0",
+    "fit.near_fit_m=15,20,25,30,35,45",
+    "fit.near_fit_coverage=0.3,0.5,0.7,0.8,0.9,1.0",
 ]
 
 
@@ -82,12 +83,8 @@ def main(argv: list[str] | None = None) -> int:
     base = Path(args.graph).stem
     sequences = [s for s in table[base] if s != "all"]
     resolved = yaml.safe_load(subprocess.run([sys.executable, "-m", "lanegraph", "show", args.graph], capture_output=True, text=True).stdout)
-    lines = []
-    sep = "|" if args.markdown else " "
-    head = ["threshold", "graph's value", *[f"{s}: chosen -> left out (graph's)" for s in sequences]]
-    lines.append(sep.join(head))
-    if args.markdown:
-        lines.append("|".join("---" for _ in head))
+    head = ["threshold", "graph's value", *[f"{s} left out: chosen value -> its figure (graph's)" for s in sequences]]
+    rows_out = [head]
     for sw in sweeps:
         key, values = sw.split("=", 1)[0], sw.split("=", 1)[1].split(",")
         node, param = key.split(".", 1)
@@ -99,8 +96,14 @@ def main(argv: list[str] | None = None) -> int:
             v = choose(values, scores)
             held = float(table[f"{base}[{key}={v}]"][left]["detection_ratio"])
             cells.append(f"{v} -> {100 * held:.1f} % ({100 * float(table[base][left]['detection_ratio']):.1f} %)")
-        lines.append(sep.join(cells))
-    print("\n".join(("| " + ln + " |") if args.markdown else ln for ln in lines))
+        rows_out.append(cells)
+    if args.markdown:
+        lines = ["| " + " | ".join(r) + " |" for r in rows_out]
+        lines.insert(1, "|" + "---|" * len(head))
+    else:
+        widths = [max(len(r[i]) for r in rows_out) for i in range(len(head))]
+        lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths)) for r in rows_out]
+    print("\n".join(lines))
     return 0
 
 

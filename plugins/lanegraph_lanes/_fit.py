@@ -475,6 +475,18 @@ class FitParams(NodeParams):
         "in a lane change), and then the other side's up to track_max_lane_width_m from it (as hough.lane_change)",
     )
     track_max_lane_width_m: float = Field(4.6, gt=0.0, le=20.0, description="lane change: widest plausible lane (as hough.max_lane_width_m), metres")
+    near_fit_m: float | None = Field(
+        None,
+        gt=0.0,
+        le=1000.0,
+        description="a line seen continuously nearer than this (its features on near_fit_coverage of those BEV rows: a "
+        "solid line) is fitted there only, metres: a parabola is a constant curvature, a road's changes (a clothoid "
+        "entering a bend), and the near part is what the image shows largest. A dashed line's few near dashes "
+        "would bend the parabola: it is fitted over the whole BEV. null: always the whole BEV (the paper)",
+    )
+    near_fit_coverage: float = Field(
+        0.7, gt=0.0, le=1.0, description="near_fit_m: the fraction of the near BEV rows the ROI's features must cover (unitless)"
+    )
     residuals: Literal["bev", "image"] = Field(
         "bev",
         description="'image': residuals measured as the image shows them (times the image pixels per BEV pixel at "
@@ -568,14 +580,26 @@ def _plausible_tracked(lateral: float, others: list[float], p: FitParams) -> boo
     return any(abs(o) < p.track_min_offset_m and o * lateral < 0 and abs(lateral - o) <= p.track_max_lane_width_m for o in others)
 
 
+def _near_fit(t: np.ndarray, y: np.ndarray, t_near: float, coverage: float) -> tuple[np.ndarray, np.ndarray]:
+    """The ROI points ``(t, y)`` to fit: those below BEV row height ``t_near`` when they cover at
+    least ``coverage`` of those rows (a line seen continuously there), else all of them."""
+    if not t.size or not math.isfinite(t_near) or t.max() < t_near:
+        return t, y
+    keep = t < t_near
+    if np.unique(t[keep]).size < coverage * t_near:
+        return t, y
+    return t[keep], y[keep]
+
+
 def _fit_lanes(
     features: FeatureMap, lines: list[Line], geometry: BevGeometry, p: FitParams, fitter, previous: list[Lane] | None = None
 ) -> list[Lane]:
     rows = features.mask.shape[0]
     res = geometry.resolution
     lanes = []
+    t_near = math.inf if p.near_fit_m is None else (p.near_fit_m - geometry.z_min) / res
     for line in lines or []:
-        t, y = roi_points(features, line, p.roi_width)
+        t, y = _near_fit(*roi_points(features, line, p.roi_width), t_near, p.near_fit_coverage)
         lane = _fit_roi(t, y, line.side, rows, res, p, fitter)
         if lane is not None:
             lanes.append(lane)
@@ -586,7 +610,7 @@ def _fit_lanes(
     for prev in previous or []:
         if prev.side in found or prev.side not in ("left", "right") or prev.score < p.track_min_score:
             continue
-        t, y = lane_roi_points(features, prev, p.roi_width)
+        t, y = _near_fit(*lane_roi_points(features, prev, p.roi_width), t_near, p.near_fit_coverage)
         lane = _fit_roi(t, y, prev.side, rows, res, p, fitter, {"tracked": True}, shape=(float(prev.coeffs[1]), float(prev.coeffs[2])))
         if lane is None:
             continue

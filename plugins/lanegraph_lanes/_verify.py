@@ -1,33 +1,36 @@
-"""``lanes.verify``: keep only lanes that look like paint on a road surface.
+"""``lanes.verify``: keep only lanes that look like paint on a road.
 
-Deviation from the paper (documented in graphs/paper.yaml): on real roads a kerb, a rail or the
-edge of a gravel track bed is a bright, straight, parallel-bordered ridge that passes SLT/ESLT and
-the Hough transform like a painted line. What tells them apart is the surface on both sides: a
-painted line lies on asphalt, which is smooth at the BEV scale, while beyond a kerb or rail there
-is gravel, grass or pavement texture. For every lane, on each side, a band of the BEV image from
-``gap_px`` to ``band_px`` away from the lane is taken; the texture of the intensity is measured per
-row, and the ``row_quantile`` of the rows (by default the rougher quarter: far rows, which the BEV
-interpolates, and shadows smooth gravel that the near rows resolve) is the side's *texture*. A lane
-whose rougher side exceeds ``max_texture`` is dropped.
+Deviation from the paper (documented in graphs/paper.yaml): on real roads a kerb's lit edge, the
+border of the asphalt against a darker verge, a light concrete gutter or a rail passes SLT/ESLT and
+the Hough transform like a painted line. What tells paint apart is its own cross profile, which
+carries from one road to the next (the paint check, ``paint_check``, :func:`paint_cues`): on the
+lane's rows nearer than ``max_distance_m`` (where the BEV resolves paint), each row's strip across
+the lane (``paint_band_m`` each side; its centre moved to the brightest pixel within ``align_m`` of
+the fitted lane) is divided by the level of its brighter side band (the median from ``paint_gap_m``
+to ``paint_band_m``), so that every measure is relative and an exposure or a shadow changes none of
+them. A row is *painted* when its centre stands ``min_row_contrast`` above that level. A lane is
+paint when
 
-The measure (``measure``) is by default the median absolute difference of neighbouring pixels
-across the band: gravel or grass raise most of the differences, while a few sharp edges in a
-smooth band raise none of the median — the face of a kerb 0.5 m beside a line, the bars of a
-hatching, the border of a shadow. The mean absolute difference (``"diff"``) lets such edges count,
-and the lateral standard deviation (``"std"``) also a smooth shadow.
+- it has ``min_painted_rows`` painted rows;
+- their median contrast reaches ``min_paint_contrast``: paint is bright against the road on both
+  sides, while a kerb's lit edge or the road's border against a darker verge barely stands above
+  the brighter side (on KITTI drive 0001 the kerb beside the tram tracks measures 0.16-0.33, its
+  painted lines 0.39-1.0, the highway's lines 0.65-1.6);
+- their mean profile is at least ``min_width_m`` wide at half its height (the narrowest marking is
+  10 cm; a kerb's lit edge measures 5-7 cm) and at most ``max_foot_width_m`` wide at a quarter of
+  its height (paint is at most 30 cm wide with sharp edges; a light concrete gutter between the
+  asphalt and a paved strip measures 46-85 cm there, painted lines 16-27 cm);
+- optionally (``min_side_ratio``, off by default) the darker side is at least that fraction of the
+  brighter one: road on both sides. A shadow cast along a line darkens one side as much as the
+  gravel beyond a kerb does, so it is not relied on.
 
-Texture is contrast, and contrast scales with the exposure: the same gravel measures half as much
-in a frame exposed half as bright. With ``brightness="relative"`` (the default) the textures, and
-the crossing check's ``min_contrast``, are stated for a road whose level — the ``level_quantile``
-of the grey levels on the BEV road mask (:func:`road_level`), the sunlit asphalt rather than its
-shadows or paint — is ``reference_level``; the measured values are scaled by ``reference_level``
-over the frame's level. On KITTI drive 0001 (road level 120-190), at exposures from 0.35 to 1.2
-times the recorded one, the painted lines measure 2.6-6.4 and the kerbs and rails that reach this
-node at least 14.8; on the synthetic scenes (road level about 100) painted lines 0.5 m from a 13 cm
-kerb measure up to 11.9 and lines in sensor noise of 8 grey levels up to 9.4 (default threshold
-13.3, between 11.9 and 14.8). With the absolute grey levels, the mean difference, the median row
-and threshold 12, the drive exposed at 0.7 times lost a quarter of its frames to the kerb beside
-the tram tracks.
+The texture check of earlier versions (``max_texture``: the roughness of the surface beside a line,
+gravel or grass against asphalt) is kept as an option, off by default: grass beside a highway's edge
+line measures as rough as the gravel beside a tram line's kerb, so texture cannot tell them apart.
+It measures, per row, the median absolute difference of neighbouring pixels across a side band
+(``measure``: or their mean, or the lateral standard deviation) from ``gap_px`` to ``band_px``, the
+``row_quantile`` of the rows, in the grey levels of a road whose level is ``reference_level``
+(``brightness: relative``).
 
 A pedestrian crossing's bars (0.4-0.6 m wide, about 1 m apart, 3-4 m long along the road) are
 parallel-bordered ridges too, on smooth asphalt, and a bar with the road's noise features below it

@@ -551,6 +551,53 @@ def test_fit_nodes_on_curved_stripe(node):
     assert np.abs(fitted - centre).max() < 1.5 and lanes[0].side == "left"
 
 
+def _clothoid_bev(dashed: bool, rows: int = 800, cols: int = 240) -> tuple[np.ndarray, np.ndarray]:
+    """A BEV (5 cm pixels, 5-45 m) of a line whose curvature grows with the distance (a clothoid:
+    ``col = 100 + 0.02 t + 1e-7 t^3``), solid or dashed (3 m of paint, 9 m gaps); and its centre."""
+    bev = np.full((rows, cols), 80, np.uint8)
+    t = np.arange(rows)
+    centre = 100 + 0.02 * t + 1e-7 * t**3
+    for tt, cc in zip(t, centre):
+        if not dashed or (tt // 60) % 4 == 1:
+            bev[rows - 1 - tt, int(round(cc)) - 1 : int(round(cc)) + 2] = 220
+    return bev, centre
+
+
+@pytest.mark.parametrize("node", [fit_irls, fit_ransac])
+def test_near_fit_follows_a_solid_line_whose_curvature_changes(node):
+    """A parabola over 5-45 m misses the near part of a clothoid; fitted to the near 25 m it does
+    not, and the lane then ends there."""
+    bev, centre = _clothoid_bev(dashed=False)
+    f = eslt.func(eslt.params(), image=bev)["features"]
+    g = geometry(*bev.shape)
+    line = Line(rho=100.0, theta=math.atan2(1, 0.06), side="left")
+    near = 400  # BEV rows of the near 20 m (near_fit_m 25 from z_min 5)
+    t = np.arange(near)
+
+    def near_error(params):
+        (lane,) = node.func(params, features=f, lines=[line], geometry=g)["lanes"]
+        c0, c1, c2 = lane.coeffs
+        return np.abs(c0 + c1 * t + c2 * t * t - centre[:near]).max(), lane
+
+    err_full, full = near_error(node.params())
+    err_near, lane = near_error(node.params(near_fit_m=25.0))
+    assert err_full > 1.5 and err_near < 0.5 * err_full and err_near < 1.0
+    assert lane.bev_rows[0] >= bev.shape[0] - near and full.bev_rows[0] < bev.shape[0] - near
+
+
+@pytest.mark.parametrize("node", [fit_irls, fit_ransac])
+def test_near_fit_leaves_a_dashed_line_to_the_whole_bev(node):
+    """A dashed line covers a quarter of the near rows: its one or two near dashes would bend the
+    parabola, so it is fitted over the whole BEV, as without near_fit_m."""
+    bev, _ = _clothoid_bev(dashed=True)
+    f = eslt.func(eslt.params(), image=bev)["features"]
+    g = geometry(*bev.shape)
+    line = Line(rho=100.0, theta=math.atan2(1, 0.06), side="left")
+    a = node.func(node.params(near_fit_m=25.0), features=f, lines=[line], geometry=g)["lanes"]
+    b = node.func(node.params(), features=f, lines=[line], geometry=g)["lanes"]
+    assert len(a) == len(b) == 1 and a[0].coeffs == b[0].coeffs and a[0].bev_rows == b[0].bev_rows
+
+
 @pytest.mark.parametrize("node", [fit_irls, fit_ransac])
 def test_fit_follows_the_previous_lane_where_the_hough_found_nothing(node):
     """A dashed, sharply curving line: no Hough line on its side, but the previous frame's lane
