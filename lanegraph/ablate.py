@@ -1,8 +1,10 @@
 """Ablation runs: several graph variants (and param sweeps) over the same input, evaluated and
 tabulated, with the work the variants share computed once (:mod:`lanegraph.cache`).
 
-Writes ``OUT/<variant>/lanes.jsonl`` and ``timings.json`` per run, and ``OUT/results.csv``,
-``OUT/results.md``, ``OUT/accuracy.png`` (accuracy per variant) and ``OUT/accuracy_vs_ms.png``.
+The input is a :class:`~lanegraph.dataset.Dataset` (one or more sequences). Writes
+``OUT/runs/<variant>/<sequence>/lanes.jsonl`` and ``timings.json`` per run, and ``OUT/results.csv``
+(one row per variant and sequence, and a pooled row per variant with ``sequence`` = ``all``),
+``OUT/results.md``, ``OUT/accuracy.png`` (pooled accuracy per variant) and ``OUT/accuracy_vs_ms.png``.
 A run whose resolved graph, input files and frame selection are unchanged since the last ablation
 (same output folder) is not run again: its recorded results are reused.
 """
@@ -18,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from .cache import ResultCache, digest
+from .dataset import POOLED, Dataset, evaluate_sequences, read_gt
 from .executor import Executor
 from .graph import load_graph
 from .metrics import evaluate, read_jsonl
@@ -68,62 +71,106 @@ def _extra_metrics(pred: list[dict], gt: list[dict]) -> dict[str, Any]:
 
 def run_ablation(
     variants: list[Variant],
-    input_path: Path | None,
-    gt_path: Path | None,
+    dataset: Dataset,
     out_dir: Path,
     frames: slice | None = None,
     cache: ResultCache | None = None,
     progress: bool = True,
 ) -> list[dict[str, Any]]:
-    """Run, evaluate and tabulate every variant; returns the result rows."""
+    """Run every variant on every sequence of ``dataset``, evaluate and tabulate; returns the rows
+    (one per variant and sequence, then the variant's pooled row, ``sequence`` = ``all``).
+
+    Outputs: ``OUT/runs/<variant>/<sequence>/lanes.jsonl`` and ``timings.json``, ``OUT/results.csv``,
+    ``OUT/results.md`` and the plots. ``frames`` (``--frames``) applies to sequences that do not
+    choose their own.
+    """
     from tqdm import tqdm
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    gt = read_jsonl(gt_path) if gt_path else None
-    if gt is not None and frames is not None:
-        gt = gt[frames]  # the ground truth lists the input's frames in order
     pm = get_plugin_manager()
-    ident = _input_identity(input_path)
-    rows = []
-    for var in tqdm(variants, desc="variants", unit="variant", disable=not progress, file=sys.stderr, position=0):
-        g = load_graph(var.graph, var.sets, pm)
-        run_dir = out_dir / _safe(var.name)
-        run_dir.mkdir(parents=True, exist_ok=True)
-        run_key = digest(g.resolved_dict(), ident, str(frames))
-        stamp = run_dir / "run_key.txt"
-        t0 = time.perf_counter()
-        reused = cache is not None and stamp.is_file() and stamp.read_text() == run_key and (run_dir / "timings.json").is_file()
-        if not reused:
-            stamp.unlink(missing_ok=True)
-            ctx = RunContext(input_path=input_path, out_dir=run_dir, frames=frames, graph_file=g.file)
-            ex = Executor(g, ctx, pm, cache=cache)
-            ex.open()
-            bar = tqdm(total=len(ex) or None, desc=var.name, unit="frame", leave=False, disable=not progress, file=sys.stderr, position=1)
-            res = ex.run(on_frame=lambda i, f, bar=bar: bar.update(1))
-            bar.close()
-            timings = res.timings_json()
-            timings["cache"] = {"hits": res.cache_hits, "misses": res.cache_misses}
-            (run_dir / "timings.json").write_text(json.dumps(timings, indent=2) + "\n")
-            stamp.write_text(run_key)
-        wall = time.perf_counter() - t0
-        timings = json.loads((run_dir / "timings.json").read_text())
-        row: dict[str, Any] = {"variant": var.name, "graph": str(var.graph), "sets": " ".join(var.sets)}
-        lanes_file = run_dir / "lanes.jsonl"
-        if gt is not None and lanes_file.is_file():
-            pred = read_jsonl(lanes_file)
-            ev = evaluate(pred, gt)
-            row.update({k: ev[k] for k in ("detection_ratio", "precision", "ego_recall", "mean_abs_dx_px")})
-            row.update(_extra_metrics(pred, gt))
-        nodes = timings.get("nodes", {})
-        # the sum of the stages' median compute times (a cached stage counts with the time it took)
-        row["ms_per_frame"] = round(sum(v["median_ms"] or 0.0 for v in nodes.values()), 2) if nodes else None
-        row["stage_ms"] = {nid: v["median_ms"] for nid, v in nodes.items()}
-        row["wall_s"] = round(wall, 2)
-        row["reused"] = reused
-        row["cache_hits"] = sum(timings.get("cache", {}).get("hits", {}).values())
-        rows.append(row)
+    seq_frames = {s.name: s.frames if s.frames is not None else frames for s in dataset}
+    gts = {s.name: read_gt(s, seq_frames[s.name]) for s in dataset}  # a malformed one is found before any run
+    idents = {s.name: _input_identity(s.input) for s in dataset}
+    rows: list[dict[str, Any]] = []
+    total = len(variants) * len(dataset)
+    bar_runs = tqdm(total=total, desc="runs", unit="run", disable=not progress, file=sys.stderr, position=0)
+    for var in variants:
+        var_rows: list[dict[str, Any]] = []
+        evals: list[tuple[str, list, list]] = []
+        for seq in dataset:
+            sel = seq_frames[seq.name]
+            g = load_graph(var.graph, var.sets, pm)  # per run: the executor resolves io.auto in place
+            run_dir = out_dir / "runs" / _safe(var.name) / seq.name
+            run_dir.mkdir(parents=True, exist_ok=True)
+            run_key = digest(g.resolved_dict(), idents[seq.name], str(sel))
+            stamp = run_dir / "run_key.txt"
+            bar_runs.set_postfix_str(f"{var.name} / {seq.name}")
+            t0 = time.perf_counter()
+            reused = cache is not None and stamp.is_file() and stamp.read_text() == run_key and (run_dir / "timings.json").is_file()
+            if not reused:
+                stamp.unlink(missing_ok=True)
+                ctx = RunContext(input_path=seq.input, out_dir=run_dir, frames=sel, graph_file=g.file)
+                ex = Executor(g, ctx, pm, cache=cache)
+                ex.open()
+                bar = tqdm(total=len(ex) or None, desc=f"{var.name} / {seq.name}", unit="frame", leave=False, disable=not progress, file=sys.stderr, position=1)
+                res = ex.run(on_frame=lambda i, f, bar=bar: bar.update(1))
+                bar.close()
+                timings = res.timings_json()
+                timings["cache"] = {"hits": res.cache_hits, "misses": res.cache_misses}
+                (run_dir / "timings.json").write_text(json.dumps(timings, indent=2) + "\n")
+                stamp.write_text(run_key)
+            wall = time.perf_counter() - t0
+            bar_runs.update(1)
+            timings = json.loads((run_dir / "timings.json").read_text())
+            row: dict[str, Any] = {"variant": var.name, "sequence": seq.name, "graph": str(var.graph), "sets": " ".join(var.sets)}
+            lanes_file = run_dir / "lanes.jsonl"
+            gt = gts[seq.name]
+            if gt is not None and lanes_file.is_file():
+                pred = read_jsonl(lanes_file)
+                ev = evaluate(pred, gt)
+                row.update({k: ev[k] for k in ("frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px")})
+                row.update(_extra_metrics(pred, gt))
+                evals.append((seq.name, pred, gt))
+            nodes = timings.get("nodes", {})
+            # the sum of the stages' median compute times (a cached stage counts with the time it took)
+            row["ms_per_frame"] = round(sum(v["median_ms"] or 0.0 for v in nodes.values()), 2) if nodes else None
+            row["stage_ms"] = {nid: v["median_ms"] for nid, v in nodes.items()}
+            row["frames_run"] = timings.get("frames", 0)
+            row["wall_s"] = round(wall, 2)
+            row["reused"] = reused
+            row["cache_hits"] = sum(timings.get("cache", {}).get("hits", {}).values())
+            var_rows.append(row)
+        rows += var_rows
+        rows.append(_pooled_row(var, var_rows, evals))
+    bar_runs.close()
     write_reports(rows, out_dir)
     return rows
+
+
+def _pooled_row(var: Variant, var_rows: list[dict[str, Any]], evals: list[tuple[str, list, list]]) -> dict[str, Any]:
+    """The variant's row over all sequences: metrics over every frame as one set; times are the
+    sequences' medians weighted by their frame counts."""
+    row: dict[str, Any] = {"variant": var.name, "sequence": POOLED, "graph": str(var.graph), "sets": " ".join(var.sets)}
+    if evals:
+        ev = evaluate_sequences(evals)[POOLED]
+        row.update({k: ev[k] for k in ("frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px")})
+        pred = [{**p, "frame": f"{n}/{p.get('frame')}"} for n, ps, _ in evals for p in ps]
+        gt = [{**g, "frame": f"{n}/{g.get('frame')}"} for n, _, gs in evals for g in gs]
+        row.update(_extra_metrics(pred, gt))
+    weights = [max(int(r.get("frames_run") or 0), 1) for r in var_rows]
+
+    def weighted(values: list[float | None]) -> float | None:
+        pairs = [(v, w) for v, w in zip(values, weights) if v is not None]
+        return round(sum(v * w for v, w in pairs) / sum(w for _, w in pairs), 2) if pairs else None
+
+    row["ms_per_frame"] = weighted([r.get("ms_per_frame") for r in var_rows])
+    stages = list(dict.fromkeys(s for r in var_rows for s in r["stage_ms"]))
+    row["stage_ms"] = {s: weighted([r["stage_ms"].get(s) for r in var_rows]) for s in stages}
+    row["frames_run"] = sum(int(r.get("frames_run") or 0) for r in var_rows)
+    row["wall_s"] = round(sum(r["wall_s"] for r in var_rows), 2)
+    row["reused"] = all(r["reused"] for r in var_rows)
+    row["cache_hits"] = sum(r["cache_hits"] for r in var_rows)
+    return row
 
 
 def _safe(name: str) -> str:
@@ -139,33 +186,40 @@ def _fmt(x: Any, pct: bool = False) -> str:
 
 
 def write_reports(rows: list[dict[str, Any]], out_dir: Path) -> None:
-    """``results.csv``, ``results.md`` and the two plots."""
-    stages = []
-    for r in rows:
-        for s in r.get("stage_ms", {}):
-            if s not in stages:
-                stages.append(s)
-    cols = ["variant", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px", "culane_f1", "ms_per_frame"]
+    """``results.csv`` (every row), ``results.md`` (the pooled table, then each sequence's) and the
+    two plots (pooled rows)."""
+    stages = list(dict.fromkeys(s for r in rows for s in r.get("stage_ms", {})))
+    cols = ["variant", "sequence", "frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px", "culane_f1", "ms_per_frame"]
     with (out_dir / "results.csv").open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(cols + [f"ms_{s}" for s in stages] + ["wall_s", "reused", "cache_hits"])
         for r in rows:
             w.writerow([r.get(c) for c in cols] + [r["stage_ms"].get(s) for s in stages] + [r["wall_s"], r["reused"], r["cache_hits"]])
-    lines = [
+    pooled = [r for r in rows if r.get("sequence") == POOLED]
+    sequences = list(dict.fromkeys(r["sequence"] for r in rows if r.get("sequence") != POOLED))
+    head = [
         "| variant | detection ratio | precision | ego recall | mean abs dx (px) | CULane F1 | ms/frame |",
         "|---|---|---|---|---|---|---|",
     ]
-    for r in rows:
-        lines.append(
+
+    def table(sel: list[dict[str, Any]]) -> list[str]:
+        return head + [
             f"| {r['variant']} | {_fmt(r.get('detection_ratio'), True)} | {_fmt(r.get('precision'), True)} | "
             f"{_fmt(r.get('ego_recall'), True)} | {_fmt(r.get('mean_abs_dx_px'))} | {_fmt(r.get('culane_f1'))} | "
             f"{_fmt(r.get('ms_per_frame'))} |"
-        )
-    lines += ["", "Median ms per frame per stage:", "", "| variant | " + " | ".join(stages) + " |", "|---|" + "---|" * len(stages)]
-    for r in rows:
+            for r in sel
+        ]
+
+    frames = {r["sequence"]: r.get("frames") or r.get("frames_run") for r in rows}
+    lines = [f"All sequences pooled ({', '.join(sequences)}; {frames.get(POOLED) or 0} frames):", "", *table(pooled)]
+    if len(sequences) > 1:
+        for name in sequences:
+            lines += ["", f"Sequence {name} ({frames.get(name) or 0} frames):", "", *table([r for r in rows if r.get("sequence") == name])]
+    lines += ["", "Median ms per frame per stage (pooled):", "", "| variant | " + " | ".join(stages) + " |", "|---|" + "---|" * len(stages)]
+    for r in pooled:
         lines.append(f"| {r['variant']} | " + " | ".join(_fmt(r["stage_ms"].get(s)) for s in stages) + " |")
     (out_dir / "results.md").write_text("\n".join(lines) + "\n")
-    _plots(rows, out_dir)
+    _plots(pooled, out_dir)
 
 
 def _plots(rows: list[dict[str, Any]], out_dir: Path) -> None:

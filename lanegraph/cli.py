@@ -496,16 +496,18 @@ def _mermaid_text(text: str) -> str:
 @click.argument("variants", nargs=-1, type=click.Path(path_type=Path))
 @click.option("--input", "input_path", type=click.Path(path_type=Path), help="input folder; default: the built-in synthetic scene")
 @click.option("--gt", "gt_path", type=click.Path(path_type=Path), help="ground truth lanes_gt.jsonl to evaluate against")
+@click.option("--dataset", "dataset_path", type=click.Path(path_type=Path), help="a dataset file (YAML list of sequences, each an input and a ground truth) in place of --input/--gt")
 @click.option("--sweep", "sweeps", multiple=True, metavar="NODE.PARAM=V1,V2,...", help="also run BASE once per value (repeatable)")
 @click.option("--out", "out_dir", type=click.Path(path_type=Path), default=Path("out/ablation"), show_default=True)
-@click.option("--frames", help="frame selection A:B or A:B:S")
+@click.option("--frames", help="frame selection A:B or A:B:S (for every sequence that does not choose its own)")
 @click.option("--no-cache", is_flag=True, help="recompute everything (no shared results, no reuse of unchanged runs)")
 @click.option("--cache-dir", type=click.Path(path_type=Path), help="result cache folder (default: ~/.cache/lanegraph/results)")
 @click.option("--cache-max-gb", type=float, default=2.0, show_default=True, help="size bound of the result cache, GiB")
 @click.option("--quiet", is_flag=True, help="no progress bars")
-def ablate(base, variants, input_path, gt_path, sweeps, out_dir, frames, no_cache, cache_dir, cache_max_gb, quiet):
-    """Run BASE and every VARIANT (and every --sweep point) over the same input, evaluate each and
-    write OUT/results.csv, OUT/results.md and plots; work shared between variants is computed once."""
+def ablate(base, variants, input_path, gt_path, dataset_path, sweeps, out_dir, frames, no_cache, cache_dir, cache_max_gb, quiet):
+    """Run BASE and every VARIANT (and every --sweep point) over the same input or dataset, evaluate
+    each and write OUT/results.csv (per sequence and pooled), OUT/results.md and plots; runs go to
+    OUT/runs/<variant>/<sequence>/; work shared between variants is computed once."""
     from .ablate import Variant, expand_sweeps, run_ablation
     from .cache import ResultCache
 
@@ -520,9 +522,10 @@ def ablate(base, variants, input_path, gt_path, sweeps, out_dir, frames, no_cach
     except ValueError as exc:
         click.echo(f"error: {exc}", err=True)
         sys.exit(2)
-    if input_path is not None and not input_path.exists():
-        click.echo(f"error: --input {input_path}: no such file or folder", err=True)
-        sys.exit(2)
+    try:
+        dataset = _dataset_option(dataset_path, input_path, gt_path)
+    except LanegraphError as exc:
+        _fail(exc, 2)
     for r in runs:  # validate everything before running anything
         try:
             _load(str(r.graph), tuple(r.sets))
@@ -531,14 +534,29 @@ def ablate(base, variants, input_path, gt_path, sweeps, out_dir, frames, no_cach
     cache = None if no_cache else ResultCache(cache_dir, int(cache_max_gb * 1024**3))
     t0 = time.perf_counter()
     try:
-        rows = run_ablation(runs, input_path, gt_path, out_dir, parse_frames(frames), cache, progress=not quiet)
+        rows = run_ablation(runs, dataset, out_dir, parse_frames(frames), cache, progress=not quiet)
     except InputError as exc:  # unusable input, found before any frame ran: like `run`, exit 2
         _fail(exc, 2)
     except LanegraphError as exc:
         _fail(exc)
     click.echo((out_dir / "results.md").read_text())
     hits = f", cache {cache.hits} hits / {cache.misses} misses" if cache is not None else ", no cache"
-    click.echo(f"{len(rows)} run(s) in {time.perf_counter() - t0:.1f} s{hits} -> {out_dir}/results.md, results.csv, accuracy.png, accuracy_vs_ms.png")
+    click.echo(f"{len(rows)} row(s) in {time.perf_counter() - t0:.1f} s{hits} -> {out_dir}/results.md, results.csv, accuracy.png, accuracy_vs_ms.png")
+
+
+def _dataset_option(dataset_path: Path | None, input_path: Path | None, gt_path: Path | None):
+    """The dataset of ``--dataset``, or the one sequence of ``--input`` / ``--gt``."""
+    from .dataset import load_dataset, single_sequence
+
+    if dataset_path is not None:
+        if input_path is not None or gt_path is not None:
+            raise UsageError("--dataset lists the inputs and ground truths: give it instead of --input/--gt, not with them")
+        return load_dataset(dataset_path)
+    if input_path is not None and not input_path.exists():
+        raise UsageError(f"--input {input_path}: no such file or folder")
+    if gt_path is not None and not gt_path.is_file():
+        raise UsageError(f"--gt {gt_path}: no such file")
+    return single_sequence(input_path, gt_path)
 
 
 def _scene_pose(scene: Path) -> tuple[float, float]:
@@ -567,17 +585,16 @@ def _is_number(v: object) -> bool:
 
 @main.command(name="eval")
 @click.argument("pred", type=click.Path(path_type=Path))
-@click.argument("gt", type=click.Path(path_type=Path))
+@click.argument("gt", type=click.Path(path_type=Path), required=False)
+@click.option("--dataset", "dataset_path", type=click.Path(path_type=Path), help="a dataset file: PRED is then a folder with PRED/<sequence>/lanes.jsonl (as `run --dataset` writes)")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
 @click.option("--metrics", default="readme,culane,tusimple", show_default=True, help="readme, culane, tusimple, lateral (comma-separated)")
 @click.option("--scene", type=click.Path(path_type=Path), help="scene.json of a synthetic sequence (pitch, height) for the lateral error")
 @click.option("--calib", type=click.Path(path_type=Path), help="calib.yaml (f, cx, cy, baseline) for the lateral error")
-def eval_cmd(pred: Path, gt: Path, as_json: bool, metrics: str, scene: Path | None, calib: Path | None) -> None:
+def eval_cmd(pred: Path, gt: Path | None, dataset_path: Path | None, as_json: bool, metrics: str, scene: Path | None, calib: Path | None) -> None:
     """Evaluate PRED lanes.jsonl against GT lanes_gt.jsonl: the lane metric of the data README, plus
-    CULane-style F1, TuSimple-style accuracy and, for synthetic scenes, the lateral error in cm."""
-    from .metrics import evaluate, read_ground_truth, read_predictions
-    from .metrics_extra import culane_metrics, lateral_error_cm, tusimple_metrics
-
+    CULane-style F1, TuSimple-style accuracy and, for synthetic scenes, the lateral error in cm.
+    With --dataset, every sequence of the dataset and all of them pooled."""
     wanted = {m.strip() for m in metrics.split(",") if m.strip()}
     unknown = wanted - {"readme", "culane", "tusimple", "lateral"}
     if unknown:
@@ -585,50 +602,116 @@ def eval_cmd(pred: Path, gt: Path, as_json: bool, metrics: str, scene: Path | No
         sys.exit(2)
     if scene is not None:
         wanted.add("lateral")
+    if dataset_path is not None:
+        if gt is not None:
+            click.echo("error: --dataset names every sequence's ground truth: give PRED (a folder) and --dataset, not GT", err=True)
+            sys.exit(2)
+        _eval_dataset(pred, dataset_path, as_json)
+        return
+    if gt is None:
+        click.echo("error: missing GT (a lanes_gt.jsonl), or --dataset FILE with PRED a folder of <sequence>/lanes.jsonl", err=True)
+        sys.exit(2)
     try:
-        pred_recs, gt_recs = read_predictions(pred), read_ground_truth(gt)
-        res = evaluate(pred_recs, gt_recs)
-        res.pop("per_frame")
-        if "culane" in wanted:
-            res["culane"] = culane_metrics(pred_recs, gt_recs)
-        if "tusimple" in wanted:
-            res["tusimple"] = tusimple_metrics(pred_recs, gt_recs)
-        if "lateral" in wanted:
-            if scene is None:
-                raise UsageError("--metrics lateral needs --scene scene.json (and --calib, default: calib.yaml beside it)")
-            from lanegraph_io import read_calibration_yaml
-
-            cal = read_calibration_yaml(calib or Path(scene).with_name("calib.yaml"))
-            pitch, height = _scene_pose(Path(scene))
-            res["lateral_error_cm"] = lateral_error_cm(pred_recs, gt_recs, cal, pitch, height)
+        res = _eval_one(pred, gt, wanted, scene, calib)
     except LanegraphError as exc:
         click.echo(f"error: {exc}", err=True)
         sys.exit(2)
     if as_json:
         click.echo(json.dumps(res))
         return
+    _print_eval(res)
 
-    def pct(x: float | None) -> str:
-        return "n/a" if x is None else f"{100 * x:.1f} %"
 
+def _eval_one(pred: Path, gt: Path, wanted: set[str], scene: Path | None, calib: Path | None) -> dict[str, Any]:
+    from .metrics import evaluate, read_ground_truth, read_predictions
+    from .metrics_extra import culane_metrics, lateral_error_cm, tusimple_metrics
+
+    pred_recs, gt_recs = read_predictions(pred), read_ground_truth(gt)
+    res = evaluate(pred_recs, gt_recs)
+    res.pop("per_frame")
+    if "culane" in wanted:
+        res["culane"] = culane_metrics(pred_recs, gt_recs)
+    if "tusimple" in wanted:
+        res["tusimple"] = tusimple_metrics(pred_recs, gt_recs)
+    if "lateral" in wanted:
+        if scene is None:
+            raise UsageError("--metrics lateral needs --scene scene.json (and --calib, default: calib.yaml beside it)")
+        from lanegraph_io import read_calibration_yaml
+
+        cal = read_calibration_yaml(calib or Path(scene).with_name("calib.yaml"))
+        pitch, height = _scene_pose(Path(scene))
+        res["lateral_error_cm"] = lateral_error_cm(pred_recs, gt_recs, cal, pitch, height)
+    return res
+
+
+def _pct(x: float | None) -> str:
+    return "n/a" if x is None else f"{100 * x:.1f} %"
+
+
+def _print_eval(res: dict[str, Any]) -> None:
     click.echo(f"frames:          {res['frames']}")
-    click.echo(f"detection ratio: {pct(res['detection_ratio'])}")
-    click.echo(f"precision:       {pct(res['precision'])}")
-    click.echo(f"ego recall:      {pct(res['ego_recall'])}")
+    click.echo(f"detection ratio: {_pct(res['detection_ratio'])}")
+    click.echo(f"precision:       {_pct(res['precision'])}")
+    click.echo(f"ego recall:      {_pct(res['ego_recall'])}")
     dx = res["mean_abs_dx_px"]
     click.echo(f"mean |dx|:       {'n/a' if dx is None else f'{dx:.2f} px'}")
     if "culane" in res:
         c = res["culane"]
-        click.echo(f"CULane F1:       {pct(c['f1'])} (precision {pct(c['precision'])}, recall {pct(c['recall'])}; TP {c['tp']} FP {c['fp']} FN {c['fn']})")
+        click.echo(f"CULane F1:       {_pct(c['f1'])} (precision {_pct(c['precision'])}, recall {_pct(c['recall'])}; TP {c['tp']} FP {c['fp']} FN {c['fn']})")
     if "tusimple" in res:
         t = res["tusimple"]
-        click.echo(f"TuSimple:        accuracy {pct(t['accuracy'])}, FP {pct(t['fp'])}, FN {pct(t['fn'])}")
+        click.echo(f"TuSimple:        accuracy {_pct(t['accuracy'])}, FP {_pct(t['fp'])}, FN {_pct(t['fn'])}")
     if "lateral_error_cm" in res:
         lat = ", ".join(f"{k} m: {'n/a' if v is None else f'{v:.1f} cm'}" for k, v in res["lateral_error_cm"].items())
         click.echo(f"lateral error:   {lat}")
     if res["failed_frames"]:
         click.echo(f"failed frames ({len(res['failed_frames'])}):")
         for f in res["failed_frames"]:
+            click.echo(f"  {f['frame']}: {'; '.join(f['reasons'])}")
+
+
+def _eval_dataset(pred_dir: Path, dataset_path: Path, as_json: bool) -> None:
+    """``eval PRED --dataset FILE``: each sequence's figures and the pooled ones (the README metric)."""
+    from .dataset import POOLED, load_dataset, read_gt
+    from .metrics import read_predictions
+
+    try:
+        ds = load_dataset(dataset_path)
+        if not pred_dir.is_dir():
+            raise UsageError(f"{pred_dir}: expected a folder with <sequence>/lanes.jsonl for each sequence of {dataset_path}")
+        pairs = []
+        for seq in ds:
+            gt = read_gt(seq, seq.frames)
+            if gt is None:
+                continue
+            lanes = pred_dir / seq.name / "lanes.jsonl"
+            if not lanes.is_file():
+                raise UsageError(f"{lanes}: no predictions for sequence {seq.name!r} of {dataset_path}")
+            pairs.append((seq.name, read_predictions(lanes), gt))
+        if not pairs:
+            raise UsageError(f"{dataset_path}: no sequence has a ground truth ('gt') to evaluate against")
+    except LanegraphError as exc:
+        click.echo(f"error: {exc}", err=True)
+        sys.exit(2)
+    from .dataset import evaluate_sequences
+
+    res = evaluate_sequences(pairs)
+    if as_json:
+        click.echo(json.dumps({"dataset": ds.name, "sequences": res}))
+        return
+    click.echo("| sequence | frames | detection ratio | precision | ego recall | mean abs dx (px) |")
+    click.echo("|---|---|---|---|---|---|")
+    for name, r in res.items():
+        dx = r["mean_abs_dx_px"]
+        label = f"**{name}** (pooled)" if name == POOLED else name
+        click.echo(
+            f"| {label} | {r['frames']} | {_pct(r['detection_ratio'])} | {_pct(r['precision'])} | "
+            f"{_pct(r['ego_recall'])} | {'n/a' if dx is None else f'{dx:.2f}'} |"
+        )
+    failed = res[POOLED]["failed_frames"]
+    if failed:
+        click.echo(f"failed frames ({len(failed)}):")
+        for f in failed:
             click.echo(f"  {f['frame']}: {'; '.join(f['reasons'])}")
 
 
