@@ -531,17 +531,49 @@ def ablate(base, variants, input_path, gt_path, dataset_path, sweeps, out_dir, f
             _load(str(r.graph), tuple(r.sets))
         except GraphError as exc:
             _fail(exc)
-    cache = None if no_cache else ResultCache(cache_dir, int(cache_max_gb * 1024**3))
+    selection = parse_frames(frames)
+    import math
+
+    from .paths import OutputLock, prepare_dir
+
+    if not (math.isfinite(cache_max_gb) and cache_max_gb > 0):
+        _fail(UsageError(f"--cache-max-gb: expected a size in GiB > 0, got {cache_max_gb}"))
+    try:
+        if cache_dir is not None and not no_cache:
+            prepare_dir(cache_dir, "--cache-dir")
+        prepare_dir(out_dir, "--out")
+        lock = OutputLock(out_dir, "ablate").acquire()
+    except UsageError as exc:
+        _fail(exc)
+    try:
+        cache = None if no_cache else ResultCache(cache_dir, int(cache_max_gb * 1024**3))
+    except OSError as exc:
+        _fail(UsageError(f"--cache-dir: cannot use the result cache: {exc.strerror or exc}"))
     t0 = time.perf_counter()
     try:
-        rows = run_ablation(runs, dataset, out_dir, parse_frames(frames), cache, progress=not quiet)
-    except InputError as exc:  # unusable input, found before any frame ran: like `run`, exit 2
+        rows = run_ablation(runs, dataset, out_dir, selection, cache, progress=not quiet)
+    except InputError as exc:  # a ground truth or input unusable before any run: like `run`, exit 2
         _fail(exc, 2)
     except LanegraphError as exc:
         _fail(exc)
+    finally:
+        lock.release()
+    runs_rows = [r for r in rows if r.get("sequence") != "all"]
+    failed = [r for r in runs_rows if r.get("error")]
+    if failed and all(r.get("before_any_frame") for r in failed) and len(failed) == len(runs_rows):
+        for r in failed:  # nothing ran at all: the input is unusable (exit 2, as `run` says)
+            click.echo(f"error: {r['variant']} / {r['sequence']}: {r['error']}", err=True)
+        sys.exit(2)
     click.echo((out_dir / "results.md").read_text())
     hits = f", cache {cache.hits} hits / {cache.misses} misses" if cache is not None else ", no cache"
     click.echo(f"{len(rows)} row(s) in {time.perf_counter() - t0:.1f} s{hits} -> {out_dir}/results.md, results.csv, accuracy.png, accuracy_vs_ms.png")
+    if failed or any(r.get("failed_frames") for r in runs_rows):
+        for r in failed:
+            click.echo(f"error: run {r['variant']} / {r['sequence']} failed: {r['error']}", err=True)
+        n_frames = sum(int(r.get("failed_frames") or 0) for r in runs_rows if not r.get("error"))
+        if n_frames:
+            click.echo(f"{n_frames} frame(s) failed in runs that went on (on_error skip); see results.md", err=True)
+        sys.exit(1)
 
 
 def _dataset_option(dataset_path: Path | None, input_path: Path | None, gt_path: Path | None):
