@@ -156,6 +156,11 @@ class Executor:
             check_identity(resume, where, **{k: v for k, v in self.identity.items() if k != "graph"})
             if ctx0.skip != resume.position:
                 raise UsageError(f"{where}: the run context skips {ctx0.skip} frame(s), the checkpoint has done {resume.position}")
+            sources = {(e.src_node, e.src_port) for e in graph.edges if e.previous}
+            for i, fb in enumerate(resume.feedback):
+                if (fb.node, fb.port) not in sources:
+                    raise UsageError(f"{where}: feedback[{i}]: no feedback edge of the graph comes from {fb.node}.{fb.port}{_HINT}")
+            self._resumed_feedback = decode_feedback(resume, where)  # a malformed value: refused before anything opens
         self.unresumable: str | None = None
         self.prefetch = prefetch
         self.cache = cache
@@ -390,7 +395,7 @@ class Executor:
             result.failures = [FrameFailure(f.frame, f.index, f.node, f.type, f.error) for f in ck.failures]
             result.invalid_outputs = {k: list(v) for k, v in ck.invalid_outputs.items()}
             position = ck.position
-            previous, prev_keys = decode_feedback(ck, self.checkpoint or Path("checkpoint"))
+            previous, prev_keys = self._resumed_feedback
         self.pm.hook.lanegraph_run_start(graph=g, context=self.context)
         src_id = g.source.id
         source = self.instances[src_id]

@@ -306,6 +306,8 @@ def decode_feedback(ckpt: Checkpoint, path: Path) -> tuple[dict[tuple[str, str],
             values[(fb.node, fb.port)] = decode_value(fb.value, f"feedback[{i}] ({fb.node}.{fb.port})")
         except CheckpointValueError as exc:
             raise UsageError(f"{path}: {exc}{_HINT}") from None
+        except RecursionError:
+            raise UsageError(f"{path}: feedback[{i}] ({fb.node}.{fb.port}): nested too deeply{_HINT}") from None
         keys[(fb.node, fb.port)] = fb.key
     return values, keys
 

@@ -11,6 +11,7 @@ file, size mismatch, an image above ``max_megapixels``) so that the executor can
 from __future__ import annotations
 
 import re
+import struct
 import warnings
 from dataclasses import replace
 from pathlib import Path
@@ -59,9 +60,22 @@ def list_images(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXT and p.is_file())
 
 
+#: ``image_size`` of an image whose header claims more pixels than PIL reads (about 179 Mpx)
+TOO_LARGE = (-1, -1)
+
+
 def image_size(path: Path) -> tuple[int, int] | None:
-    """``(width, height)`` of an image file from its header (nothing decoded), or None when the
-    header cannot be read (the decoder then reports the file)."""
+    """``(width, height)`` of an image file from its header (nothing decoded); :data:`TOO_LARGE`
+    for a header beyond PIL's decompression-bomb limit; None when the header cannot be read (the
+    decoder then reports the file)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(24)
+    except OSError:
+        return None
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+        w, h = struct.unpack(">II", head[16:24])
+        return int(w), int(h)
     try:
         from PIL import Image
 
@@ -69,8 +83,8 @@ def image_size(path: Path) -> tuple[int, int] | None:
             warnings.simplefilter("ignore")
             with Image.open(path) as im:
                 return int(im.size[0]), int(im.size[1])
-    except Exception:  # noqa: BLE001 - PIL.Image.DecompressionBombError, UnidentifiedImageError, OSError
-        return None
+    except Exception as exc:  # noqa: BLE001 - UnidentifiedImageError, OSError: the decoder reports the file
+        return TOO_LARGE if type(exc).__name__ == "DecompressionBombError" else None
 
 
 def read_image(path: Path, frame: str, gray: bool = False, max_megapixels: float | None = None) -> np.ndarray:
@@ -80,8 +94,12 @@ def read_image(path: Path, frame: str, gray: bool = False, max_megapixels: float
         raise InputError("image file missing", path=str(path), frame=frame)
     if max_megapixels is not None:
         size = image_size(path)
-        if size is None and path.stat().st_size > max_megapixels * 4e6:  # PIL refuses beyond ~179 Mpx too
-            raise InputError(f"image header unreadable and the file is {path.stat().st_size} bytes; refused", path=str(path), frame=frame)
+        if size == TOO_LARGE:
+            raise InputError(
+                f"the image header claims more pixels than can be read safely, above the source's max_megapixels {max_megapixels:g}; refused",
+                path=str(path),
+                frame=frame,
+            )
         if size is not None and size[0] * size[1] > max_megapixels * 1e6:
             raise InputError(
                 f"image is {size[0]}x{size[1]} ({size[0] * size[1] / 1e6:.1f} Mpx), above the source's max_megapixels "
@@ -172,9 +190,9 @@ class StereoSourceParams(NodeParams):
 
     path: str = Field("", description="input folder; empty: the --input path of the command line (give one, not both)")
     frames: str = Field("", pattern=r"^(-?\d*(:-?\d*){0,2})?$", description="frame selection 'A:B' or 'A:B:S' (indices); empty: all")
-    max_megapixels: float = Field(8.0, gt=0.0, le=200.0, description="an image larger than this, megapixels, is refused (that frame fails) before it is decoded")
-    min_baseline_m: float = Field(0.05, gt=0.0, le=100.0, description="smallest plausible stereo baseline, metres; a calibration outside the range is refused")
-    max_baseline_m: float = Field(2.0, gt=0.0, le=100.0, description="largest plausible stereo baseline, metres")
+    max_megapixels: float = Field(8.0, gt=0.0, le=150.0, description="an image larger than this, megapixels, is refused (that frame fails) before it is decoded")
+    min_baseline_m: float = Field(0.05, gt=0.0, le=1000.0, description="smallest plausible stereo baseline, metres; a calibration outside the range is refused")
+    max_baseline_m: float = Field(2.0, gt=0.0, le=1000.0, description="largest plausible stereo baseline, metres")
     check_order: bool = Field(True, description="refuse an input whose first readable pair matches at negative disparities (left and right swapped)")
 
     @model_validator(mode="after")
