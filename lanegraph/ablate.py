@@ -18,6 +18,7 @@ command exits 1 at the end. Frames that failed under ``on_error: skip`` are coun
 from __future__ import annotations
 
 import csv
+import io
 import json
 import sys
 import time
@@ -32,6 +33,7 @@ from .executor import Executor
 from .graph import load_graph
 from .metrics import evaluate, read_predictions
 from .nodes import RunContext
+from .paths import inside, safe_name, write_bytes_atomic, write_text_atomic
 from .plugins import get_plugin_manager
 from .resume import input_identity
 
@@ -99,13 +101,27 @@ def run_ablation(
     rows: list[dict[str, Any]] = []
     total = len(variants) * len(dataset)
     bar_runs = tqdm(total=total, desc="runs", unit="run", disable=not progress, file=sys.stderr, position=0)
+    try:
+        _run_variants(variants, dataset, out_dir, cache, progress, pm, seq_frames, gts, idents, rows, bar_runs)
+    except KeyboardInterrupt:
+        bar_runs.close()
+        if rows:
+            write_reports(rows, out_dir)  # the finished variants keep their report
+        raise
+    bar_runs.close()
+    write_reports(rows, out_dir)
+    return rows
+
+
+def _run_variants(variants, dataset, out_dir, cache, progress, pm, seq_frames, gts, idents, rows, bar_runs) -> None:
+    """The loop of :func:`run_ablation`: appends each variant's rows (and its pooled row) to ``rows``."""
     for var in variants:
         var_rows: list[dict[str, Any]] = []
         evals: list[tuple[str, list, list]] = []
         for seq in dataset:
             sel = seq_frames[seq.name]
             g = load_graph(var.graph, var.sets, pm)  # per run: the executor resolves io.auto in place
-            run_dir = out_dir / "runs" / _safe(var.name) / seq.name
+            run_dir = inside(out_dir, f"runs/{_safe(var.name)}/{safe_name(seq.name)}", "ablate --out")  # links out of OUT refused
             run_dir.mkdir(parents=True, exist_ok=True)
             run_key = digest(g.resolved_dict(), idents[seq.name], str(sel))
             stamp = run_dir / "run_key.txt"
@@ -119,7 +135,7 @@ def run_ablation(
                 stamp.unlink(missing_ok=True)
                 record = _one_run(g, seq.input, run_dir, sel, pm, cache, f"{var.name} / {seq.name}", progress)
                 if record["status"] != "stopped":
-                    stamp.write_text(run_key)
+                    write_text_atomic(stamp, run_key)
             wall = time.perf_counter() - t0
             bar_runs.update(1)
             assert record is not None
@@ -147,9 +163,6 @@ def run_ablation(
             var_rows.append(row)
         rows += var_rows
         rows.append(_pooled_row(var, var_rows, evals))
-    bar_runs.close()
-    write_reports(rows, out_dir)
-    return rows
 
 
 def _one_run(g: Any, input_path: Path | None, run_dir: Path, sel: slice | None, pm: Any, cache: ResultCache | None, desc: str, progress: bool) -> dict[str, Any]:
@@ -182,8 +195,8 @@ def _one_run(g: Any, input_path: Path | None, run_dir: Path, sel: slice | None, 
         timings = res.timings_json()
         timings["cache"] = {"hits": res.cache_hits, "misses": res.cache_misses}
         record.update(status="failed frames" if res.failures else "ok", error=None, failures=[f.to_json() for f in res.failures], timings=timings)
-        (run_dir / "timings.json").write_text(json.dumps(timings, indent=2) + "\n")
-    (run_dir / "run.json").write_text(json.dumps(record, indent=2) + "\n")
+        write_text_atomic(run_dir / "timings.json", json.dumps(timings, indent=2) + "\n")
+    write_text_atomic(run_dir / "run.json", json.dumps(record, indent=2) + "\n")
     return record
 
 
@@ -246,14 +259,15 @@ def write_reports(rows: list[dict[str, Any]], out_dir: Path) -> None:
     two plots (pooled rows)."""
     stages = list(dict.fromkeys(s for r in rows for s in r.get("stage_ms", {})))
     cols = ["variant", "sequence", "frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px", "culane_f1", "ms_per_frame"]
-    with (out_dir / "results.csv").open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(cols + [f"ms_{s}" for s in stages] + ["wall_s", "reused", "cache_hits", "failed_frames", "error"])
-        for r in rows:
-            w.writerow(
-                [r.get(c) for c in cols] + [r["stage_ms"].get(s) for s in stages]
-                + [r["wall_s"], r["reused"], r["cache_hits"], r.get("failed_frames", 0), r.get("error") or ""]
-            )
+    buf = io.StringIO(newline="")
+    w = csv.writer(buf)
+    w.writerow(cols + [f"ms_{s}" for s in stages] + ["wall_s", "reused", "cache_hits", "failed_frames", "error"])
+    for r in rows:
+        w.writerow(
+            [r.get(c) for c in cols] + [r["stage_ms"].get(s) for s in stages]
+            + [r["wall_s"], r["reused"], r["cache_hits"], r.get("failed_frames", 0), r.get("error") or ""]
+        )
+    write_text_atomic(out_dir / "results.csv", buf.getvalue())
     pooled = [r for r in rows if r.get("sequence") == POOLED]
     sequences = list(dict.fromkeys(r["sequence"] for r in rows if r.get("sequence") != POOLED))
     head = [
@@ -285,8 +299,14 @@ def write_reports(rows: list[dict[str, Any]], out_dir: Path) -> None:
         for r in failed:
             what = r.get("error") or f"{r['failed_frames']} frame(s) failed (on_error skip), figures over the others"
             lines.append(f"- {r['variant']} / {r['sequence']}: {what}")
-    (out_dir / "results.md").write_text("\n".join(lines) + "\n")
+    write_text_atomic(out_dir / "results.md", "\n".join(lines) + "\n")
     _plots(pooled, out_dir)
+
+
+def _save(fig: Any, path: Path) -> None:
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=110, format="png")
+    write_bytes_atomic(path, buf.getvalue())
 
 
 def _plots(rows: list[dict[str, Any]], out_dir: Path) -> None:
@@ -310,7 +330,7 @@ def _plots(rows: list[dict[str, Any]], out_dir: Path) -> None:
     ax.set_title("accuracy per variant")
     ax.legend(loc="lower right")
     fig.tight_layout()
-    fig.savefig(out_dir / "accuracy.png", dpi=110)
+    _save(fig, out_dir / "accuracy.png")
     plt.close(fig)
     fig, ax = plt.subplots(figsize=(6, 4.5))
     for r, a in zip(rows, acc):
@@ -324,5 +344,5 @@ def _plots(rows: list[dict[str, Any]], out_dir: Path) -> None:
     ax.set_ylim(-0.02, 1.05)
     ax.set_title("accuracy against time")
     fig.tight_layout()
-    fig.savefig(out_dir / "accuracy_vs_ms.png", dpi=110)
+    _save(fig, out_dir / "accuracy_vs_ms.png")
     plt.close(fig)

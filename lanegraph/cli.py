@@ -124,17 +124,21 @@ def run(
         chosen = {item.strip() for item in debug_frames.split(",") if item.strip()}
         if not chosen:
             _fail(UsageError(f"--debug-frames {debug_frames!r}: expected frame ids or indices, comma-separated"))
+    locks: list[OutputLock] = []
     try:
         prepare_dir(out_dir, "--out")
         if debug_dir is not None:
             prepare_dir(debug_dir, "--debug-dir")
-        lock = OutputLock(out_dir, "run").acquire()
+        locks.append(OutputLock(out_dir, "run").acquire())
     except UsageError as exc:
+        for lk in locks:
+            lk.release()
         _fail(exc)
     try:
         status = _run_locked(g, input_path, out_dir, selection, quiet, resume, debug_dir, chosen)
     finally:
-        lock.release()
+        for lk in locks:
+            lk.release()
     sys.exit(status)
 
 
@@ -164,6 +168,8 @@ def _run_locked(
                 "cannot resume (run without --resume to start over)"
             )
         legacy.unlink(missing_ok=True)
+        if checkpoint.exists() and not checkpoint.is_file():
+            raise UsageError(f"{checkpoint}: exists and is not a file (lanegraph keeps its checkpoint there)")
         if resume and checkpoint.is_file():
             ckpt = load_checkpoint(checkpoint)
         elif not resume:
@@ -186,6 +192,15 @@ def _run_locked(
         _fail(exc, 2)
     if ckpt is not None:
         if ckpt.complete:
+            try:  # the input and the outputs must still be those of the checkpoint
+                ex.open()
+            except LanegraphError as exc:
+                _fail(exc, 2)
+            finally:
+                for inst in ex.instances.values():
+                    close = getattr(inst, "close", None)
+                    if close is not None:
+                        close()
             click.echo(
                 f"nothing to resume: the run in {out_dir} is complete ({ckpt.frames_ok} frame(s) done, "
                 f"{len(ckpt.failures)} failed); its outputs are left as they are",
@@ -556,6 +571,11 @@ def ablate(base, variants, input_path, gt_path, dataset_path, sweeps, out_dir, f
         _fail(exc, 2)
     except LanegraphError as exc:
         _fail(exc)
+    except KeyboardInterrupt:
+        click.echo(f"error: interrupted (Ctrl-C); the finished runs are in {out_dir}/runs and results.md", err=True)
+        sys.exit(130)
+    except OSError as exc:
+        _fail(LanegraphError(f"{exc.filename + ': ' if exc.filename else ''}{exc.strerror or exc}"), 1)
     finally:
         lock.release()
     runs_rows = [r for r in rows if r.get("sequence") != "all"]
@@ -659,6 +679,13 @@ def _eval_one(pred: Path, gt: Path, wanted: set[str], scene: Path | None, calib:
     from .metrics_extra import culane_metrics, lateral_error_cm, tusimple_metrics
 
     pred_recs, gt_recs = read_predictions(pred), read_ground_truth(gt)
+    pred_frames, gt_frames = {str(r["frame"]) for r in pred_recs}, {str(r["frame"]) for r in gt_recs}
+    if pred_frames and gt_frames and not pred_frames & gt_frames:
+        raise InputError(
+            f"no frame of {pred} is in {gt} (e.g. {sorted(pred_frames)[0]!r} against {sorted(gt_frames)[0]!r}): "
+            "predictions and ground truth of different sequences?",
+            path=str(pred),
+        )
     res = evaluate(pred_recs, gt_recs)
     res.pop("per_frame")
     if "culane" in wanted:

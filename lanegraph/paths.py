@@ -14,9 +14,11 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import re
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
@@ -181,15 +183,19 @@ class OutputLock:
             import fcntl
         except ImportError:  # pragma: no cover - not a POSIX system: no lock
             return self
-        try:
-            fh = open(self.path, "a+", encoding="utf-8")  # noqa: SIM115 - held until release()
+        try:  # never through a link planted at the lock's name (it would be truncated)
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
+            fh = os.fdopen(fd, "r+", encoding="utf-8")
         except OSError as exc:
             raise UsageError(f"{self.path}: cannot create the lock file: {exc.strerror or exc}") from None
         try:
             fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
+        except OSError as exc:
+            if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                fh.close()
+                raise UsageError(f"{self.path}: cannot lock the output folder: {exc.strerror or exc}") from None
             fh.seek(0)
-            holder = _holder(fh.read())
+            holder = _holder(fh.read(4096))
             fh.close()
             raise UsageError(
                 f"{self.path.parent}: in use by another lanegraph {holder}; "
@@ -222,18 +228,37 @@ def _holder(text: str) -> str:
         return "run (holder unknown)"
 
 
-def write_text_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and a rename (never half a file)."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+def write_bytes_atomic(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a new temporary file in the same folder and a rename: never
+    half a file, and never through a symbolic or hard link planted at ``path`` (the rename replaces
+    the link itself)."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name[:100]}.", suffix=".tmp")
     try:
-        tmp.write_text(text, encoding="utf-8")
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
         os.replace(tmp, path)
     except BaseException:
         try:
-            tmp.unlink(missing_ok=True)
+            os.unlink(tmp)
         except OSError:
             pass
         raise
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """:func:`write_bytes_atomic` of UTF-8 text."""
+    write_bytes_atomic(path, text.encode("utf-8"))
+
+
+def create_new(path: Path) -> Any:
+    """``path`` opened for writing as a new, empty file (unbuffered): an existing file, or a link
+    planted at its name, is removed first, so writing never goes through a link to elsewhere."""
+    try:
+        path.unlink()
+    except FileNotFoundError:
+        pass
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o644)
+    return os.fdopen(fd, "wb", buffering=0)
 
 
 __all__ = [
@@ -249,5 +274,7 @@ __all__ = [
     "prepare_dir",
     "relative_output",
     "safe_name",
+    "create_new",
+    "write_bytes_atomic",
     "write_text_atomic",
 ]

@@ -24,7 +24,7 @@ import numpy as np
 
 from .errors import UsageError
 from .hookspecs import hookimpl
-from .paths import inside, safe_name
+from .paths import inside, safe_name, write_bytes_atomic
 from .types import BevGeometry, Calibration, FeatureMap, Lane, Line, RoadModel
 
 #: colours (BGR)
@@ -409,11 +409,12 @@ class DebugRecorder:
     @staticmethod
     def _write(path: Path, img: np.ndarray) -> None:
         try:
-            ok = cv2.imwrite(str(path), img)
-        except cv2.error as exc:
+            ok, png = cv2.imencode(".png", img)
+            if not ok:
+                raise UsageError(f"--debug-dir: cannot encode {path.name} as PNG")
+            write_bytes_atomic(path, png.tobytes())  # never through a link planted at its name
+        except (cv2.error, OSError) as exc:
             raise UsageError(f"--debug-dir: cannot write {path}: {exc}") from None
-        if not ok:
-            raise UsageError(f"--debug-dir: cannot write {path}")
 
     # -- helpers
     def _port_type(self, node_type: str, port: str) -> str:

@@ -29,7 +29,6 @@ import base64
 import dataclasses
 import json
 import math
-import os
 from pathlib import Path
 from typing import Any, Literal
 
@@ -38,6 +37,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from .cache import digest
 from .errors import UsageError
+from .paths import write_bytes_atomic
 from .types import BevGeometry, Calibration, FeatureMap, Lane, Line, RoadModel
 
 CHECKPOINT_NAME = "checkpoint.json"
@@ -349,10 +349,7 @@ def _first_difference(a: Any, b: Any, where: str = "") -> str | None:
 
 def save_checkpoint(path: Path, data: dict[str, Any]) -> None:
     """Write a checkpoint atomically (a temporary file, then a rename: never half a file)."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "w", encoding="utf-8") as fh:
-        fh.write(json.dumps(data, separators=(",", ":"), allow_nan=False))
-    os.replace(tmp, path)
+    write_bytes_atomic(path, json.dumps(data, separators=(",", ":"), allow_nan=False).encode("utf-8"))
 
 
 def feedback_entries(values: dict[tuple[str, str], Any], keys: dict[tuple[str, str], str | None]) -> list[dict[str, Any]]:

@@ -252,6 +252,36 @@ def test_a_symbolic_link_out_of_out_is_refused(cli, tmp_path):
         inside(out, "lanes.jsonl", "x")
 
 
+def test_links_planted_in_out_are_never_written_through(cli, tmp_path):
+    """Links at the names a run writes (its own files, a sink's, a picture's) point elsewhere: the
+    run replaces the link, the file it pointed to is untouched."""
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious\n")
+    hard = tmp_path / "hard.txt"
+    hard.write_text("precious too\n")
+    out, dbg = tmp_path / "out", tmp_path / "dbg"
+    (out / "overlay").mkdir(parents=True)
+    (dbg / "0000000001").mkdir(parents=True)
+    for name in ("run.json", "timings.json", "checkpoint.json", "overlay/0000000000.png"):
+        (out / name).symlink_to(victim)
+    (dbg / "0000000001" / "mosaic.png").symlink_to(victim)
+    os.link(hard, out / "lanes.jsonl")  # a hard link: truncating the file would change hard.txt
+    graph = tmp_path / "overlay.yaml"
+    graph.write_text(f"extends: {DEMO}\nnodes:\n  overlay: {{type: io.write_overlay, inputs: {{frame: src.frame, image: src.left}}}}\n")
+    code, output = cli("run", graph, "--out", out, "--debug-dir", dbg, "--debug-frames", "1", "--quiet", *SYNTH)
+    assert code == 0, output
+    assert victim.read_text() == "precious\n" and hard.read_text() == "precious too\n"
+    assert not (out / "run.json").is_symlink() and json.loads((out / "run.json").read_text())["frames_ok"] == 4
+    assert cv2.imread(str(out / "overlay" / "0000000000.png")) is not None
+    assert len(lines(out / "lanes.jsonl")) == 4
+    # a link at the lock's name: refused, not truncated
+    (out / ".lanegraph.lock").unlink()
+    (out / ".lanegraph.lock").symlink_to(victim)
+    code, output = cli("run", DEMO, "--out", out, "--quiet", *SYNTH)
+    assert code == 2 and "cannot create the lock file" in output, output
+    assert victim.read_text() == "precious\n"
+
+
 def test_frame_ids_never_climb_out_of_the_debug_dir_or_the_overlay_folder(cli, tmp_path):
     """A frame file named '...png' has the stem '..'."""
     d = pair_folder(tmp_path / "in", n=1)
@@ -327,6 +357,18 @@ def test_a_deleted_lanes_file_is_refused(cli, tmp_path, installed_pm):
     assert code == 2, output
     assert str(out / "lanes.jsonl") in output and "missing: the checkpoint recorded" in output, output
     assert not (out / "lanes.jsonl").exists()
+
+
+def test_a_complete_run_whose_lanes_were_deleted(cli, tmp_path):
+    out = tmp_path / "out"
+    assert cli("run", DEMO, "--out", out, "--quiet", *SYNTH)[0] == 0
+    (out / "lanes.jsonl").unlink()
+    code, output = cli("run", DEMO, "--out", out, "--quiet", *SYNTH, "--resume")
+    assert code == 2 and "missing: the checkpoint recorded" in output, output
+    (out / "checkpoint.json").unlink()
+    (out / "checkpoint.json").mkdir()
+    code, output = cli("run", DEMO, "--out", out, "--quiet", *SYNTH)
+    assert code == 2 and "checkpoint.json: exists and is not a file" in output, output
 
 
 def test_failures_accumulate_over_resumes(cli, tmp_path, installed_pm):
@@ -435,6 +477,34 @@ def test_implausible_kitti_raw_calibration(cli, tmp_path, rows, words):
     for w in words:
         assert w in output, output
     assert lines(tmp_path / "out" / "lanes.jsonl") == []
+
+
+@pytest.mark.parametrize(
+    "rows, words",
+    [
+        (["S_rect_02: 640 480", f"P_rect_02: {P2}", f"P_rect_03: {P3}"],
+         ["row 'S_rect_02'", "the calibration is for 640x480 images, the frames are 64x48"]),
+        (["P_rect_02: 60 3 32 0 0 60 24 0 0 0 1 0", "P_rect_03: 60 3 32 -30 0 60 24 0 0 0 1 0"],
+         ["row 'P_rect_02' is not a rectified projection matrix"]),
+        ([f"P_rect_02: {P2}", "P_rect_03: 120 0 64 -60 0 120 48 0 0 0 2 0"], ["row 'P_rect_03' is not a rectified projection matrix"]),
+        (["S_rect_02: 64.5 48", f"P_rect_02: {P2}", f"P_rect_03: {P3}"], ["row 'S_rect_02'", "two integers"]),
+    ],
+    ids=["size not the frames'", "skew", "scaled matrix", "fractional size"],
+)
+def test_calibration_forms(cli, tmp_path, rows, words):
+    drive = kitti_raw(tmp_path, calib_rows=rows)
+    code, output = cli("run", DEMO, "--input", drive, "--out", tmp_path / "out", "--quiet", *SMALL)
+    assert code == 2, output
+    assert str(drive.parent / "calib_cam_to_cam.txt") in output, output
+    for w in words:
+        assert w in output, output
+
+
+def test_a_huge_calibration_file_is_not_read(cli, tmp_path):
+    d = pair_folder(tmp_path / "in")
+    (d / "calib.yaml").write_text("f: 60\ncx: 32\ncy: 24\nbaseline: 0.5\n" + "#" * 2_000_000 + "\n")
+    code, output = cli("run", DEMO, "--input", d, "--out", tmp_path / "out", "--quiet", *SMALL)
+    assert code == 2 and str(d / "calib.yaml") in output and "not a calibration file" in output, output
 
 
 def test_the_user_widens_the_baseline_range(cli, tmp_path):
@@ -711,6 +781,41 @@ def test_ablate_a_failing_variant_gets_its_row(cli, tmp_path):
     assert [json.loads(x)["frame"] for x in lines(out / "runs" / "failing" / "in" / "lanes.jsonl")] == ["000000"]
 
 
+def test_ablate_interrupted_keeps_the_finished_variants(cli, tmp_path, installed_pm):
+    d = pair_folder(tmp_path / "in", n=2)
+    second = tmp_path / "second.yaml"
+    second.write_text(f"extends: {DEMO}\nnodes:\n  disp: {{params: {{num_disparities: 32}}}}\n")
+    first = tmp_path / "first.yaml"
+    first.write_text(f"extends: {DEMO}\nnodes:\n  disp: {{params: {{num_disparities: 16}}}}\n")
+
+    class CtrlC:
+        @hookimpl
+        def lanegraph_before_node(self, node_id, node_type, frame):
+            if node_type == "disparity.sgbm" and frame == "000001" and CtrlC.armed:
+                raise KeyboardInterrupt
+
+    CtrlC.armed = False
+    runs = {"n": 0}
+
+    class Arm:
+        @hookimpl
+        def lanegraph_run_start(self):
+            runs["n"] += 1
+            CtrlC.armed = runs["n"] == 2
+
+    installed_pm.register(CtrlC(), name="ctrl-c")
+    installed_pm.register(Arm(), name="arm")
+    try:
+        code, output = cli("ablate", first, second, "--input", d, "--out", tmp_path / "abl", "--quiet", "--no-cache")
+    finally:
+        installed_pm.unregister(name="ctrl-c")
+        installed_pm.unregister(name="arm")
+    assert code == 130 and "interrupted (Ctrl-C)" in output, output
+    md = (tmp_path / "abl" / "results.md").read_text()
+    assert "| first |" in md and "| second |" not in md
+    assert len(lines(tmp_path / "abl" / "runs" / "first" / "in" / "lanes.jsonl")) == 2
+
+
 def test_ablate_a_malformed_gt_is_found_before_any_run(cli, tmp_path):
     d = pair_folder(tmp_path / "in", n=2)
     gt = tmp_path / "gt.jsonl"
@@ -738,8 +843,12 @@ PRED_LINE = {"frame": "f0", "lanes": [{"points": [[101, 300], [121, 280]]}]}
         ([PRED_LINE], [GT_LINE, GT_LINE], "GT", ["line 2", "appears twice"]),
         ([{"frame": "f0", "lanes": [{"points": [[float("nan"), 1]]}]}], [GT_LINE], "PRED", ["line 1", "two finite numbers"]),
         ([{"frame": True, "lanes": []}], [GT_LINE], "PRED", ["line 1", "'frame' must be a frame id"]),
+        ([{**PRED_LINE, "frame": "0000000007"}], [GT_LINE], "PRED", ["no frame of", "different sequences?"]),
     ],
-    ids=["swapped", "three coordinates", "duplicate frame", "lanes none", "ego left", "markings x", "ego unknown id", "gt duplicate", "nan point", "frame bool"],
+    ids=[
+        "swapped", "three coordinates", "duplicate frame", "lanes none", "ego left", "markings x", "ego unknown id",
+        "gt duplicate", "nan point", "frame bool", "no common frame",
+    ],
 )
 def test_eval_checks_both_files(cli, tmp_path, pred, gt, where, words):
     p, g = tmp_path / "p.jsonl", tmp_path / "gt.jsonl"

@@ -10,6 +10,9 @@ import yaml
 from lanegraph.errors import InputError
 from lanegraph.types import BASELINE_RANGE_M, Calibration, calibration_problems
 
+#: calibration files are small text files: larger ones are refused before they are read
+MAX_CALIB_BYTES = 1_000_000
+
 
 def read_key_rows(path: Path) -> dict[str, tuple[int, list[float]]]:
     """``KEY: v1 v2 ...`` rows of a KITTI calibration file -> {key: (line number, numbers)}.
@@ -19,6 +22,8 @@ def read_key_rows(path: Path) -> dict[str, tuple[int, list[float]]]:
         raise InputError("calibration file not found", path=str(path))
     rows: dict[str, tuple[int, list[float]]] = {}
     try:
+        if path.stat().st_size > MAX_CALIB_BYTES:
+            raise InputError(f"{path.stat().st_size} bytes: not a calibration file (at most {MAX_CALIB_BYTES})", path=str(path))
         text = path.read_text(errors="replace")
     except OSError as exc:
         raise InputError(f"cannot read the calibration file: {exc.strerror or exc}", path=str(path)) from None
@@ -70,6 +75,14 @@ def calibration_from_projections(
     """Rectified calibration from the two 3x4 projection matrices (``P = K [I | t]``) of rows
     ``keys``; a pair whose intrinsics differ is not rectified and is refused, naming both rows."""
     kl, kr = keys
+    for key, p in ((kl, p_left), (kr, p_right)):  # P = K [I | t]: no skew, last row (0, 0, 1, tz)
+        form = [(0, 1), (1, 0), (2, 0), (2, 1)]
+        if any(abs(float(p[i, j])) > 1e-6 * max(abs(float(p[0, 0])), 1.0) for i, j in form) or abs(float(p[2, 2]) - 1.0) > 1e-6:
+            raise InputError(
+                f"row {key!r} is not a rectified projection matrix [[f, 0, cx, tx], [0, fy, cy, ty], [0, 0, 1, tz]]: "
+                f"got {' '.join(f'{v:g}' for v in p.reshape(-1))}",
+                path=str(path),
+            )
     for name, (i, j) in (("fx", (0, 0)), ("fy", (1, 1)), ("cx", (0, 2)), ("cy", (1, 2))):
         a, b = float(p_left[i, j]), float(p_right[i, j])
         if abs(a - b) > 1e-4 * max(abs(a), 1.0):
@@ -118,6 +131,8 @@ def read_calibration_yaml(path: str | Path) -> Calibration:
     path = Path(path)
     if not path.is_file():
         raise InputError("calibration file not found (expected calib.yaml with f, cx, cy, baseline)", path=str(path))
+    if path.stat().st_size > MAX_CALIB_BYTES:
+        raise InputError(f"{path.stat().st_size} bytes: not a calibration file (at most {MAX_CALIB_BYTES})", path=str(path))
     try:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
@@ -145,8 +160,10 @@ def read_calibration_yaml(path: str | Path) -> Calibration:
     size = {}
     for k in ("width", "height"):
         v = data.get(k, 0) or 0
-        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-            raise InputError(f"key {k!r}: expected the image {k} in pixels (an integer >= 0), got {v!r}", path=str(path))
+        if isinstance(v, float) and v.is_integer():
+            v = int(v)
+        if isinstance(v, bool) or not isinstance(v, int) or v < 0 or v > 100000:
+            raise InputError(f"key {k!r}: expected the image {k} in pixels (an integer 0..100000), got {v!r}", path=str(path))
         size[k] = v
     if bool(size["width"]) != bool(size["height"]):
         raise InputError("keys 'width', 'height': give both or neither", path=str(path))

@@ -20,7 +20,7 @@ from pydantic import Field
 
 from lanegraph import NodeParams, Port, RunContext, node_type
 from lanegraph.errors import InputError
-from lanegraph.paths import OutputDir, OutputFile, inside, safe_name
+from lanegraph.paths import OutputDir, OutputFile, create_new, inside, safe_name, write_bytes_atomic
 from lanegraph.render import draw_lane_points
 from lanegraph.types import Lane
 
@@ -71,8 +71,9 @@ class WriteLanes:
             self._hash.update(data)
             self._bytes = len(data)
         # unbuffered: a record is one write() call, so an interrupted run never leaves half of one
-        # in a buffer that closing the file would flush
-        self.fh = open(self.path, "ab" if params.append else "wb", buffering=0)  # noqa: SIM115 - closed by close()
+        # in a buffer that closing the file would flush; a new file is created anew (never written
+        # through a link planted at its name)
+        self.fh = open(self.path, "ab", buffering=0) if params.append else create_new(self.path)  # noqa: SIM115 - closed by close()
 
     def __call__(self, frame: str, lanes: list[Lane] | None = None) -> dict:
         data = (json.dumps(lane_record(frame, lanes), separators=(",", ":")) + "\n").encode("utf-8")
@@ -175,10 +176,10 @@ class WriteOverlay:
         if self.count % self.p.every == 0:
             out = draw_overlay(image, lanes, mask, f"{frame}  lanes: {len(lanes or [])}", self.p.thickness)
             name = safe_name(frame)  # a frame id is free text: never '..' or a separator in a file name
-            tmp = self.dir / f".{name}.tmp.png"
-            if not cv2.imwrite(str(tmp), out):
-                raise OSError(f"cannot write {tmp}")
-            os.replace(tmp, self.dir / f"{name}.png")
+            ok, png = cv2.imencode(".png", out)
+            if not ok:
+                raise ValueError(f"cannot encode the overlay of frame {frame} as PNG")
+            write_bytes_atomic(self.dir / f"{name}.png", png.tobytes())
         self.count += 1
         return {}
 

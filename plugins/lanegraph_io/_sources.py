@@ -248,12 +248,17 @@ class _PairSource:
     def _checked_calibration(self, calib: Calibration) -> Calibration:
         """The calibration with the image size of the frames when it has none, checked for
         plausibility (refused before any frame, naming the file and key)."""
+        first = next((s for s in (image_size(lp) for _, lp, _ in self.all_pairs[:5]) if s not in (None, TOO_LARGE)), None)
         if not (calib.width and calib.height):
-            for _, lp, _ in self.all_pairs[:5]:
-                size = image_size(lp)
-                if size is not None:
-                    calib = replace(calib, width=size[0], height=size[1])
-                    break
+            if first is not None:
+                calib = replace(calib, width=first[0], height=first[1])
+        elif first is not None and first != (calib.width, calib.height):
+            key = self.calib_names.get("width", "image size")
+            raise InputError(
+                f"{key}: the calibration is for {calib.width}x{calib.height} images, the frames are {first[0]}x{first[1]} "
+                f"({self.all_pairs[0][1].parent})",
+                path=str(self.calib_path or self.root),
+            )
         rng = (self.params.min_baseline_m, self.params.max_baseline_m)
         check_calibration(calib, self.calib_path or self.root, self.calib_names, rng)
         return calib
