@@ -123,7 +123,8 @@ def _run_variants(variants, dataset, out_dir, cache, progress, pm, seq_frames, g
             g = load_graph(var.graph, var.sets, pm)  # per run: the executor resolves io.auto in place
             run_dir = inside(out_dir, f"runs/{_safe(var.name)}/{safe_name(seq.name)}", "ablate --out")  # links out of OUT refused
             run_dir.mkdir(parents=True, exist_ok=True)
-            run_key = digest(g.resolved_dict(), idents[seq.name], str(sel))
+            code = sorted({n.type.code_version for n in g.nodes.values()})  # an edited plugin runs again
+            run_key = digest(g.resolved_dict(), idents[seq.name], str(sel), code)
             stamp = run_dir / "run_key.txt"
             bar_runs.set_postfix_str(f"{var.name} / {seq.name}")
             t0 = time.perf_counter()

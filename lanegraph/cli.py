@@ -97,6 +97,7 @@ def main() -> None:
 @click.option("--resume", is_flag=True, help="continue an interrupted run in OUT after its last frame done (same graph, params, input and --frames)")
 @click.option("--debug-dir", type=click.Path(path_type=Path), help="save every node's output of the chosen frames as pictures, and a mosaic")
 @click.option("--debug-frames", help="frames for --debug-dir: ids or indices, comma-separated (default: all)")
+@click.option("--report", "make_report", is_flag=True, help="write OUT/report/index.html at the end (see `lanegraph report`)")
 def run(
     graph: str,
     input_path: Path | None,
@@ -107,6 +108,7 @@ def run(
     resume: bool,
     debug_dir: Path | None,
     debug_frames: str | None,
+    make_report: bool = False,
 ) -> None:
     """Run GRAPH (a file or a name under graphs/, default: paper) and write OUT/lanes.jsonl and OUT/timings.json."""
     from .paths import OutputLock, prepare_dir
@@ -135,7 +137,7 @@ def run(
             lk.release()
         _fail(exc)
     try:
-        status = _run_locked(g, input_path, out_dir, selection, quiet, resume, debug_dir, chosen)
+        status = _run_locked(g, input_path, out_dir, selection, quiet, resume, debug_dir, chosen, make_report)
     finally:
         for lk in locks:
             lk.release()
@@ -151,6 +153,7 @@ def _run_locked(
     resume: bool,
     debug_dir: Path | None,
     debug_frames: set[str] | None,
+    make_report: bool = False,
 ) -> int:
     """The body of ``lanegraph run`` once OUT is locked; returns the exit code."""
     from tqdm import tqdm
@@ -272,6 +275,13 @@ def _run_locked(
         f"{result.frames} frame(s) processed -> {', '.join([*outputs, str(out_dir / 'timings.json')])}"
         + (f" (median {total['median_ms']:.1f} ms/frame)" if total else "")
     )
+    if make_report:
+        try:
+            dbg = debug_dir if debug_dir is not None and debug_dir.is_dir() else None  # none if no frame was chosen
+            _write_report(out_dir, graph=g, input_path=input_path, frames=selection, debug_dir=dbg, quiet=quiet)
+        except LanegraphError as exc:  # the run's own outputs are written: they stay
+            click.echo(f"error: report: {exc}", err=True)
+            status = 1
     return status
 
 
@@ -519,7 +529,8 @@ def _mermaid_text(text: str) -> str:
 @click.option("--cache-dir", type=click.Path(path_type=Path), help="result cache folder (default: ~/.cache/lanegraph/results)")
 @click.option("--cache-max-gb", type=float, default=2.0, show_default=True, help="size bound of the result cache, GiB")
 @click.option("--quiet", is_flag=True, help="no progress bars")
-def ablate(base, variants, input_path, gt_path, dataset_path, sweeps, out_dir, frames, no_cache, cache_dir, cache_max_gb, quiet):
+@click.option("--report", "make_report", is_flag=True, help="write OUT/report/index.html at the end (see `lanegraph report`)")
+def ablate(base, variants, input_path, gt_path, dataset_path, sweeps, out_dir, frames, no_cache, cache_dir, cache_max_gb, quiet, make_report=False):
     """Run BASE and every VARIANT (and every --sweep point) over the same input or dataset, evaluate
     each and write OUT/results.csv (per sequence and pooled), OUT/results.md and plots; runs go to
     OUT/runs/<variant>/<sequence>/; work shared between variants is computed once."""
@@ -587,6 +598,11 @@ def ablate(base, variants, input_path, gt_path, dataset_path, sweeps, out_dir, f
     click.echo((out_dir / "results.md").read_text())
     hits = f", cache {cache.hits} hits / {cache.misses} misses" if cache is not None else ", no cache"
     click.echo(f"{len(rows)} row(s) in {time.perf_counter() - t0:.1f} s{hits} -> {out_dir}/results.md, results.csv, accuracy.png, accuracy_vs_ms.png")
+    if make_report:
+        try:  # the base variant's source reads the left images; its graph is drawn
+            _write_report(out_dir, dataset=dataset, frames=selection, graph=_load(str(runs[0].graph), tuple(runs[0].sets)), quiet=quiet)
+        except LanegraphError as exc:  # the ablation's own outputs are written: they stay
+            _fail(exc, 1)
     if failed or any(r.get("failed_frames") for r in runs_rows):
         for r in failed:
             click.echo(f"error: run {r['variant']} / {r['sequence']} failed: {r['error']}", err=True)
@@ -772,6 +788,50 @@ def _eval_dataset(pred_dir: Path, dataset_path: Path, as_json: bool) -> None:
         click.echo(f"failed frames ({len(failed)}):")
         for f in failed:
             click.echo(f"  {f['frame']}: {'; '.join(f['reasons'])}")
+
+
+@main.command()
+@click.argument("run_dir", type=click.Path(path_type=Path))
+@click.option("--gt", "gt_path", type=click.Path(path_type=Path), help="ground truth lanes_gt.jsonl (default: lanes_gt.jsonl in the input folder, when there is one)")
+@click.option("--dataset", "dataset_path", type=click.Path(path_type=Path), help="a dataset file: each sequence's input and ground truth (RUN_DIR/<sequence>/lanes.jsonl, or an ablation's runs)")
+@click.option("--input", "input_path", type=click.Path(path_type=Path), help="the input folder, where run.json names none or it moved (an ablation over one --input)")
+@click.option("--frames", help="the frame selection A:B or A:B:S the run was made with (the ground truth is cut alike)")
+@click.option("--set", "sets", multiple=True, metavar="NODE.PARAM=VALUE", help="the --set overrides the run was made with (its source node reads the left images)")
+@click.option("--debug-dir", type=click.Path(path_type=Path), help="the run's --debug-dir (default: one found inside RUN_DIR)")
+@click.option("--out", "out_dir", type=click.Path(path_type=Path), help="report folder  [default: RUN_DIR/report]")
+@click.option("--open", "open_browser", is_flag=True, help="open the report in the web browser")
+@click.option("--quiet", is_flag=True, help="no progress messages")
+def report(run_dir, gt_path, dataset_path, input_path, frames, sets, debug_dir, out_dir, open_browser, quiet):
+    """Write a self-contained HTML report of RUN_DIR, the output folder of `lanegraph run` or
+    `lanegraph ablate`: every frame's lanes against the ground truth, every node's pictures of the
+    frames recorded with --debug-dir, the graph with its times, the metrics; for an ablation its
+    results table and two variants side by side. Opens from file://, fetches nothing."""
+    try:
+        summary = _write_report(
+            run_dir, out_dir=out_dir, gt_path=gt_path, dataset_path=dataset_path, input_path=input_path,
+            frames=parse_frames(frames), sets=sets, debug_dir=debug_dir, quiet=quiet,
+        )  # fmt: skip
+    except LanegraphError as exc:  # a folder, option or file that does not fit: 2; failing to write: 1
+        _fail(exc, 2 if isinstance(exc, (UsageError, InputError, GraphError)) else 1)
+    if open_browser:
+        import webbrowser
+
+        webbrowser.open(summary.index.resolve().as_uri())
+
+
+def _write_report(run_dir: Path, *, dataset=None, dataset_path: Path | None = None, gt_path: Path | None = None, quiet: bool = False, **kwargs: Any):
+    """`lanegraph report` and the --report of run and ablate: write the report and print its
+    summary line (how many frames, failed ones, its size)."""
+    from .dataset import load_dataset
+    from .report import write_report
+
+    if dataset_path is not None:
+        dataset = load_dataset(dataset_path)
+    if gt_path is not None and not gt_path.is_file():
+        raise UsageError(f"--gt {gt_path}: no such file")
+    summary = write_report(run_dir, dataset=dataset, gt=gt_path, progress=not quiet, **kwargs)
+    click.echo(summary.line())
+    return summary
 
 
 if __name__ == "__main__":  # pragma: no cover

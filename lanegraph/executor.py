@@ -329,7 +329,7 @@ class Executor:
             if k is None:
                 return None
             parts.append((port, k))
-        return digest(node.type.name, node.type.plugin, node.params.model_dump(mode="json"), parts)
+        return digest(node.type.name, node.type.plugin, node.type.code_version, node.params.model_dump(mode="json"), parts)
 
     def open(self) -> None:
         """Instantiate the stateful nodes (sources, sinks); done by :meth:`run` if not yet done.
@@ -408,7 +408,7 @@ class Executor:
             consts = source.constants() if hasattr(source, "constants") else {}
             for port, v in consts.items():
                 values[(src_id, port)] = v
-                keys[(src_id, port)] = digest(g.source.type.name, src_params, "constant", port, repr(v)) if caching else None
+                keys[(src_id, port)] = digest(g.source.type.name, g.source.type.code_version, src_params, "constant", port, repr(v)) if caching else None
             if consts:
                 self.pm.hook.lanegraph_after_node(node_id=src_id, node_type=g.source.type.name, frame=None, outputs=dict(consts), elapsed_ms=0.0)
             for nid in g.order:
@@ -439,7 +439,7 @@ class Executor:
                 identity = frame_key(frame) if (caching and frame_key is not None) else None
                 for port, v in frame_out.items():
                     cur[(src_id, port)] = v
-                    cur_keys[(src_id, port)] = None if identity is None else digest(g.source.type.name, src_params, identity, port)
+                    cur_keys[(src_id, port)] = None if identity is None else digest(g.source.type.name, g.source.type.code_version, src_params, identity, port)
                 # the source is an iterator read ahead, so it fires only the after-node hook
                 src_ms = result.timings_ms.get(src_id, [0.0])[-1]
                 self.pm.hook.lanegraph_after_node(node_id=src_id, node_type=g.source.type.name, frame=frame, outputs=frame_out, elapsed_ms=src_ms)

@@ -64,6 +64,72 @@ def match_score(pred_points: Sequence[Sequence[float]], gt_points: Sequence[Sequ
     return float(dx.mean())
 
 
+#: outcome of a reported lane: it matches a distinct marking, or it is a false lane
+LANE_MATCHED, LANE_FALSE = "matched", "false"
+#: outcome of a ground-truth marking: matched; a painted ego boundary left unmatched (the frame
+#: fails); any other marking left unmatched (allowed: only ego boundaries must be found)
+MARKING_MATCHED, MARKING_MISSED_EGO, MARKING_UNMATCHED = "matched", "missed_ego", "unmatched"
+
+
+@dataclass
+class FrameMatch:
+    """The one-to-one matching of one frame's reported lanes to its ground-truth markings.
+
+    ``lane_marking[i]`` is the index (into the frame's ``markings``) of the marking reported lane
+    ``i`` matches, or None for a false lane; ``lane_dx[i]`` its mean |dx| in pixels (None when
+    unmatched); ``marking_lane[j]`` the reverse. ``ego`` maps each side with a painted ego boundary
+    (``ego.left`` / ``ego.right`` not null) to that marking's index, None when the id names no marking.
+    """
+
+    lane_marking: list[int | None]
+    lane_dx: list[float | None]
+    marking_lane: list[int | None]
+    ego: dict[str, int | None]
+    ego_ids: dict[str, Any] = field(default_factory=dict)
+
+    def lane_outcomes(self) -> list[str]:
+        """Per reported lane: ``"matched"`` or ``"false"``."""
+        return [LANE_FALSE if j is None else LANE_MATCHED for j in self.lane_marking]
+
+    def marking_outcomes(self) -> list[str]:
+        """Per marking: ``"matched"``, ``"missed_ego"`` (an ego boundary left unmatched) or ``"unmatched"``."""
+        ego = {j for j in self.ego.values() if j is not None}
+        return [
+            MARKING_MATCHED if i is not None else (MARKING_MISSED_EGO if j in ego else MARKING_UNMATCHED)
+            for j, i in enumerate(self.marking_lane)
+        ]
+
+
+def match_frame(pred_lanes: Sequence[Mapping[str, Any]], gt: Mapping[str, Any]) -> FrameMatch:
+    """Match one frame's reported lanes to its ground-truth markings: every (lane, marking) pair
+    that :func:`match_score` accepts, taken greedily by mean |dx|, each lane and marking once."""
+    markings = list(gt.get("markings") or [])
+    pairs = []
+    for i, lane in enumerate(pred_lanes):
+        for j, m in enumerate(markings):
+            s = match_score(lane.get("points") or [], m.get("points") or [])
+            if s is not None:
+                pairs.append((s, i, j))
+    pairs.sort()
+    lane_marking: list[int | None] = [None] * len(pred_lanes)
+    lane_dx: list[float | None] = [None] * len(pred_lanes)
+    marking_lane: list[int | None] = [None] * len(markings)
+    for s, i, j in pairs:
+        if lane_marking[i] is not None or marking_lane[j] is not None:
+            continue
+        lane_marking[i], lane_dx[i], marking_lane[j] = j, s, i
+    ego_spec = gt.get("ego") or {}
+    ids = {m.get("id"): j for j, m in enumerate(markings)}
+    ego: dict[str, int | None] = {}
+    ego_ids: dict[str, Any] = {}
+    for side in ("left", "right"):
+        mid = ego_spec.get(side)
+        if mid is not None:
+            ego[side] = ids.get(mid)
+            ego_ids[side] = mid
+    return FrameMatch(lane_marking, lane_dx, marking_lane, ego, ego_ids)
+
+
 @dataclass
 class FrameResult:
     frame: str
@@ -74,47 +140,28 @@ class FrameResult:
     ego_matched: int
     dx: list[float] = field(default_factory=list)
     reasons: list[str] = field(default_factory=list)
+    match: FrameMatch | None = None  # the matching the figures were counted from
 
 
 def evaluate_frame(pred_lanes: Sequence[Mapping[str, Any]], gt: Mapping[str, Any]) -> FrameResult:
     """Evaluate one frame's reported lanes against its ground-truth record."""
-    markings = list(gt.get("markings") or [])
+    m = match_frame(pred_lanes, gt)
     frame = str(gt.get("frame"))
-    pairs = []
-    for i, lane in enumerate(pred_lanes):
-        for j, m in enumerate(markings):
-            s = match_score(lane.get("points") or [], m.get("points") or [])
-            if s is not None:
-                pairs.append((s, i, j))
-    pairs.sort()
-    pred_match: dict[int, int] = {}
-    gt_match: dict[int, int] = {}
-    dx: list[float] = []
-    for s, i, j in pairs:
-        if i in pred_match or j in gt_match:
-            continue
-        pred_match[i] = j
-        gt_match[j] = i
-        dx.append(s)
+    # mean |dx| of the matches, in the order they were taken (greedy by mean |dx|)
+    dx = sorted(d for d in m.lane_dx if d is not None)
     reasons = []
-    unmatched = [i for i in range(len(pred_lanes)) if i not in pred_match]
+    unmatched = [i for i, j in enumerate(m.lane_marking) if j is None]
     if unmatched:
         reasons.append(f"{len(unmatched)} false lane(s) (reported lane index {unmatched})")
-    ego = gt.get("ego") or {}
-    ids = {m.get("id"): j for j, m in enumerate(markings)}
-    ego_total = ego_matched = 0
-    for side in ("left", "right"):
-        mid = ego.get(side)
-        if mid is None:
-            continue
-        ego_total += 1
-        j = ids.get(mid)
-        if j is not None and j in gt_match:
+    ego_matched = 0
+    for side, j in m.ego.items():
+        if j is not None and m.marking_lane[j] is not None:
             ego_matched += 1
         else:
-            reasons.append(f"ego {side} boundary (marking {mid}) not matched")
+            reasons.append(f"ego {side} boundary (marking {m.ego_ids[side]}) not matched")
     correct = not reasons
-    return FrameResult(frame, correct, len(pred_lanes), len(pred_match), ego_total, ego_matched, dx, reasons)
+    matched = len(pred_lanes) - len(unmatched)
+    return FrameResult(frame, correct, len(pred_lanes), matched, len(m.ego), ego_matched, dx, reasons, m)
 
 
 def evaluate(pred_records: Iterable[Mapping[str, Any]], gt_records: Iterable[Mapping[str, Any]]) -> dict[str, Any]:

@@ -21,6 +21,7 @@ frames: ``obj.constants()`` returns its constant outputs (e.g. calibration),
 
 from __future__ import annotations
 
+import functools
 import inspect
 import typing
 from collections.abc import Callable, Mapping
@@ -141,8 +142,42 @@ class NodeType:
         return self.name.split(".")[0]
 
     @property
+    def code_version(self) -> str:
+        """A digest of the code that computes this node: the source files of the top-level package
+        (or module) that defines its function, and lanegraph's version. Cached results and reused
+        runs are keyed by it, so that a changed plugin (an upgrade, or an edit in a development
+        install) never serves results its old code computed."""
+        return _code_version(getattr(self.func, "__module__", "") or "")
+
+    @property
     def summary(self) -> str:
         return self.doc.strip().splitlines()[0] if self.doc.strip() else ""
+
+
+@functools.cache
+def _code_version(module: str) -> str:
+    import hashlib
+    import importlib.util
+
+    from . import __version__
+
+    h = hashlib.sha256(__version__.encode())
+    top = module.split(".")[0]
+    try:
+        spec = importlib.util.find_spec(top) if top else None
+    except (ImportError, ValueError):
+        spec = None
+    if spec is not None and spec.origin:
+        origin = Path(spec.origin)
+        files = sorted(origin.parent.rglob("*.py")) if spec.submodule_search_locations else [origin]
+        for f in files:
+            try:
+                h.update(f.relative_to(origin.parent).as_posix().encode() + b"\0" + f.read_bytes())
+            except OSError:
+                continue
+    else:  # a function defined in __main__ or a test: its module's name only
+        h.update(module.encode())
+    return h.hexdigest()[:16]
 
 
 def _params_from_annotation(func: Callable[..., Any]) -> type[NodeParams] | None:

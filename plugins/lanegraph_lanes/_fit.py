@@ -181,12 +181,15 @@ def _poly4(c, x):
 
 
 @jit
-def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px):
+def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px, scale_of, prior):
     """:func:`irls_fit` by weighted normal equations in the scaled abscissa ``x = (t - mid) / half``
     (``x`` in [-1, 1]: well conditioned, unlike powers of ``t`` itself); ``degree <= 3``. Returns
-    ``(ok, coef, w)``, coefficients in ``t``, lowest power first; ``ok`` False when a system is
-    singular (the caller then uses the NumPy least-squares path). Converged when no point's fitted
-    value moves by more than ``tol_px``."""
+    ``(ok, coef, w)``, coefficients in ``t``, lowest power first, ``w`` the robust weights;
+    ``ok`` False when a system is singular (the caller then uses the NumPy least-squares path).
+    Converged when no point's fitted value moves by more than ``tol_px``. ``scale_of`` (one per
+    point, or empty: all 1) scales each residual before the robust weights and the sums of squares,
+    ``prior`` (one per point, or empty: all 1) weighs each point's square: the system's weights are
+    the robust weights times ``scale_of**2 * prior``."""
     n = t.size
     m = degree + 1
     lo = t.min()
@@ -205,7 +208,15 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px):
         for i in range(j + 1):
             T[i, j] = binom * (-mid) ** (j - i) / half**j
             binom = binom * (j - i) / (i + 1)
-    w = np.ones(n)
+    ks = np.ones(n)
+    if scale_of.size == n:
+        for i in range(n):
+            ks[i] = scale_of[i]
+    pw = np.ones(n)  # the fixed part of the system's weights
+    for i in range(n):
+        pw[i] = ks[i] * ks[i] * (prior[i] if prior.size == n else 1.0)
+    w = np.ones(n)  # the robust weights
+    sw = pw.copy()  # the system's weights
     coef = np.zeros(m)
     a = np.zeros(m)
     res = np.empty(n)
@@ -215,7 +226,7 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px):
         if it > 0:
             ca = _coeffs4(a)
             for i in range(n):
-                res[i] = y[i] - _poly4(ca, x[i])
+                res[i] = (y[i] - _poly4(ca, x[i])) * ks[i]
             med = np.median(res)
             for i in range(n):
                 dev[i] = abs(res[i] - med)
@@ -236,7 +247,9 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px):
                 wsum += w[i]
             if wsum < degree + 1:
                 break
-        _normal_equations(x, w, y, m, M)
+            for i in range(n):
+                sw[i] = w[i] * pw[i]
+        _normal_equations(x, sw, y, m, M)
         new_a = np.zeros(m)
         if not _solve_augmented(M, 1e-12 * max(1.0, abs(M[0, 0])), new_a):
             return False, coef, w
@@ -262,16 +275,26 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px):
 
 
 def irls_fit_lstsq(
-    t: np.ndarray, y: np.ndarray, degree: int = 2, iterations: int = 10, loss: str = "tukey", c: float | None = None, tol_px: float = 0.01
+    t: np.ndarray,
+    y: np.ndarray,
+    degree: int = 2,
+    iterations: int = 10,
+    loss: str = "tukey",
+    c: float | None = None,
+    tol_px: float = 0.01,
+    scale_of: np.ndarray | None = None,
+    prior: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`irls_fit` with ``np.linalg.lstsq`` solves (the reference; used when a normal-equation
     system of the kernel is singular)."""
     A = _design(t, degree)
+    ks = np.ones_like(y) if scale_of is None or np.size(scale_of) != np.size(y) else np.asarray(scale_of, dtype=np.float64)
+    pw = ks * ks * (1.0 if prior is None or np.size(prior) != np.size(y) else np.asarray(prior, dtype=np.float64))
     w = np.ones_like(y)
-    coef = _wls(A, y, w)
+    coef = _wls(A, y, pw)
     k = c if c is not None else (4.685 if loss == "tukey" else 1.345)
     for _ in range(iterations):
-        res = y - A @ coef
+        res = (y - A @ coef) * ks
         scale = 1.4826 * np.median(np.abs(res - np.median(res)))
         scale = max(scale, 0.5)  # BEV pixels: never trust sub-half-pixel residual scales
         u = res / (k * scale)
@@ -282,7 +305,7 @@ def irls_fit_lstsq(
             w = np.where(au <= 1, 1.0, 1.0 / np.maximum(au, 1e-12))
         if w.sum() < degree + 1:
             break
-        new = _wls(A, y, w)
+        new = _wls(A, y, w * pw)
         moved = np.abs(A @ (new - coef)).max()
         coef = new
         if moved <= tol_px:
@@ -291,21 +314,37 @@ def irls_fit_lstsq(
 
 
 def irls_fit(
-    t: np.ndarray, y: np.ndarray, degree: int = 2, iterations: int = 10, loss: str = "tukey", c: float | None = None, tol_px: float = 0.01
+    t: np.ndarray,
+    y: np.ndarray,
+    degree: int = 2,
+    iterations: int = 10,
+    loss: str = "tukey",
+    c: float | None = None,
+    tol_px: float = 0.01,
+    scale_of: np.ndarray | None = None,
+    prior: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Robust polynomial fit by iteratively reweighted least squares, until no fitted value moves
     by more than ``tol_px`` (or ``iterations`` reweightings).
 
-    Returns (coefficients, lowest order first; final weights in [0, 1]).
+    ``scale_of`` (one positive factor per point, optional) measures each residual in other units
+    before the robust weights and the sum of squares; ``prior`` (optional) weighs each point's
+    square. With the image pixels per BEV pixel at each point's distance as ``scale_of`` and the
+    image rows per BEV row as ``prior``, the fit minimises the lateral error as the image shows it,
+    row by image row (near points count more), instead of the error in the BEV.
+
+    Returns (coefficients, lowest order first; final robust weights in [0, 1]).
     """
     t = np.ascontiguousarray(t, dtype=np.float64)
     y = np.ascontiguousarray(y, dtype=np.float64)
+    ks = np.empty(0) if scale_of is None else np.ascontiguousarray(scale_of, dtype=np.float64)
+    pr = np.empty(0) if prior is None else np.ascontiguousarray(prior, dtype=np.float64)
     k = c if c is not None else (4.685 if loss == "tukey" else 1.345)
     if t.size >= degree + 1 and degree <= 3:  # the kernel's power sums stop at x^6
-        ok, coef, w = _irls_kernel(t, y, int(degree), int(iterations), loss == "tukey", float(k), float(tol_px))
+        ok, coef, w = _irls_kernel(t, y, int(degree), int(iterations), loss == "tukey", float(k), float(tol_px), ks, pr)
         if ok:
             return coef, w
-    return irls_fit_lstsq(t, y, degree, iterations, loss, c, tol_px)
+    return irls_fit_lstsq(t, y, degree, iterations, loss, c, tol_px, scale_of, prior)
 
 
 @jit
@@ -433,6 +472,20 @@ class IrlsParams(FitParams):
     tolerance_px: float = Field(
         0.01, gt=0.0, le=10.0, description="converged when no fitted point moves by more than this between iterations, BEV pixels"
     )
+    residuals: Literal["bev", "image"] = Field(
+        "bev",
+        description="'image': residuals measured as the image shows them (times the image pixels per BEV pixel at "
+        "the point's distance, z_min / z): near features, where a BEV pixel spans many image pixels, weigh more; "
+        "'bev': plain BEV pixels (the paper)",
+    )
+    distance_weight: float = Field(
+        1.0,
+        ge=0.0,
+        le=4.0,
+        description="'image' residuals: each feature also weighs (z_min / z) to this power (unitless; 0: the image's "
+        "pixels across only; 2: every image row equally, as the lane metric counts them, which lets the nearest "
+        "dash alone bend a parabola: 1 is the compromise)",
+    )
 
 
 class RansacParams(FitParams):
@@ -554,8 +607,16 @@ _FIT_INPUTS = {
 def fit_irls(params: IrlsParams, features: FeatureMap, lines: list[Line], geometry: BevGeometry, previous: list[Lane] | None = None) -> dict:
     """Parabola through the features of a 40 px ROI around each line, by robust IRLS (Tukey or Huber)."""
 
+    z_near = max(geometry.z_min, geometry.resolution)
+
     def fitter(t, y, degree):
-        return irls_fit(t, y, degree, params.iterations, params.loss, tol_px=params.tolerance_px)
+        if params.residuals == "bev":
+            return irls_fit(t, y, degree, params.iterations, params.loss, tol_px=params.tolerance_px)
+        # a BEV pixel at distance z spans f res / z image pixels across (relative to the nearest row:
+        # the units cancel)
+        k = z_near / (geometry.z_min + (t + 0.5) * geometry.resolution)
+        prior = k**params.distance_weight if params.distance_weight else None
+        return irls_fit(t, y, degree, params.iterations, params.loss, tol_px=params.tolerance_px, scale_of=k, prior=prior)
 
     return {"lanes": _fit_lanes(features, lines, geometry, params, fitter, previous)}
 
