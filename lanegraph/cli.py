@@ -239,7 +239,7 @@ def _run_locked(
             err: LanegraphError = LanegraphError("interrupted (Ctrl-C); continue with --resume")
             code = 130
         elif isinstance(exc, OSError):
-            err = LanegraphError(f"{exc.filename + ': ' if exc.filename else ''}{exc.strerror or exc}")
+            err = LanegraphError(f"{str(exc.filename) + ': ' if exc.filename else ''}{exc.strerror or exc}")
             code = 1
         else:
             err, code = exc, exc.exit_code
@@ -586,7 +586,7 @@ def ablate(base, variants, input_path, gt_path, dataset_path, sweeps, out_dir, f
         click.echo(f"error: interrupted (Ctrl-C); the finished runs are in {out_dir}/runs and results.md", err=True)
         sys.exit(130)
     except OSError as exc:
-        _fail(LanegraphError(f"{exc.filename + ': ' if exc.filename else ''}{exc.strerror or exc}"), 1)
+        _fail(LanegraphError(f"{str(exc.filename) + ': ' if exc.filename else ''}{exc.strerror or exc}"), 1)
     finally:
         lock.release()
     runs_rows = [r for r in rows if r.get("sequence") != "all"]
