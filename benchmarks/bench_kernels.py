@@ -95,7 +95,7 @@ def bev_kernels(rng: np.random.Generator) -> None:
     samples = _fit.ransac_samples(t.size, 3, 200, 0)
     row(
         "_ransac_kernel",
-        timed(lambda: _fit._ransac_kernel(t, y, samples, 3.0)),
+        timed(lambda: _fit._ransac_kernel(t, y, samples, np.full(t.size, 3.0))),
         timed(lambda: tl.ransac_np(t, y, samples, 3.0), 3),
         "(3000 points, 200 parabola samples)",
     )

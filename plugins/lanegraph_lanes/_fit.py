@@ -348,12 +348,12 @@ def irls_fit(
 
 
 @jit
-def _ransac_kernel(t, y, samples, inlier_px):
+def _ransac_kernel(t, y, samples, tol):
     """The consensus of every minimal sample (rows of ``samples``: ``m = degree + 1`` point indices):
     the polynomial through the sample (a Vandermonde system in the scaled abscissa
-    ``(t - mid) / half``) and the number of points within ``inlier_px`` of it. Samples with repeated
-    abscissae or a singular system are skipped. Returns the inlier mask of the first sample with the
-    most inliers (all False when none was usable)."""
+    ``(t - mid) / half``) and the number of points within their own ``tol`` (one per point) of it.
+    Samples with repeated abscissae or a singular system are skipped. Returns the inlier mask of the
+    first sample with the most inliers (all False when none was usable)."""
     n = t.size
     n_samples, m = samples.shape
     inl = np.zeros(n, np.bool_)
@@ -391,17 +391,17 @@ def _ransac_kernel(t, y, samples, inlier_px):
         if m <= 4:  # scalar coefficients: the count vectorises
             ca = _coeffs4(a)
             for i in range(n):
-                count += abs(_poly4(ca, x[i]) - y[i]) <= inlier_px
+                count += abs(_poly4(ca, x[i]) - y[i]) <= tol[i]
         else:
             for i in range(n):
-                count += abs(_poly(a, x[i]) - y[i]) <= inlier_px
+                count += abs(_poly(a, x[i]) - y[i]) <= tol[i]
         if count > best:
             best = count
             best_a[:] = a
     if best < 0:
         return inl
     for i in range(n):
-        inl[i] = abs(_poly(best_a, x[i]) - y[i]) <= inlier_px
+        inl[i] = abs(_poly(best_a, x[i]) - y[i]) <= tol[i]
     return inl
 
 
@@ -420,21 +420,34 @@ def ransac_samples(n: int, m: int, iterations: int, seed: int = 0) -> np.ndarray
     return samples
 
 
-def ransac_fit(t: np.ndarray, y: np.ndarray, degree: int = 2, iterations: int = 200, inlier_px: float = 3.0, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def ransac_fit(
+    t: np.ndarray,
+    y: np.ndarray,
+    degree: int = 2,
+    iterations: int = 200,
+    inlier_px: float = 3.0,
+    seed: int = 0,
+    scale_of: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """RANSAC polynomial fit; returns (coefficients, inlier weights 0/1). The minimal samples are
-    scored by :func:`_ransac_kernel`; then least squares on the best consensus set, re-selected once."""
+    scored by :func:`_ransac_kernel`; then least squares on the best consensus set, re-selected once.
+    ``scale_of`` (optional, one per point) measures the residuals in other units, as
+    :func:`irls_fit`'s: a point is an inlier within ``inlier_px`` of those, and the least squares
+    weigh each point's square by ``scale_of**2``."""
     t = np.ascontiguousarray(t, dtype=np.float64)
     y = np.ascontiguousarray(y, dtype=np.float64)
     n = t.size
     m = degree + 1
+    ks = np.ones(n) if scale_of is None else np.asarray(scale_of, dtype=np.float64)
+    tol = np.ascontiguousarray(inlier_px / ks)
     A = _design(t, degree)
-    best_in = _ransac_kernel(t, y, ransac_samples(n, m, iterations, seed), float(inlier_px)) if n >= m else np.zeros(n, bool)
+    best_in = _ransac_kernel(t, y, ransac_samples(n, m, iterations, seed), tol) if n >= m else np.zeros(n, bool)
     if best_in.sum() < m:
         best_in = np.ones(n, bool)
-    coef, *_ = np.linalg.lstsq(A[best_in], y[best_in], rcond=None)
-    inl = np.abs(A @ coef - y) <= inlier_px
+    coef, *_ = np.linalg.lstsq(A[best_in] * ks[best_in, None], y[best_in] * ks[best_in], rcond=None)
+    inl = np.abs(A @ coef - y) <= tol
     if inl.sum() >= m:
-        coef, *_ = np.linalg.lstsq(A[inl], y[inl], rcond=None)
+        coef, *_ = np.linalg.lstsq(A[inl] * ks[inl, None], y[inl] * ks[inl], rcond=None)
     return coef, inl.astype(np.float64)
 
 
@@ -462,16 +475,6 @@ class FitParams(NodeParams):
         "in a lane change), and then the other side's up to track_max_lane_width_m from it (as hough.lane_change)",
     )
     track_max_lane_width_m: float = Field(4.6, gt=0.0, le=20.0, description="lane change: widest plausible lane (as hough.max_lane_width_m), metres")
-
-
-class IrlsParams(FitParams):
-    """Params of ``fit.irls``."""
-
-    iterations: int = Field(10, ge=1, le=100, description="reweighting iterations")
-    loss: Literal["tukey", "huber"] = Field("tukey", description="robust weight function")
-    tolerance_px: float = Field(
-        0.01, gt=0.0, le=10.0, description="converged when no fitted point moves by more than this between iterations, BEV pixels"
-    )
     residuals: Literal["bev", "image"] = Field(
         "bev",
         description="'image': residuals measured as the image shows them (times the image pixels per BEV pixel at "
@@ -485,6 +488,16 @@ class IrlsParams(FitParams):
         description="'image' residuals: each feature also weighs (z_min / z) to this power (unitless; 0: the image's "
         "pixels across only; 2: every image row equally, as the lane metric counts them, which lets the nearest "
         "dash alone bend a parabola: 1 is the compromise)",
+    )
+
+
+class IrlsParams(FitParams):
+    """Params of ``fit.irls``."""
+
+    iterations: int = Field(10, ge=1, le=100, description="reweighting iterations")
+    loss: Literal["tukey", "huber"] = Field("tukey", description="robust weight function")
+    tolerance_px: float = Field(
+        0.01, gt=0.0, le=10.0, description="converged when no fitted point moves by more than this between iterations, BEV pixels"
     )
 
 
@@ -595,6 +608,18 @@ def _fit_lanes(
     return lanes
 
 
+def _residual_scale(t: np.ndarray, geometry: BevGeometry, p: FitParams) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The fitters' ``scale_of`` and ``prior`` for the ROI points at ``t`` (BEV rows above the bottom
+    one): ``residuals: bev``, none; ``image``: the image pixels a BEV pixel spans across at the
+    point's distance, ``f res / z``, relative to the nearest row's (``z_min / z``: the units
+    cancel), and that to the power ``distance_weight`` as the prior."""
+    if p.residuals == "bev":
+        return None, None
+    z_near = max(geometry.z_min, geometry.resolution)
+    k = z_near / (geometry.z_min + (np.asarray(t, dtype=np.float64) + 0.5) * geometry.resolution)
+    return k, (k**p.distance_weight if p.distance_weight else None)
+
+
 _FIT_INPUTS = {
     "features": "features",
     "lines": "lines",
@@ -607,15 +632,8 @@ _FIT_INPUTS = {
 def fit_irls(params: IrlsParams, features: FeatureMap, lines: list[Line], geometry: BevGeometry, previous: list[Lane] | None = None) -> dict:
     """Parabola through the features of a 40 px ROI around each line, by robust IRLS (Tukey or Huber)."""
 
-    z_near = max(geometry.z_min, geometry.resolution)
-
     def fitter(t, y, degree):
-        if params.residuals == "bev":
-            return irls_fit(t, y, degree, params.iterations, params.loss, tol_px=params.tolerance_px)
-        # a BEV pixel at distance z spans f res / z image pixels across (relative to the nearest row:
-        # the units cancel)
-        k = z_near / (geometry.z_min + (t + 0.5) * geometry.resolution)
-        prior = k**params.distance_weight if params.distance_weight else None
+        k, prior = _residual_scale(t, geometry, params)
         return irls_fit(t, y, degree, params.iterations, params.loss, tol_px=params.tolerance_px, scale_of=k, prior=prior)
 
     return {"lanes": _fit_lanes(features, lines, geometry, params, fitter, previous)}
@@ -626,5 +644,8 @@ def fit_ransac(params: RansacParams, features: FeatureMap, lines: list[Line], ge
     """Parabola through the features of a 40 px ROI around each line, by RANSAC plus a least-squares refit."""
 
     def fitter(t, y, degree):
-        return ransac_fit(t, y, degree, params.iterations, params.inlier_px, params.seed)
+        k, prior = _residual_scale(t, geometry, params)
+        if prior is not None:
+            k = k * np.sqrt(prior)  # the weight of each square: k^2 prior
+        return ransac_fit(t, y, degree, params.iterations, params.inlier_px, params.seed, scale_of=k)
     return {"lanes": _fit_lanes(features, lines, geometry, params, fitter, previous)}
