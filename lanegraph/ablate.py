@@ -7,11 +7,18 @@ The input is a :class:`~lanegraph.dataset.Dataset` (one or more sequences). Writ
 ``OUT/results.md``, ``OUT/accuracy.png`` (pooled accuracy per variant) and ``OUT/accuracy_vs_ms.png``.
 A run whose resolved graph, input files and frame selection are unchanged since the last ablation
 (same output folder) is not run again: its recorded results are reused.
+
+A run that fails (a node raising under ``on_error: fail``, an input a variant cannot read) does not
+end the ablation: every run is made, the failed one gets its row with its ``error`` (and no
+figures), its ``run.json`` says what happened, and :func:`run_ablation` returns all rows; the
+command exits 1 at the end. Frames that failed under ``on_error: skip`` are counted in
+``failed_frames``.
 """
 
 from __future__ import annotations
 
 import csv
+import io
 import json
 import sys
 import time
@@ -21,11 +28,14 @@ from typing import Any
 
 from .cache import ResultCache, digest
 from .dataset import POOLED, Dataset, evaluate_sequences, read_gt
+from .errors import InputError, LanegraphError, UsageError
 from .executor import Executor
 from .graph import load_graph
-from .metrics import evaluate, read_jsonl
+from .metrics import evaluate, read_predictions
 from .nodes import RunContext
+from .paths import inside, safe_name, write_bytes_atomic, write_text_atomic
 from .plugins import get_plugin_manager
+from .resume import input_identity
 
 
 @dataclass
@@ -50,10 +60,7 @@ def expand_sweeps(base: Path, sweeps: list[str]) -> list[Variant]:
 
 
 def _input_identity(input_path: Path | None) -> str:
-    if input_path is None:
-        return "synthetic"
-    files = sorted(p for p in Path(input_path).rglob("*") if p.is_file())
-    return digest([(str(p), p.stat().st_size, p.stat().st_mtime_ns) for p in files])
+    return input_identity(input_path)
 
 
 def _extra_metrics(pred: list[dict], gt: list[dict]) -> dict[str, Any]:
@@ -94,13 +101,27 @@ def run_ablation(
     rows: list[dict[str, Any]] = []
     total = len(variants) * len(dataset)
     bar_runs = tqdm(total=total, desc="runs", unit="run", disable=not progress, file=sys.stderr, position=0)
+    try:
+        _run_variants(variants, dataset, out_dir, cache, progress, pm, seq_frames, gts, idents, rows, bar_runs)
+    except KeyboardInterrupt:
+        bar_runs.close()
+        if rows:
+            write_reports(rows, out_dir)  # the finished variants keep their report
+        raise
+    bar_runs.close()
+    write_reports(rows, out_dir)
+    return rows
+
+
+def _run_variants(variants, dataset, out_dir, cache, progress, pm, seq_frames, gts, idents, rows, bar_runs) -> None:
+    """The loop of :func:`run_ablation`: appends each variant's rows (and its pooled row) to ``rows``."""
     for var in variants:
         var_rows: list[dict[str, Any]] = []
         evals: list[tuple[str, list, list]] = []
         for seq in dataset:
             sel = seq_frames[seq.name]
             g = load_graph(var.graph, var.sets, pm)  # per run: the executor resolves io.auto in place
-            run_dir = out_dir / "runs" / _safe(var.name) / seq.name
+            run_dir = inside(out_dir, f"runs/{_safe(var.name)}/{safe_name(seq.name)}", "ablate --out")  # links out of OUT refused
             run_dir.mkdir(parents=True, exist_ok=True)
             code = sorted({n.type.code_version for n in g.nodes.values()})  # an edited plugin runs again
             run_key = digest(g.resolved_dict(), idents[seq.name], str(sel), code)
@@ -108,26 +129,26 @@ def run_ablation(
             bar_runs.set_postfix_str(f"{var.name} / {seq.name}")
             t0 = time.perf_counter()
             reused = cache is not None and stamp.is_file() and stamp.read_text() == run_key and (run_dir / "timings.json").is_file()
+            record = _read_record(run_dir) if reused else None
+            if reused and record is None:
+                reused = False
             if not reused:
                 stamp.unlink(missing_ok=True)
-                ctx = RunContext(input_path=seq.input, out_dir=run_dir, frames=sel, graph_file=g.file)
-                ex = Executor(g, ctx, pm, cache=cache)
-                ex.open()
-                bar = tqdm(total=len(ex) or None, desc=f"{var.name} / {seq.name}", unit="frame", leave=False, disable=not progress, file=sys.stderr, position=1)
-                res = ex.run(on_frame=lambda i, f, bar=bar: bar.update(1))
-                bar.close()
-                timings = res.timings_json()
-                timings["cache"] = {"hits": res.cache_hits, "misses": res.cache_misses}
-                (run_dir / "timings.json").write_text(json.dumps(timings, indent=2) + "\n")
-                stamp.write_text(run_key)
+                record = _one_run(g, seq.input, run_dir, sel, pm, cache, f"{var.name} / {seq.name}", progress)
+                if record["status"] != "stopped":
+                    write_text_atomic(stamp, run_key)
             wall = time.perf_counter() - t0
             bar_runs.update(1)
-            timings = json.loads((run_dir / "timings.json").read_text())
+            assert record is not None
+            timings = record.get("timings") or {}
             row: dict[str, Any] = {"variant": var.name, "sequence": seq.name, "graph": str(var.graph), "sets": " ".join(var.sets)}
+            row["error"] = record.get("error")
+            row["failed_frames"] = len(record.get("failures") or [])
+            row["before_any_frame"] = bool(record.get("before_any_frame"))
             lanes_file = run_dir / "lanes.jsonl"
             gt = gts[seq.name]
-            if gt is not None and lanes_file.is_file():
-                pred = read_jsonl(lanes_file)
+            if gt is not None and lanes_file.is_file() and not row["error"]:
+                pred = read_predictions(lanes_file)
                 ev = evaluate(pred, gt)
                 row.update({k: ev[k] for k in ("frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px")})
                 row.update(_extra_metrics(pred, gt))
@@ -143,16 +164,62 @@ def run_ablation(
             var_rows.append(row)
         rows += var_rows
         rows.append(_pooled_row(var, var_rows, evals))
-    bar_runs.close()
-    write_reports(rows, out_dir)
-    return rows
+
+
+def _one_run(g: Any, input_path: Path | None, run_dir: Path, sel: slice | None, pm: Any, cache: ResultCache | None, desc: str, progress: bool) -> dict[str, Any]:
+    """Run one variant on one sequence into ``run_dir``; never raises for the run's own failure:
+    returns the record written to ``run_dir/run.json`` (``status`` ok | failed frames | stopped,
+    ``error``, ``failures``, ``timings``)."""
+    from tqdm import tqdm
+
+    ctx = RunContext(input_path=input_path, out_dir=run_dir, frames=sel, graph_file=g.file)
+    ex: Executor | None = None
+    record: dict[str, Any] = {"graph": g.file, "input": str(input_path) if input_path else None}
+    try:
+        ex = Executor(g, ctx, pm, cache=cache)
+        try:
+            ex.open()
+        except LanegraphError as exc:
+            record["before_any_frame"] = isinstance(exc, (InputError, UsageError))
+            raise
+        bar = tqdm(total=len(ex) or None, desc=desc, unit="frame", leave=False, disable=not progress, file=sys.stderr, position=1)
+        try:
+            res = ex.run(on_frame=lambda i, f: bar.update(1))
+        finally:
+            bar.close()
+    except (LanegraphError, OSError) as exc:
+        partial = getattr(ex, "result", None)
+        record.update(status="stopped", error=str(exc), failures=[f.to_json() for f in partial.failures] if partial else [])
+        if partial is not None:
+            record["timings"] = partial.timings_json()
+    else:
+        timings = res.timings_json()
+        timings["cache"] = {"hits": res.cache_hits, "misses": res.cache_misses}
+        record.update(status="failed frames" if res.failures else "ok", error=None, failures=[f.to_json() for f in res.failures], timings=timings)
+        write_text_atomic(run_dir / "timings.json", json.dumps(timings, indent=2) + "\n")
+    write_text_atomic(run_dir / "run.json", json.dumps(record, indent=2) + "\n")
+    return record
+
+
+def _read_record(run_dir: Path) -> dict[str, Any] | None:
+    """A reused run's ``run.json`` (None when it is missing or not one of ours: run again)."""
+    try:
+        record = json.loads((run_dir / "run.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return record if isinstance(record, dict) and isinstance(record.get("timings"), dict) else None
 
 
 def _pooled_row(var: Variant, var_rows: list[dict[str, Any]], evals: list[tuple[str, list, list]]) -> dict[str, Any]:
     """The variant's row over all sequences: metrics over every frame as one set; times are the
-    sequences' medians weighted by their frame counts."""
+    sequences' medians weighted by their frame counts. No figures when a sequence's run failed (they
+    would be over other frames than the other variants')."""
     row: dict[str, Any] = {"variant": var.name, "sequence": POOLED, "graph": str(var.graph), "sets": " ".join(var.sets)}
-    if evals:
+    failed = [r["sequence"] for r in var_rows if r.get("error")]
+    row["error"] = f"failed on sequence(s) {', '.join(failed)}" if failed else None
+    row["failed_frames"] = sum(int(r.get("failed_frames") or 0) for r in var_rows)
+    row["before_any_frame"] = all(r.get("before_any_frame") for r in var_rows)
+    if evals and not failed:
         ev = evaluate_sequences(evals)[POOLED]
         row.update({k: ev[k] for k in ("frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px")})
         pred = [{**p, "frame": f"{n}/{p.get('frame')}"} for n, ps, _ in evals for p in ps]
@@ -175,7 +242,9 @@ def _pooled_row(var: Variant, var_rows: list[dict[str, Any]], evals: list[tuple[
 
 
 def _safe(name: str) -> str:
-    return "".join(ch if ch.isalnum() or ch in "-_.=[]" else "_" for ch in name)
+    """A variant's folder name: one plain name (never '..' or hidden), whatever the variant is called."""
+    out = "".join(ch if ch.isalnum() or ch in "-_.=[]" else "_" for ch in name)[:200]
+    return out if out and not out.startswith(".") else "_" + out
 
 
 def _fmt(x: Any, pct: bool = False) -> str:
@@ -191,11 +260,15 @@ def write_reports(rows: list[dict[str, Any]], out_dir: Path) -> None:
     two plots (pooled rows)."""
     stages = list(dict.fromkeys(s for r in rows for s in r.get("stage_ms", {})))
     cols = ["variant", "sequence", "frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px", "culane_f1", "ms_per_frame"]
-    with (out_dir / "results.csv").open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(cols + [f"ms_{s}" for s in stages] + ["wall_s", "reused", "cache_hits"])
-        for r in rows:
-            w.writerow([r.get(c) for c in cols] + [r["stage_ms"].get(s) for s in stages] + [r["wall_s"], r["reused"], r["cache_hits"]])
+    buf = io.StringIO(newline="")
+    w = csv.writer(buf)
+    w.writerow(cols + [f"ms_{s}" for s in stages] + ["wall_s", "reused", "cache_hits", "failed_frames", "error"])
+    for r in rows:
+        w.writerow(
+            [r.get(c) for c in cols] + [r["stage_ms"].get(s) for s in stages]
+            + [r["wall_s"], r["reused"], r["cache_hits"], r.get("failed_frames", 0), r.get("error") or ""]
+        )
+    write_text_atomic(out_dir / "results.csv", buf.getvalue())
     pooled = [r for r in rows if r.get("sequence") == POOLED]
     sequences = list(dict.fromkeys(r["sequence"] for r in rows if r.get("sequence") != POOLED))
     head = [
@@ -211,7 +284,9 @@ def write_reports(rows: list[dict[str, Any]], out_dir: Path) -> None:
             for r in sel
         ]
 
-    frames = {r["sequence"]: r.get("frames") or r.get("frames_run") for r in rows}
+    frames: dict[str, int] = {}
+    for r in rows:  # a failed run has fewer (or no) frames: the sequence's count is the largest
+        frames[r["sequence"]] = max(frames.get(r["sequence"], 0), int(r.get("frames") or r.get("frames_run") or 0))
     lines = [f"All sequences pooled ({', '.join(sequences)}; {frames.get(POOLED) or 0} frames):", "", *table(pooled)]
     if len(sequences) > 1:
         for name in sequences:
@@ -219,8 +294,20 @@ def write_reports(rows: list[dict[str, Any]], out_dir: Path) -> None:
     lines += ["", "Median ms per frame per stage (pooled):", "", "| variant | " + " | ".join(stages) + " |", "|---|" + "---|" * len(stages)]
     for r in pooled:
         lines.append(f"| {r['variant']} | " + " | ".join(_fmt(r["stage_ms"].get(s)) for s in stages) + " |")
-    (out_dir / "results.md").write_text("\n".join(lines) + "\n")
+    failed = [r for r in rows if r.get("sequence") != POOLED and (r.get("error") or r.get("failed_frames"))]
+    if failed:
+        lines += ["", "Failed runs (no figures for a run that stopped; see its runs/<variant>/<sequence>/run.json):", ""]
+        for r in failed:
+            what = r.get("error") or f"{r['failed_frames']} frame(s) failed (on_error skip), figures over the others"
+            lines.append(f"- {r['variant']} / {r['sequence']}: {what}")
+    write_text_atomic(out_dir / "results.md", "\n".join(lines) + "\n")
     _plots(pooled, out_dir)
+
+
+def _save(fig: Any, path: Path) -> None:
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=110, format="png")
+    write_bytes_atomic(path, buf.getvalue())
 
 
 def _plots(rows: list[dict[str, Any]], out_dir: Path) -> None:
@@ -244,7 +331,7 @@ def _plots(rows: list[dict[str, Any]], out_dir: Path) -> None:
     ax.set_title("accuracy per variant")
     ax.legend(loc="lower right")
     fig.tight_layout()
-    fig.savefig(out_dir / "accuracy.png", dpi=110)
+    _save(fig, out_dir / "accuracy.png")
     plt.close(fig)
     fig, ax = plt.subplots(figsize=(6, 4.5))
     for r, a in zip(rows, acc):
@@ -258,5 +345,5 @@ def _plots(rows: list[dict[str, Any]], out_dir: Path) -> None:
     ax.set_ylim(-0.02, 1.05)
     ax.set_title("accuracy against time")
     fig.tight_layout()
-    fig.savefig(out_dir / "accuracy_vs_ms.png", dpi=110)
+    _save(fig, out_dir / "accuracy_vs_ms.png")
     plt.close(fig)

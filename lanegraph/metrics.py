@@ -196,21 +196,139 @@ def evaluate(pred_records: Iterable[Mapping[str, Any]], gt_records: Iterable[Map
     }
 
 
-def read_jsonl(path: str | Path) -> list[dict[str, Any]]:
-    """Read a JSON-lines file; a malformed line raises :class:`InputError` naming the line."""
-    path = Path(path)
+def _where(k: int) -> str:
+    return f"line {k}"
+
+
+def _check_points(points: Any, where: str) -> None:
+    if not isinstance(points, list):
+        raise ValueError(f"{where}: 'points' must be a list of [x, y] pairs, got {type(points).__name__}")
+    for i, pt in enumerate(points):
+        if not (isinstance(pt, list) and len(pt) == 2):
+            raise ValueError(f"{where}: points[{i}]: expected [x, y] (two numbers, pixels), got {str(pt)[:60]}")
+        for v in pt:
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+                raise ValueError(f"{where}: points[{i}]: expected two finite numbers, got {str(pt)[:60]}")
+
+
+def _check_frame(rec: dict[str, Any], where: str, seen: dict[str, int], k: int) -> str:
+    frame = rec.get("frame")
+    if isinstance(frame, bool) or not isinstance(frame, (str, int)) or (isinstance(frame, str) and not frame.strip()):
+        raise ValueError(f"{where}: 'frame' must be a frame id (a non-empty string), got {frame!r}")
+    key = str(frame)
+    if key in seen:
+        raise ValueError(f"{where}: frame {key!r} appears twice (first at line {seen[key]}); one record per frame")
+    seen[key] = k
+    return key
+
+
+def validate_predictions(records: list[dict[str, Any]], lines: list[int]) -> None:
+    """Check ``lanes.jsonl`` records: ``{"frame": id, "lanes": [{"points": [[x, y], ...], ...}]}``,
+    one record per frame; raises ``ValueError`` naming the line."""
+    seen: dict[str, int] = {}
+    for rec, k in zip(records, lines):
+        where = _where(k)
+        _check_frame(rec, where, seen, k)
+        if "lanes" not in rec:
+            hint = " (it has 'markings' like a ground-truth file: PRED and GT swapped?)" if "markings" in rec else ""
+            raise ValueError(f"{where}: expected a predictions record {{frame, lanes}}, no 'lanes' key{hint}")
+        lanes = rec["lanes"]
+        if not isinstance(lanes, list):
+            raise ValueError(f"{where}: 'lanes' must be a list of lanes, got {str(lanes)[:60]}")
+        for j, lane in enumerate(lanes):
+            if not isinstance(lane, dict) or "points" not in lane:
+                raise ValueError(f"{where}: lanes[{j}]: expected an object with 'points', got {str(lane)[:60]}")
+            _check_points(lane["points"], f"{where}: lanes[{j}]")
+
+
+def validate_ground_truth(records: list[dict[str, Any]], lines: list[int]) -> None:
+    """Check ``lanes_gt.jsonl`` records (the data README's format): ``{"frame": id, "markings":
+    [{"id": ..., "points": [[x, y], ...]}], "ego": {"left": id | null, "right": id | null}}``, one
+    record per frame, marking ids unique in a frame, ego ids among them; raises ``ValueError``
+    naming the line."""
+    seen: dict[str, int] = {}
+    for rec, k in zip(records, lines):
+        where = _where(k)
+        _check_frame(rec, where, seen, k)
+        if "markings" not in rec:
+            hint = " (it has 'lanes' like a predictions file: PRED and GT swapped?)" if "lanes" in rec else ""
+            raise ValueError(f"{where}: expected a ground-truth record {{frame, markings, ego}}, no 'markings' key{hint}")
+        markings = rec["markings"]
+        if not isinstance(markings, list):
+            raise ValueError(f"{where}: 'markings' must be a list of markings, got {str(markings)[:60]}")
+        ids = set()
+        for j, m in enumerate(markings):
+            if not isinstance(m, dict) or "points" not in m:
+                raise ValueError(f"{where}: markings[{j}]: expected an object with 'id' and 'points', got {str(m)[:60]}")
+            mid = m.get("id")
+            if isinstance(mid, (dict, list, float)):
+                raise ValueError(f"{where}: markings[{j}]: 'id' must be an integer or a string, got {mid!r}")
+            if mid is not None and mid in ids:
+                raise ValueError(f"{where}: markings[{j}]: id {mid!r} appears twice in the frame")
+            ids.add(mid)
+            _check_points(m["points"], f"{where}: markings[{j}]")
+        ego = rec.get("ego", {})
+        if ego is None:
+            ego = {}
+        if not isinstance(ego, dict):
+            raise ValueError(f"{where}: 'ego' must be an object {{left, right}}, got {str(ego)[:60]}")
+        for side in ("left", "right"):
+            mid = ego.get(side)
+            if mid is not None and mid not in ids:
+                raise ValueError(f"{where}: ego.{side}: {mid!r} is not the id of a marking of the frame (ids: {sorted(map(str, ids))})")
+        extra = set(ego) - {"left", "right"}
+        if extra:
+            raise ValueError(f"{where}: ego: unknown key(s) {sorted(extra)}; expected left and right")
+
+
+def read_predictions(path: str | Path) -> list[dict[str, Any]]:
+    """A predictions file (``lanes.jsonl``), validated: a malformed one raises :class:`InputError`
+    naming the file and the line."""
+    return _read_validated(path, validate_predictions)
+
+
+def read_ground_truth(path: str | Path) -> list[dict[str, Any]]:
+    """A ground-truth file (``lanes_gt.jsonl``), validated: a malformed one raises
+    :class:`InputError` naming the file and the line."""
+    return _read_validated(path, validate_ground_truth)
+
+
+def _read_validated(path: str | Path, check: Any) -> list[dict[str, Any]]:
+    records, lines = _read_lines(Path(path))
+    try:
+        check(records, lines)
+    except ValueError as exc:
+        raise InputError(str(exc), path=str(path)) from None
+    return records
+
+
+def _read_lines(path: Path) -> tuple[list[dict[str, Any]], list[int]]:
     if not path.is_file():
         raise InputError("file not found (expected a JSON-lines file)", path=str(path))
-    out = []
-    with path.open(encoding="utf-8") as fh:
-        for k, line in enumerate(fh, 1):
-            if not line.strip():
-                continue
-            try:
-                rec = json.loads(line)
-            except json.JSONDecodeError as exc:
-                raise InputError(f"line {k}: not valid JSON ({exc.msg})", path=str(path)) from None
-            if not isinstance(rec, dict) or "frame" not in rec:
-                raise InputError(f"line {k}: expected an object with a 'frame' key", path=str(path))
-            out.append(rec)
-    return out
+    out, lines = [], []
+    try:
+        with path.open(encoding="utf-8") as fh:
+            for k, line in enumerate(fh, 1):
+                if not line.strip():
+                    continue
+                try:
+                    rec = json.loads(line)
+                except (json.JSONDecodeError, RecursionError) as exc:
+                    msg = exc.msg if isinstance(exc, json.JSONDecodeError) else "nested too deeply"
+                    raise InputError(f"line {k}: not valid JSON ({msg})", path=str(path)) from None
+                if not isinstance(rec, dict) or "frame" not in rec:
+                    raise InputError(f"line {k}: expected an object with a 'frame' key", path=str(path))
+                out.append(rec)
+                lines.append(k)
+    except UnicodeDecodeError:
+        raise InputError("not a UTF-8 text file", path=str(path)) from None
+    except OSError as exc:
+        raise InputError(f"cannot read the file: {exc.strerror or exc}", path=str(path)) from None
+    return out, lines
+
+
+def read_jsonl(path: str | Path) -> list[dict[str, Any]]:
+    """Read a JSON-lines file of ``{"frame": ...}`` objects; a malformed line raises
+    :class:`InputError` naming the line (no check of the rest of the record: see
+    :func:`read_predictions` and :func:`read_ground_truth`)."""
+    return _read_lines(Path(path))[0]

@@ -29,15 +29,35 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, ValidationInfo, field_validator
 
 from .types import PORT_TYPES
 
 
-class NodeParams(BaseModel):
-    """Base of every params model: unknown keys are rejected, values are validated on assignment."""
+def _numeric_not_bool(annotation: Any) -> bool:
+    """Whether a field of this annotation holds a number (int or float, optionally None) and not a bool."""
+    args = typing.get_args(annotation) if typing.get_origin(annotation) is not None else (annotation,)
+    return bool(args) and bool(set(args) & {int, float}) and bool not in args
 
-    model_config = ConfigDict(extra="forbid", validate_assignment=True, frozen=False)
+
+class NodeParams(BaseModel):
+    """Base of every params model: unknown keys are rejected, values are validated on assignment,
+    a float is never NaN or infinite, a number is never given as a boolean (``true`` is not 1) and
+    a boolean only as ``true`` / ``false`` (not 1 or ``"no"``)."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, frozen=False, allow_inf_nan=False)
+
+    @field_validator("*", mode="before", check_fields=False)
+    @classmethod
+    def _no_bool_for_numbers(cls, value: Any, info: ValidationInfo) -> Any:
+        f = cls.model_fields.get(info.field_name) if info.field_name is not None else None
+        if f is None:
+            return value
+        if isinstance(value, bool) and _numeric_not_bool(f.annotation):
+            raise ValueError(f"expected a number, got the boolean {value}")
+        if f.annotation in (bool, bool | None) and not isinstance(value, bool) and value is not None:
+            raise ValueError(f"expected true or false, got {value!r}")
+        return value
 
 
 class NoParams(NodeParams):
@@ -71,7 +91,14 @@ def _as_ports(spec: Mapping[str, str | Port] | None) -> dict[str, Port]:
 
 @dataclass
 class RunContext:
-    """What a stateful node (source, sink) may know about the run."""
+    """What a stateful node (source, sink) may know about the run.
+
+    ``frames``: the frame selection (``--frames``). ``skip``: how many frames at the start of the
+    selection to leave out -- a resumed run's frames already done. A source applies it and sets
+    its attribute ``skipped`` to the number it left out; the executor drops the rest itself (reading
+    them) from a source that does not. ``extra["resume"]`` is true in a resumed run: a node that
+    keeps state across frames then gets its checkpointed ``state()`` back through ``restore()``.
+    """
 
     input_path: Path | None = None
     out_dir: Path | None = None
@@ -79,6 +106,7 @@ class RunContext:
     graph_file: str | None = None
     node_id: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
+    skip: int = 0
 
 
 @dataclass

@@ -20,8 +20,9 @@ _spec = importlib.util.spec_from_file_location("sweep_kitti", ROOT / "benchmarks
 sweep_kitti = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(sweep_kitti)
 
-P2 = "7.215377e+02 0 6.095593e+02 4.485728e+01 0 7.215377e+02 1.728540e+02 2.163791e-01 0 0 1 2.745884e-03"
-P3 = "7.215377e+02 0 6.095593e+02 -3.395242e+02 0 7.215377e+02 1.728540e+02 2.199936e+00 0 0 1 2.729905e-03"
+# KITTI's colour pair with the principal point moved into the 320 x 60 images of these tests
+P2 = "7.215377e+02 0 1.605593e+02 4.485728e+01 0 7.215377e+02 3.02854e+01 2.163791e-01 0 0 1 2.745884e-03"
+P3 = "7.215377e+02 0 1.605593e+02 -3.395242e+02 0 7.215377e+02 3.02854e+01 2.199936e+00 0 0 1 2.729905e-03"
 W, H, SHIFT = 320, 60, 8
 
 

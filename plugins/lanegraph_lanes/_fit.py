@@ -516,7 +516,7 @@ class IrlsParams(FitParams):
 class RansacParams(FitParams):
     """Params of ``fit.ransac``."""
 
-    iterations: int = Field(200, ge=1, le=100000, description="random minimal samples")
+    iterations: int = Field(200, ge=1, le=2000, description="random minimal samples")
     inlier_px: float = Field(3.0, gt=0.0, le=100.0, description="inlier distance, BEV pixels")
     seed: int = Field(0, ge=0, le=2**31 - 1, description="random seed (runs are deterministic)")
 

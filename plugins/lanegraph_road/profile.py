@@ -34,7 +34,7 @@ import math
 from typing import Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from lanegraph import InputError, NodeParams, Port, node_type
 from lanegraph._numba import jit
@@ -568,6 +568,10 @@ def checked_disparity(disparity: np.ndarray, node: str) -> np.ndarray:
     return np.ascontiguousarray(disparity, dtype=np.float32)
 
 
+#: the most v-disparity bins (max_disparity / bin_size) the params may ask for
+MAX_BINS = 1024
+
+
 def n_bins(max_disparity: float, bin_size: float) -> int:
     return max(1, int(math.ceil(max_disparity / bin_size)))
 
@@ -639,7 +643,17 @@ class VDisparityParams(NodeParams):
     max_disparity: float = Field(
         128.0, gt=0.0, le=1024.0, description="disparities >= this are left out, pixels; D = ceil(max / bin)"
     )
-    bin_size: float = Field(1.0, gt=0.0, le=16.0, description="width of a disparity bin, pixels")
+    bin_size: float = Field(1.0, ge=0.25, le=16.0, description="width of a disparity bin, pixels (>= 0.25; at most 1024 bins)")
+
+    @model_validator(mode="after")
+    def _bins_bounded(self):
+        # memory and time grow with the number of bins: at most 8x the default's 128
+        if self.max_disparity / self.bin_size > MAX_BINS:
+            raise ValueError(
+                f"max_disparity / bin_size = {self.max_disparity / self.bin_size:.0f} disparity bins, more than {MAX_BINS}; "
+                "raise bin_size or lower max_disparity"
+            )
+        return self
 
 
 @node_type(
@@ -660,7 +674,7 @@ class ProfileParams(NodeParams):
     """Params of ``road.profile``."""
 
     max_disparity: float = Field(128.0, gt=0.0, le=1024.0, description="v-disparity range, pixels")
-    bin_size: float = Field(1.0, gt=0.0, le=16.0, description="v-disparity bin width, pixels")
+    bin_size: float = Field(1.0, ge=0.25, le=16.0, description="v-disparity bin width, pixels (>= 0.25; at most 1024 bins)")
     smoothness: float = Field(
         0.02,
         ge=0.0,
@@ -679,7 +693,7 @@ class ProfileParams(NodeParams):
         "linear", description="road profile d(v): linear (flat road) or quadratic; pose always from the line"
     )
     fit_tolerance_px: float = Field(1.0, gt=0.0, le=16.0, description="RANSAC inlier tolerance, pixels")
-    ransac_iterations: int = Field(300, ge=1, le=100000, description="RANSAC samples (fixed seed)")
+    ransac_iterations: int = Field(300, ge=1, le=10000, description="RANSAC samples (fixed seed)")
     column_step: int = Field(
         4,
         ge=1,
@@ -740,6 +754,16 @@ class ProfileParams(NodeParams):
     max_height_m: float = Field(
         6.0, gt=0.0, le=100.0, description="a larger height estimate is invalid, metres"
     )
+
+    @model_validator(mode="after")
+    def _bins_bounded(self):
+        # memory and time grow with the number of bins: at most 8x the default's 128
+        if self.max_disparity / self.bin_size > MAX_BINS:
+            raise ValueError(
+                f"max_disparity / bin_size = {self.max_disparity / self.bin_size:.0f} disparity bins, more than {MAX_BINS}; "
+                "raise bin_size or lower max_disparity"
+            )
+        return self
 
 
 @functools.lru_cache(maxsize=512)
