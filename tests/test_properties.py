@@ -824,9 +824,14 @@ def test_lane_post_processing(data, rows, cols, seed):
     gap = data.draw(st.integers(0, 10))  # band_px < gap_px + 2 (empty bands) is rejected by the params
     out = call(
         "lanes.verify",
-        {"lanes": lanes, "image": img},
+        {"lanes": lanes, "image": img, "geometry": geom},
         gap_px=gap,
         band_px=data.draw(st.integers(max(2, gap + 2), 40)),
+        max_texture=data.draw(st.sampled_from([None, 13.3])),
+        max_distance_m=data.draw(st.floats(0.5, 60.0)),
+        paint_band_m=data.draw(st.floats(0.1, 3.0)),
+        paint_gap_m=data.draw(st.floats(0.05, 1.0)),
+        align_m=data.draw(st.floats(0.0, 1.0)),
     )
     assert isinstance(out["lanes"], list) and len(out["lanes"]) <= len(lanes)
     out = call(

@@ -20,9 +20,11 @@ paint when
   10 cm; a kerb's lit edge measures 5-7 cm) and at most ``max_foot_width_m`` wide at a quarter of
   its height (paint is at most 30 cm wide with sharp edges; a light concrete gutter between the
   asphalt and a paved strip measures 46-85 cm there, painted lines 16-27 cm);
-- optionally (``min_side_ratio``, off by default) the darker side is at least that fraction of the
-  brighter one: road on both sides. A shadow cast along a line darkens one side as much as the
-  gravel beyond a kerb does, so it is not relied on.
+- road lies on both sides: a side darker than ``min_side_ratio`` of the other (the gravel beside a
+  kerb measures 0.47-0.58 on KITTI drive 0001, painted lines 0.85-1.0) must be smooth, at most
+  ``max_dark_side_texture`` (the texture check's measure, below): a shadow cast along a line darkens
+  one side as much as gravel does (0.6-0.7 in the synthetic heavy shadows) but leaves it smooth
+  (texture 3-8, gravel 15-17).
 
 The texture check of earlier versions (``max_texture``: the roughness of the surface beside a line,
 gravel or grass against asphalt) is kept as an option, off by default: grass beside a highway's edge
@@ -419,12 +421,20 @@ class VerifyParams(NodeParams):
         "sharp edges, blurred by about a BEV pixel; a concrete gutter is a wider band with soft edges)",
     )
     min_side_ratio: float = Field(
-        0.0,
+        0.75,
         ge=0.0,
         le=1.0,
-        description="paint check: the painted rows' median level of the darker side over the brighter side (paint lies on "
-        "road on both sides; beside a kerb the gravel is much darker). 0: not checked, the default: a shadow cast "
-        "along a line (a wall, a guard rail, trees) darkens one side as much as gravel does",
+        description="paint check: paint lies on road on both sides; a side whose level (the painted rows' median, over "
+        "the brighter side's) is below this fraction is road only when it is smooth (max_dark_side_texture): a "
+        "shadow cast along the line, not the gravel beyond a kerb (unitless; 0: not checked)",
+    )
+    max_dark_side_texture: float = Field(
+        11.0,
+        gt=0.0,
+        le=255.0,
+        description="paint check: the roughest a much darker side may be (the texture check's measure over gap_px .. "
+        "band_px, in the grey levels of a road at reference_level): shadowed asphalt measures about 3-8, the gravel "
+        "beside a kerb 15-17",
     )
     gap_px: int = Field(6, ge=0, le=200, description="texture check: start of the side bands, BEV pixels from the lane")
     band_px: int = Field(30, ge=2, le=400, description="texture check: end of the side bands, BEV pixels from the lane")
@@ -648,7 +658,7 @@ def verify(params: VerifyParams, lanes: list[Lane], image: np.ndarray, geometry:
         return {"lanes": []}
     image = _grey_bev(image)  # before the road level reads the mask: a wrong image is the image's fault
     gain = 1.0  # measured grey levels -> grey levels of the thresholds
-    if params.brightness == "relative" and (params.max_texture is not None or params.crossing_check):
+    if params.brightness == "relative":
         level = road_level(image, mask, params.level_quantile)
         if level is not None and level > 0:  # a black road has no level: the grey levels as they are
             gain = params.reference_level / level
@@ -669,6 +679,10 @@ def verify(params: VerifyParams, lanes: list[Lane], image: np.ndarray, geometry:
             )
             if not _is_paint(cues, params):
                 continue
+            if cues.side_ratio < params.min_side_ratio:  # a much darker side: a shadow, or gravel?
+                rough = max(side_texture(image, ln, params.gap_px, params.band_px, params.measure, params.row_quantile)) * gain
+                if rough > params.max_dark_side_texture:
+                    continue
             extra["paint"] = {
                 "contrast": round(cues.contrast, 3),
                 "side_ratio": round(cues.side_ratio, 3),
@@ -692,11 +706,10 @@ def verify(params: VerifyParams, lanes: list[Lane], image: np.ndarray, geometry:
 
 def _is_paint(cues: PaintCues, p: VerifyParams) -> bool:
     """Whether the measured cues are paint's: enough painted rows, bright on both sides, of paint
-    width, and road of like brightness on both sides (NaN compares False: not paint)."""
+    width (NaN compares False: not paint). The side ratio is judged with the side's texture."""
     return (
         cues.painted >= p.min_painted_rows
         and cues.contrast >= p.min_paint_contrast
         and p.min_width_m <= cues.width_m
         and cues.foot_width_m <= p.max_foot_width_m
-        and cues.side_ratio >= p.min_side_ratio
     )

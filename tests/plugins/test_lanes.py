@@ -964,12 +964,16 @@ def _stripe(img, centre, width_px, value, soft_px=0.0):
 def _paint_scene(kind: str, gain: float = 1.0) -> tuple[np.ndarray, Lane, BevGeometry]:
     """A BEV with one candidate at column 100: ``paint`` (15 cm at twice the road's level),
     ``dashed`` (3 m painted, 6 m gaps), ``edge_grass`` (paint, then rough darker grass from 40 cm),
-    ``kerb`` (a kerb's lit edge, 5 cm, then dark gravel), ``step`` (the road's edge against a
-    darker verge, no stripe), ``gutter`` (a light concrete band 45 cm wide with soft edges)."""
+    ``kerb`` (a kerb's lit edge, 5 cm, then dark gravel), ``kerb_top`` (a kerb's top 15 cm wide,
+    brighter than the road, then dark gravel), ``shadow`` (paint with a smooth shadow along its
+    right), ``step`` (the road's edge against a darker verge, no stripe), ``gutter`` (a light
+    concrete band 45 cm wide with soft edges)."""
     img, g = _road_bev()
     rng = np.random.default_rng(1)
-    if kind in ("paint", "dashed", "edge_grass"):
+    if kind in ("paint", "dashed", "edge_grass", "shadow"):
         _stripe(img, 100, 3, 200.0)
+        if kind == "shadow":
+            img[:, 103:] = 55 + rng.normal(0, 2, (img.shape[0], img.shape[1] - 103))
         if kind == "dashed":
             for start in range(0, img.shape[0], 180):
                 img[start + 60 : start + 180, 98:103] = _road_bev(seed=2)[0][start + 60 : start + 180, 98:103]
@@ -978,6 +982,9 @@ def _paint_scene(kind: str, gain: float = 1.0) -> tuple[np.ndarray, Lane, BevGeo
     elif kind == "kerb":
         img[:, 100] = 135.0
         img[:, 101:] = 50 + rng.normal(0, 20, (img.shape[0], img.shape[1] - 101))
+    elif kind == "kerb_top":
+        _stripe(img, 100, 3, 140.0)
+        img[:, 102:] = 55 + rng.normal(0, 20, (img.shape[0], img.shape[1] - 102))
     elif kind == "step":
         img[:, 101:] = 60 + rng.normal(0, 5, (img.shape[0], img.shape[1] - 101))
     elif kind == "gutter":
@@ -989,7 +996,10 @@ def _paint_scene(kind: str, gain: float = 1.0) -> tuple[np.ndarray, Lane, BevGeo
 
 
 @pytest.mark.parametrize("gain", [1.0, 0.4, 1.3])
-@pytest.mark.parametrize(("kind", "paint"), [("paint", True), ("dashed", True), ("edge_grass", True), ("kerb", False), ("step", False), ("gutter", False)])
+@pytest.mark.parametrize(
+    ("kind", "paint"),
+    [("paint", True), ("dashed", True), ("edge_grass", True), ("shadow", True), ("kerb", False), ("kerb_top", False), ("step", False), ("gutter", False)],
+)
 def test_verify_keeps_paint_drops_kerbs_edges_and_gutters(kind, paint, gain):
     """What the paint check is for, at any exposure (its measures are relative)."""
     img, lane, g = _paint_scene(kind, gain)
@@ -997,7 +1007,8 @@ def test_verify_keeps_paint_drops_kerbs_edges_and_gutters(kind, paint, gain):
     assert len(kept) == int(paint), _verify.paint_cues(img, lane, g)
     if paint:
         cues = kept[0].extra["paint"]
-        assert 0.12 <= cues["width_m"] <= 0.2 and cues["contrast"] > 0.6 and cues["side_ratio"] > 0.75
+        assert 0.12 <= cues["width_m"] <= 0.2 and cues["contrast"] > 0.6
+        assert (cues["side_ratio"] < 0.75) == (kind == "shadow")
 
 
 def test_paint_cues_name_the_failing_cue():
@@ -1007,6 +1018,10 @@ def test_paint_cues_name_the_failing_cue():
     assert kerb.side_ratio < 0.75 and kerb.width_m < p.min_width_m
     gutter = _verify.paint_cues(*_paint_scene("gutter"))
     assert gutter.contrast > p.min_paint_contrast and gutter.side_ratio > 0.9 and gutter.foot_width_m > p.max_foot_width_m
+    top = _verify.paint_cues(*_paint_scene("kerb_top"))  # like paint but for the rough dark side
+    assert top.contrast > p.min_paint_contrast and p.min_width_m < top.width_m and top.foot_width_m < p.max_foot_width_m
+    assert top.side_ratio < p.min_side_ratio
+    assert len(verify.func(verify.params(min_side_ratio=0.0), lanes=[_paint_scene("kerb_top")[1]], image=_paint_scene("kerb_top")[0], geometry=_paint_scene("kerb_top")[2])["lanes"]) == 1
     step = _verify.paint_cues(*_paint_scene("step"))
     assert step.painted < p.min_painted_rows  # no row's centre stands above the brighter side
     dashed = _verify.paint_cues(*_paint_scene("dashed"))
