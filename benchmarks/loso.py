@@ -32,6 +32,7 @@ DEFAULT_SWEEPS = [
     "verify.min_width_m=0.0,0.05,0.07,0.09,0.11,0.13",
     "verify.max_foot_width_m=0.24,0.28,0.32,0.36,0.4,0.5,0.7,1.0",
     "verify.min_side_ratio=0.0,0.5,0.6,0.7,0.75,0.8,0.85,0.9",
+    "verify.max_dark_side_texture=5,7,9,11,13,15,20",
     "verify.min_row_contrast=0.05,0.1,0.15,0.2,0.3",
     "fit.near_fit_m=15,20,25,30,35,45",
     "fit.near_fit_coverage=0.3,0.5,0.7,0.8,0.9,1.0",

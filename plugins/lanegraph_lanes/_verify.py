@@ -12,8 +12,9 @@ them. A row is *painted* when its centre stands ``min_row_contrast`` above that 
 paint when
 
 - it has ``min_painted_rows`` painted rows;
-- their median contrast reaches ``min_paint_contrast``: paint is bright against the road on both
-  sides, while a kerb's lit edge or the road's border against a darker verge barely stands above
+- their median contrast reaches ``min_paint_contrast`` (or most of them are clipped at the image's
+  largest grey level: an overexposed frame shows paint darker than it is): paint is bright against
+  the road on both sides, while a kerb's lit edge or the road's border against a darker verge barely stands above
   the brighter side (on KITTI drive 0001 the kerb beside the tram tracks measures 0.16-0.33, its
   painted lines 0.39-1.0, the highway's lines 0.65-1.6);
 - their mean profile is at least ``min_width_m`` wide at half its height (the narrowest marking is
@@ -256,7 +257,7 @@ def side_texture(
 
 
 @jit
-def _paint_rows_kernel(img, r0, r1, c0, c1, c2, band_px, gap_px, align_px, min_row_contrast, hist, profile, contrast, ratio):
+def _paint_rows_kernel(img, r0, r1, c0, c1, c2, band_px, gap_px, align_px, min_row_contrast, sat_level, hist, profile, contrast, ratio):
     """The painted rows of the lane ``col = c0 + c1 t + c2 t^2`` (``t = rows - 1 - row``) over the rows
     ``r0 .. r1``, for :func:`paint_cues`. Per row: the lane's column rounded, moved to the brightest
     pixel within ``align_px`` (a fit is a pixel or two off the paint); the strip of columns
@@ -266,13 +267,15 @@ def _paint_rows_kernel(img, r0, r1, c0, c1, c2, band_px, gap_px, align_px, min_r
     is ``min_row_contrast`` (relative) brighter than the brighter side: then the strip divided by
     that side's level is added to ``profile`` (``2 band_px + 1`` values, zeroed by the caller), and
     ``contrast[k]`` = centre / brighter side - 1 and ``ratio[k]`` = darker side / brighter side are
-    written for the ``k``-th painted row. Returns ``(strips inside the image, painted rows)``."""
+    written for the ``k``-th painted row. Returns ``(strips inside the image, painted rows, painted
+    rows whose centre is at ``sat_level`` or above: saturated)``."""
     rows, cols = img.shape
     w = 2 * band_px + 1
     ns = band_px - gap_px + 1
     side = np.empty(ns, np.float64)
     inside = 0
     painted = 0
+    saturated = 0
     for r in range(max(r0, 0), min(r1, rows - 1) + 1):
         t = rows - 1 - r
         ce = int(np.rint(c0 + c1 * t + c2 * t * t))
@@ -309,7 +312,9 @@ def _paint_rows_kernel(img, r0, r1, c0, c1, c2, band_px, gap_px, align_px, min_r
         contrast[painted] = c_rel
         ratio[painted] = min(left, right) * inv
         painted += 1
-    return inside, painted
+        if img[r, best] >= sat_level:
+            saturated += 1
+    return inside, painted, saturated
 
 
 def _crossing_width(profile: np.ndarray, centre: int, level: float) -> float:
@@ -335,6 +340,7 @@ class PaintCues:
 
     rows: int  # strips inside the image, within max_distance_m
     painted: int  # painted rows among them
+    saturated: int  # painted rows whose centre is at the image's largest grey level (clipped)
     contrast: float  # median over the painted rows of centre / brighter side - 1
     side_ratio: float  # median over the painted rows of darker side / brighter side
     width_m: float  # full width at half the mean profile's height
@@ -370,20 +376,22 @@ def paint_cues(
     profile = np.zeros(2 * band + 1)
     contrast = np.empty(n)
     ratio = np.empty(n)
-    inside, painted = _paint_rows_kernel(
-        img, r0, r1, c0, c1, c2, band, gap, align, float(min_row_contrast), _median_hist(img), profile, contrast, ratio
+    sat = float(np.iinfo(img.dtype).max) if img.dtype.kind in "ui" else math.inf
+    inside, painted, saturated = _paint_rows_kernel(
+        img, r0, r1, c0, c1, c2, band, gap, align, float(min_row_contrast), sat, _median_hist(img), profile, contrast, ratio
     )
     nan = float("nan")
     if painted < max(min_rows, 1):
-        return PaintCues(int(inside), int(painted), nan, nan, nan, nan)
+        return PaintCues(int(inside), int(painted), int(saturated), nan, nan, nan, nan)
     profile /= painted
     base = max(float(np.median(profile[: band - gap + 1])), float(np.median(profile[band + gap :])))
     height = profile[band] - base
     if height <= 0.0:
-        return PaintCues(int(inside), int(painted), float(np.median(contrast[:painted])), float(np.median(ratio[:painted])), nan, nan)
+        return PaintCues(int(inside), int(painted), int(saturated), float(np.median(contrast[:painted])), float(np.median(ratio[:painted])), nan, nan)
     return PaintCues(
         int(inside),
         int(painted),
+        int(saturated),
         float(np.median(contrast[:painted])),
         float(np.median(ratio[:painted])),
         _crossing_width(profile, band, base + 0.5 * height) * res,
@@ -689,6 +697,7 @@ def verify(params: VerifyParams, lanes: list[Lane], image: np.ndarray, geometry:
                 "width_m": round(cues.width_m, 3),
                 "foot_width_m": round(cues.foot_width_m, 3),
                 "painted_rows": cues.painted,
+                "saturated_rows": cues.saturated,
             }
         if params.max_texture is not None:
             left, right = side_texture(image, ln, params.gap_px, params.band_px, params.measure, params.row_quantile)
@@ -709,7 +718,9 @@ def _is_paint(cues: PaintCues, p: VerifyParams) -> bool:
     width (NaN compares False: not paint). The side ratio is judged with the side's texture."""
     return (
         cues.painted >= p.min_painted_rows
-        and cues.contrast >= p.min_paint_contrast
+        # paint clipped at the sensor's largest grey level on most of its rows (an overexposed frame)
+        # shows less contrast than it has: it is as bright as the image can show
+        and (cues.contrast >= p.min_paint_contrast or cues.saturated >= 0.5 * cues.painted)
         and p.min_width_m <= cues.width_m
         and cues.foot_width_m <= p.max_foot_width_m
     )

@@ -893,13 +893,13 @@ def test_mdiff_ignores_a_few_sharp_edges():
     assert right_mean > 9 and right_median == 0.0
 
 
-def paint_rows_twin(img, r0, r1, coeffs, band, gap, align, min_row_contrast):
-    """NumPy twin of ``_paint_rows_kernel``: ``(inside, painted, profile sum, contrasts, ratios)``."""
+def paint_rows_twin(img, r0, r1, coeffs, band, gap, align, min_row_contrast, sat):
+    """NumPy twin of ``_paint_rows_kernel``: ``(inside, painted, saturated, profile sum, contrasts, ratios)``."""
     rows, cols = img.shape
     c0, c1, c2 = coeffs
     prof = np.zeros(2 * band + 1)
     con, rat = [], []
-    inside = 0
+    inside = saturated = 0
     for r in range(max(r0, 0), min(r1, rows - 1) + 1):
         t = rows - 1 - r
         ce = int(np.rint(c0 + c1 * t + c2 * t * t))
@@ -917,7 +917,8 @@ def paint_rows_twin(img, r0, r1, coeffs, band, gap, align, min_row_contrast):
         prof += strip / hi
         con.append(strip[band] / hi - 1.0)
         rat.append(min(left, right) / hi)
-    return inside, len(con), prof, np.array(con), np.array(rat)
+        saturated += int(strip[band] >= sat)
+    return inside, len(con), saturated, prof, np.array(con), np.array(rat)
 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.float32])
@@ -939,12 +940,14 @@ def test_paint_rows_kernel_matches_twin(dtype):
         n = max(r1 - r0 + 1, 0)
         prof, con, rat = np.zeros(2 * band + 1), np.empty(n), np.empty(n)
         hist = _verify._median_hist(img)
-        inside, painted = _verify._paint_rows_kernel(img, r0, r1, *coeffs, band, gap, align, mrc, hist, prof, con, rat)
-        ref = paint_rows_twin(img, r0, r1, coeffs, band, gap, align, mrc)
-        assert (inside, painted) == ref[:2]
-        np.testing.assert_allclose(prof, ref[2], rtol=1e-12)
-        np.testing.assert_allclose(con[:painted], ref[3], rtol=1e-12)
-        np.testing.assert_allclose(rat[:painted], ref[4], rtol=1e-12)
+        sat = 250.0
+        got = _verify._paint_rows_kernel(img, r0, r1, *coeffs, band, gap, align, mrc, sat, hist, prof, con, rat)
+        ref = paint_rows_twin(img, r0, r1, coeffs, band, gap, align, mrc, sat)
+        assert got == ref[:3]
+        painted = got[1]
+        np.testing.assert_allclose(prof, ref[3], rtol=1e-12)
+        np.testing.assert_allclose(con[:painted], ref[4], rtol=1e-12)
+        np.testing.assert_allclose(rat[:painted], ref[5], rtol=1e-12)
 
 
 def _road_bev(rows=600, cols=200, level=100.0, noise=3.0, seed=0):
@@ -1009,6 +1012,19 @@ def test_verify_keeps_paint_drops_kerbs_edges_and_gutters(kind, paint, gain):
         cues = kept[0].extra["paint"]
         assert 0.12 <= cues["width_m"] <= 0.2 and cues["contrast"] > 0.6
         assert (cues["side_ratio"] < 0.75) == (kind == "shadow")
+
+
+def test_overexposed_paint_is_kept():
+    """Clipped at 255 in a bright frame (road at 215), paint shows 19 % over the road: as bright as
+    the image can show it. A kerb's lit edge clipped alike stays too narrow."""
+    img, lane, g = _paint_scene("paint", gain=1.0)
+    bright = np.clip(img.astype(np.float64) * 2.15, 0, 255).astype(np.uint8)
+    cues = _verify.paint_cues(bright, lane, g)
+    assert cues.contrast < verify.params().min_paint_contrast and cues.saturated == cues.painted
+    assert len(verify.func(verify.params(), lanes=[lane], image=bright, geometry=g)["lanes"]) == 1
+    img, lane, g = _paint_scene("kerb")
+    bright = np.clip(img.astype(np.float64) * 2.15, 0, 255).astype(np.uint8)
+    assert verify.func(verify.params(), lanes=[lane], image=bright, geometry=g)["lanes"] == []
 
 
 def test_paint_cues_name_the_failing_cue():
