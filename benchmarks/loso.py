@@ -84,13 +84,15 @@ def main(argv: list[str] | None = None) -> int:
     base = Path(args.graph).stem
     sequences = [s for s in table[base] if s != "all"]
     resolved = yaml.safe_load(subprocess.run([sys.executable, "-m", "lanegraph", "show", args.graph], capture_output=True, text=True).stdout)
-    head = ["threshold", "graph's value", *[f"{s} left out: chosen value -> its figure (graph's)" for s in sequences]]
+    head = ["threshold", "graph's value", "values at the best pooled figure", *[f"{s} left out: chosen value -> its figure (graph's)" for s in sequences]]
     rows_out = [head]
     for sw in sweeps:
         key, values = sw.split("=", 1)[0], sw.split("=", 1)[1].split(",")
         node, param = key.split(".", 1)
         own = (resolved["nodes"].get(node, {}).get("params") or {}).get(param, "default")
-        cells = [key, str(own)]
+        everyone = [pooled(table[f"{base}[{key}={v}]"], sequences) for v in values]
+        best = [v for v, sc in zip(values, everyone) if abs(sc - max(everyone)) < 1e-12]
+        cells = [key, str(own), f"{', '.join(best)} ({100 * max(everyone):.1f} %)"]
         for left in sequences:
             others = [s for s in sequences if s != left]
             scores = [pooled(table[f"{base}[{key}={v}]"], others) for v in values]
