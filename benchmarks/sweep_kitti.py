@@ -69,7 +69,8 @@ from tqdm import tqdm
 
 from lanegraph.dataset import POOLED, Dataset, evaluate_sequences, load_dataset, read_gt, single_sequence
 from lanegraph.errors import InputError
-from lanegraph.metrics import evaluate, read_jsonl
+from lanegraph.frames import selection_text
+from lanegraph.metrics import evaluate, read_ground_truth, read_predictions
 from lanegraph.nodes import RunContext
 from lanegraph.types import Calibration
 
@@ -145,11 +146,11 @@ def open_sequence(folder: str | Path) -> StereoSequence:
         )
     node = SOURCES[source]
     src = node.func(node.params(), RunContext(input_path=folder))
-    left, right = src.pairs[0][1].parent, src.pairs[0][2].parent
+    left, right = src.all_pairs[0][1].parent, src.all_pairs[0][2].parent
     cameras = (left.relative_to(src.root), right.relative_to(src.root))
     calib_path = src.root.resolve().parent / "calib_cam_to_cam.txt" if source == "io.kitti_raw" else src.root / "calib.txt"
     return StereoSequence(
-        src.root, source, cameras, PROJECTIONS[cameras[0].parts[0]], calib_path, src.calib, src.gray, {stem: (lp, rp) for stem, lp, rp in src.pairs}
+        src.root, source, cameras, PROJECTIONS[cameras[0].parts[0]], calib_path, src.calib, src.gray, {stem: (lp, rp) for stem, lp, rp in src.all_pairs}
     )
 
 
@@ -262,7 +263,7 @@ def write_variant(seq: str | Path | StereoSequence, dst: Path, kind: str, arg, g
     if (out / "lanes_gt.jsonl").is_file():
         return out
     if gt is None:
-        gt = read_jsonl(seq.root / "lanes_gt.jsonl")
+        gt = read_ground_truth(seq.root / "lanes_gt.jsonl")
         _check_frames(seq, gt, seq.root / "lanes_gt.jsonl")
     frames = [str(rec["frame"]) for rec in gt]
     width = read_image(seq.images[frames[0]][0], frames[0], seq.gray).shape[1]
@@ -310,7 +311,7 @@ def write_variant(seq: str | Path | StereoSequence, dst: Path, kind: str, arg, g
 
 def _selection_text(r: range) -> str:
     """``--frames`` for the indices of ``r`` (a range over the input's frames)."""
-    return f"{r.start}:{r.stop if r.stop >= 0 else ''}:{r.step}"
+    return selection_text(slice(r.start, r.stop if r.stop >= 0 else None, r.step))
 
 
 def _open_dataset(args: argparse.Namespace) -> tuple[Dataset, dict[str, tuple[StereoSequence, list[dict]]]]:
@@ -389,17 +390,21 @@ def main(argv: list[str] | None = None) -> int:
             else:
                 bar.set_description(f"{spec} / {s.name}: writing the variant")
                 data = write_variant(seq, work / "data" / vname / s.name, kind, arg, gt)
-                gt = read_jsonl(data / "lanes_gt.jsonl")
+                gt = read_ground_truth(data / "lanes_gt.jsonl")
             bar.set_description(f"{spec} / {s.name}: lanegraph run")
             out = work / "runs" / vname / s.name
             failed = run_graph(args.graph, data, out, args.set, extra)
             bar.update()
+            if not failed:
+                try:
+                    pred = read_predictions(out / "lanes.jsonl")
+                except InputError as exc:
+                    failed = f"unreadable predictions: {exc}"
             if failed:
                 failed_any = True
                 broken.append(s.name)
                 show(spec, s.name, failed)
                 continue
-            pred = read_jsonl(out / "lanes.jsonl")
             res = evaluate(pred, gt)
             evals.append((s.name, pred, gt))
             rows.append(_row(spec, s.name, res, lanes_reported(pred)))

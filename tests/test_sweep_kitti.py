@@ -118,10 +118,11 @@ def test_unpainted_inpaints_along_the_markings_only(tmp_path):
     assert rec["markings"] == [] and rec["ego"] == {"left": None, "right": None}
 
 
-# KITTI odometry: grey image_0 / image_1, calib.txt with the P0 ... P3 rows and Tr (as the real files)
-P0 = "7.070912e+02 0 6.018873e+02 0 0 7.070912e+02 1.831104e+02 0 0 0 1 0"
-P1 = "7.070912e+02 0 6.018873e+02 -3.798145e+02 0 7.070912e+02 1.831104e+02 0 0 0 1 0"
-OTHER_ROWS = ["P2: 7.070912e+02 0 6.018873e+02 4.688783e+01 0 7.070912e+02 1.831104e+02 1.178601e-01 0 0 1 6.203223e-03", "Tr: 1 0 0 0 0 1 0 0 0 0 1 0"]
+# KITTI odometry: grey image_0 / image_1, calib.txt with the P0, P1, P2 rows and Tr (as the real
+# files), the principal point moved into the 320 x 60 images of these tests
+P0 = "7.070912e+02 0 1.518873e+02 0 0 7.070912e+02 2.81104e+01 0 0 0 1 0"
+P1 = "7.070912e+02 0 1.518873e+02 -3.798145e+02 0 7.070912e+02 2.81104e+01 0 0 0 1 0"
+OTHER_ROWS = ["P2: 7.070912e+02 0 1.518873e+02 4.688783e+01 0 7.070912e+02 2.81104e+01 1.178601e-01 0 0 1 6.203223e-03", "Tr: 1 0 0 0 0 1 0 0 0 0 1 0"]
 
 
 def tiny_odometry(tmp_path: Path, n: int = 2, markings: bool = True, name: str = "seq7") -> Path:
