@@ -45,7 +45,7 @@ anything is written: an unusable one stops the sweep with exit status 2; a run t
 row and the sweep goes on, ending with status 1. Writing a variant takes a few seconds (the mirror's
 and the inpainting's disparities about 10 s on drive 0001's 54 frames); the default list on drive
 0001 takes about 2.5 minutes on the 2-core reference machine, on ``graphs/datasets/dev.yaml`` (99
-frames) about 3.5 minutes. A progress bar on stderr (where it is a terminal) says which variant and
+frames, 39 runs) 2.5 to 3.5 minutes. A progress bar on stderr (where it is a terminal) says which variant and
 sequence is being written or run (``--quiet``: none); each row is printed as its run ends.
 """
 
