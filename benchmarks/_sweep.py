@@ -25,6 +25,11 @@ def pct(value: float | None) -> str:
     return "-" if value is None else f"{100 * value:.1f} %"
 
 
+def lanes_reported(pred: list[dict]) -> int:
+    """The number of lanes in prediction records (one per frame, ``lanes`` a list)."""
+    return sum(len(p.get("lanes") or []) for p in pred)
+
+
 def metric_row(res: dict, n_lanes: int, blank: bool = False) -> str:
     """Detection ratio, precision and ego recall of ``evaluate``'s result (``-`` each when ``blank``)
     and the number of lanes reported, in the columns of :data:`HEADER`."""

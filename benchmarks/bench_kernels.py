@@ -88,14 +88,14 @@ def bev_kernels(rng: np.random.Generator) -> None:
     t, y, _ = tl.parabola_with_outliers(n=3000, seed=1)
     row(
         "_irls_kernel",
-        timed(lambda: _fit._irls_kernel(t, y, 2, 10, True, 4.685, 0.01)),
+        timed(lambda: _fit._irls_kernel(t, y, 2, 10, True, 4.685, 0.01, np.empty(0), np.empty(0))),
         timed(lambda: _fit.irls_fit_lstsq(t, y, 2, 10, "tukey")),
         "(3000 points, 30 % outliers)",
     )
     samples = _fit.ransac_samples(t.size, 3, 200, 0)
     row(
         "_ransac_kernel",
-        timed(lambda: _fit._ransac_kernel(t, y, samples, 3.0)),
+        timed(lambda: _fit._ransac_kernel(t, y, samples, np.full(t.size, 3.0))),
         timed(lambda: tl.ransac_np(t, y, samples, 3.0), 3),
         "(3000 points, 200 parabola samples)",
     )
@@ -170,7 +170,7 @@ def road_kernels(rng: np.random.Generator) -> None:
     ii, jj = profile._sample_pairs(v.size, 300, 0)
     row(
         "_line_fit_kernel",
-        timed(lambda: profile._line_fit_kernel(v, dv, w, ii, jj, 1.0, 4)),
+        timed(lambda: profile._line_fit_kernel(v, dv, w, ii, jj, 1.0, 4, 0.0)),
         timed(lambda: tr.line_fit_np(v, dv, w, 1.0, 300)),
         "(255 rows, 300 RANSAC samples, 4 rounds at most)",
     )

@@ -7,31 +7,34 @@ The input is a :class:`~lanegraph.dataset.Dataset` (one or more sequences). Writ
 ``OUT/results.md``, ``OUT/accuracy.png`` (pooled accuracy per variant) and ``OUT/accuracy_vs_ms.png``.
 A run whose resolved graph, input files and frame selection are unchanged since the last ablation
 (same output folder) is not run again: its recorded results are reused.
+
+The runs are the units of work of :mod:`lanegraph.batch`: one after another in this process, or on
+a Dask cluster (``--scheduler``, :mod:`lanegraph.distributed`) with the same outputs byte for byte.
+
+A run that fails (a node raising under ``on_error: fail``, an input a variant cannot read) does not
+end the ablation: every run is made, the failed one gets its row with its ``error`` (and no
+figures), its ``run.json`` says what happened, and :func:`run_ablation` returns all rows; the
+command exits 1 at the end. Frames that failed under ``on_error: skip`` are counted in
+``failed_frames``.
 """
 
 from __future__ import annotations
 
 import csv
+import io
 import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .batch import (
-    Planned,
-    Planner,
-    ResolvedGraph,
-    SchedulerSpec,
-    clean_leftovers,
-    describe_error,
-    finish_runs,
-    run_tasks,
-)
+from .batch import Planned, Planner, ResolvedGraph, SchedulerSpec, clean_leftovers, finish_runs, run_tasks
 from .cache import ResultCache, digest
 from .dataset import POOLED, Dataset, evaluate_sequences, read_gt
-from .metrics import evaluate, read_jsonl
+from .metrics import evaluate, read_predictions
+from .paths import inside, safe_name, write_bytes_atomic, write_text_atomic
 from .plugins import get_plugin_manager
+from .resume import input_identity
 
 
 @dataclass
@@ -56,10 +59,7 @@ def expand_sweeps(base: Path, sweeps: list[str]) -> list[Variant]:
 
 
 def _input_identity(input_path: Path | None) -> str:
-    if input_path is None:
-        return "synthetic"
-    files = sorted(p for p in Path(input_path).rglob("*") if p.is_file())
-    return digest([(str(p), p.stat().st_size, p.stat().st_mtime_ns) for p in files])
+    return input_identity(input_path)
 
 
 def _extra_metrics(pred: list[dict], gt: list[dict]) -> dict[str, Any]:
@@ -94,8 +94,7 @@ def run_ablation(
     ``OUT/results.csv``, ``OUT/results.md`` and the plots. ``frames`` (``--frames``) applies to
     sequences that do not choose their own. The runs are the tasks of :mod:`lanegraph.batch`: in
     this process one after another, or on a Dask cluster with ``scheduler``, with the same outputs;
-    ``chunk_frames`` / ``warmup`` split sequences into chunks. A run that fails gets its row with
-    the error (``error``: variant, sequence, frame and message) and the others go on.
+    ``chunk_frames`` / ``warmup`` split sequences into chunks.
     """
     out_dir.mkdir(parents=True, exist_ok=True)
     pm = get_plugin_manager()
@@ -107,43 +106,65 @@ def run_ablation(
     for var in variants:
         graph = ResolvedGraph.load(var.graph, var.sets)
         g = graph.validate(pm)
+        code = sorted({n.type.code_version for n in g.nodes.values()})  # an edited plugin runs again
         var_plans = []
         for seq in dataset:
             sel = seq_frames[seq.name]
-            run_dir = out_dir / "runs" / _safe(var.name) / seq.name
-            run_key = digest(g.resolved_dict(), idents[seq.name], str(sel))
+            run_dir = inside(out_dir, f"runs/{_safe(var.name)}/{safe_name(seq.name)}", "ablate --out")  # links out of OUT refused
+            run_key = digest(g.resolved_dict(), idents[seq.name], str(sel), code)
             if chunk_frames is not None:
                 run_key = digest(run_key, "chunks", chunk_frames, warmup)
             stamp = run_dir / "run_key.txt"
-            if cache is not None and stamp.is_file() and stamp.read_text() == run_key and (run_dir / "timings.json").is_file():
+            if cache is not None and stamp.is_file() and stamp.read_text() == run_key and _read_record(run_dir) is not None:
                 var_plans.append(Planned(var.name, seq.name, run_dir, reused=True))
                 continue
             var_plans.append(planner.add(var.name, seq.name, graph, seq.input, sel, run_dir, run_key))
         plans.append((var, var_plans))
-    for _, var_plans in plans:
-        for plan in var_plans:
-            if not plan.reused:
-                clean_leftovers(plan.run_dir)
-    outcomes = run_tasks(planner.tasks, scheduler, cache, progress, echo)
-    finish_runs([p for _, ps in plans for p in ps], outcomes)
+    every = [p for _, ps in plans for p in ps]
+    for plan in every:
+        if not plan.reused:
+            clean_leftovers(plan.run_dir)
+    rows: list[dict[str, Any]] = []
+    _done: dict[int, Any] = {}
+    try:
+        outcomes = run_tasks(planner.tasks, scheduler, cache, progress, echo, done=_done)
+    except KeyboardInterrupt:
+        finish_runs(every, _done, partial=True)
+        rows = _rows(plans, gts, finished_only=True)
+        if rows:
+            write_reports(rows, out_dir)  # the finished variants keep their report
+        raise
+    finish_runs(every, outcomes)
     if cache is not None and scheduler is not None:  # the workers' counts, for the summary line
         for out in outcomes.values():
             cache.hits += sum(out.result.cache_hits.values())
             cache.misses += sum(out.result.cache_misses.values())
+    rows = _rows(plans, gts)
+    write_reports(rows, out_dir)
+    return rows
+
+
+def _rows(plans: list[tuple[Variant, list[Planned]]], gts: dict[str, Any], finished_only: bool = False) -> list[dict[str, Any]]:
+    """The rows of the planned runs, from their folders' run.json and lanes.jsonl (``finished_only``:
+    of the variants whose every run ended)."""
     rows: list[dict[str, Any]] = []
     for var, var_plans in plans:
+        if finished_only and any(p.record is None and not p.reused for p in var_plans):
+            continue
         var_rows: list[dict[str, Any]] = []
         evals: list[tuple[str, list, list]] = []
         for plan in var_plans:
             run_dir = plan.run_dir
-            out = plan.outcome
+            record = plan.record if plan.record is not None else (_read_record(run_dir) or {})
+            timings = record.get("timings") or {}
             row: dict[str, Any] = {"variant": var.name, "sequence": plan.sequence, "graph": str(var.graph), "sets": " ".join(var.sets)}
-            error = out.error if out is not None else None
-            timings = json.loads((run_dir / "timings.json").read_text()) if (run_dir / "timings.json").is_file() else {}
+            row["error"] = record.get("error")
+            row["failed_frames"] = len(record.get("failures") or [])
+            row["before_any_frame"] = bool(record.get("before_any_frame"))
             lanes_file = run_dir / "lanes.jsonl"
             gt = gts[plan.sequence]
-            if error is None and gt is not None and lanes_file.is_file():
-                pred = read_jsonl(lanes_file)
+            if gt is not None and lanes_file.is_file() and not row["error"]:
+                pred = read_predictions(lanes_file)
                 ev = evaluate(pred, gt)
                 row.update({k: ev[k] for k in ("frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px")})
                 row.update(_extra_metrics(pred, gt))
@@ -153,24 +174,34 @@ def run_ablation(
             row["ms_per_frame"] = round(sum(v["median_ms"] or 0.0 for v in nodes.values()), 2) if nodes else None
             row["stage_ms"] = {nid: v["median_ms"] for nid, v in nodes.items()}
             row["frames_run"] = timings.get("frames", 0)
-            row["wall_s"] = round(out.wall_s, 2) if out is not None else 0.0
+            row["wall_s"] = round(plan.outcome.wall_s, 2) if plan.outcome is not None else 0.0
             row["reused"] = plan.reused
             row["cache_hits"] = sum(timings.get("cache", {}).get("hits", {}).values())
-            row["error"] = describe_error(error) if error is not None else None
             var_rows.append(row)
         rows += var_rows
         rows.append(_pooled_row(var, var_rows, evals))
-    write_reports(rows, out_dir)
     return rows
+
+
+def _read_record(run_dir: Path) -> dict[str, Any] | None:
+    """A reused run's ``run.json`` (None when it is missing or not one of ours: run again)."""
+    try:
+        record = json.loads((run_dir / "run.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return record if isinstance(record, dict) and isinstance(record.get("timings"), dict) else None
 
 
 def _pooled_row(var: Variant, var_rows: list[dict[str, Any]], evals: list[tuple[str, list, list]]) -> dict[str, Any]:
     """The variant's row over all sequences: metrics over every frame as one set; times are the
-    sequences' medians weighted by their frame counts."""
+    sequences' medians weighted by their frame counts. No figures when a sequence's run failed (they
+    would be over other frames than the other variants')."""
     row: dict[str, Any] = {"variant": var.name, "sequence": POOLED, "graph": str(var.graph), "sets": " ".join(var.sets)}
     failed = [r["sequence"] for r in var_rows if r.get("error")]
-    row["error"] = f"{len(failed)} of {len(var_rows)} run(s) failed: {', '.join(failed)}" if failed else None
-    if evals and not failed:  # figures pooled over fewer sequences would not compare with the others'
+    row["error"] = f"failed on sequence(s) {', '.join(failed)}" if failed else None
+    row["failed_frames"] = sum(int(r.get("failed_frames") or 0) for r in var_rows)
+    row["before_any_frame"] = all(r.get("before_any_frame") for r in var_rows)
+    if evals and not failed:
         ev = evaluate_sequences(evals)[POOLED]
         row.update({k: ev[k] for k in ("frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px")})
         pred = [{**p, "frame": f"{n}/{p.get('frame')}"} for n, ps, _ in evals for p in ps]
@@ -193,7 +224,9 @@ def _pooled_row(var: Variant, var_rows: list[dict[str, Any]], evals: list[tuple[
 
 
 def _safe(name: str) -> str:
-    return "".join(ch if ch.isalnum() or ch in "-_.=[]" else "_" for ch in name)
+    """A variant's folder name: one plain name (never '..' or hidden), whatever the variant is called."""
+    out = "".join(ch if ch.isalnum() or ch in "-_.=[]" else "_" for ch in name)[:200]
+    return out if out and not out.startswith(".") else "_" + out
 
 
 def _fmt(x: Any, pct: bool = False) -> str:
@@ -209,11 +242,15 @@ def write_reports(rows: list[dict[str, Any]], out_dir: Path) -> None:
     two plots (pooled rows)."""
     stages = list(dict.fromkeys(s for r in rows for s in r.get("stage_ms", {})))
     cols = ["variant", "sequence", "frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px", "culane_f1", "ms_per_frame"]
-    with (out_dir / "results.csv").open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(cols + [f"ms_{s}" for s in stages] + ["wall_s", "reused", "cache_hits", "error"])
-        for r in rows:
-            w.writerow([r.get(c) for c in cols] + [r["stage_ms"].get(s) for s in stages] + [r["wall_s"], r["reused"], r["cache_hits"], r.get("error")])
+    buf = io.StringIO(newline="")
+    w = csv.writer(buf)
+    w.writerow(cols + [f"ms_{s}" for s in stages] + ["wall_s", "reused", "cache_hits", "failed_frames", "error"])
+    for r in rows:
+        w.writerow(
+            [r.get(c) for c in cols] + [r["stage_ms"].get(s) for s in stages]
+            + [r["wall_s"], r["reused"], r["cache_hits"], r.get("failed_frames", 0), r.get("error") or ""]
+        )
+    write_text_atomic(out_dir / "results.csv", buf.getvalue())
     pooled = [r for r in rows if r.get("sequence") == POOLED]
     sequences = list(dict.fromkeys(r["sequence"] for r in rows if r.get("sequence") != POOLED))
     head = [
@@ -229,7 +266,9 @@ def write_reports(rows: list[dict[str, Any]], out_dir: Path) -> None:
             for r in sel
         ]
 
-    frames = {r["sequence"]: r.get("frames") or r.get("frames_run") for r in rows}
+    frames: dict[str, int] = {}
+    for r in rows:  # a failed run has fewer (or no) frames: the sequence's count is the largest
+        frames[r["sequence"]] = max(frames.get(r["sequence"], 0), int(r.get("frames") or r.get("frames_run") or 0))
     lines = [f"All sequences pooled ({', '.join(sequences)}; {frames.get(POOLED) or 0} frames):", "", *table(pooled)]
     if len(sequences) > 1:
         for name in sequences:
@@ -237,12 +276,20 @@ def write_reports(rows: list[dict[str, Any]], out_dir: Path) -> None:
     lines += ["", "Median ms per frame per stage (pooled):", "", "| variant | " + " | ".join(stages) + " |", "|---|" + "---|" * len(stages)]
     for r in pooled:
         lines.append(f"| {r['variant']} | " + " | ".join(_fmt(r["stage_ms"].get(s)) for s in stages) + " |")
-    errors = [r for r in rows if r.get("error") and r.get("sequence") != POOLED]
-    if errors:
-        lines += ["", f"Failed runs ({len(errors)}; no figures for them or their variant's pooled row):", ""]
-        lines += [f"- {r['error']}" for r in errors]
-    (out_dir / "results.md").write_text("\n".join(lines) + "\n")
+    failed = [r for r in rows if r.get("sequence") != POOLED and (r.get("error") or r.get("failed_frames"))]
+    if failed:
+        lines += ["", "Failed runs (no figures for a run that stopped; see its runs/<variant>/<sequence>/run.json):", ""]
+        for r in failed:
+            what = r.get("error") or f"{r['failed_frames']} frame(s) failed (on_error skip), figures over the others"
+            lines.append(f"- {r['variant']} / {r['sequence']}: {what}")
+    write_text_atomic(out_dir / "results.md", "\n".join(lines) + "\n")
     _plots(pooled, out_dir)
+
+
+def _save(fig: Any, path: Path) -> None:
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=110, format="png")
+    write_bytes_atomic(path, buf.getvalue())
 
 
 def _plots(rows: list[dict[str, Any]], out_dir: Path) -> None:
@@ -266,7 +313,7 @@ def _plots(rows: list[dict[str, Any]], out_dir: Path) -> None:
     ax.set_title("accuracy per variant")
     ax.legend(loc="lower right")
     fig.tight_layout()
-    fig.savefig(out_dir / "accuracy.png", dpi=110)
+    _save(fig, out_dir / "accuracy.png")
     plt.close(fig)
     fig, ax = plt.subplots(figsize=(6, 4.5))
     for r, a in zip(rows, acc):
@@ -280,5 +327,5 @@ def _plots(rows: list[dict[str, Any]], out_dir: Path) -> None:
     ax.set_ylim(-0.02, 1.05)
     ax.set_title("accuracy against time")
     fig.tight_layout()
-    fig.savefig(out_dir / "accuracy_vs_ms.png", dpi=110)
+    _save(fig, out_dir / "accuracy_vs_ms.png")
     plt.close(fig)

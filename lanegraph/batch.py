@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from .cache import ResultCache, digest
-from .errors import InputError, LanegraphError, NodeError, UsageError
+from .errors import GraphError, InputError, LanegraphError, NodeError, UsageError
 from .executor import Executor, FrameFailure, RunResult
 from .graph import load_raw, validate_raw
 from .nodes import RunContext
@@ -135,6 +135,7 @@ class TaskOutcome:
     error: dict[str, Any] | None = None
     wall_s: float = 0.0
     worker: str | None = None
+    placed: bool = True  # whether the task put its folder in place (not when its workers kept dying)
 
 
 # --------------------------------------------------------------------------- one task
@@ -206,12 +207,19 @@ def _error_record(task: RunTask, exc: BaseException) -> dict[str, Any]:
     }
 
 
-def run_record(graph_file: str | None, input_path: str | None, result: RunResult, stopped: dict[str, Any] | None = None, **extra: Any) -> dict[str, Any]:
-    """The content of ``run.json`` (as ``lanegraph run`` writes it): frames done, failed frames, and
-    the error that stopped the run."""
-    record: dict[str, Any] = {"graph": graph_file, "input": input_path, **extra, "frames_ok": result.frames, "failures": [f.to_json() for f in result.failures]}
-    if stopped is not None:
-        record["stopped"] = {"error": stopped["message"], "node": stopped["node"], "frame": stopped["frame"]}
+def run_record(
+    graph_file: str | None, input_path: str | None, result: RunResult, error: dict[str, Any] | None = None, timings: dict[str, Any] | None = None, **extra: Any
+) -> dict[str, Any]:
+    """The content of a run folder's ``run.json``: what ``lanegraph run`` writes (``status``, frames
+    done, failed frames, warnings, ``stopped``: where the run stopped) and what ``ablate`` reads back
+    to reuse a run (``error``, ``timings``, ``before_any_frame``)."""
+    status = "stopped" if error is not None else ("failed frames" if result.failures else "ok")
+    record: dict[str, Any] = {"graph": graph_file, "input": input_path, **extra, "status": status, "error": error["message"] if error else None}
+    record.update(frames_ok=result.frames, failures=[f.to_json() for f in result.failures], warnings=result.warnings())
+    record["timings"] = timings if timings is not None else result.timings_json()
+    if error is not None:
+        record["stopped"] = {"error": error["message"], "node": error["node"], "frame": error["frame"]}
+        record["before_any_frame"] = bool(error.get("before_any_frame"))
     return record
 
 
@@ -220,7 +228,7 @@ def _write_run_files(folder: Path, task: RunTask, result: RunResult, error: dict
     if task.record_cache:
         timings["cache"] = {"hits": result.cache_hits, "misses": result.cache_misses}
     (folder / "timings.json").write_text(json.dumps(timings, indent=2) + "\n")
-    record = run_record(graph_file, task.input, result, error, sequence=task.sequence)
+    record = run_record(graph_file, task.input, result, error, timings, sequence=task.sequence)
     (folder / "run.json").write_text(json.dumps(record, indent=2) + "\n")
     if task.run_key is not None and error is None:
         (folder / "run_key.txt").write_text(task.run_key)
@@ -243,6 +251,7 @@ def execute_task(
     graph_file = task.graph.display
     result = RunResult()
     done = 0
+    started = False
 
     def on_frame(index: int, frame: str | None) -> None:
         nonlocal done
@@ -265,9 +274,11 @@ def execute_task(
                 if close is not None:
                     close()
             raise
+        started = True
         result = ex.run(on_frame=on_frame)
     except Exception as exc:  # noqa: BLE001 - reported with variant, sequence and frame; the others go on
         error = _error_record(task, exc)
+        error["before_any_frame"] = not started
         result = getattr(ex, "result", None) or RunResult()
     shift = task.offset - task.warmup  # executor indices count from the first warm-up frame
     if shift:
@@ -373,6 +384,7 @@ class Planned:
     tasks: list[RunTask] = field(default_factory=list)
     reused: bool = False
     outcome: TaskOutcome | None = None
+    record: dict[str, Any] | None = None  # its run.json once it ran (or could not start)
 
 
 class Planner:
@@ -415,8 +427,15 @@ class Planner:
             "cache_max_bytes": cache.max_bytes if cache is not None else 0,
             "record_cache": cache is not None,
         }
-        n = self._count(graph, input_path, frames)
         plan = Planned(variant, sequence, run_dir)
+        try:
+            n = self._count(graph, input_path, frames)
+        except (InputError, NodeError, GraphError) as exc:  # this run cannot start: the others still run
+            task = RunTask(-1, frames=frames, **common)
+            error = _error_record(task, exc)
+            error["before_any_frame"] = True
+            plan.outcome = TaskOutcome(-1, RunResult(), error)
+            return plan
         if self.chunk_frames is None:
             plan.tasks.append(RunTask(len(self.tasks), frames=frames, run_key=run_key, total=n, **common))
         else:
@@ -473,18 +492,20 @@ def run_tasks(
     cache: ResultCache | None = None,
     progress: bool = True,
     echo: Callable[[str], None] | None = None,
+    done: dict[int, TaskOutcome] | None = None,
 ) -> dict[int, TaskOutcome]:
     """Run ``tasks``: in this process one after another (``scheduler`` ``None``), or on a Dask
-    cluster (:func:`lanegraph.distributed.run_tasks`); returns the outcome of every task."""
+    cluster (:func:`lanegraph.distributed.run_tasks`); returns the outcome of every task. ``done``:
+    filled with the outcomes as the tasks end (what finished when the batch is interrupted)."""
     echo = echo or (lambda msg: print(msg, file=sys.stderr))
     if not tasks:
         return {}
     if scheduler is not None:
         from .distributed import run_tasks as run_on_cluster
 
-        return run_on_cluster(tasks, scheduler, progress=progress, echo=echo)
+        return run_on_cluster(tasks, scheduler, progress=progress, echo=echo, done=done)
     bar = Progress(tasks, progress)
-    outcomes = {}
+    outcomes = done if done is not None else {}
     try:
         for task in tasks:
             bar.bar.set_description_str(task.label, refresh=False)
@@ -496,17 +517,38 @@ def run_tasks(
     return outcomes
 
 
-def finish_runs(plans: list[Planned], outcomes: dict[int, TaskOutcome]) -> None:
-    """Give every planned run its outcome (merging chunked runs) and remove what killed tasks left."""
+def finish_runs(plans: list[Planned], outcomes: dict[int, TaskOutcome], partial: bool = False) -> None:
+    """Give every planned run its outcome and record (merging chunked runs; a run that could not
+    start gets a folder with its run.json), and remove what killed tasks left. ``partial``: after an
+    interruption, only the runs whose tasks all ended."""
     for plan in plans:
         if plan.reused:
+            plan.record = None
             continue
-        outs = [outcomes[t.index] for t in plan.tasks]
-        if plan.tasks and plan.tasks[0].chunk is not None:
-            plan.outcome = merge_chunks(plan.tasks, outs)
+        if not plan.tasks:  # could not start: its outcome was set by the planner
+            assert plan.outcome is not None
+            tmp = _tmp_dir(plan.run_dir)
+            tmp.mkdir(parents=True)
+            record = run_record(None, None, RunResult(), plan.outcome.error, {})
+            (tmp / "run.json").write_text(json.dumps(record, indent=2) + "\n")
+            place_dir(tmp, plan.run_dir)
+        elif any(t.index not in outcomes for t in plan.tasks):
+            if not partial:
+                raise KeyError(f"no outcome for a task of {plan.tasks[0].label}")
+            clean_leftovers(plan.run_dir)
+            continue
+        elif plan.tasks[0].chunk is not None:
+            plan.outcome = merge_chunks(plan.tasks, [outcomes[t.index] for t in plan.tasks])
         else:
-            plan.outcome = outs[0]
+            plan.outcome = outcomes[plan.tasks[0].index]
         clean_leftovers(plan.run_dir)
+        if not plan.outcome.placed:  # its workers kept dying: the folder (if any) is an older run's
+            plan.record = run_record(None, None, plan.outcome.result, plan.outcome.error, {})
+            continue
+        try:
+            plan.record = json.loads((plan.run_dir / "run.json").read_text())
+        except (OSError, ValueError):
+            plan.record = run_record(None, None, plan.outcome.result, plan.outcome.error, {})
 
 
 def describe_error(error: dict[str, Any]) -> str:

@@ -16,7 +16,7 @@ import click
 import yaml
 
 from . import __version__
-from .errors import GraphError, InputError, LanegraphError, UsageError
+from .errors import GraphError, InputError, LanegraphError, Problem, UsageError
 from .graph import Graph, graph_json_schema, load_graph
 from .nodes import NodeType, RunContext
 from .plugins import PluginManager, get_plugin_manager
@@ -38,11 +38,12 @@ def resolve_graph_path(name: str) -> Path:
 
 
 def parse_frames(text: str | None) -> slice | None:
-    """``A:B`` or ``A:B:S`` (Python slice semantics over the frame list) or a single index ``A``."""
-    from .dataset import parse_selection
+    """``A:B`` or ``A:B:S`` (Python slice semantics over the frame list) or a single index ``A``
+    (:func:`lanegraph.frames.parse_frames`); a bad selection is a usage error naming ``--frames``."""
+    from .frames import parse_frames as parse
 
     try:
-        return parse_selection(text)
+        return parse(text)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--frames") from None
 
@@ -57,8 +58,18 @@ def allowed_roots(graph_path: Path) -> list[Path]:
     ``graphs/`` and the folders listed in ``LANEGRAPH_GRAPH_ROOTS`` (os.pathsep-separated)."""
     import os
 
-    roots = [graph_path.resolve().parent, Path.cwd().resolve(), REPO_GRAPHS.resolve()]
-    roots += [Path(p).resolve() for p in os.environ.get("LANEGRAPH_GRAPH_ROOTS", "").split(os.pathsep) if p]
+    def resolved(p: Path, where: str, field: str | None = None) -> Path:
+        try:
+            return p.resolve()
+        except (OSError, RuntimeError) as exc:  # a symbolic link loop
+            raise GraphError([Problem(f"cannot resolve {str(p)!r}: {exc} (a symbolic link loop?)", file=where, field=field)]) from None
+
+    roots = [resolved(graph_path, str(graph_path)).parent, resolved(Path.cwd(), "the current folder"), REPO_GRAPHS.resolve()]
+    roots += [
+        resolved(Path(p), "LANEGRAPH_GRAPH_ROOTS", p)
+        for p in os.environ.get("LANEGRAPH_GRAPH_ROOTS", "").split(os.pathsep)
+        if p
+    ]
     return roots
 
 
@@ -79,17 +90,18 @@ def main() -> None:
 @main.command()
 @click.argument("graph", default="paper")
 @click.option("--input", "input_path", type=click.Path(path_type=Path), help="input folder (KITTI raw drive, KITTI odometry sequence, folder of pairs); default: the built-in synthetic scene")
-@click.option("--out", "out_dir", type=click.Path(path_type=Path), default=Path("out"), show_default=True, help="output folder")
+@click.option("--out", "out_dir", type=click.Path(path_type=Path), default=Path("out"), show_default=True, help="output folder (one run at a time: it is locked while a run writes it)")
 @click.option("--set", "sets", multiple=True, metavar="NODE.PARAM=VALUE", help="override a param (repeatable)")
-@click.option("--frames", help="frame selection A:B or A:B:S (indices into the input's frames)")
+@click.option("--frames", help="frame selection A:B, A:B:S or A (indices into the input's frames; -1 is the last)")
 @click.option("--quiet", is_flag=True, help="no progress bar")
-@click.option("--resume", is_flag=True, help="continue an interrupted run in OUT from its last complete frame")
+@click.option("--resume", is_flag=True, help="continue an interrupted run in OUT after its last frame done (same graph, params, input and --frames)")
 @click.option("--debug-dir", type=click.Path(path_type=Path), help="save every node's output of the chosen frames as pictures, and a mosaic")
 @click.option("--debug-frames", help="frames for --debug-dir: ids or indices, comma-separated (default: all)")
 @click.option("--dataset", "dataset_path", type=click.Path(path_type=Path), help="a dataset file (YAML list of sequences) in place of --input: writes OUT/<sequence>/lanes.jsonl for each")
 @click.option("--scheduler", metavar="SPEC", help="with --dataset: run the sequences on a Dask cluster: local, local:N (N worker processes) or a scheduler address tcp://HOST:PORT")
 @click.option("--chunk-frames", type=int, metavar="K", help="with --dataset: split sequences into chunks of K frames run as separate tasks")
 @click.option("--warmup", type=int, default=0, show_default=True, metavar="W", help="with --chunk-frames: run W frames before each chunk and discard their outputs")
+@click.option("--report", "make_report", is_flag=True, help="write OUT/report/index.html at the end (see `lanegraph report`)")
 def run(
     graph: str,
     input_path: Path | None,
@@ -104,104 +116,200 @@ def run(
     scheduler: str | None,
     chunk_frames: int | None,
     warmup: int,
+    make_report: bool = False,
 ) -> None:
     """Run GRAPH (a file or a name under graphs/, default: paper) and write OUT/lanes.jsonl and
     OUT/timings.json; with --dataset, every sequence into OUT/<sequence>/ (in this process, or on a
     Dask cluster with --scheduler)."""
     if dataset_path is not None:
-        _run_dataset(graph, sets, dataset_path, out_dir, frames, quiet, scheduler, chunk_frames, warmup, input_path, resume, debug_dir)
+        _run_dataset(graph, sets, dataset_path, out_dir, frames, quiet, scheduler, chunk_frames, warmup, input_path, resume, debug_dir, make_report)
         return
     for flag, given in (("--scheduler", scheduler), ("--chunk-frames", chunk_frames), ("--warmup", warmup or None)):
         if given is not None:
             click.echo(f"error: {flag} runs the sequences of a --dataset: give --dataset FILE", err=True)
             sys.exit(2)
-    from tqdm import tqdm
-
-    from .executor import Executor
+    from .paths import OutputLock, prepare_dir
 
     try:
         g = _load(graph, sets)
-        if input_path is not None and not input_path.exists():
-            raise GraphError([])  # replaced below
     except GraphError as exc:
-        if not exc.problems:
-            click.echo(f"error: --input {input_path}: no such file or folder", err=True)
-            sys.exit(2)
         _fail(exc)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    if input_path is not None and not input_path.exists():
+        click.echo(f"error: --input {input_path}: no such file or folder", err=True)
+        sys.exit(2)
     selection = parse_frames(frames)
-    checkpoint = out_dir / "checkpoint.pkl"
-    state = None
-    if resume:
-        from .resume import prepare_resume
+    chosen = None
+    if debug_frames is not None:
+        chosen = {item.strip() for item in debug_frames.split(",") if item.strip()}
+        if not chosen:
+            _fail(UsageError(f"--debug-frames {debug_frames!r}: expected frame ids or indices, comma-separated"))
+    locks: list[OutputLock] = []
+    try:
+        prepare_dir(out_dir, "--out")
+        if debug_dir is not None:
+            prepare_dir(debug_dir, "--debug-dir")
+        locks.append(OutputLock(out_dir, "run").acquire())
+    except UsageError as exc:
+        for lk in locks:
+            lk.release()
+        _fail(exc)
+    try:
+        status = _run_locked(g, input_path, out_dir, selection, quiet, resume, debug_dir, chosen, make_report)
+    finally:
+        for lk in locks:
+            lk.release()
+    sys.exit(status)
 
-        try:
-            selection, state = prepare_resume(out_dir, checkpoint, selection, g)
-        except LanegraphError as exc:
-            _fail(exc)
-        if state is not None:
-            click.echo(f"resuming after frame {state['frame']} ({state['done']} frame(s) already done)", err=True)
-    else:
-        checkpoint.unlink(missing_ok=True)
-    ctx = RunContext(input_path=input_path, out_dir=out_dir, frames=selection, graph_file=g.file, extra={"resume": state is not None})
+
+def _run_locked(
+    g: Graph,
+    input_path: Path | None,
+    out_dir: Path,
+    selection: slice | None,
+    quiet: bool,
+    resume: bool,
+    debug_dir: Path | None,
+    debug_frames: set[str] | None,
+    make_report: bool = False,
+) -> int:
+    """The body of ``lanegraph run`` once OUT is locked; returns the exit code."""
+    from tqdm import tqdm
+
+    from .executor import Executor
+    from .resume import CHECKPOINT_NAME, LEGACY_NAME, load_checkpoint
+
+    checkpoint = out_dir / CHECKPOINT_NAME
+    legacy = out_dir / LEGACY_NAME
+    ckpt = None
+    try:
+        if resume and legacy.is_file() and not checkpoint.is_file():
+            raise UsageError(
+                f"{legacy}: a checkpoint of an older lanegraph (a pickle, which could run code); it is never read; "
+                "cannot resume (run without --resume to start over)"
+            )
+        legacy.unlink(missing_ok=True)
+        if checkpoint.exists() and not checkpoint.is_file():
+            raise UsageError(f"{checkpoint}: exists and is not a file (lanegraph keeps its checkpoint there)")
+        if resume and checkpoint.is_file():
+            ckpt = load_checkpoint(checkpoint)
+        elif not resume:
+            checkpoint.unlink(missing_ok=True)
+    except LanegraphError as exc:
+        _fail(exc)
+    except OSError as exc:
+        _fail(UsageError(f"{out_dir}: {exc.strerror or exc}"))
+    ctx = RunContext(
+        input_path=input_path,
+        out_dir=out_dir,
+        frames=selection,
+        graph_file=g.file,
+        extra={"resume": ckpt is not None},
+        skip=ckpt.position if ckpt is not None else 0,
+    )
+    try:
+        ex = Executor(g, ctx, checkpoint=checkpoint, resume=ckpt)
+    except LanegraphError as exc:
+        _fail(exc, 2)
+    if ckpt is not None:
+        if ckpt.complete:
+            try:  # the input and the outputs must still be those of the checkpoint
+                ex.open()
+            except LanegraphError as exc:
+                _fail(exc, 2)
+            finally:
+                for inst in ex.instances.values():
+                    close = getattr(inst, "close", None)
+                    if close is not None:
+                        close()
+            click.echo(
+                f"nothing to resume: the run in {out_dir} is complete ({ckpt.frames_ok} frame(s) done, "
+                f"{len(ckpt.failures)} failed); its outputs are left as they are",
+                err=True,
+            )
+            return 1 if ckpt.failures else 0
+        click.echo(f"resuming after frame {ckpt.last_frame} ({ckpt.position} frame(s) of the selection already done)", err=True)
     bar = None
-    status = 0
-    result = None
     recorder = None
-    ex: Executor | None = None
+    result = None
+    pm = get_plugin_manager()
     try:
         if debug_dir is not None:
             from .render import DebugRecorder
 
-            chosen = {item.strip() for item in debug_frames.split(",") if item.strip()} if debug_frames else None
-            recorder = DebugRecorder(debug_dir, chosen, get_plugin_manager())
-            get_plugin_manager().register(recorder)
-        ex = Executor(g, ctx, checkpoint=checkpoint, resume_state=state)
+            recorder = DebugRecorder(debug_dir, debug_frames, pm)
+            pm.register(recorder)
         try:
             ex.open()
-        except InputError as exc:  # unusable input found before any frame ran: like a bad --input
+        except (InputError, UsageError) as exc:  # unusable input found before any frame ran: like a bad --input
             _fail(exc, 2)
-        bar = tqdm(total=len(ex) or None, unit="frame", disable=True if quiet else None, desc=g.name, file=sys.stderr)
+        bar = tqdm(total=(len(ex) or None), unit="frame", disable=True if quiet else None, desc=g.name, file=sys.stderr)
 
         def tick(index: int, frame: str | None) -> None:
             bar.update(1)
             bar.set_postfix_str(str(frame))
 
         result = ex.run(on_frame=tick)
-    except LanegraphError as exc:
+    except (LanegraphError, KeyboardInterrupt, OSError) as exc:
         if bar is not None:
             bar.close()
+        if isinstance(exc, KeyboardInterrupt):
+            err: LanegraphError = LanegraphError("interrupted (Ctrl-C); continue with --resume")
+            code = 130
+        elif isinstance(exc, OSError):
+            err = LanegraphError(f"{str(exc.filename) + ': ' if exc.filename else ''}{exc.strerror or exc}")
+            code = 1
+        else:
+            err, code = exc, exc.exit_code
         partial = getattr(ex, "result", None)
         if partial is not None:  # the run started: record what it did and why it stopped
-            _write_run_files(out_dir, g, input_path, partial, stopped=exc)
-        _fail(exc)
+            _write_run_files(out_dir, g, input_path, partial, stopped=err)
+        click.echo(f"error: {err}", err=True)
+        return code
     finally:
         if bar is not None:
             bar.close()
         if recorder is not None:
-            get_plugin_manager().unregister(recorder)
+            pm.unregister(recorder)
     assert result is not None
-    _write_run_files(out_dir, g, input_path, result)
+    status = 0
+    written = _write_run_files(out_dir, g, input_path, result)
     if result.failures:
         click.echo(f"{len(result.failures)} frame(s) failed:", err=True)
         for f in result.failures:
             click.echo(f"  frame {f.frame} (#{f.index}): node '{f.node_id}' ({f.node_type}): {f.error}", err=True)
         status = 1
+    for w in result.warnings():
+        click.echo(f"warning: {w}", err=True)
+    if recorder is not None and debug_frames is not None:
+        missed = sorted(f for f in debug_frames if f not in recorder.matched)
+        if missed:
+            click.echo(f"warning: --debug-frames {', '.join(missed)} matched no frame of the run; nothing recorded for them", err=True)
+    if not written:
+        return 1
+    outputs = [str(p) for inst in ex.instances.values() for p in getattr(inst, "outputs", [])]
     total = result.timings_json().get("total", {})
     click.echo(
-        f"{result.frames} frame(s) processed -> {out_dir}/lanes.jsonl, {out_dir}/timings.json"
+        f"{result.frames} frame(s) processed -> {', '.join([*outputs, str(out_dir / 'timings.json')])}"
         + (f" (median {total['median_ms']:.1f} ms/frame)" if total else "")
     )
-    sys.exit(status)
+    if make_report:
+        try:
+            dbg = debug_dir if debug_dir is not None and debug_dir.is_dir() else None  # none if no frame was chosen
+            _write_report(out_dir, graph=g, input_path=input_path, frames=selection, debug_dir=dbg, quiet=quiet)
+        except LanegraphError as exc:  # the run's own outputs are written: they stay
+            click.echo(f"error: report: {exc}", err=True)
+            status = 1
+    return status
 
 
-def _run_dataset(graph, sets, dataset_path, out_dir, frames, quiet, scheduler, chunk_frames, warmup, input_path, resume, debug_dir) -> None:
+def _run_dataset(graph, sets, dataset_path, out_dir, frames, quiet, scheduler, chunk_frames, warmup, input_path, resume, debug_dir, make_report) -> None:
     """``run GRAPH --dataset FILE``: every sequence into OUT/<sequence>/; exit 1 when a frame failed
-    or a sequence stopped."""
+    or a sequence stopped, 2 when no sequence could start."""
     from .batch import ResolvedGraph, describe_error, parse_scheduler, run_dataset
     from .dataset import load_dataset
+    from .paths import OutputLock, prepare_dir
 
-    for flag, given in (("--input", input_path), ("--resume", resume or None), ("--debug-dir", debug_dir)):
+    for flag, given in (("--input", input_path), ("--resume", resume or None), ("--debug-dir", debug_dir), ("--report", make_report or None)):
         if given is not None:
             click.echo(f"error: {flag} is for a run on one input; --dataset names the inputs (give one or the other)", err=True)
             sys.exit(2)
@@ -213,11 +321,20 @@ def _run_dataset(graph, sets, dataset_path, out_dir, frames, quiet, scheduler, c
         dataset = load_dataset(dataset_path)
         path = resolve_graph_path(graph)
         resolved = ResolvedGraph.load(path, sets, allowed_roots(path))
+        prepare_dir(out_dir, "--out")
+        lock = OutputLock(out_dir, "run").acquire()
+    except GraphError as exc:
+        _fail(exc)
+    except LanegraphError as exc:  # a usage error
+        _fail(exc, 2)
+    try:
         summary = run_dataset(resolved, dataset, out_dir, parse_frames(frames), spec, chunk_frames, warmup, progress=not quiet)
     except GraphError as exc:
         _fail(exc)
     except LanegraphError as exc:  # a usage error, an unusable input found before any frame ran
         _fail(exc, 2)
+    finally:
+        lock.release()
     status = 0
     for s in summary:
         line = f"{s['sequence']}: {s['frames']} frame(s) -> {out_dir / s['sequence']}/lanes.jsonl"
@@ -230,17 +347,24 @@ def _run_dataset(graph, sets, dataset_path, out_dir, frames, quiet, scheduler, c
         if s["error"] is not None:
             click.echo(f"error: {describe_error(s['error'])}", err=True)
             status = 1
+    if summary and all(s["error"] is not None and s["error"].get("before_any_frame") for s in summary):
+        status = 2  # nothing ran at all: the inputs are unusable
     sys.exit(status)
 
 
-def _write_run_files(out_dir: Path, g: Graph, input_path: Path | None, result: Any, stopped: LanegraphError | None = None) -> None:
-    """``timings.json`` and ``run.json`` (frames done, failed frames, and the error that stopped the run)."""
-    (out_dir / "timings.json").write_text(json.dumps(result.timings_json(), indent=2) + "\n")
+def _write_run_files(out_dir: Path, g: Graph, input_path: Path | None, result: Any, stopped: LanegraphError | None = None) -> bool:
+    """``timings.json`` and ``run.json`` (frames done, failed frames, warnings, and the error that
+    stopped the run); False (and the reason on stderr) when they cannot be written (a full disk)."""
+    from .paths import write_text_atomic
+
     record: dict[str, Any] = {
         "graph": g.file,
         "input": str(input_path) if input_path else None,
+        "status": "stopped" if stopped is not None else ("failed frames" if result.failures else "ok"),
         "frames_ok": result.frames,
+        "resumed_frames": result.resumed_frames,
         "failures": [f.to_json() for f in result.failures],
+        "warnings": result.warnings(),
     }
     if stopped is not None:
         record["stopped"] = {
@@ -248,7 +372,13 @@ def _write_run_files(out_dir: Path, g: Graph, input_path: Path | None, result: A
             "node": getattr(stopped, "node_id", None),
             "frame": getattr(stopped, "frame", None),
         }
-    (out_dir / "run.json").write_text(json.dumps(record, indent=2) + "\n")
+    try:
+        write_text_atomic(out_dir / "timings.json", json.dumps(result.timings_json(), indent=2) + "\n")
+        write_text_atomic(out_dir / "run.json", json.dumps(record, indent=2) + "\n")
+    except OSError as exc:
+        click.echo(f"error: cannot write {out_dir}/run.json and timings.json: {exc.strerror or exc}", err=True)
+        return False
+    return True
 
 
 @main.command()
@@ -421,23 +551,36 @@ def show(graph: str, fmt: str, sets: tuple[str, ...]) -> None:
     if fmt == "yaml":
         click.echo(yaml.safe_dump(g.resolved_dict(), sort_keys=False), nl=False)
     elif fmt == "dot":
-        lines = [f'digraph "{g.name}" {{', "  rankdir=TB;", "  node [shape=box, fontname=Helvetica];"]
+        q = _dot_quote
+        lines = [f"digraph {q(g.name)} {{", "  rankdir=TB;", "  node [shape=box, fontname=Helvetica];"]
         for nid in g.order:
-            lines.append(f'  "{nid}" [label="{nid}\\n{g.nodes[nid].type.name}"];')
+            lines.append(f"  {q(nid)} [label={q(nid + chr(10) + g.nodes[nid].type.name)}];")
         for e in g.edges:
-            style = ', style=dashed, constraint=false, label="' + e.src_port + ' (prev)"' if e.previous else f', label="{e.src_port}"'
-            lines.append(f'  "{e.src_node}" -> "{e.dst_node}" [headlabel="{e.dst_port}"{style}];')
+            style = f", style=dashed, constraint=false, label={q(e.src_port + ' (prev)')}" if e.previous else f", label={q(e.src_port)}"
+            lines.append(f"  {q(e.src_node)} -> {q(e.dst_node)} [headlabel={q(e.dst_port)}{style}];")
         lines.append("}")
         click.echo("\n".join(lines))
     else:
+        ids = {nid: f"n_{nid.replace('-', '_')}_{k}" for k, nid in enumerate(g.order)}  # never a keyword (end, graph)
         lines = ["flowchart TD"]
         for nid in g.order:
-            lines.append(f'  {nid}["{nid}<br/>{g.nodes[nid].type.name}"]')
+            lines.append(f'  {ids[nid]}["{_mermaid_text(nid)}<br/>{_mermaid_text(g.nodes[nid].type.name)}"]')
         for e in g.edges:
             arrow = "-.->" if e.previous else "-->"
             label = f"{e.src_port}→{e.dst_port}" + (" (prev)" if e.previous else "")
-            lines.append(f"  {e.src_node} {arrow}|{label}| {e.dst_node}")
+            lines.append(f'  {ids[e.src_node]} {arrow}|"{_mermaid_text(label)}"| {ids[e.dst_node]}')
         click.echo("\n".join(lines))
+
+
+def _dot_quote(text: str) -> str:
+    """A Graphviz quoted string: backslashes and quotes escaped, line breaks as \\n."""
+    body = str(text).replace("\\", "\\\\").replace('"', '\\"').replace("\r", "").replace("\n", "\\n")
+    return f'"{body}"'
+
+
+def _mermaid_text(text: str) -> str:
+    """Text inside a Mermaid quoted label: quotes and angle brackets as entities."""
+    return str(text).replace("&", "#amp;").replace('"', "#quot;").replace("<", "#lt;").replace(">", "#gt;").replace("\n", " ")
 
 
 @main.command()
@@ -456,7 +599,8 @@ def show(graph: str, fmt: str, sets: tuple[str, ...]) -> None:
 @click.option("--scheduler", metavar="SPEC", help="run on a Dask cluster: local, local:N (N worker processes) or a scheduler address tcp://HOST:PORT")
 @click.option("--chunk-frames", type=int, metavar="K", help="split sequences into chunks of K frames run as separate tasks")
 @click.option("--warmup", type=int, default=0, show_default=True, metavar="W", help="with --chunk-frames: run W frames before each chunk and discard their outputs")
-def ablate(base, variants, input_path, gt_path, dataset_path, sweeps, out_dir, frames, no_cache, cache_dir, cache_max_gb, quiet, scheduler, chunk_frames, warmup):
+@click.option("--report", "make_report", is_flag=True, help="write OUT/report/index.html at the end (see `lanegraph report`)")
+def ablate(base, variants, input_path, gt_path, dataset_path, sweeps, out_dir, frames, no_cache, cache_dir, cache_max_gb, quiet, scheduler, chunk_frames, warmup, make_report=False):
     """Run BASE and every VARIANT (and every --sweep point) over the same input or dataset, evaluate
     each and write OUT/results.csv (per sequence and pooled), OUT/results.md and plots; runs go to
     OUT/runs/<variant>/<sequence>/; work shared between variants is computed once. A run that
@@ -490,21 +634,58 @@ def ablate(base, variants, input_path, gt_path, dataset_path, sweeps, out_dir, f
             _load(str(r.graph), tuple(r.sets))
         except GraphError as exc:
             _fail(exc)
-    cache = None if no_cache else ResultCache(cache_dir, int(cache_max_gb * 1024**3))
+    selection = parse_frames(frames)
+    import math
+
+    from .paths import OutputLock, prepare_dir
+
+    if not (math.isfinite(cache_max_gb) and cache_max_gb > 0):
+        _fail(UsageError(f"--cache-max-gb: expected a size in GiB > 0, got {cache_max_gb}"))
+    try:
+        if cache_dir is not None and not no_cache:
+            prepare_dir(cache_dir, "--cache-dir")
+        prepare_dir(out_dir, "--out")
+        lock = OutputLock(out_dir, "ablate").acquire()
+    except UsageError as exc:
+        _fail(exc)
+    try:
+        cache = None if no_cache else ResultCache(cache_dir, int(cache_max_gb * 1024**3))
+    except OSError as exc:
+        _fail(UsageError(f"--cache-dir: cannot use the result cache: {exc.strerror or exc}"))
     t0 = time.perf_counter()
     try:
-        rows = run_ablation(runs, dataset, out_dir, parse_frames(frames), cache, progress=not quiet, scheduler=spec, chunk_frames=chunk_frames, warmup=warmup)
-    except (InputError, UsageError) as exc:  # unusable input, found before any frame ran: like `run`, exit 2
+        rows = run_ablation(runs, dataset, out_dir, selection, cache, progress=not quiet, scheduler=spec, chunk_frames=chunk_frames, warmup=warmup)
+    except (InputError, UsageError) as exc:  # a ground truth, input or usage unusable before any run: like `run`, exit 2
         _fail(exc, 2)
     except LanegraphError as exc:
         _fail(exc)
+    except KeyboardInterrupt:
+        click.echo(f"error: interrupted (Ctrl-C); the finished runs are in {out_dir}/runs and results.md", err=True)
+        sys.exit(130)
+    except OSError as exc:
+        _fail(LanegraphError(f"{str(exc.filename) + ': ' if exc.filename else ''}{exc.strerror or exc}"), 1)
+    finally:
+        lock.release()
+    runs_rows = [r for r in rows if r.get("sequence") != "all"]
+    failed = [r for r in runs_rows if r.get("error")]
+    if failed and all(r.get("before_any_frame") for r in failed) and len(failed) == len(runs_rows):
+        for r in failed:  # nothing ran at all: the input is unusable (exit 2, as `run` says)
+            click.echo(f"error: {r['variant']} / {r['sequence']}: {r['error']}", err=True)
+        sys.exit(2)
     click.echo((out_dir / "results.md").read_text())
     hits = f", cache {cache.hits} hits / {cache.misses} misses" if cache is not None else ", no cache"
     click.echo(f"{len(rows)} row(s) in {time.perf_counter() - t0:.1f} s{hits} -> {out_dir}/results.md, results.csv, accuracy.png, accuracy_vs_ms.png")
-    failed = [r for r in rows if r.get("error") and r.get("sequence") != "all"]
-    for r in failed:
-        click.echo(f"error: {r['error']}", err=True)
-    if failed:
+    if make_report:
+        try:  # the base variant's source reads the left images; its graph is drawn
+            _write_report(out_dir, dataset=dataset, frames=selection, graph=_load(str(runs[0].graph), tuple(runs[0].sets)), quiet=quiet)
+        except LanegraphError as exc:  # the ablation's own outputs are written: they stay
+            _fail(exc, 1)
+    if failed or any(r.get("failed_frames") for r in runs_rows):
+        for r in failed:
+            click.echo(f"error: run {r['variant']} / {r['sequence']} failed: {r['error']}", err=True)
+        n_frames = sum(int(r.get("failed_frames") or 0) for r in runs_rows if not r.get("error"))
+        if n_frames:
+            click.echo(f"{n_frames} frame(s) failed in runs that went on (on_error skip); see results.md", err=True)
         sys.exit(1)
 
 
@@ -521,6 +702,30 @@ def _dataset_option(dataset_path: Path | None, input_path: Path | None, gt_path:
     if gt_path is not None and not gt_path.is_file():
         raise UsageError(f"--gt {gt_path}: no such file")
     return single_sequence(input_path, gt_path)
+
+
+def _scene_pose(scene: Path) -> tuple[float, float]:
+    """``(pitch in radians, camera height in metres)`` of a synthetic sequence's ``scene.json``."""
+    import math
+
+    try:
+        info = json.loads(scene.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"cannot read the scene description: {exc}", path=str(scene)) from None
+    if not isinstance(info, dict):
+        raise InputError("expected a JSON object with height and pitch_rad (or pitch_deg)", path=str(scene))
+    pitch = info.get("pitch_rad", math.radians(info["pitch_deg"]) if _is_number(info.get("pitch_deg")) else 0.0)
+    height = info.get("height")
+    for key, v in (("pitch_rad", pitch), ("height", height)):
+        if not _is_number(v) or not math.isfinite(v):
+            raise InputError(f"key {key!r}: expected a finite number, got {v!r}", path=str(scene))
+    if height <= 0:
+        raise InputError(f"key 'height': the camera height must be > 0 m, got {height}", path=str(scene))
+    return float(pitch), float(height)
+
+
+def _is_number(v: object) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
 @main.command(name="eval")
@@ -556,9 +761,6 @@ def eval_cmd(pred: Path, gt: Path | None, dataset_path: Path | None, as_json: bo
     except LanegraphError as exc:
         click.echo(f"error: {exc}", err=True)
         sys.exit(2)
-    except (OSError, KeyError, ValueError) as exc:
-        click.echo(f"error: {exc}", err=True)
-        sys.exit(2)
     if as_json:
         click.echo(json.dumps(res))
         return
@@ -566,10 +768,17 @@ def eval_cmd(pred: Path, gt: Path | None, dataset_path: Path | None, as_json: bo
 
 
 def _eval_one(pred: Path, gt: Path, wanted: set[str], scene: Path | None, calib: Path | None) -> dict[str, Any]:
-    from .metrics import evaluate, read_jsonl
+    from .metrics import evaluate, read_ground_truth, read_predictions
     from .metrics_extra import culane_metrics, lateral_error_cm, tusimple_metrics
 
-    pred_recs, gt_recs = read_jsonl(pred), read_jsonl(gt)
+    pred_recs, gt_recs = read_predictions(pred), read_ground_truth(gt)
+    pred_frames, gt_frames = {str(r["frame"]) for r in pred_recs}, {str(r["frame"]) for r in gt_recs}
+    if pred_frames and gt_frames and not pred_frames & gt_frames:
+        raise InputError(
+            f"no frame of {pred} is in {gt} (e.g. {sorted(pred_frames)[0]!r} against {sorted(gt_frames)[0]!r}): "
+            "predictions and ground truth of different sequences?",
+            path=str(pred),
+        )
     res = evaluate(pred_recs, gt_recs)
     res.pop("per_frame")
     if "culane" in wanted:
@@ -579,14 +788,11 @@ def _eval_one(pred: Path, gt: Path, wanted: set[str], scene: Path | None, calib:
     if "lateral" in wanted:
         if scene is None:
             raise UsageError("--metrics lateral needs --scene scene.json (and --calib, default: calib.yaml beside it)")
-        import math
-
         from lanegraph_io import read_calibration_yaml
 
-        info = json.loads(Path(scene).read_text())
         cal = read_calibration_yaml(calib or Path(scene).with_name("calib.yaml"))
-        pitch = info.get("pitch_rad", math.radians(info.get("pitch_deg", 0.0)))
-        res["lateral_error_cm"] = lateral_error_cm(pred_recs, gt_recs, cal, float(pitch), float(info["height"]))
+        pitch, height = _scene_pose(Path(scene))
+        res["lateral_error_cm"] = lateral_error_cm(pred_recs, gt_recs, cal, pitch, height)
     return res
 
 
@@ -619,7 +825,7 @@ def _print_eval(res: dict[str, Any]) -> None:
 def _eval_dataset(pred_dir: Path, dataset_path: Path, as_json: bool) -> None:
     """``eval PRED --dataset FILE``: each sequence's figures and the pooled ones (the README metric)."""
     from .dataset import POOLED, load_dataset, read_gt
-    from .metrics import read_jsonl
+    from .metrics import read_predictions
 
     try:
         ds = load_dataset(dataset_path)
@@ -633,7 +839,7 @@ def _eval_dataset(pred_dir: Path, dataset_path: Path, as_json: bool) -> None:
             lanes = pred_dir / seq.name / "lanes.jsonl"
             if not lanes.is_file():
                 raise UsageError(f"{lanes}: no predictions for sequence {seq.name!r} of {dataset_path}")
-            pairs.append((seq.name, read_jsonl(lanes), gt))
+            pairs.append((seq.name, read_predictions(lanes), gt))
         if not pairs:
             raise UsageError(f"{dataset_path}: no sequence has a ground truth ('gt') to evaluate against")
     except LanegraphError as exc:
@@ -659,6 +865,50 @@ def _eval_dataset(pred_dir: Path, dataset_path: Path, as_json: bool) -> None:
         click.echo(f"failed frames ({len(failed)}):")
         for f in failed:
             click.echo(f"  {f['frame']}: {'; '.join(f['reasons'])}")
+
+
+@main.command()
+@click.argument("run_dir", type=click.Path(path_type=Path))
+@click.option("--gt", "gt_path", type=click.Path(path_type=Path), help="ground truth lanes_gt.jsonl (default: lanes_gt.jsonl in the input folder, when there is one)")
+@click.option("--dataset", "dataset_path", type=click.Path(path_type=Path), help="a dataset file: each sequence's input and ground truth (RUN_DIR/<sequence>/lanes.jsonl, or an ablation's runs)")
+@click.option("--input", "input_path", type=click.Path(path_type=Path), help="the input folder, where run.json names none or it moved (an ablation over one --input)")
+@click.option("--frames", help="the frame selection A:B or A:B:S the run was made with (the ground truth is cut alike)")
+@click.option("--set", "sets", multiple=True, metavar="NODE.PARAM=VALUE", help="the --set overrides the run was made with (its source node reads the left images)")
+@click.option("--debug-dir", type=click.Path(path_type=Path), help="the run's --debug-dir (default: one found inside RUN_DIR)")
+@click.option("--out", "out_dir", type=click.Path(path_type=Path), help="report folder  [default: RUN_DIR/report]")
+@click.option("--open", "open_browser", is_flag=True, help="open the report in the web browser")
+@click.option("--quiet", is_flag=True, help="no progress messages")
+def report(run_dir, gt_path, dataset_path, input_path, frames, sets, debug_dir, out_dir, open_browser, quiet):
+    """Write a self-contained HTML report of RUN_DIR, the output folder of `lanegraph run` or
+    `lanegraph ablate`: every frame's lanes against the ground truth, every node's pictures of the
+    frames recorded with --debug-dir, the graph with its times, the metrics; for an ablation its
+    results table and two variants side by side. Opens from file://, fetches nothing."""
+    try:
+        summary = _write_report(
+            run_dir, out_dir=out_dir, gt_path=gt_path, dataset_path=dataset_path, input_path=input_path,
+            frames=parse_frames(frames), sets=sets, debug_dir=debug_dir, quiet=quiet,
+        )  # fmt: skip
+    except LanegraphError as exc:  # a folder, option or file that does not fit: 2; failing to write: 1
+        _fail(exc, 2 if isinstance(exc, (UsageError, InputError, GraphError)) else 1)
+    if open_browser:
+        import webbrowser
+
+        webbrowser.open(summary.index.resolve().as_uri())
+
+
+def _write_report(run_dir: Path, *, dataset=None, dataset_path: Path | None = None, gt_path: Path | None = None, quiet: bool = False, **kwargs: Any):
+    """`lanegraph report` and the --report of run and ablate: write the report and print its
+    summary line (how many frames, failed ones, its size)."""
+    from .dataset import load_dataset
+    from .report import write_report
+
+    if dataset_path is not None:
+        dataset = load_dataset(dataset_path)
+    if gt_path is not None and not gt_path.is_file():
+        raise UsageError(f"--gt {gt_path}: no such file")
+    summary = write_report(run_dir, dataset=dataset, gt=gt_path, progress=not quiet, **kwargs)
+    click.echo(summary.line())
+    return summary
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -33,7 +33,8 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from .errors import InputError
-from .metrics import evaluate, read_jsonl
+from .frames import parse_frames
+from .metrics import evaluate, read_ground_truth
 
 _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.\-]*$")
 
@@ -102,21 +103,9 @@ class Dataset:
 
 def parse_selection(text: str | None) -> slice | None:
     """A frame selection ``A:B`` or ``A:B:S`` (Python slice semantics over the frame list) or a single
-    index ``A``; ``None`` or empty: every frame. Raises ``ValueError`` saying what was expected."""
-    if text is None or not str(text).strip():
-        return None
-    text = str(text)
-    try:
-        parts = [int(x) if x.strip() else None for x in text.split(":")]
-    except ValueError:
-        raise ValueError(f"expected A:B, A:B:S or A with integers, got {text!r}") from None
-    if len(parts) == 1:
-        return slice(parts[0], None if parts[0] is None else parts[0] + 1)
-    if len(parts) > 3:
-        raise ValueError(f"expected A:B or A:B:S, got {text!r}")
-    if len(parts) == 3 and parts[2] == 0:
-        raise ValueError(f"the step S of A:B:S must not be 0, got {text!r}")
-    return slice(*parts)
+    index ``A``; ``None`` or empty: every frame. Raises ``ValueError`` saying what was expected
+    (:func:`lanegraph.frames.parse_frames`)."""
+    return parse_frames(text)
 
 
 def single_sequence(input_path: Path | None, gt: Path | None = None, frames: slice | None = None) -> Dataset:
@@ -183,7 +172,7 @@ def read_gt(seq: SequenceSpec, frames: slice | None = None) -> list[dict[str, An
     frames in order); ``None`` without ground truth."""
     if seq.gt is None:
         return None
-    gt = read_jsonl(seq.gt)
+    gt = read_ground_truth(seq.gt)
     return gt[frames] if frames is not None else gt
 
 

@@ -249,7 +249,9 @@ class _Cluster:
         self.close()
 
 
-def run_tasks(tasks: list[RunTask], spec: SchedulerSpec, progress: bool = True, echo: Callable[[str], None] | None = None) -> dict[int, TaskOutcome]:
+def run_tasks(
+    tasks: list[RunTask], spec: SchedulerSpec, progress: bool = True, echo: Callable[[str], None] | None = None, done: dict[int, TaskOutcome] | None = None
+) -> dict[int, TaskOutcome]:
     """Run ``tasks`` on the cluster of ``spec``; returns the outcome of every task (a task Dask
     could not run -- its workers kept dying, or it could not be unpickled -- gets an outcome with
     the error)."""
@@ -260,7 +262,7 @@ def run_tasks(tasks: list[RunTask], spec: SchedulerSpec, progress: bool = True, 
         topic = f"lanegraph-progress-{uuid.uuid4().hex[:12]}"
         bar = Progress(tasks, progress)
         client.subscribe_topic(topic, lambda event: bar.update(*event[1]))
-        outcomes: dict[int, TaskOutcome] = {}
+        outcomes: dict[int, TaskOutcome] = done if done is not None else {}
         futures = {}
         try:
             # with a result cache in the planned order (a variant's runs before the next variant's: the
@@ -277,7 +279,7 @@ def run_tasks(tasks: list[RunTask], spec: SchedulerSpec, progress: bool = True, 
                     out = TaskOutcome(task.index, error={
                         "variant": task.variant, "sequence": task.sequence, "frame": None, "node": None,
                         "message": f"the task failed on the cluster: {type(exc).__name__}: {exc}", "input": False,
-                    })  # fmt: skip
+                    }, placed=False)  # fmt: skip
                 outcomes[task.index] = out
                 bar.finish(task.index, out.result.frames)
         finally:

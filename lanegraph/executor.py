@@ -28,10 +28,25 @@ import numpy as np
 
 from ._runtime import tune_allocator
 from .cache import ResultCache, digest
-from .errors import GraphError, LanegraphError, NodeError, Problem
+from .errors import GraphError, InputError, LanegraphError, NodeError, Problem, UsageError
+from .frames import selection_text
 from .graph import Graph, GraphNode
 from .nodes import RunContext
 from .plugins import PluginManager, get_plugin_manager
+from .resume import (
+    _HINT,
+    FORMAT,
+    VERSION,
+    Checkpoint,
+    CheckpointValueError,
+    check_identity,
+    decode_feedback,
+    feedback_entries,
+    graph_identity,
+    input_identity,
+    resolved_input,
+    save_checkpoint,
+)
 
 
 @dataclass
@@ -50,7 +65,13 @@ class FrameFailure:
 
 @dataclass
 class RunResult:
-    """What a run did: frames processed, per-node timings and failures."""
+    """What a run did: frames processed, per-node timings and failures.
+
+    In a resumed run ``frames``, ``failures`` and ``invalid_outputs`` include what the checkpoint
+    recorded (``resumed_frames`` of the frames were done before); timings cover this process only.
+    ``invalid_outputs``: ``"node.port" -> [frames with an invalid value, frames with a value]``
+    for values that carry a ``valid`` flag (a road model the profile could not fit).
+    """
 
     frames: int = 0
     timings_ms: dict[str, list[float]] = field(default_factory=dict)
@@ -59,6 +80,22 @@ class RunResult:
     frame_ms: list[float] = field(default_factory=list)
     cache_hits: dict[str, int] = field(default_factory=dict)
     cache_misses: dict[str, int] = field(default_factory=dict)
+    invalid_outputs: dict[str, list[int]] = field(default_factory=dict)
+    resumed_frames: int = 0
+    notes: list[str] = field(default_factory=list)
+
+    def warnings(self) -> list[str]:
+        """Things that did not fail a frame but make the result doubtful: an output invalid on every
+        frame, a run that cannot be resumed."""
+        out = list(self.notes)
+        for key, (bad, total) in self.invalid_outputs.items():
+            if total and bad == total:
+                nid, _, port = key.rpartition(".")
+                out.append(
+                    f"node '{nid}' ({self.node_types.get(nid, '?')}): output '{port}' was invalid on every frame "
+                    f"({bad} of {total}); check the calibration and the input"
+                )
+        return out
 
     def timings_json(self) -> dict[str, Any]:
         nodes = {}
@@ -93,21 +130,43 @@ class Executor:
         cache: ResultCache | None = None,
         cache_nodes: set[str] | None = None,
         checkpoint: Path | None = None,
-        resume_state: dict | None = None,
+        resume: Checkpoint | None = None,
         warmup: int = 0,
     ):
         """``cache``: a :class:`~lanegraph.cache.ResultCache` for the results of ``cache_nodes``
         (default: every stateless node); results are keyed by node type, params, upstream keys and
-        the identity of the source's input files. ``checkpoint``: a file rewritten (atomically) after
-        every complete frame with the values of the feedback edges; ``resume_state``: such a
-        checkpoint's content, to continue a run with the same feedback values. ``warmup``: the first
-        ``warmup`` frames only bring the feedback edges and stateful nodes up to date (a chunk of a
-        longer sequence starts from the frames before it): the sinks do not see them, their times
-        and failures are not recorded, ``on_frame`` is not called for them."""
+        the identity of the source's input files. ``checkpoint``: a file rewritten (atomically)
+        before the first frame and after every frame consumed (:mod:`lanegraph.resume`); ``resume``:
+        such a checkpoint, validated, to continue its run -- refused (:class:`UsageError`) unless the
+        graph, params, input and frame selection are its own. ``context.skip`` must then be its
+        ``position``. ``warmup``: the first ``warmup`` frames only bring the feedback edges and
+        stateful nodes up to date (a chunk of a longer sequence starts from the frames before it):
+        the sinks do not see them, their times and failures are not recorded, ``on_frame`` is not
+        called for them."""
         self.checkpoint = checkpoint
+        self.resume = resume
         self.warmup = max(0, int(warmup))
-        self.resume_state = resume_state or {}
         self.graph = graph
+        ctx0 = context or RunContext()
+        resolved = graph.resolved_dict()  # before io.auto is replaced: what the user's graph says
+        self.identity = {
+            "graph": graph.file,
+            "graph_digest": graph_identity(resolved),
+            "resolved": resolved,
+            "input": resolved_input(ctx0.input_path),
+            "frames": selection_text(ctx0.frames),
+        }
+        if resume is not None:
+            where = checkpoint or Path("checkpoint")
+            check_identity(resume, where, **{k: v for k, v in self.identity.items() if k != "graph"})
+            if ctx0.skip != resume.position:
+                raise UsageError(f"{where}: the run context skips {ctx0.skip} frame(s), the checkpoint has done {resume.position}")
+            sources = {(e.src_node, e.src_port) for e in graph.edges if e.previous}
+            for i, fb in enumerate(resume.feedback):
+                if (fb.node, fb.port) not in sources:
+                    raise UsageError(f"{where}: feedback[{i}]: no feedback edge of the graph comes from {fb.node}.{fb.port}{_HINT}")
+            self._resumed_feedback = decode_feedback(resume, where)  # a malformed value: refused before anything opens
+        self.unresumable: str | None = None
         self.prefetch = prefetch
         self.cache = cache
         self.cache_nodes = (
@@ -216,17 +275,47 @@ class Executor:
         hook.lanegraph_after_node(node_id=node.id, node_type=node.type.name, frame=frame, outputs=out, elapsed_ms=elapsed)
         return out
 
-    def _write_checkpoint(self, index: int, frame: str | None, previous: dict, prev_keys: dict) -> None:
-        """After a frame is complete (its sinks have written): the values of the feedback edges, so a
-        resumed run continues exactly where this one stopped."""
-        import os
-        import pickle
-
+    def _write_checkpoint(self, position: int, frame: str | None, previous: dict, prev_keys: dict, complete: bool = False) -> None:
+        """After a frame is consumed (done -- its sinks have written -- or failed): how far the run
+        got, its failures, the values of the feedback edges and the stateful nodes' states, so that
+        a resumed run continues exactly where this one stopped (:mod:`lanegraph.resume`)."""
         assert self.checkpoint is not None
-        tmp = self.checkpoint.with_suffix(".tmp")
-        with tmp.open("wb") as fh:
-            pickle.dump({"index": index, "frame": frame, "previous": previous, "prev_keys": prev_keys, "graph": self.graph.file}, fh)
-        os.replace(tmp, self.checkpoint)
+        result = self.result
+        feedback: list[dict[str, Any]] = []
+        if self.unresumable is None:
+            try:
+                feedback = feedback_entries(previous, prev_keys)
+            except CheckpointValueError as exc:
+                self.unresumable = f"a feedback value cannot be stored ({exc})"
+                result.notes.append(f"--resume will not be possible for this run: {self.unresumable}")
+        states = {}
+        for nid, inst in self.instances.items():
+            state = getattr(inst, "state", None)
+            if callable(state):
+                states[nid] = state()
+        data = {
+            "format": FORMAT,
+            "version": VERSION,
+            **self.identity,
+            "input_identity": self._input_identity,
+            "total": self._total,
+            "position": position,
+            "frames_ok": result.frames,
+            "last_frame": None if frame is None else str(frame),
+            "complete": complete,
+            "failures": [f.to_json() for f in result.failures],
+            "invalid_outputs": result.invalid_outputs,
+            "feedback": feedback,
+            "states": states,
+            "unresumable": self.unresumable,
+        }
+        try:
+            save_checkpoint(self.checkpoint, data)
+        except ValueError as exc:  # a state that JSON cannot hold (a plugin's)
+            self.unresumable = f"a node's state cannot be stored ({exc})"
+            data.update(states={}, feedback=[], unresumable=self.unresumable)
+            result.notes.append(f"--resume will not be possible for this run: {self.unresumable}")
+            save_checkpoint(self.checkpoint, data)
 
     def _key(
         self, node: GraphNode, keys: dict[tuple[str, str], str | None], prev_keys: dict[tuple[str, str], str | None]
@@ -245,10 +334,14 @@ class Executor:
             if k is None:
                 return None
             parts.append((port, k))
-        return digest(node.type.name, node.type.plugin, node.params.model_dump(mode="json"), parts)
+        return digest(node.type.name, node.type.plugin, node.type.code_version, node.params.model_dump(mode="json"), parts)
 
     def open(self) -> None:
-        """Instantiate the stateful nodes (sources, sinks); done by :meth:`run` if not yet done."""
+        """Instantiate the stateful nodes (sources, sinks); done by :meth:`run` if not yet done.
+
+        Resuming, it checks the input against the checkpoint's and hands every stateful node with a
+        ``restore`` method its checkpointed state (a :class:`UsageError` or the node's
+        :class:`InputError` when that is not possible)."""
         if self.instances:
             return
         g = self.graph
@@ -260,8 +353,36 @@ class Executor:
                     self.instances[nid] = n.type.func(n.params, ctx)
                 except LanegraphError:
                     raise
+                except OSError as exc:  # an output folder that cannot be written, say
+                    raise InputError(f"node '{nid}' ({n.type.name}): {exc.strerror or exc}", path=exc.filename) from exc
                 except Exception as exc:  # noqa: BLE001
                     raise NodeError(nid, n.type.name, None, exc) from exc
+        source = self.instances[g.source.id]
+        self._skipped = int(getattr(source, "skipped", 0) or 0)
+        try:
+            self._total: int | None = len(source) + self._skipped
+        except TypeError:
+            self._total = None
+        ident = getattr(source, "identity", None)
+        self._input_identity = str(ident()) if callable(ident) else input_identity(self.context.input_path, self.context.out_dir)
+        ck = self.resume
+        if ck is None:
+            return
+        where = self.checkpoint or Path("checkpoint")
+        if ck.input_identity != self._input_identity:
+            raise UsageError(f"{where}: the input files changed since the checkpoint (another file, size or modification time){_HINT}")
+        if ck.total is not None and self._total is not None and self._total != ck.total:
+            raise UsageError(f"{where}: the frame selection now has {self._total} frame(s), the checkpoint's run had {ck.total}{_HINT}")
+        for nid, inst in self.instances.items():
+            restore = getattr(inst, "restore", None)
+            if callable(restore):
+                try:
+                    restore(ck.states.get(nid))
+                except LanegraphError:
+                    raise
+                except Exception as exc:  # noqa: BLE001
+                    n = g.nodes[nid]
+                    raise InputError(f"node '{nid}' ({n.type.name}): cannot restore its checkpointed state: {type(exc).__name__}: {exc}", path=str(where)) from exc
 
     def run(self, on_frame: Callable[[int, str | None], None] | None = None) -> RunResult:
         """Stream every frame of the source through the graph."""
@@ -270,6 +391,16 @@ class Executor:
         # kept on the executor so that a caller still has the partial result when the run stops
         self.result = result = RunResult(node_types={nid: n.type.name for nid, n in g.nodes.items()})
         self.open()
+        ck = self.resume
+        position = 0
+        previous: dict[tuple[str, str], Any] = {}
+        prev_keys: dict[tuple[str, str], str | None] = {}
+        if ck is not None:
+            result.frames = result.resumed_frames = ck.frames_ok
+            result.failures = [FrameFailure(f.frame, f.index, f.node, f.type, f.error) for f in ck.failures]
+            result.invalid_outputs = {k: list(v) for k, v in ck.invalid_outputs.items()}
+            position = ck.position
+            previous, prev_keys = self._resumed_feedback
         self.pm.hook.lanegraph_run_start(graph=g, context=self.context)
         src_id = g.source.id
         source = self.instances[src_id]
@@ -277,11 +408,12 @@ class Executor:
         keys: dict[tuple[str, str], str | None] = {}
         caching = self.cache is not None
         src_params = g.source.params.model_dump(mode="json")
+        last_frame = ck.last_frame if ck is not None else None
         try:
             consts = source.constants() if hasattr(source, "constants") else {}
             for port, v in consts.items():
                 values[(src_id, port)] = v
-                keys[(src_id, port)] = digest(g.source.type.name, src_params, "constant", port, repr(v)) if caching else None
+                keys[(src_id, port)] = digest(g.source.type.name, g.source.type.code_version, src_params, "constant", port, repr(v)) if caching else None
             if consts:
                 self.pm.hook.lanegraph_after_node(node_id=src_id, node_type=g.source.type.name, frame=None, outputs=dict(consts), elapsed_ms=0.0)
             for nid in g.order:
@@ -293,13 +425,18 @@ class Executor:
                     for port, v in out.items():
                         values[(nid, port)] = v
                         keys[(nid, port)] = None if key is None else digest(key, port)
-            previous: dict[tuple[str, str], Any] = dict(self.resume_state.get("previous", {}))
-            prev_keys: dict[tuple[str, str], str | None] = dict(self.resume_state.get("prev_keys", {}))
             feedback = {(e.src_node, e.src_port) for e in g.edges if e.previous}
+            if self.checkpoint is not None:
+                self._write_checkpoint(position, last_frame, previous, prev_keys)
             frame_key = getattr(source, "frame_key", None)
             warm = RunResult(node_types=result.node_types) if self.warmup else result
-            for index, frame_out in enumerate(self._frames(source, src_id, result)):
-                if frame_out is None:
+            drop = max(self.context.skip - self._skipped, 0)  # frames done that the source did not leave out
+            for index, frame_out in self._frames(source, src_id, result, position, drop):
+                position = index + 1
+                if frame_out is None:  # the source could not read this frame (recorded as a failure)
+                    previous, prev_keys = {}, {}
+                    if self.checkpoint is not None:
+                        self._write_checkpoint(position, last_frame, previous, prev_keys)
                     continue
                 warming = index < self.warmup
                 res = warm if warming else result
@@ -310,7 +447,7 @@ class Executor:
                 identity = frame_key(frame) if (caching and frame_key is not None) else None
                 for port, v in frame_out.items():
                     cur[(src_id, port)] = v
-                    cur_keys[(src_id, port)] = None if identity is None else digest(g.source.type.name, src_params, identity, port)
+                    cur_keys[(src_id, port)] = None if identity is None else digest(g.source.type.name, g.source.type.code_version, src_params, identity, port)
                 # the source is an iterator read ahead, so it fires only the after-node hook
                 src_ms = (result.timings_ms.get(src_id) or [0.0])[-1]
                 self.pm.hook.lanegraph_after_node(node_id=src_id, node_type=g.source.type.name, frame=frame, outputs=frame_out, elapsed_ms=src_ms)
@@ -333,20 +470,32 @@ class Executor:
                         for port, v in out.items():
                             cur[(nid, port)] = v
                             cur_keys[(nid, port)] = None if key is None else digest(key, port)
+                            valid = getattr(v, "valid", None)
+                            if isinstance(valid, bool):
+                                counts = res.invalid_outputs.setdefault(f"{nid}.{port}", [0, 0])
+                                counts[0] += not valid
+                                counts[1] += 1
                 except _SkipFrame:
                     previous, prev_keys = {}, {}
+                    last_frame = frame
+                    if self.checkpoint is not None:
+                        self._write_checkpoint(position, last_frame, previous, prev_keys)
                     if on_frame and not warming:
                         on_frame(index, frame)
                     continue
-                previous, prev_keys = cur, cur_keys
+                previous = {k: cur[k] for k in feedback if k in cur}
+                prev_keys = {k: cur_keys.get(k) for k in feedback}
                 if warming:
                     continue
                 result.frames += 1
+                last_frame = frame
                 if self.checkpoint is not None:
-                    self._write_checkpoint(index, frame, {k: cur[k] for k in feedback if k in cur}, {k: cur_keys.get(k) for k in feedback})
+                    self._write_checkpoint(position, last_frame, previous, prev_keys)
                 result.frame_ms.append((time.perf_counter() - t_frame) * 1000.0)
                 if on_frame:
                     on_frame(index, frame)
+            if self.checkpoint is not None:
+                self._write_checkpoint(position, last_frame, previous, prev_keys, complete=True)
         finally:
             for inst in self.instances.values():
                 close = getattr(inst, "close", None)
@@ -358,8 +507,13 @@ class Executor:
             self.pm.hook.lanegraph_run_end(graph=g, context=self.context, frames=result.frames)
         return result
 
-    def _frames(self, source: Any, src_id: str, result: RunResult) -> Iterator[dict[str, Any] | None]:
-        """Iterate the source, recording per-frame read errors according to the source's policy.
+    def _frames(
+        self, source: Any, src_id: str, result: RunResult, start: int = 0, drop: int = 0
+    ) -> Iterator[tuple[int, dict[str, Any] | None]]:
+        """Iterate the source as ``(index, frame outputs)``, recording per-frame read errors
+        according to the source's policy (``None`` for a frame that could not be read). ``index``
+        counts the frames of the selection from ``start``; the first ``drop`` items are consumed
+        unseen (frames a resumed run has done, from a source that cannot leave them out).
 
         With ``prefetch > 0`` the source is read by a background thread that stays up to
         ``prefetch`` frames ahead, so decoding the next images overlaps computing this frame
@@ -367,9 +521,14 @@ class Executor:
         """
         node = self.graph.nodes[src_id]
         items = _prefetched(iter(source), self.prefetch) if self.prefetch > 0 else _timed(iter(source))
-        index = 0
+        index = start
         scratch = RunResult()  # what warm-up frames record
         for kind, item, elapsed in items:
+            if drop > 0:
+                drop -= 1
+                if kind == "error" and not isinstance(item, LanegraphError):
+                    raise NodeError(src_id, node.type.name, None, item) from item
+                continue
             rec = scratch if index < self.warmup else result
             if kind == "error":
                 exc = item
@@ -380,11 +539,11 @@ class Executor:
                     raise NodeError(src_id, node.type.name, frame, exc) from exc
                 rec.failures.append(FrameFailure(frame, index, src_id, node.type.name, str(exc)))
                 index += 1
-                yield None
+                yield index - 1, None
                 continue
             rec.timings_ms.setdefault(src_id, []).append(elapsed)
             index += 1
-            yield item
+            yield index - 1, item
 
     def __len__(self) -> int:
         src = self.instances.get(self.graph.source.id)

@@ -39,6 +39,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from .errors import GraphError, Problem
 from .loader import read_graph_file
 from .nodes import NodeParams, NodeType
+from .paths import output_fields, output_problems
 from .plugins import PluginManager, get_plugin_manager
 from .types import port_compatible
 
@@ -53,7 +54,7 @@ class InputSpec(BaseModel):
 
     from_: str = Field(alias="from", description="the producing node's output: 'node_id.port'")
     previous: bool = Field(
-        False, description="a feedback edge: deliver the previous frame's value (None on the first frame)"
+        False, strict=True, description="a feedback edge: deliver the previous frame's value (None on the first frame)"
     )
 
 
@@ -79,7 +80,7 @@ class GraphSpec(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    version: int = Field(1, ge=1, le=1, description="graph format version")
+    version: int = Field(1, ge=1, le=1, strict=True, description="graph format version")
     name: str = Field("", description="short name of the graph")
     description: str = Field("", description="what the graph does")
     extends: str | None = Field(None, description="base graph file, relative to this file")
@@ -204,6 +205,8 @@ def _resolve(
             base_path = (path.parent / ext).resolve()
             base_found = base_path.is_file()
         except (OSError, ValueError) as exc:  # a NUL byte, a name too long for the file system
+            raise GraphError([Problem(f"invalid path {_short(ext)}: {exc}", file=display, field="extends")]) from None
+        except RuntimeError as exc:  # a symbolic link loop
             raise GraphError([Problem(f"invalid path {_short(ext)}: {exc}", file=display, field="extends")]) from None
         if base_path in chain or base_path == path.resolve():
             cyc = " -> ".join(str(p) for p in (*chain, path.resolve(), base_path))
@@ -381,6 +384,9 @@ def _pydantic_problems(exc: ValidationError, file: str, node: str | None, ntype:
         msg = err["msg"]
         if err["type"] == "extra_forbidden":
             msg = "unknown key"
+        elif err["type"] == "value_error" and "error" in err.get("ctx", {}):
+            text = str(err["ctx"]["error"])  # a validator's own message, without pydantic's "Value error, "
+            msg = text if _short(got) in text else f"{text}; got {_short(got)}"
         elif err["type"] != "missing":
             msg = f"expected: {msg[0].lower() + msg[1:]}; got {_short(got)}"
         out.append(Problem(msg, file=file, node=node, node_type=ntype, field=field_))
@@ -442,6 +448,8 @@ def validate_raw(
     problems: list[Problem] = []
     nodes: dict[str, GraphNode] = {}
     specs = {k: v for k, v in spec.nodes.items() if v is not None}
+    # params validators may look up other node types (io.auto's default must name a source)
+    context = {"node_types": pm.node_types}
     types: dict[str, NodeType] = {}
     for nid, ns in specs.items():
         nfile = origin.get(nid, file)
@@ -460,7 +468,7 @@ def validate_raw(
             continue
         types[nid] = nt
         try:
-            params = nt.params.model_validate(ns.params)
+            params = nt.params.model_validate(ns.params, context=context)
         except ValidationError as exc:
             problems += _param_hint(nt.params, _pydantic_problems(exc, nfile, nid, nt.name, "params"))
             params = None
@@ -579,6 +587,9 @@ def validate_raw(
             )
         )
 
+    problems += _output_problems(nodes)
+    problems += _feedback_only_problems(nodes)
+
     order, cycle = _toposort(nodes)
     if cycle:
         problems.append(
@@ -593,6 +604,44 @@ def validate_raw(
     if problems:
         raise GraphError(_dedupe(problems))
     return Graph(spec.name or Path(file).stem, spec.description, file, nodes, order, raw, spec.on_error)
+
+
+def _output_problems(nodes: dict[str, GraphNode]) -> list[Problem]:
+    """Sinks' output paths (params typed OutputFile / OutputDir): none is a file of the run itself,
+    no two are the same file or lie one inside the other."""
+    sinks = []
+    for nid, n in nodes.items():
+        if n.params is None:
+            continue
+        fields = {f: (kind, getattr(n.params, f)) for f, kind in output_fields(type(n.params)).items()}
+        if fields:
+            sinks.append((nid, n.type.name, fields))
+    return [
+        Problem(msg, file=nodes[nid].file, node=nid, node_type=nodes[nid].type.name, field=f"params.{fname}")
+        for nid, fname, msg in output_problems(sinks)
+    ]
+
+
+def _feedback_only_problems(nodes: dict[str, GraphNode]) -> list[Problem]:
+    """A required input fed by a feedback edge gets ``None`` on the first frame: the node could not
+    run on it, so the graph cannot run. Only an optional input may take the previous frame's value."""
+    out = []
+    for nid, n in nodes.items():
+        for port, e in n.inputs.items():
+            p = n.type.inputs.get(port)
+            if e.previous and p is not None and not p.optional:
+                out.append(
+                    Problem(
+                        f"required input port {port!r} ({p.type}) is fed only by a feedback edge "
+                        f"({e.src_node}.{e.src_port}@prev), which is None on the first frame",
+                        file=n.file,
+                        node=nid,
+                        node_type=n.type.name,
+                        field=f"inputs.{port}",
+                        hint="feed it a value of the same frame, or use a node type whose input is optional",
+                    )
+                )
+    return out
 
 
 def _dedupe(problems: list[Problem]) -> list[Problem]:

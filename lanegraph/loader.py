@@ -119,6 +119,13 @@ def read_graph_file(path: Path, display: str | None = None) -> dict[str, Any]:
     except (OSError, ValueError) as exc:  # a NUL byte, a name too long for the file system
         raise GraphError([Problem(f"invalid path: {exc}", file=shown)]) from None
     if not found:
+        if path.is_symlink():
+            try:
+                path.stat()
+            except OSError as exc:
+                raise GraphError([Problem(f"a symbolic link that leads nowhere: {exc.strerror or exc}", file=shown)]) from None
+        if path.is_dir():
+            raise GraphError([Problem("is a folder, not a graph file", file=shown)])
         raise GraphError([Problem("graph file not found", file=shown, hint="check the path")])
     size = path.stat().st_size
     if size > MAX_FILE_BYTES:

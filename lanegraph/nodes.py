@@ -21,6 +21,7 @@ frames: ``obj.constants()`` returns its constant outputs (e.g. calibration),
 
 from __future__ import annotations
 
+import functools
 import inspect
 import typing
 from collections.abc import Callable, Mapping
@@ -28,15 +29,35 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, ValidationInfo, field_validator
 
 from .types import PORT_TYPES
 
 
-class NodeParams(BaseModel):
-    """Base of every params model: unknown keys are rejected, values are validated on assignment."""
+def _numeric_not_bool(annotation: Any) -> bool:
+    """Whether a field of this annotation holds a number (int or float, optionally None) and not a bool."""
+    args = typing.get_args(annotation) if typing.get_origin(annotation) is not None else (annotation,)
+    return bool(args) and bool(set(args) & {int, float}) and bool not in args
 
-    model_config = ConfigDict(extra="forbid", validate_assignment=True, frozen=False)
+
+class NodeParams(BaseModel):
+    """Base of every params model: unknown keys are rejected, values are validated on assignment,
+    a float is never NaN or infinite, a number is never given as a boolean (``true`` is not 1) and
+    a boolean only as ``true`` / ``false`` (not 1 or ``"no"``)."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, frozen=False, allow_inf_nan=False)
+
+    @field_validator("*", mode="before", check_fields=False)
+    @classmethod
+    def _no_bool_for_numbers(cls, value: Any, info: ValidationInfo) -> Any:
+        f = cls.model_fields.get(info.field_name) if info.field_name is not None else None
+        if f is None:
+            return value
+        if isinstance(value, bool) and _numeric_not_bool(f.annotation):
+            raise ValueError(f"expected a number, got the boolean {value}")
+        if f.annotation in (bool, bool | None) and not isinstance(value, bool) and value is not None:
+            raise ValueError(f"expected true or false, got {value!r}")
+        return value
 
 
 class NoParams(NodeParams):
@@ -70,7 +91,14 @@ def _as_ports(spec: Mapping[str, str | Port] | None) -> dict[str, Port]:
 
 @dataclass
 class RunContext:
-    """What a stateful node (source, sink) may know about the run."""
+    """What a stateful node (source, sink) may know about the run.
+
+    ``frames``: the frame selection (``--frames``). ``skip``: how many frames at the start of the
+    selection to leave out -- a resumed run's frames already done. A source applies it and sets
+    its attribute ``skipped`` to the number it left out; the executor drops the rest itself (reading
+    them) from a source that does not. ``extra["resume"]`` is true in a resumed run: a node that
+    keeps state across frames then gets its checkpointed ``state()`` back through ``restore()``.
+    """
 
     input_path: Path | None = None
     out_dir: Path | None = None
@@ -78,6 +106,7 @@ class RunContext:
     graph_file: str | None = None
     node_id: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
+    skip: int = 0
 
 
 @dataclass
@@ -113,8 +142,42 @@ class NodeType:
         return self.name.split(".")[0]
 
     @property
+    def code_version(self) -> str:
+        """A digest of the code that computes this node: the source files of the top-level package
+        (or module) that defines its function, and lanegraph's version. Cached results and reused
+        runs are keyed by it, so that a changed plugin (an upgrade, or an edit in a development
+        install) never serves results its old code computed."""
+        return _code_version(getattr(self.func, "__module__", "") or "")
+
+    @property
     def summary(self) -> str:
         return self.doc.strip().splitlines()[0] if self.doc.strip() else ""
+
+
+@functools.cache
+def _code_version(module: str) -> str:
+    import hashlib
+    import importlib.util
+
+    from . import __version__
+
+    h = hashlib.sha256(__version__.encode())
+    top = module.split(".")[0]
+    try:
+        spec = importlib.util.find_spec(top) if top else None
+    except (ImportError, ValueError):
+        spec = None
+    if spec is not None and spec.origin:
+        origin = Path(spec.origin)
+        files = sorted(origin.parent.rglob("*.py")) if spec.submodule_search_locations else [origin]
+        for f in files:
+            try:
+                h.update(f.relative_to(origin.parent).as_posix().encode() + b"\0" + f.read_bytes())
+            except OSError:
+                continue
+    else:  # a function defined in __main__ or a test: its module's name only
+        h.update(module.encode())
+    return h.hexdigest()[:16]
 
 
 def _params_from_annotation(func: Callable[..., Any]) -> type[NodeParams] | None:

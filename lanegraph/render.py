@@ -15,7 +15,6 @@ chosen frame it writes ``DIR/<frame>/<node>.<port>.png`` for every node output a
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -23,7 +22,9 @@ from typing import Any
 import cv2
 import numpy as np
 
+from .errors import UsageError
 from .hookspecs import hookimpl
+from .paths import inside, safe_name, write_bytes_atomic
 from .types import BevGeometry, Calibration, FeatureMap, Lane, Line, RoadModel
 
 #: colours (BGR)
@@ -365,11 +366,8 @@ def mosaic(tiles: Iterable[tuple[str, np.ndarray]], tile_height: int = 240, max_
 
 
 # --------------------------------------------------------------------------- the recorder plugin
-_SAFE = re.compile(r"[^A-Za-z0-9._-]+")
-
-
 def _safe(name: str) -> str:
-    return _SAFE.sub("_", name) or "_"
+    return safe_name(name)
 
 
 class DebugRecorder:
@@ -385,6 +383,7 @@ class DebugRecorder:
         self.frames = frames
         self.pm = pm
         self.written: dict[str, list[Path]] = {}
+        self.matched: set[str] = set()  # the entries of ``frames`` that matched a frame
         self._frame: str | None = None
         self._tiles: list[tuple[str, np.ndarray]] = []
         self._context: dict[str, Any] = {}
@@ -392,9 +391,30 @@ class DebugRecorder:
 
     def wants(self, frame: str) -> bool:
         """Whether ``frame`` is chosen: by its id, or by its number (``7`` matches ``0000000007``)."""
-        if self.frames is None or frame in self.frames:
+        if self.frames is None:
             return True
-        return frame.isdigit() and any(f.isdigit() and int(f) == int(frame) for f in self.frames)
+        hits = {f for f in self.frames if f == frame or (frame.isdigit() and f.isdigit() and int(f) == int(frame))}
+        self.matched |= hits
+        return bool(hits)
+
+    def _folder(self, frame: str) -> Path:
+        """The frame's folder: one safe name, resolved inside ``out_dir`` (never above it)."""
+        folder = inside(self.out_dir, safe_name(frame), "--debug-dir")
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise UsageError(f"--debug-dir: cannot create {folder}: {exc.strerror or exc}") from None
+        return folder
+
+    @staticmethod
+    def _write(path: Path, img: np.ndarray) -> None:
+        try:
+            ok, png = cv2.imencode(".png", img)
+            if not ok:
+                raise UsageError(f"--debug-dir: cannot encode {path.name} as PNG")
+            write_bytes_atomic(path, png.tobytes())  # never through a link planted at its name
+        except (cv2.error, OSError) as exc:
+            raise UsageError(f"--debug-dir: cannot write {path}: {exc}") from None
 
     # -- helpers
     def _port_type(self, node_type: str, port: str) -> str:
@@ -411,13 +431,12 @@ class DebugRecorder:
         return render_value(port_type, value, {**self._constants, **self._context})
 
     def _flush(self) -> None:
-        if self._frame is not None and self._tiles:
-            folder = self.out_dir / _safe(self._frame)
-            folder.mkdir(parents=True, exist_ok=True)
-            path = folder / "mosaic.png"
-            cv2.imwrite(str(path), mosaic(self._tiles))
-            self.written.setdefault(self._frame, []).append(path)
+        frame, tiles = self._frame, self._tiles
         self._frame, self._tiles, self._context = None, [], {}
+        if frame is not None and tiles:
+            path = self._folder(frame) / "mosaic.png"
+            self._write(path, mosaic(tiles))
+            self.written.setdefault(frame, []).append(path)
 
     # -- hooks
     @hookimpl
@@ -438,7 +457,7 @@ class DebugRecorder:
         if frame != self._frame:
             self._flush()
             self._frame = frame
-        folder = self.out_dir / _safe(frame)
+        folder = self._folder(frame)
         typed = []
         for port, value in outputs.items():  # context first: a node's outputs are drawn over each other
             port_type = self._port_type(node_type, port)
@@ -455,9 +474,8 @@ class DebugRecorder:
             img = self._render(node_type, port, port_type, value)
             if img is None:
                 continue
-            folder.mkdir(parents=True, exist_ok=True)
-            path = folder / f"{_safe(node_id)}.{_safe(port)}.png"
-            cv2.imwrite(str(path), img)
+            path = folder / f"{safe_name(node_id)}.{safe_name(port)}.png"
+            self._write(path, img)
             self.written.setdefault(frame, []).append(path)
             self._tiles.append((f"{node_id}.{port}", img))
 

@@ -96,6 +96,51 @@ class Calibration:
         )
 
 
+#: the baseline range a calibration is checked against unless the user says otherwise, metres
+BASELINE_RANGE_M = (0.05, 2.0)
+
+
+def calibration_problems(calib: Calibration, baseline_range_m: tuple[float, float] = BASELINE_RANGE_M) -> list[tuple[str, str]]:
+    """What is implausible in a rectified calibration: ``[(field, message), ...]``, empty when none.
+
+    Checked: every value finite; ``f`` (and ``fy``) > 0, ``fy`` within 4x of ``f``; the baseline
+    inside ``baseline_range_m`` (a baseline 1000 times too large is named as millimetres); with a
+    known image size, the principal point inside the image and ``f`` between 0.05 and 50 image
+    widths. A source reports them with its own file and key names.
+    """
+    out: list[tuple[str, str]] = []
+    vals = {"f": calib.f, "cx": calib.cx, "cy": calib.cy, "baseline": calib.baseline}
+    if calib.fy is not None:
+        vals["fy"] = calib.fy
+    bad = [k for k, v in vals.items() if not np.isfinite(v)]
+    for k in bad:
+        out.append((k, f"must be a finite number, got {vals[k]}"))
+    for k in ("f", "fy"):
+        if k in vals and k not in bad and vals[k] <= 0:
+            out.append((k, f"focal length must be > 0 pixels, got {vals[k]}"))
+    if "fy" in vals and not bad and calib.f > 0 and calib.fy > 0 and not (0.25 <= calib.fy / calib.f <= 4.0):
+        out.append(("fy", f"vertical focal length {calib.fy} is not within 4x of f = {calib.f}"))
+    lo, hi = baseline_range_m
+    b = calib.baseline
+    if "baseline" not in bad and not (lo <= b <= hi):
+        msg = f"baseline {b} m is outside the plausible {lo}-{hi} m"
+        if lo <= b / 1000.0 <= hi:
+            msg += f" (millimetres? the baseline is in metres: {b / 1000.0:g})"
+        elif b <= 0:
+            msg = f"baseline must be > 0 m (the left camera left of the right one), got {b:.4g} m"
+        out.append(("baseline", msg + "; a source's min_baseline_m / max_baseline_m widen the range"))
+    if calib.width < 0 or calib.height < 0:
+        out.append(("width", f"image size must not be negative, got {calib.width}x{calib.height}"))
+    elif calib.width and calib.height and not bad:
+        if not (0 <= calib.cx < calib.width):
+            out.append(("cx", f"principal point x {calib.cx} lies outside the {calib.width}x{calib.height} image"))
+        if not (0 <= calib.cy < calib.height):
+            out.append(("cy", f"principal point y {calib.cy} lies outside the {calib.width}x{calib.height} image"))
+        if calib.f > 0 and not (0.05 * calib.width <= calib.f <= 50 * calib.width):
+            out.append(("f", f"focal length {calib.f} px is implausible for a {calib.width} px wide image (expected 0.05 to 50 widths)"))
+    return out
+
+
 @dataclass
 class RoadModel:
     """Road profile in the v-disparity domain and the camera pose it implies.

@@ -5,6 +5,7 @@
 ``disparity.bm``       OpenCV StereoBM
 ``disparity.sgm``      census + semi-global matching, own numba kernels
 ``disparity.file``     precomputed maps (KITTI 16-bit PNG or .npy), e.g. PSMNet
+``disparity.onnx``     a stereo network exported to ONNX (PSMNet ...), ONNX Runtime
 =====================  =========================================================
 
 Every map is HxW float32 at the input resolution, in pixels; invalid pixels are 0.
@@ -15,6 +16,7 @@ from lanegraph import hookimpl
 
 from ._common import DisparityParams
 from ._file import FileParams, file
+from ._onnx import OnnxDisparity, OnnxParams
 from ._opencv import BmParams, OpenCVDisparityParams, SgbmParams, bm, sgbm
 from ._sgm import SgmParams, sgm
 
@@ -22,6 +24,8 @@ __all__ = [
     "BmParams",
     "DisparityParams",
     "FileParams",
+    "OnnxDisparity",
+    "OnnxParams",
     "OpenCVDisparityParams",
     "SgbmParams",
     "SgmParams",
@@ -34,4 +38,4 @@ __all__ = [
 
 @hookimpl
 def lanegraph_node_types():
-    return [sgbm, bm, sgm, file]
+    return [sgbm, bm, sgm, file, OnnxDisparity]

@@ -8,6 +8,7 @@ as ``<frame>.png`` in KITTI format (uint16, disparity = value / 256, 0 = invalid
 
 from __future__ import annotations
 
+import struct
 from pathlib import Path
 from typing import Literal
 
@@ -72,6 +73,25 @@ def read_kitti_png(path: Path, frame: str | None = None) -> np.ndarray:
             frame=frame,
         )
     return raw.astype(np.float32) * np.float32(1.0 / 256.0)
+
+
+def _check_png_size(path: Path, frame: str, shape: tuple[int, int]) -> None:
+    """A PNG whose header size is not the left image's is refused before it is decoded (a header
+    may claim gigapixels)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(24)
+    except OSError as exc:
+        raise InputError(f"cannot read the file: {exc.strerror or exc}", path=str(path), frame=frame) from None
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+        w, h = struct.unpack(">II", head[16:24])
+        if (h, w) != shape:
+            raise InputError(
+                f"disparity map is {h}x{w} (rows x cols, from its PNG header) but the left image is {shape[0]}x{shape[1]}; "
+                "expected the same size (hint: was it computed on a resized or cropped pair?)",
+                path=str(path),
+                frame=frame,
+            )
 
 
 def read_npy(path: Path, frame: str | None = None) -> np.ndarray:
@@ -154,8 +174,10 @@ def file(
             path=str(candidates[0]),
             frame=frame,
         )
-    disp = read_kitti_png(path, frame) if path.suffix == ".png" else read_npy(path, frame)
     h, w = np.asarray(left).shape[:2]
+    if path.suffix == ".png":
+        _check_png_size(path, frame, (h, w))
+    disp = read_kitti_png(path, frame) if path.suffix == ".png" else read_npy(path, frame)
     if disp.shape != (h, w):
         raise InputError(
             f"disparity map is {disp.shape[0]}x{disp.shape[1]} (rows x cols) but the left image is {h}x{w}; "

@@ -1,16 +1,26 @@
-"""Sinks: the lanes writer (``lanes.jsonl``) and an overlay image writer."""
+"""Sinks: the lanes writer (``lanes.jsonl``) and an overlay image writer.
+
+Both write only inside ``--out`` (their path params are :data:`lanegraph.paths.OutputFile` /
+:data:`~lanegraph.paths.OutputDir`, resolved with :func:`lanegraph.paths.inside`), and both own
+their part of a resumed run: ``state()`` is what the executor's checkpoint records after every
+frame, ``restore(state)`` puts the sink back there when ``--resume`` continues the run.
+"""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 from pydantic import Field
 
 from lanegraph import NodeParams, Port, RunContext, node_type
+from lanegraph.errors import InputError
+from lanegraph.paths import OutputDir, OutputFile, create_new, inside, safe_name, write_bytes_atomic
 from lanegraph.render import draw_lane_points
 from lanegraph.types import Lane
 
@@ -21,6 +31,10 @@ def _out_dir(context: RunContext) -> Path:
     return out
 
 
+def _where(context: RunContext, type_name: str, param: str) -> str:
+    return f"node '{context.node_id or '?'}' ({type_name}) params.{param}"
+
+
 def lane_record(frame: str, lanes: list[Lane] | None) -> dict:
     """The ``lanes.jsonl`` record of one frame."""
     return {"frame": str(frame), "lanes": [ln.to_json() for ln in (lanes or [])]}
@@ -29,8 +43,8 @@ def lane_record(frame: str, lanes: list[Lane] | None) -> dict:
 class WriteLanesParams(NodeParams):
     """Params of ``io.write_lanes``."""
 
-    filename: str = Field("lanes.jsonl", min_length=1, description="output file, relative to --out")
-    append: bool = Field(False, description="append to an existing file (resumed runs) instead of starting a new one")
+    filename: OutputFile = Field("lanes.jsonl", description="output file, relative to --out (inside it: no absolute path, no '..')")
+    append: bool = Field(False, description="append to an existing file instead of starting a new one")
     fsync: bool = Field(False, description="fsync after every frame (slower, survives power loss)")
 
 
@@ -43,27 +57,80 @@ class WriteLanes:
     """Writes one JSON line per frame to OUT/lanes.jsonl as each frame finishes (one write, flushed)."""
 
     def __init__(self, params: WriteLanesParams, context: RunContext):
-        self.path = _out_dir(context) / params.filename
+        self.path = inside(_out_dir(context), params.filename, _where(context, "io.write_lanes", "filename"))
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.outputs = [self.path]
         self.fsync = params.fsync
-        append = params.append or bool(context.extra.get("resume"))
-        self.fh = self.path.open("a" if append else "w", encoding="utf-8")
+        self._hash = hashlib.sha256()
+        self._bytes = 0
+        self.fh: Any = None
+        if context.extra.get("resume"):
+            return  # restore() opens the file where the checkpoint left it
+        if params.append and self.path.is_file():
+            data = self.path.read_bytes()
+            self._hash.update(data)
+            self._bytes = len(data)
+        # unbuffered: a record is one write() call, so an interrupted run never leaves half of one
+        # in a buffer that closing the file would flush; a new file is created anew (never written
+        # through a link planted at its name)
+        self.fh = open(self.path, "ab", buffering=0) if params.append else create_new(self.path)  # noqa: SIM115 - closed by close()
 
     def __call__(self, frame: str, lanes: list[Lane] | None = None) -> dict:
-        line = json.dumps(lane_record(frame, lanes), separators=(",", ":")) + "\n"
-        self.fh.write(line)  # one write of a whole line: the file never ends in half a record
-        self.fh.flush()
+        data = (json.dumps(lane_record(frame, lanes), separators=(",", ":")) + "\n").encode("utf-8")
+        view = memoryview(data)
+        while view:
+            view = view[self.fh.write(view) :]
+        self._hash.update(data)
+        self._bytes += len(data)
         if self.fsync:
             os.fsync(self.fh.fileno())
         return {}
 
+    def state(self) -> dict[str, Any]:
+        """How much of the file belongs to the frames done: its length and the SHA-256 of its bytes."""
+        return {"bytes": self._bytes, "sha256": self._hash.hexdigest()}
+
+    def restore(self, state: Any) -> None:
+        """Continue the file of a checkpoint's ``state``: refused (InputError) when the file is gone,
+        shorter than recorded or changed; bytes after the recorded length (a frame written after the
+        checkpoint, half a line of a killed run) are cut."""
+        if not (isinstance(state, dict) and isinstance(state.get("bytes"), int) and not isinstance(state.get("bytes"), bool)
+                and state["bytes"] >= 0 and isinstance(state.get("sha256"), str)):
+            raise InputError(f"the checkpoint holds no valid state of this writer (expected {{bytes, sha256}}, got {str(state)[:80]})", path=str(self.path))
+        n = state["bytes"]
+        hint = "; cannot resume (run without --resume to start over)"
+        if not self.path.is_file():
+            if n:
+                raise InputError(f"missing: the checkpoint recorded {n} bytes of frames done here (deleted or moved since?){hint}", path=str(self.path))
+            self.path.write_bytes(b"")
+        size = self.path.stat().st_size
+        if size < n:
+            raise InputError(f"has {size} bytes, the checkpoint recorded {n} (shortened since?){hint}", path=str(self.path))
+        h = hashlib.sha256()
+        with open(self.path, "rb") as fh:
+            left = n
+            while left:
+                chunk = fh.read(min(left, 1 << 20))
+                if not chunk:
+                    break
+                h.update(chunk)
+                left -= len(chunk)
+        if h.hexdigest() != state["sha256"]:
+            raise InputError(f"its first {n} bytes are not those the checkpoint recorded (changed since?){hint}", path=str(self.path))
+        self.fh = open(self.path, "r+b", buffering=0)  # noqa: SIM115 - closed by close()
+        self.fh.truncate(n)
+        self.fh.seek(n)
+        self._hash, self._bytes = h, n
+
     def close(self) -> None:
-        self.fh.close()
+        if self.fh is not None:
+            self.fh.close()
 
 
 class OverlayParams(NodeParams):
     """Params of ``io.write_overlay``."""
 
-    subdir: str = Field("overlay", min_length=1, description="output folder, relative to --out")
+    subdir: OutputDir = Field("overlay", description="output folder, relative to --out (inside it: no absolute path, no '..')")
     every: int = Field(1, ge=1, le=100000, description="write every N-th frame")
     thickness: int = Field(3, ge=1, le=20, description="lane line thickness, pixels")
 
@@ -99,16 +166,29 @@ class WriteOverlay:
     """Writes OUT/overlay/<frame>.png: the left image with the road mask and the lanes drawn."""
 
     def __init__(self, params: OverlayParams, context: RunContext):
-        self.dir = _out_dir(context) / params.subdir
+        self.dir = inside(_out_dir(context), params.subdir, _where(context, "io.write_overlay", "subdir"))
         self.dir.mkdir(parents=True, exist_ok=True)
+        self.outputs = [self.dir]
         self.p = params
         self.count = 0
 
     def __call__(self, frame: str, image: np.ndarray, lanes: list[Lane] | None = None, mask: np.ndarray | None = None) -> dict:
         if self.count % self.p.every == 0:
             out = draw_overlay(image, lanes, mask, f"{frame}  lanes: {len(lanes or [])}", self.p.thickness)
-            tmp = self.dir / f".{frame}.tmp.png"
-            cv2.imwrite(str(tmp), out)
-            os.replace(tmp, self.dir / f"{frame}.png")
+            name = safe_name(frame)  # a frame id is free text: never '..' or a separator in a file name
+            ok, png = cv2.imencode(".png", out)
+            if not ok:
+                raise ValueError(f"cannot encode the overlay of frame {frame} as PNG")
+            write_bytes_atomic(self.dir / f"{name}.png", png.tobytes())
         self.count += 1
         return {}
+
+    def state(self) -> dict[str, Any]:
+        """Frames seen so far (``every`` counts them)."""
+        return {"count": self.count}
+
+    def restore(self, state: Any) -> None:
+        count = state.get("count") if isinstance(state, dict) else None
+        if not isinstance(count, int) or isinstance(count, bool) or count < 0:
+            raise InputError(f"the checkpoint holds no valid state of this writer (expected {{count}}, got {str(state)[:80]})", path=str(self.dir))
+        self.count = count

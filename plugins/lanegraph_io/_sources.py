@@ -1,26 +1,41 @@
 """Stereo sources: KITTI raw drives, KITTI odometry sequences, plain folders of left/right pairs.
 
 Every source lists its frames when it is opened (so a missing right image or a non-monotonic
-frame number is reported before anything runs), reads images lazily one frame at a time, and
-*yields* an :class:`~lanegraph.errors.InputError` for a frame it cannot read (truncated file,
-size mismatch) so that the executor can skip it and go on.
+frame number is reported before anything runs), checks its calibration (finite, plausible,
+rectified: :func:`~lanegraph_io._calib.check_calibration`; the image size taken from the frames
+when the calibration has none; left and right not swapped), reads images lazily one frame at a
+time, and *yields* an :class:`~lanegraph.errors.InputError` for a frame it cannot read (truncated
+file, size mismatch, an image above ``max_megapixels``) so that the executor can skip it and go on.
 """
 
 from __future__ import annotations
 
 import re
+import struct
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
 import cv2
 import numpy as np
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from lanegraph import NodeParams, Port, RunContext, node_type
-from lanegraph.errors import InputError
+from lanegraph.cache import digest
+from lanegraph.errors import InputError, UsageError
+from lanegraph.frames import parse_frames as _parse_frames
+from lanegraph.frames import select_frames, selection_text
 from lanegraph.types import Calibration
 
-from ._calib import calibration_from_projections, projection, read_calibration_yaml, read_key_rows
+from ._calib import (
+    YAML_NAMES,
+    calibration_from_projections,
+    check_calibration,
+    projection,
+    projection_names,
+    read_calibration_yaml,
+    read_key_rows,
+)
 
 IMAGE_EXT = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
 
@@ -33,33 +48,65 @@ STEREO_OUTPUTS = {
 
 
 def parse_frames(text: str | None) -> slice | None:
-    """``"A:B"``, ``"A:B:S"`` or ``"A"`` -> a slice over the frame list (None for empty)."""
-    if not text:
-        return None
+    """``"A:B"``, ``"A:B:S"`` or ``"A"`` -> a slice over the frame list (None for empty);
+    :func:`lanegraph.frames.parse_frames` with the reason prefixed by ``frames:``."""
     try:
-        parts = [int(x) if x.strip() else None for x in str(text).split(":")]
-    except ValueError:
-        raise ValueError(f"frames: expected 'A:B', 'A:B:S' or 'A' with integers, got {text!r}") from None
-    if len(parts) == 1:
-        return slice(parts[0], parts[0] + 1 if parts[0] is not None and parts[0] != -1 else None)
-    if len(parts) > 3:
-        raise ValueError(f"frames: expected 'A:B' or 'A:B:S', got {text!r}")
-    return slice(*parts)
-
-
-def _slice_text(s: slice) -> str:
-    text = f"{'' if s.start is None else s.start}:{'' if s.stop is None else s.stop}"
-    return text + (f":{s.step}" if s.step not in (None, 1) else "")
+        return _parse_frames(text)
+    except ValueError as exc:
+        raise ValueError(f"frames: {exc}") from None
 
 
 def list_images(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXT and p.is_file())
 
 
-def read_image(path: Path, frame: str, gray: bool = False) -> np.ndarray:
-    """Read one image; a missing, truncated or non-image file raises a located InputError."""
+#: ``image_size`` of an image whose header claims more pixels than PIL reads (about 179 Mpx)
+TOO_LARGE = (-1, -1)
+
+
+def image_size(path: Path) -> tuple[int, int] | None:
+    """``(width, height)`` of an image file from its header (nothing decoded); :data:`TOO_LARGE`
+    for a header beyond PIL's decompression-bomb limit; None when the header cannot be read (the
+    decoder then reports the file)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(24)
+    except OSError:
+        return None
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+        w, h = struct.unpack(">II", head[16:24])
+        return int(w), int(h)
+    try:
+        from PIL import Image
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with Image.open(path) as im:
+                return int(im.size[0]), int(im.size[1])
+    except Exception as exc:  # noqa: BLE001 - UnidentifiedImageError, OSError: the decoder reports the file
+        return TOO_LARGE if type(exc).__name__ == "DecompressionBombError" else None
+
+
+def read_image(path: Path, frame: str, gray: bool = False, max_megapixels: float | None = None) -> np.ndarray:
+    """Read one image; a missing, truncated or non-image file, or one above ``max_megapixels``
+    (checked on the header, before decoding), raises a located InputError."""
     if not path.is_file():
         raise InputError("image file missing", path=str(path), frame=frame)
+    if max_megapixels is not None:
+        size = image_size(path)
+        if size == TOO_LARGE:
+            raise InputError(
+                f"the image header claims more pixels than can be read safely, above the source's max_megapixels {max_megapixels:g}; refused",
+                path=str(path),
+                frame=frame,
+            )
+        if size is not None and size[0] * size[1] > max_megapixels * 1e6:
+            raise InputError(
+                f"image is {size[0]}x{size[1]} ({size[0] * size[1] / 1e6:.1f} Mpx), above the source's max_megapixels "
+                f"{max_megapixels:g}; refused (raise max_megapixels to read it)",
+                path=str(path),
+                frame=frame,
+            )
     img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_UNCHANGED)
     if img is None or img.size == 0:
         raise InputError("cannot decode image (truncated or not an image file)", path=str(path), frame=frame)
@@ -67,6 +114,8 @@ def read_image(path: Path, frame: str, gray: bool = False) -> np.ndarray:
         raise InputError(f"expected an 8-bit image, got {img.dtype}", path=str(path), frame=frame)
     if img.ndim == 3 and img.shape[2] == 4:
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
+    if img.ndim == 3 and img.shape[2] == 2:
+        raise InputError("expected a grey or colour image, got 2 channels", path=str(path), frame=frame)
     return img
 
 
@@ -101,48 +150,152 @@ def check_monotonic(pairs: list[tuple[str, Path, Path]], folder: Path) -> None:
         prev = n
 
 
+def disparity_votes(left: np.ndarray, right: np.ndarray) -> tuple[int, int]:
+    """How many confidently matched patches of a pair lie at a positive and at a negative disparity.
+
+    Block matching by the sum of absolute differences on the lower 60 % of the (grey, halved) images,
+    shifts of up to an eighth of the width either way; a patch counts when it is textured and its
+    best shift, at least 2 px from 0, is clearly better than the best one of the other sign. A
+    rectified pair in the right order has (nearly) only positive ones; swapped images, negative ones.
+    """
+    def grey(img: np.ndarray) -> np.ndarray:
+        g = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+        g = g[int(0.4 * g.shape[0]) :]
+        while g.shape[1] > 700:
+            g = cv2.pyrDown(g)
+        return g.astype(np.float32)
+
+    lg, rg = grey(left), grey(right)
+    h, w = lg.shape
+    s_max = min(64, w // 8)
+    if h < 16 or s_max < 4:
+        return 0, 0
+    core = slice(s_max, w - s_max)
+    costs = []
+    for s in range(-s_max, s_max + 1):
+        diff = np.abs(lg[:, core] - rg[:, s_max - s : w - s_max - s])  # left(x) against right(x - s)
+        costs.append(cv2.boxFilter(diff, -1, (9, 9), normalize=True))
+    c = np.stack(costs)
+    shifts = np.arange(-s_max, s_max + 1)
+    pos, neg = c[shifts >= 2].min(axis=0), c[shifts <= -2].min(axis=0)
+    gx = cv2.boxFilter(np.abs(np.diff(lg, axis=1, append=lg[:, -1:]))[:, core], -1, (9, 9))
+    textured = gx > 4.0
+    n_pos = int((textured & (pos < 0.7 * neg) & (pos < 0.7 * c[s_max])).sum())
+    n_neg = int((textured & (neg < 0.7 * pos) & (neg < 0.7 * c[s_max])).sum())
+    return n_pos, n_neg
+
+
 class StereoSourceParams(NodeParams):
     """Params shared by the file-based stereo sources."""
 
-    path: str = Field("", description="input folder; empty: the --input path of the command line")
+    path: str = Field("", description="input folder; empty: the --input path of the command line (give one, not both)")
     frames: str = Field("", pattern=r"^(-?\d*(:-?\d*){0,2})?$", description="frame selection 'A:B' or 'A:B:S' (indices); empty: all")
+    max_megapixels: float = Field(8.0, gt=0.0, le=150.0, description="an image larger than this, megapixels, is refused (that frame fails) before it is decoded")
+    min_baseline_m: float = Field(0.05, gt=0.0, le=1000.0, description="smallest plausible stereo baseline, metres; a calibration outside the range is refused")
+    max_baseline_m: float = Field(2.0, gt=0.0, le=1000.0, description="largest plausible stereo baseline, metres")
+    check_order: bool = Field(True, description="refuse an input whose first readable pair matches at negative disparities (left and right swapped)")
+
+    @model_validator(mode="after")
+    def _baseline_range(self):
+        if self.min_baseline_m >= self.max_baseline_m:
+            raise ValueError(f"min_baseline_m ({self.min_baseline_m}) must be less than max_baseline_m ({self.max_baseline_m})")
+        return self
 
 
 class _PairSource:
     """Common machinery: a list of (stem, left, right) pairs and a calibration."""
 
     gray = False
+    #: where the calibration was read from, and field -> key names for its messages (set by discover())
+    calib_path: Path | None = None
+    calib_names: dict[str, str] = {}
 
     def __init__(self, params: StereoSourceParams, context: RunContext):
-        root = params.path or (str(context.input_path) if context.input_path else "")
+        self.params = params
+        given = str(context.input_path) if context.input_path else ""
+        if params.path and given and _resolved(params.path) != _resolved(given):
+            raise UsageError(
+                f"node '{context.node_id or 'src'}' params.path {params.path!r} and --input {given!r} both name the input; give one"
+            )
+        root = params.path or given
         if not root:
             raise InputError("no input: give the source's 'path' param or --input")
         self.root = Path(root)
         if not self.root.exists():
             raise InputError("input folder not found", path=str(self.root))
-        self.pairs, self.calib = self.discover()
-        n = len(self.pairs)
+        self.all_pairs, self.calib = self.discover()
         try:
-            self.pairs = self.pairs[parse_frames(params.frames) or slice(None)]
-            if context.frames is not None:
-                self.pairs = self.pairs[context.frames]
+            frames_param = parse_frames(params.frames)
         except ValueError as exc:  # a step of 0
             raise InputError(f"frame selection: {exc}", path=str(self.root)) from None
-        if n and not self.pairs and not context.extra.get("resume"):  # a resumed, finished run has none left
-            chosen = [f"the source's frames param {params.frames!r}"] if params.frames else []
-            if context.frames is not None:
-                chosen.append(f"--frames {_slice_text(context.frames)}")
-            raise InputError(
-                f"{' and '.join(chosen) or 'the frame selection'} select(s) no frame: the input has {n} frame(s), "
-                f"indices 0..{n - 1}",
-                path=str(self.root),
-            )
+        selections = [(f"the source's frames param {params.frames!r}", frames_param)]
+        if context.frames is not None:
+            selections.append((f"--frames {selection_text(context.frames)}", context.frames))
+        try:
+            selected = select_frames(self.all_pairs, selections, str(self.root))
+        except ValueError as exc:  # a step of 0
+            raise InputError(f"frame selection: {exc}", path=str(self.root)) from None
+        self.calib = self._checked_calibration(self.calib)
+        if params.check_order:
+            self._check_order(selected or self.all_pairs)
+        # a resumed run leaves out the frames its checkpoint has done (the executor checks the count)
+        self.skipped = min(max(int(context.skip), 0), len(selected))
+        self.pairs = selected[self.skipped :]
 
     def discover(self) -> tuple[list[tuple[str, Path, Path]], Calibration]:  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def _checked_calibration(self, calib: Calibration) -> Calibration:
+        """The calibration with the image size of the frames when it has none, checked for
+        plausibility (refused before any frame, naming the file and key)."""
+        first = next((s for s in (image_size(lp) for _, lp, _ in self.all_pairs[:5]) if s not in (None, TOO_LARGE)), None)
+        if not (calib.width and calib.height):
+            if first is not None:
+                calib = replace(calib, width=first[0], height=first[1])
+        elif first is not None and first != (calib.width, calib.height):
+            key = self.calib_names.get("width", "image size")
+            raise InputError(
+                f"{key}: the calibration is for {calib.width}x{calib.height} images, the frames are {first[0]}x{first[1]} "
+                f"({self.all_pairs[0][1].parent})",
+                path=str(self.calib_path or self.root),
+            )
+        rng = (self.params.min_baseline_m, self.params.max_baseline_m)
+        check_calibration(calib, self.calib_path or self.root, self.calib_names, rng)
+        return calib
+
+    def _check_order(self, pairs: list[tuple[str, Path, Path]]) -> None:
+        for stem, lp, rp in pairs[:3]:
+            try:
+                left = read_image(lp, stem, True, self.params.max_megapixels)
+                right = read_image(rp, stem, True, self.params.max_megapixels)
+            except InputError:
+                continue  # that frame reports itself when it is read
+            if left.shape != right.shape:
+                continue
+            pos, neg = disparity_votes(left, right)
+            if neg >= 200 and neg > 3 * pos:
+                raise InputError(
+                    f"left and right images look swapped: on frame {stem}, {neg} matched patches lie at a negative "
+                    f"disparity and {pos} at a positive one (the left camera's image must be the left one); "
+                    "set the source's check_order: false if this pair is right",
+                    path=str(lp.parent),
+                )
+            return
+
     def constants(self) -> dict:
         return {"calib": self.calib}
+
+    def identity(self) -> str:
+        """Digest of every input file the source reads (resolved path, size, mtime), its calibration
+        included: a resumed run must read the same input."""
+        parts = []
+        for path in [p for pair in self.all_pairs for p in pair[1:]] + ([self.calib_path] if self.calib_path else []):
+            try:
+                st = path.stat()
+                parts.append((str(path.resolve()), st.st_size, st.st_mtime_ns))
+            except OSError:
+                parts.append((str(path), None, None))
+        return digest(type(self).__name__, parts)
 
     def frame_key(self, frame: str) -> str | None:
         """Identity of a frame's input files (resolved path, size, mtime), for result caches."""
@@ -162,10 +315,11 @@ class _PairSource:
         return len(self.pairs)
 
     def __iter__(self):
+        mpx = self.params.max_megapixels
         for stem, lp, rp in self.pairs:
             try:
-                left = read_image(lp, stem, self.gray)
-                right = read_image(rp, stem, self.gray)
+                left = read_image(lp, stem, self.gray, mpx)
+                right = read_image(rp, stem, self.gray, mpx)
                 if left.shape[:2] != right.shape[:2]:
                     raise InputError(
                         f"left/right size mismatch: left {left.shape[1]}x{left.shape[0]}, right {right.shape[1]}x{right.shape[0]}",
@@ -182,6 +336,13 @@ class _PairSource:
                 yield exc
                 continue
             yield {"frame": stem, "left": left, "right": right}
+
+
+def _resolved(p: str) -> str:
+    try:
+        return str(Path(p).resolve())
+    except (OSError, RuntimeError):
+        return p
 
 
 class KittiRawParams(StereoSourceParams):
@@ -208,15 +369,19 @@ class KittiRawSource(_PairSource):
         self.gray = chosen == "gray"
         ld, rd, pl, pr = cams[chosen]
         calib_path = self.root.resolve().parent / "calib_cam_to_cam.txt"
+        self.calib_path, self.calib_names = calib_path, projection_names(pl, pr)
         rows = read_key_rows(calib_path)
         pairs = pair_files(self.root / ld / "data", self.root / rd / "data")
         check_monotonic(pairs, self.root / ld / "data")
-        calib = calibration_from_projections(projection(rows, pl, calib_path), projection(rows, pr, calib_path), calib_path)
+        calib = calibration_from_projections(projection(rows, pl, calib_path), projection(rows, pr, calib_path), calib_path, keys=(pl, pr))
         size_key = "S_rect_" + pl[-2:]
-        if size_key in rows and len(rows[size_key][1]) == 2:
-            w, h = (int(round(x)) for x in rows[size_key][1])
-        else:
-            w, h = 0, 0
+        w, h = 0, 0
+        if size_key in rows and rows[size_key][1]:
+            line, vals = rows[size_key]
+            if len(vals) != 2 or not all(np.isfinite(v) and v >= 1 and v == int(v) and v <= 100000 for v in vals):
+                raise InputError(f"line {line}: row {size_key!r}: expected the image width and height in pixels (two integers >= 1), got {vals}", path=str(calib_path))
+            w, h = (int(x) for x in vals)
+            self.calib_names = {**self.calib_names, "width": f"row {size_key!r}", "height": f"row {size_key!r}"}
         return pairs, replace(calib, width=w, height=h)
 
 
@@ -243,16 +408,17 @@ class KittiOdometrySource(_PairSource):
         self.gray = chosen == "gray"
         ld, rd, pl, pr = cams[chosen]
         calib_path = self.root / "calib.txt"
+        self.calib_path, self.calib_names = calib_path, projection_names(pl, pr)
         rows = read_key_rows(calib_path)
         pairs = pair_files(self.root / ld, self.root / rd)
         check_monotonic(pairs, self.root / ld)
-        return pairs, calibration_from_projections(projection(rows, pl, calib_path), projection(rows, pr, calib_path), calib_path)
+        return pairs, calibration_from_projections(projection(rows, pl, calib_path), projection(rows, pr, calib_path), calib_path, keys=(pl, pr))
 
 
 class FolderParams(StereoSourceParams):
     """Params of ``io.folder``."""
 
-    calib: str = Field("calib.yaml", description="calibration YAML (f, cx, cy, baseline), relative to the folder")
+    calib: str = Field("calib.yaml", min_length=1, description="calibration YAML (f, cx, cy, baseline), relative to the folder")
 
 
 @node_type("io.folder", source=True, outputs=STEREO_OUTPUTS)
@@ -264,7 +430,8 @@ class FolderSource(_PairSource):
         super().__init__(params, context)
 
     def discover(self):
-        calib = read_calibration_yaml(self.root / self.calib_name)
+        self.calib_path, self.calib_names = self.root / self.calib_name, YAML_NAMES
+        calib = read_calibration_yaml(self.calib_path)
         return pair_files(self.root / "left", self.root / "right"), calib
 
 

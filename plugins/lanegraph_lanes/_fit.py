@@ -181,12 +181,15 @@ def _poly4(c, x):
 
 
 @jit
-def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px):
+def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px, scale_of, prior):
     """:func:`irls_fit` by weighted normal equations in the scaled abscissa ``x = (t - mid) / half``
     (``x`` in [-1, 1]: well conditioned, unlike powers of ``t`` itself); ``degree <= 3``. Returns
-    ``(ok, coef, w)``, coefficients in ``t``, lowest power first; ``ok`` False when a system is
-    singular (the caller then uses the NumPy least-squares path). Converged when no point's fitted
-    value moves by more than ``tol_px``."""
+    ``(ok, coef, w)``, coefficients in ``t``, lowest power first, ``w`` the robust weights;
+    ``ok`` False when a system is singular (the caller then uses the NumPy least-squares path).
+    Converged when no point's fitted value moves by more than ``tol_px``. ``scale_of`` (one per
+    point, or empty: all 1) scales each residual before the robust weights and the sums of squares,
+    ``prior`` (one per point, or empty: all 1) weighs each point's square: the system's weights are
+    the robust weights times ``scale_of**2 * prior``."""
     n = t.size
     m = degree + 1
     lo = t.min()
@@ -205,7 +208,15 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px):
         for i in range(j + 1):
             T[i, j] = binom * (-mid) ** (j - i) / half**j
             binom = binom * (j - i) / (i + 1)
-    w = np.ones(n)
+    ks = np.ones(n)
+    if scale_of.size == n:
+        for i in range(n):
+            ks[i] = scale_of[i]
+    pw = np.ones(n)  # the fixed part of the system's weights
+    for i in range(n):
+        pw[i] = ks[i] * ks[i] * (prior[i] if prior.size == n else 1.0)
+    w = np.ones(n)  # the robust weights
+    sw = pw.copy()  # the system's weights
     coef = np.zeros(m)
     a = np.zeros(m)
     res = np.empty(n)
@@ -215,7 +226,7 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px):
         if it > 0:
             ca = _coeffs4(a)
             for i in range(n):
-                res[i] = y[i] - _poly4(ca, x[i])
+                res[i] = (y[i] - _poly4(ca, x[i])) * ks[i]
             med = np.median(res)
             for i in range(n):
                 dev[i] = abs(res[i] - med)
@@ -236,7 +247,9 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px):
                 wsum += w[i]
             if wsum < degree + 1:
                 break
-        _normal_equations(x, w, y, m, M)
+            for i in range(n):
+                sw[i] = w[i] * pw[i]
+        _normal_equations(x, sw, y, m, M)
         new_a = np.zeros(m)
         if not _solve_augmented(M, 1e-12 * max(1.0, abs(M[0, 0])), new_a):
             return False, coef, w
@@ -262,16 +275,26 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px):
 
 
 def irls_fit_lstsq(
-    t: np.ndarray, y: np.ndarray, degree: int = 2, iterations: int = 10, loss: str = "tukey", c: float | None = None, tol_px: float = 0.01
+    t: np.ndarray,
+    y: np.ndarray,
+    degree: int = 2,
+    iterations: int = 10,
+    loss: str = "tukey",
+    c: float | None = None,
+    tol_px: float = 0.01,
+    scale_of: np.ndarray | None = None,
+    prior: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`irls_fit` with ``np.linalg.lstsq`` solves (the reference; used when a normal-equation
     system of the kernel is singular)."""
     A = _design(t, degree)
+    ks = np.ones_like(y) if scale_of is None or np.size(scale_of) != np.size(y) else np.asarray(scale_of, dtype=np.float64)
+    pw = ks * ks * (1.0 if prior is None or np.size(prior) != np.size(y) else np.asarray(prior, dtype=np.float64))
     w = np.ones_like(y)
-    coef = _wls(A, y, w)
+    coef = _wls(A, y, pw)
     k = c if c is not None else (4.685 if loss == "tukey" else 1.345)
     for _ in range(iterations):
-        res = y - A @ coef
+        res = (y - A @ coef) * ks
         scale = 1.4826 * np.median(np.abs(res - np.median(res)))
         scale = max(scale, 0.5)  # BEV pixels: never trust sub-half-pixel residual scales
         u = res / (k * scale)
@@ -282,7 +305,7 @@ def irls_fit_lstsq(
             w = np.where(au <= 1, 1.0, 1.0 / np.maximum(au, 1e-12))
         if w.sum() < degree + 1:
             break
-        new = _wls(A, y, w)
+        new = _wls(A, y, w * pw)
         moved = np.abs(A @ (new - coef)).max()
         coef = new
         if moved <= tol_px:
@@ -291,30 +314,46 @@ def irls_fit_lstsq(
 
 
 def irls_fit(
-    t: np.ndarray, y: np.ndarray, degree: int = 2, iterations: int = 10, loss: str = "tukey", c: float | None = None, tol_px: float = 0.01
+    t: np.ndarray,
+    y: np.ndarray,
+    degree: int = 2,
+    iterations: int = 10,
+    loss: str = "tukey",
+    c: float | None = None,
+    tol_px: float = 0.01,
+    scale_of: np.ndarray | None = None,
+    prior: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Robust polynomial fit by iteratively reweighted least squares, until no fitted value moves
     by more than ``tol_px`` (or ``iterations`` reweightings).
 
-    Returns (coefficients, lowest order first; final weights in [0, 1]).
+    ``scale_of`` (one positive factor per point, optional) measures each residual in other units
+    before the robust weights and the sum of squares; ``prior`` (optional) weighs each point's
+    square. With the image pixels per BEV pixel at each point's distance as ``scale_of`` and the
+    image rows per BEV row as ``prior``, the fit minimises the lateral error as the image shows it,
+    row by image row (near points count more), instead of the error in the BEV.
+
+    Returns (coefficients, lowest order first; final robust weights in [0, 1]).
     """
     t = np.ascontiguousarray(t, dtype=np.float64)
     y = np.ascontiguousarray(y, dtype=np.float64)
+    ks = np.empty(0) if scale_of is None else np.ascontiguousarray(scale_of, dtype=np.float64)
+    pr = np.empty(0) if prior is None else np.ascontiguousarray(prior, dtype=np.float64)
     k = c if c is not None else (4.685 if loss == "tukey" else 1.345)
     if t.size >= degree + 1 and degree <= 3:  # the kernel's power sums stop at x^6
-        ok, coef, w = _irls_kernel(t, y, int(degree), int(iterations), loss == "tukey", float(k), float(tol_px))
+        ok, coef, w = _irls_kernel(t, y, int(degree), int(iterations), loss == "tukey", float(k), float(tol_px), ks, pr)
         if ok:
             return coef, w
-    return irls_fit_lstsq(t, y, degree, iterations, loss, c, tol_px)
+    return irls_fit_lstsq(t, y, degree, iterations, loss, c, tol_px, scale_of, prior)
 
 
 @jit
-def _ransac_kernel(t, y, samples, inlier_px):
+def _ransac_kernel(t, y, samples, tol):
     """The consensus of every minimal sample (rows of ``samples``: ``m = degree + 1`` point indices):
     the polynomial through the sample (a Vandermonde system in the scaled abscissa
-    ``(t - mid) / half``) and the number of points within ``inlier_px`` of it. Samples with repeated
-    abscissae or a singular system are skipped. Returns the inlier mask of the first sample with the
-    most inliers (all False when none was usable)."""
+    ``(t - mid) / half``) and the number of points within their own ``tol`` (one per point) of it.
+    Samples with repeated abscissae or a singular system are skipped. Returns the inlier mask of the
+    first sample with the most inliers (all False when none was usable)."""
     n = t.size
     n_samples, m = samples.shape
     inl = np.zeros(n, np.bool_)
@@ -352,17 +391,17 @@ def _ransac_kernel(t, y, samples, inlier_px):
         if m <= 4:  # scalar coefficients: the count vectorises
             ca = _coeffs4(a)
             for i in range(n):
-                count += abs(_poly4(ca, x[i]) - y[i]) <= inlier_px
+                count += abs(_poly4(ca, x[i]) - y[i]) <= tol[i]
         else:
             for i in range(n):
-                count += abs(_poly(a, x[i]) - y[i]) <= inlier_px
+                count += abs(_poly(a, x[i]) - y[i]) <= tol[i]
         if count > best:
             best = count
             best_a[:] = a
     if best < 0:
         return inl
     for i in range(n):
-        inl[i] = abs(_poly(best_a, x[i]) - y[i]) <= inlier_px
+        inl[i] = abs(_poly(best_a, x[i]) - y[i]) <= tol[i]
     return inl
 
 
@@ -381,21 +420,34 @@ def ransac_samples(n: int, m: int, iterations: int, seed: int = 0) -> np.ndarray
     return samples
 
 
-def ransac_fit(t: np.ndarray, y: np.ndarray, degree: int = 2, iterations: int = 200, inlier_px: float = 3.0, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def ransac_fit(
+    t: np.ndarray,
+    y: np.ndarray,
+    degree: int = 2,
+    iterations: int = 200,
+    inlier_px: float = 3.0,
+    seed: int = 0,
+    scale_of: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """RANSAC polynomial fit; returns (coefficients, inlier weights 0/1). The minimal samples are
-    scored by :func:`_ransac_kernel`; then least squares on the best consensus set, re-selected once."""
+    scored by :func:`_ransac_kernel`; then least squares on the best consensus set, re-selected once.
+    ``scale_of`` (optional, one per point) measures the residuals in other units, as
+    :func:`irls_fit`'s: a point is an inlier within ``inlier_px`` of those, and the least squares
+    weigh each point's square by ``scale_of**2``."""
     t = np.ascontiguousarray(t, dtype=np.float64)
     y = np.ascontiguousarray(y, dtype=np.float64)
     n = t.size
     m = degree + 1
+    ks = np.ones(n) if scale_of is None else np.asarray(scale_of, dtype=np.float64)
+    tol = np.ascontiguousarray(inlier_px / ks)
     A = _design(t, degree)
-    best_in = _ransac_kernel(t, y, ransac_samples(n, m, iterations, seed), float(inlier_px)) if n >= m else np.zeros(n, bool)
+    best_in = _ransac_kernel(t, y, ransac_samples(n, m, iterations, seed), tol) if n >= m else np.zeros(n, bool)
     if best_in.sum() < m:
         best_in = np.ones(n, bool)
-    coef, *_ = np.linalg.lstsq(A[best_in], y[best_in], rcond=None)
-    inl = np.abs(A @ coef - y) <= inlier_px
+    coef, *_ = np.linalg.lstsq(A[best_in] * ks[best_in, None], y[best_in] * ks[best_in], rcond=None)
+    inl = np.abs(A @ coef - y) <= tol
     if inl.sum() >= m:
-        coef, *_ = np.linalg.lstsq(A[inl], y[inl], rcond=None)
+        coef, *_ = np.linalg.lstsq(A[inl] * ks[inl, None], y[inl] * ks[inl], rcond=None)
     return coef, inl.astype(np.float64)
 
 
@@ -423,6 +475,32 @@ class FitParams(NodeParams):
         "in a lane change), and then the other side's up to track_max_lane_width_m from it (as hough.lane_change)",
     )
     track_max_lane_width_m: float = Field(4.6, gt=0.0, le=20.0, description="lane change: widest plausible lane (as hough.max_lane_width_m), metres")
+    near_fit_m: float | None = Field(
+        None,
+        gt=0.0,
+        le=1000.0,
+        description="a line seen continuously nearer than this (its features on near_fit_coverage of those BEV rows: a "
+        "solid line) is fitted there only, metres: a parabola is a constant curvature, a road's changes (a clothoid "
+        "entering a bend), and the near part is what the image shows largest. A dashed line's few near dashes "
+        "would bend the parabola: it is fitted over the whole BEV. null: always the whole BEV (the paper)",
+    )
+    near_fit_coverage: float = Field(
+        0.7, gt=0.0, le=1.0, description="near_fit_m: the fraction of the near BEV rows the ROI's features must cover (unitless)"
+    )
+    residuals: Literal["bev", "image"] = Field(
+        "bev",
+        description="'image': residuals measured as the image shows them (times the image pixels per BEV pixel at "
+        "the point's distance, z_min / z): near features, where a BEV pixel spans many image pixels, weigh more; "
+        "'bev': plain BEV pixels (the paper)",
+    )
+    distance_weight: float = Field(
+        1.0,
+        ge=0.0,
+        le=4.0,
+        description="'image' residuals: each feature also weighs (z_min / z) to this power (unitless; 0: the image's "
+        "pixels across only; 2: every image row equally, as the lane metric counts them, which lets the nearest "
+        "dash alone bend a parabola: 1 is the compromise)",
+    )
 
 
 class IrlsParams(FitParams):
@@ -438,7 +516,7 @@ class IrlsParams(FitParams):
 class RansacParams(FitParams):
     """Params of ``fit.ransac``."""
 
-    iterations: int = Field(200, ge=1, le=100000, description="random minimal samples")
+    iterations: int = Field(200, ge=1, le=2000, description="random minimal samples")
     inlier_px: float = Field(3.0, gt=0.0, le=100.0, description="inlier distance, BEV pixels")
     seed: int = Field(0, ge=0, le=2**31 - 1, description="random seed (runs are deterministic)")
 
@@ -502,14 +580,26 @@ def _plausible_tracked(lateral: float, others: list[float], p: FitParams) -> boo
     return any(abs(o) < p.track_min_offset_m and o * lateral < 0 and abs(lateral - o) <= p.track_max_lane_width_m for o in others)
 
 
+def _near_fit(t: np.ndarray, y: np.ndarray, t_near: float, coverage: float) -> tuple[np.ndarray, np.ndarray]:
+    """The ROI points ``(t, y)`` to fit: those below BEV row height ``t_near`` when they cover at
+    least ``coverage`` of those rows (a line seen continuously there), else all of them."""
+    if not t.size or not math.isfinite(t_near) or t.max() < t_near:
+        return t, y
+    keep = t < t_near
+    if np.unique(t[keep]).size < coverage * t_near:
+        return t, y
+    return t[keep], y[keep]
+
+
 def _fit_lanes(
     features: FeatureMap, lines: list[Line], geometry: BevGeometry, p: FitParams, fitter, previous: list[Lane] | None = None
 ) -> list[Lane]:
     rows = features.mask.shape[0]
     res = geometry.resolution
     lanes = []
+    t_near = math.inf if p.near_fit_m is None else (p.near_fit_m - geometry.z_min) / res
     for line in lines or []:
-        t, y = roi_points(features, line, p.roi_width)
+        t, y = _near_fit(*roi_points(features, line, p.roi_width), t_near, p.near_fit_coverage)
         lane = _fit_roi(t, y, line.side, rows, res, p, fitter)
         if lane is not None:
             lanes.append(lane)
@@ -520,7 +610,7 @@ def _fit_lanes(
     for prev in previous or []:
         if prev.side in found or prev.side not in ("left", "right") or prev.score < p.track_min_score:
             continue
-        t, y = lane_roi_points(features, prev, p.roi_width)
+        t, y = _near_fit(*lane_roi_points(features, prev, p.roi_width), t_near, p.near_fit_coverage)
         lane = _fit_roi(t, y, prev.side, rows, res, p, fitter, {"tracked": True}, shape=(float(prev.coeffs[1]), float(prev.coeffs[2])))
         if lane is None:
             continue
@@ -542,6 +632,18 @@ def _fit_lanes(
     return lanes
 
 
+def _residual_scale(t: np.ndarray, geometry: BevGeometry, p: FitParams) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The fitters' ``scale_of`` and ``prior`` for the ROI points at ``t`` (BEV rows above the bottom
+    one): ``residuals: bev``, none; ``image``: the image pixels a BEV pixel spans across at the
+    point's distance, ``f res / z``, relative to the nearest row's (``z_min / z``: the units
+    cancel), and that to the power ``distance_weight`` as the prior."""
+    if p.residuals == "bev":
+        return None, None
+    z_near = max(geometry.z_min, geometry.resolution)
+    k = z_near / (geometry.z_min + (np.asarray(t, dtype=np.float64) + 0.5) * geometry.resolution)
+    return k, (k**p.distance_weight if p.distance_weight else None)
+
+
 _FIT_INPUTS = {
     "features": "features",
     "lines": "lines",
@@ -555,7 +657,8 @@ def fit_irls(params: IrlsParams, features: FeatureMap, lines: list[Line], geomet
     """Parabola through the features of a 40 px ROI around each line, by robust IRLS (Tukey or Huber)."""
 
     def fitter(t, y, degree):
-        return irls_fit(t, y, degree, params.iterations, params.loss, tol_px=params.tolerance_px)
+        k, prior = _residual_scale(t, geometry, params)
+        return irls_fit(t, y, degree, params.iterations, params.loss, tol_px=params.tolerance_px, scale_of=k, prior=prior)
 
     return {"lanes": _fit_lanes(features, lines, geometry, params, fitter, previous)}
 
@@ -565,5 +668,8 @@ def fit_ransac(params: RansacParams, features: FeatureMap, lines: list[Line], ge
     """Parabola through the features of a 40 px ROI around each line, by RANSAC plus a least-squares refit."""
 
     def fitter(t, y, degree):
-        return ransac_fit(t, y, degree, params.iterations, params.inlier_px, params.seed)
+        k, prior = _residual_scale(t, geometry, params)
+        if prior is not None:
+            k = k * np.sqrt(prior)  # the weight of each square: k^2 prior
+        return ransac_fit(t, y, degree, params.iterations, params.inlier_px, params.seed, scale_of=k)
     return {"lanes": _fit_lanes(features, lines, geometry, params, fitter, previous)}

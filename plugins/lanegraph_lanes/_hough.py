@@ -28,7 +28,7 @@ import math
 from typing import Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from lanegraph import InputError, NodeParams, Port, node_type
 from lanegraph._numba import jit, prange
@@ -116,7 +116,7 @@ def find_peaks(acc: np.ndarray, min_separation: int, min_value: float = 0.0) -> 
 class OrientationParams(NodeParams):
     """Params of ``lanes.orientation``."""
 
-    bin_deg: float = Field(1.0, gt=0.0, le=10.0, description="histogram bin width, degrees")
+    bin_deg: float = Field(1.0, ge=0.01, le=10.0, description="histogram bin width, degrees")
     smooth_bins: float = Field(1.5, ge=0.0, le=20.0, description="Gaussian smoothing of the histogram, bins")
     max_deviation_deg: float = Field(35.0, gt=0.0, le=90.0, description="only orientations within this of straight ahead (90 deg) count, degrees")
     default_deg: float = Field(90.0, ge=1.0, le=179.0, description="orientation when there are no oriented features (SLT), degrees")
@@ -268,7 +268,15 @@ class Hough2dParams(HoughParams):
     """Params of ``hough.line2d``."""
 
     theta_range_deg: float = Field(30.0, gt=0.0, le=89.0, description="thetas searched: 90 deg +- this, degrees")
-    theta_step_deg: float = Field(0.5, gt=0.0, le=10.0, description="theta resolution, degrees")
+    theta_step_deg: float = Field(0.5, ge=0.05, le=10.0, description="theta resolution, degrees (at most 600 thetas)")
+
+    @model_validator(mode="after")
+    def _thetas_bounded(self):
+        # the accumulator and the voting grow with the number of thetas: at most 5x the default's 121
+        n = 2 * self.theta_range_deg / self.theta_step_deg + 1
+        if n > 600:
+            raise ValueError(f"2 * theta_range_deg / theta_step_deg + 1 = {n:.0f} thetas, more than 600; raise theta_step_deg")
+        return self
 
 
 @node_type(

@@ -138,7 +138,7 @@ def image_points(lane: Lane, geometry: BevGeometry, width: int | None = None, he
 class ToImageParams(NodeParams):
     """Params of ``lanes.to_image``."""
 
-    row_step: float = Field(5.0, gt=0.0, le=10.0, description="spacing of the output points, image rows (at most 10)")
+    row_step: float = Field(5.0, ge=0.1, le=10.0, description="spacing of the output points, image rows (0.1 to 10)")
 
 
 @node_type(

@@ -1,33 +1,39 @@
-"""``lanes.verify``: keep only lanes that look like paint on a road surface.
+"""``lanes.verify``: keep only lanes that look like paint on a road.
 
-Deviation from the paper (documented in graphs/paper.yaml): on real roads a kerb, a rail or the
-edge of a gravel track bed is a bright, straight, parallel-bordered ridge that passes SLT/ESLT and
-the Hough transform like a painted line. What tells them apart is the surface on both sides: a
-painted line lies on asphalt, which is smooth at the BEV scale, while beyond a kerb or rail there
-is gravel, grass or pavement texture. For every lane, on each side, a band of the BEV image from
-``gap_px`` to ``band_px`` away from the lane is taken; the texture of the intensity is measured per
-row, and the ``row_quantile`` of the rows (by default the rougher quarter: far rows, which the BEV
-interpolates, and shadows smooth gravel that the near rows resolve) is the side's *texture*. A lane
-whose rougher side exceeds ``max_texture`` is dropped.
+Deviation from the paper (documented in graphs/paper.yaml): on real roads a kerb's lit edge, the
+border of the asphalt against a darker verge, a light concrete gutter or a rail passes SLT/ESLT and
+the Hough transform like a painted line. What tells paint apart is its own cross profile, which
+carries from one road to the next (the paint check, ``paint_check``, :func:`paint_cues`): on the
+lane's rows nearer than ``max_distance_m`` (where the BEV resolves paint), each row's strip across
+the lane (``paint_band_m`` each side; its centre moved to the brightest pixel within ``align_m`` of
+the fitted lane) is divided by the level of its brighter side band (the median from ``paint_gap_m``
+to ``paint_band_m``), so that every measure is relative and an exposure or a shadow changes none of
+them. A row is *painted* when its centre stands ``min_row_contrast`` above that level. A lane is
+paint when
 
-The measure (``measure``) is by default the median absolute difference of neighbouring pixels
-across the band: gravel or grass raise most of the differences, while a few sharp edges in a
-smooth band raise none of the median — the face of a kerb 0.5 m beside a line, the bars of a
-hatching, the border of a shadow. The mean absolute difference (``"diff"``) lets such edges count,
-and the lateral standard deviation (``"std"``) also a smooth shadow.
+- it has ``min_painted_rows`` painted rows;
+- their median contrast reaches ``min_paint_contrast`` (or most of them are clipped at the image's
+  largest grey level: an overexposed frame shows paint darker than it is): paint is bright against
+  the road on both sides, while a kerb's lit edge or the road's border against a darker verge barely stands above
+  the brighter side (on KITTI drive 0001 the kerb beside the tram tracks measures 0.16-0.33, its
+  painted lines 0.39-1.0, the highway's lines 0.65-1.6);
+- their mean profile is at least ``min_width_m`` wide at half its height (the narrowest marking is
+  10 cm; a kerb's lit edge measures 5-7 cm) and at most ``max_foot_width_m`` wide at a quarter of
+  its height (paint is at most 30 cm wide with sharp edges; a light concrete gutter between the
+  asphalt and a paved strip measures 46-85 cm there, painted lines 16-27 cm);
+- road lies on both sides: a side darker than ``min_side_ratio`` of the other (the gravel beside a
+  kerb measures 0.47-0.58 on KITTI drive 0001, painted lines 0.85-1.0) must be smooth, at most
+  ``max_dark_side_texture`` (the texture check's measure, below): a shadow cast along a line darkens
+  one side as much as gravel does (0.6-0.7 in the synthetic heavy shadows) but leaves it smooth
+  (texture 3-8, gravel 15-17).
 
-Texture is contrast, and contrast scales with the exposure: the same gravel measures half as much
-in a frame exposed half as bright. With ``brightness="relative"`` (the default) the textures, and
-the crossing check's ``min_contrast``, are stated for a road whose level — the ``level_quantile``
-of the grey levels on the BEV road mask (:func:`road_level`), the sunlit asphalt rather than its
-shadows or paint — is ``reference_level``; the measured values are scaled by ``reference_level``
-over the frame's level. On KITTI drive 0001 (road level 120-190), at exposures from 0.35 to 1.2
-times the recorded one, the painted lines measure 2.6-6.4 and the kerbs and rails that reach this
-node at least 14.8; on the synthetic scenes (road level about 100) painted lines 0.5 m from a 13 cm
-kerb measure up to 11.9 and lines in sensor noise of 8 grey levels up to 9.4 (default threshold
-13.3, between 11.9 and 14.8). With the absolute grey levels, the mean difference, the median row
-and threshold 12, the drive exposed at 0.7 times lost a quarter of its frames to the kerb beside
-the tram tracks.
+The texture check of earlier versions (``max_texture``: the roughness of the surface beside a line,
+gravel or grass against asphalt) is kept as an option, off by default: grass beside a highway's edge
+line measures as rough as the gravel beside a tram line's kerb, so texture cannot tell them apart.
+It measures, per row, the median absolute difference of neighbouring pixels across a side band
+(``measure``: or their mean, or the lateral standard deviation) from ``gap_px`` to ``band_px``, the
+``row_quantile`` of the rows, in the grey levels of a road whose level is ``reference_level``
+(``brightness: relative``).
 
 A pedestrian crossing's bars (0.4-0.6 m wide, about 1 m apart, 3-4 m long along the road) are
 parallel-bordered ridges too, on smooth asphalt, and a bar with the road's noise features below it
@@ -43,6 +49,7 @@ pavement beyond a kerb is one wide bright region, not a bar. ``crossing_check`` 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
@@ -50,7 +57,7 @@ from pydantic import Field, model_validator
 
 from lanegraph import InputError, NodeParams, Port, node_type
 from lanegraph._numba import jit
-from lanegraph.types import Lane
+from lanegraph.types import BevGeometry, Lane
 
 #: the texture measures, as the kernels number them
 _MEASURES = {"std": 0, "diff": 1, "mdiff": 2}
@@ -249,16 +256,202 @@ def side_texture(
     return float(left), float(right)
 
 
+@jit
+def _paint_rows_kernel(img, r0, r1, c0, c1, c2, band_px, gap_px, align_px, min_row_contrast, sat_level, hist, profile, contrast, ratio):
+    """The painted rows of the lane ``col = c0 + c1 t + c2 t^2`` (``t = rows - 1 - row``) over the rows
+    ``r0 .. r1``, for :func:`paint_cues`. Per row: the lane's column rounded, moved to the brightest
+    pixel within ``align_px`` (a fit is a pixel or two off the paint); the strip of columns
+    ``-band_px .. band_px`` around it, skipped when it leaves the image or holds a 0 (outside the
+    camera's view); the side levels ``L``, ``R``: the medians of the columns ``-band_px .. -gap_px``
+    and ``gap_px .. band_px`` (``hist``: see :func:`_small_median`). A row is painted when its centre
+    is ``min_row_contrast`` (relative) brighter than the brighter side: then the strip divided by
+    that side's level is added to ``profile`` (``2 band_px + 1`` values, zeroed by the caller), and
+    ``contrast[k]`` = centre / brighter side - 1 and ``ratio[k]`` = darker side / brighter side are
+    written for the ``k``-th painted row. Returns ``(strips inside the image, painted rows, painted
+    rows whose centre is at ``sat_level`` or above: saturated)``."""
+    rows, cols = img.shape
+    w = 2 * band_px + 1
+    ns = band_px - gap_px + 1
+    side = np.empty(ns, np.float64)
+    inside = 0
+    painted = 0
+    saturated = 0
+    for r in range(max(r0, 0), min(r1, rows - 1) + 1):
+        t = rows - 1 - r
+        ce = int(np.rint(c0 + c1 * t + c2 * t * t))
+        if ce - band_px - align_px < 0 or ce + band_px + align_px >= cols:
+            continue
+        best = ce - align_px  # the first brightest, from the left
+        for c in range(ce - align_px + 1, ce + align_px + 1):
+            if img[r, c] > img[r, best]:
+                best = c
+        a = best - band_px
+        dark = False
+        for j in range(w):
+            if img[r, a + j] == 0:
+                dark = True
+                break
+        if dark:
+            continue
+        inside += 1
+        for j in range(ns):
+            side[j] = img[r, a + j]
+        left = _small_median(side, ns, hist)
+        for j in range(ns):
+            side[j] = img[r, best + gap_px + j]
+        right = _small_median(side, ns, hist)
+        hi = max(left, right)
+        if hi <= 0.0:
+            continue
+        c_rel = img[r, best] / hi - 1.0
+        if c_rel < min_row_contrast:
+            continue
+        inv = 1.0 / hi
+        for j in range(w):
+            profile[j] += img[r, a + j] * inv
+        contrast[painted] = c_rel
+        ratio[painted] = min(left, right) * inv
+        painted += 1
+        if img[r, best] >= sat_level:
+            saturated += 1
+    return inside, painted, saturated
+
+
+def _crossing_width(profile: np.ndarray, centre: int, level: float) -> float:
+    """Width (pixels, sub-pixel) of the run of ``profile`` at or above ``level`` around ``centre``
+    (linear interpolation at both ends; a run reaching the profile's end ends there)."""
+    n = profile.size
+    a = centre
+    while a > 0 and profile[a - 1] >= level:
+        a -= 1
+    b = centre
+    while b < n - 1 and profile[b + 1] >= level:
+        b += 1
+    left = a - (profile[a] - level) / (profile[a] - profile[a - 1]) if a > 0 and profile[a] > profile[a - 1] else float(a)
+    right = b + (profile[b] - level) / (profile[b] - profile[b + 1]) if b < n - 1 and profile[b] > profile[b + 1] else float(b)
+    return float(right - left)
+
+
+@dataclass(frozen=True)
+class PaintCues:
+    """What :func:`paint_cues` measures of a lane (see the module docstring). Widths in metres;
+    ``contrast`` and ``side_ratio`` relative (unitless); NaN where fewer than ``min_rows`` painted
+    rows were found."""
+
+    rows: int  # strips inside the image, within max_distance_m
+    painted: int  # painted rows among them
+    saturated: int  # painted rows whose centre is at the image's largest grey level (clipped)
+    contrast: float  # median over the painted rows of centre / brighter side - 1
+    side_ratio: float  # median over the painted rows of darker side / brighter side
+    width_m: float  # full width at half the mean profile's height
+    foot_width_m: float  # full width at a quarter of its height
+
+
+def paint_cues(
+    image: np.ndarray,
+    lane: Lane,
+    geometry: BevGeometry,
+    *,
+    max_distance_m: float = 25.0,
+    band_m: float = 1.5,
+    gap_m: float = 0.25,
+    align_m: float = 0.1,
+    min_row_contrast: float = 0.15,
+    min_rows: int = 10,
+) -> PaintCues:
+    """The cross profile of ``lane`` in the grey BEV ``image``, on its rows nearer than
+    ``max_distance_m``: its painted rows (:func:`_paint_rows_kernel`: the centre ``min_row_contrast``
+    brighter than the brighter side band, ``gap_m .. band_m`` away), their median contrast and side
+    ratio, and the widths of their mean profile (each row divided by its brighter side's level) at
+    half and a quarter of its height above its base (the brighter of the profile's two side levels)."""
+    img, r0, r1 = _lane_rows_in(image, lane)
+    res = float(geometry.resolution)
+    near = int(math.floor(geometry.metric_to_bev(0.0, max_distance_m)[1]))
+    r0 = max(r0, near)
+    band = max(int(round(band_m / res)), 2)
+    gap = min(max(int(round(gap_m / res)), 1), band - 1)
+    align = max(int(round(align_m / res)), 0)
+    c0, c1, c2 = (float(c) for c in lane.coeffs)
+    n = max(r1 - r0 + 1, 0)
+    profile = np.zeros(2 * band + 1)
+    contrast = np.empty(n)
+    ratio = np.empty(n)
+    sat = float(np.iinfo(img.dtype).max) if img.dtype.kind in "ui" else math.inf
+    inside, painted, saturated = _paint_rows_kernel(
+        img, r0, r1, c0, c1, c2, band, gap, align, float(min_row_contrast), sat, _median_hist(img), profile, contrast, ratio
+    )
+    nan = float("nan")
+    if painted < max(min_rows, 1):
+        return PaintCues(int(inside), int(painted), int(saturated), nan, nan, nan, nan)
+    profile /= painted
+    base = max(float(np.median(profile[: band - gap + 1])), float(np.median(profile[band + gap :])))
+    height = profile[band] - base
+    if height <= 0.0:
+        return PaintCues(int(inside), int(painted), int(saturated), float(np.median(contrast[:painted])), float(np.median(ratio[:painted])), nan, nan)
+    return PaintCues(
+        int(inside),
+        int(painted),
+        int(saturated),
+        float(np.median(contrast[:painted])),
+        float(np.median(ratio[:painted])),
+        _crossing_width(profile, band, base + 0.5 * height) * res,
+        _crossing_width(profile, band, base + 0.25 * height) * res,
+    )
+
+
 class VerifyParams(NodeParams):
     """Params of ``lanes.verify``."""
 
-    gap_px: int = Field(6, ge=0, le=200, description="start of the side bands, BEV pixels from the lane")
-    band_px: int = Field(30, ge=2, le=400, description="end of the side bands, BEV pixels from the lane")
-    max_texture: float = Field(
-        13.3,
+    paint_check: bool = Field(True, description="drop a lane whose cross profile is not paint's (see the paint cues below)")
+    max_distance_m: float = Field(25.0, gt=0.0, le=500.0, description="paint check: the rows nearer than this are measured (where the BEV resolves paint), metres")
+    paint_band_m: float = Field(1.5, ge=0.1, le=10.0, description="paint check: the side bands reach this far from the lane, metres")
+    paint_gap_m: float = Field(0.25, ge=0.05, le=5.0, description="paint check: the side bands start this far from the lane (beyond the widest paint's half), metres")
+    align_m: float = Field(0.1, ge=0.0, le=1.0, description="paint check: each row's centre is the brightest pixel within this of the fitted lane, metres")
+    min_row_contrast: float = Field(
+        0.15, ge=0.0, le=10.0, description="paint check: a row is painted when its centre is this much brighter than the brighter side band (relative: 0.15 = 15 %)"
+    )
+    min_painted_rows: int = Field(10, ge=1, le=100000, description="paint check: fewer painted rows than this and the lane is not paint")
+    min_paint_contrast: float = Field(
+        0.3,
+        ge=0.0,
+        le=10.0,
+        description="paint check: the painted rows' median contrast over the brighter side (relative): paint is "
+        "bright against the road on both sides; the edge of a road beside a darker verge or a kerb's lit face barely is",
+    )
+    min_width_m: float = Field(
+        0.09, ge=0.0, le=2.0, description="paint check: narrowest mean profile at half height, metres (the narrowest marking is 10 cm; a kerb's lit edge is narrower)"
+    )
+    max_foot_width_m: float = Field(
+        0.36,
+        gt=0.0,
+        le=5.0,
+        description="paint check: widest mean profile at a quarter of its height, metres (paint is at most 30 cm wide with "
+        "sharp edges, blurred by about a BEV pixel; a concrete gutter is a wider band with soft edges)",
+    )
+    min_side_ratio: float = Field(
+        0.75,
+        ge=0.0,
+        le=1.0,
+        description="paint check: paint lies on road on both sides; a side whose level (the painted rows' median, over "
+        "the brighter side's) is below this fraction is road only when it is smooth (max_dark_side_texture): a "
+        "shadow cast along the line, not the gravel beyond a kerb (unitless; 0: not checked)",
+    )
+    max_dark_side_texture: float = Field(
+        11.0,
         gt=0.0,
         le=255.0,
-        description="largest texture on either side, grey levels (see measure and brightness; about 12 suits 'diff', 18 'std')",
+        description="paint check: the roughest a much darker side may be (the texture check's measure over gap_px .. "
+        "band_px, in the grey levels of a road at reference_level): shadowed asphalt measures about 3-8, the gravel "
+        "beside a kerb 15-17",
+    )
+    gap_px: int = Field(6, ge=0, le=200, description="texture check: start of the side bands, BEV pixels from the lane")
+    band_px: int = Field(30, ge=2, le=400, description="texture check: end of the side bands, BEV pixels from the lane")
+    max_texture: float | None = Field(
+        None,
+        gt=0.0,
+        le=255.0,
+        description="texture check: largest texture on either side, grey levels (see measure and brightness; 13.3 was "
+        "the default before the paint check; about 12 suits 'diff', 18 'std'); null: no texture check",
     )
     crossing_check: bool = Field(True, description="drop a lane with parallel bars beside it that repeat its spacing (a pedestrian crossing's bar, not a lane line)")
     crossing_band_px: int = Field(50, ge=4, le=400, description="crossing check: how far each side bars are looked for, BEV pixels (50: 2.5 m at 5 cm; a crossing's bars are about 1 m apart; a ridge cut off at the band's end counts as wide)")
@@ -462,12 +655,13 @@ def road_level(image: np.ndarray, mask: np.ndarray | None, quantile: float) -> f
     inputs={
         "lanes": "lanes",
         "image": Port("bev_image", "the BEV image the lanes were found in"),
+        "geometry": Port("bev_geometry", "the BEV grid: its resolution and distances"),
         "mask": Port("bev_mask", "the BEV road mask: its pixels set the road level (brightness 'relative'; default: the BEV inside the image)", optional=True),
     },
     outputs={"lanes": "lanes"},
 )
-def verify(params: VerifyParams, lanes: list[Lane], image: np.ndarray, mask: np.ndarray | None = None) -> dict:
-    """Drop lanes that lie next to a textured surface (a kerb or rail beside gravel or grass) or among a crossing's bars, not paint on asphalt."""
+def verify(params: VerifyParams, lanes: list[Lane], image: np.ndarray, geometry: BevGeometry, mask: np.ndarray | None = None) -> dict:
+    """Keep the lanes that look like paint on a road: a bright stripe of paint width with road of like brightness on both sides, not among a crossing's bars (optionally: no textured surface beside it)."""
     if not lanes:
         return {"lanes": []}
     image = _grey_bev(image)  # before the road level reads the mask: a wrong image is the image's fault
@@ -478,14 +672,55 @@ def verify(params: VerifyParams, lanes: list[Lane], image: np.ndarray, mask: np.
             gain = params.reference_level / level
     kept = []
     for ln in lanes:
-        left, right = side_texture(image, ln, params.gap_px, params.band_px, params.measure, params.row_quantile)
-        left, right = left * gain, right * gain
-        if max(left, right) > params.max_texture:
-            continue
+        extra = dict(ln.extra)
+        if params.paint_check:
+            cues = paint_cues(
+                image,
+                ln,
+                geometry,
+                max_distance_m=params.max_distance_m,
+                band_m=params.paint_band_m,
+                gap_m=params.paint_gap_m,
+                align_m=params.align_m,
+                min_row_contrast=params.min_row_contrast,
+                min_rows=params.min_painted_rows,
+            )
+            if not _is_paint(cues, params):
+                continue
+            if cues.side_ratio < params.min_side_ratio:  # a much darker side: a shadow, or gravel?
+                rough = max(side_texture(image, ln, params.gap_px, params.band_px, params.measure, params.row_quantile)) * gain
+                if rough > params.max_dark_side_texture:
+                    continue
+            extra["paint"] = {
+                "contrast": round(cues.contrast, 3),
+                "side_ratio": round(cues.side_ratio, 3),
+                "width_m": round(cues.width_m, 3),
+                "foot_width_m": round(cues.foot_width_m, 3),
+                "painted_rows": cues.painted,
+                "saturated_rows": cues.saturated,
+            }
+        if params.max_texture is not None:
+            left, right = side_texture(image, ln, params.gap_px, params.band_px, params.measure, params.row_quantile)
+            left, right = left * gain, right * gain
+            if max(left, right) > params.max_texture:
+                continue
+            extra["texture"] = [round(left, 1), round(right, 1)]
         if params.crossing_check and crossing_pattern(
             neighbour_bars(image, ln, params.crossing_band_px, params.crossing_min_offset_px, params.max_bar_px, params.min_contrast / gain)
         ):
             continue
-        extra = dict(ln.extra, texture=[round(left, 1), round(right, 1)])
         kept.append(Lane(ln.coeffs, ln.bev_rows, ln.side, ln.score, ln.points, extra))
     return {"lanes": kept}
+
+
+def _is_paint(cues: PaintCues, p: VerifyParams) -> bool:
+    """Whether the measured cues are paint's: enough painted rows, bright on both sides, of paint
+    width (NaN compares False: not paint). The side ratio is judged with the side's texture."""
+    return (
+        cues.painted >= p.min_painted_rows
+        # paint clipped at the sensor's largest grey level on most of its rows (an overexposed frame)
+        # shows less contrast than it has: it is as bright as the image can show
+        and (cues.contrast >= p.min_paint_contrast or cues.saturated >= 0.5 * cues.painted)
+        and p.min_width_m <= cues.width_m
+        and cues.foot_width_m <= p.max_foot_width_m
+    )

@@ -27,6 +27,10 @@ from .profile import RoadInputError
 _INTERP = {"nearest": cv2.INTER_NEAREST, "linear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC}
 
 
+#: the most pixels a BEV grid may have ((x range / resolution) x (z range / resolution))
+MAX_BEV_PIXELS = 2_000_000
+
+
 class IpmParams(NodeParams):
     """Params of ``bev.ipm``."""
 
@@ -34,7 +38,7 @@ class IpmParams(NodeParams):
     x_max: float = Field(10.0, ge=-200.0, le=200.0, description="right edge of the BEV, metres")
     z_min: float = Field(5.0, gt=0.0, le=500.0, description="nearest distance ahead (bottom row), metres")
     z_max: float = Field(45.0, gt=0.0, le=500.0, description="farthest distance ahead (top row), metres")
-    resolution: float = Field(0.05, gt=0.001, le=10.0, description="BEV pixel size, metres per pixel")
+    resolution: float = Field(0.05, ge=0.005, le=10.0, description="BEV pixel size, metres per pixel (the grid has at most 2e6 pixels)")
     interpolation: Literal["nearest", "linear", "cubic"] = Field("linear", description="image interpolation")
     color: Literal["gray", "keep"] = Field(
         "gray", description="BEV of a BGR input: gray (Hb x Wb, the bev_image type) or keep the 3 channels"
@@ -64,8 +68,8 @@ class IpmParams(NodeParams):
                 "lower the resolution"
             )
         cells = (self.x_max - self.x_min) / self.resolution * (self.z_max - self.z_min) / self.resolution
-        if cells > 50e6:
-            raise ValueError(f"the BEV grid would have {cells:.3g} pixels (> 5e7); raise the resolution")
+        if cells > MAX_BEV_PIXELS:  # memory and time grow with it: about 6x the default 400 x 800
+            raise ValueError(f"the BEV grid would have {cells:.3g} pixels (more than {MAX_BEV_PIXELS:.0e}); raise the resolution or narrow the ranges")
         return self
 
 

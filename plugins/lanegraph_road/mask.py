@@ -233,10 +233,10 @@ class MaskParams(NodeParams):
         description="free space: consecutive above-road pixels (bottom-up) that end a column, pixels",
     )
     open_px: int = Field(
-        3, ge=0, le=101, description="morphological opening (speck removal) diameter, pixels; 0 = off"
+        3, ge=0, le=31, description="morphological opening (speck removal) diameter, pixels; 0 = off"
     )
     close_px: int = Field(
-        7, ge=0, le=101, description="morphological closing (hole filling) diameter, pixels; 0 = off"
+        7, ge=0, le=31, description="morphological closing (hole filling) diameter, pixels; 0 = off"
     )
     fill_holes_max_above: float = Field(
         0.1,

@@ -34,7 +34,7 @@ import math
 from typing import Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from lanegraph import InputError, NodeParams, Port, node_type
 from lanegraph._numba import jit
@@ -325,10 +325,11 @@ def _profile_kernel(
 
 
 @jit
-def _ransac_line_kernel(v, d, w, i, j, tol):
+def _ransac_line_kernel(v, d, w, i, j, tol, min_slope):
     """Score the lines through the point pairs ``(i[k], j[k])`` (pairs with ``v[i] == v[j]`` or a slope
-    ``<= 0`` are skipped): the weight ``w`` (>= 0) of the points within ``tol``. Returns ``(found,
-    inliers of the first best line)``. Integer weights are summed as integers (exact)."""
+    ``<= min_slope`` (at least 0) are skipped): the weight ``w`` (>= 0) of the points within ``tol``.
+    Returns ``(found, inliers of the first best line)``. Integer weights are summed as integers
+    (exact)."""
     n = v.size
     best_score = -1.0
     best_a0 = 0.0
@@ -347,7 +348,7 @@ def _ransac_line_kernel(v, d, w, i, j, tol):
         if vi == vj:
             continue
         a1 = (d[i[k]] - d[j[k]]) / (vi - vj)
-        if not a1 > 0:
+        if not (a1 > 0 and a1 > min_slope):
             continue
         a0 = d[i[k]] - a1 * vi
         if integral:
@@ -444,12 +445,12 @@ def _line_refit_kernel(v, d, w, inl, tol, rounds):
 
 
 @jit
-def _line_fit_kernel(v, d, w, i, j, tol, rounds):
-    """The robust line of a pass: RANSAC over the pairs ``(i, j)`` (:func:`_ransac_line_kernel`),
-    then up to ``rounds`` least-squares rounds (:func:`_line_refit_kernel`). Returns ``(status, a0,
-    a1, inliers)``: status 0 when RANSAC found no line or fewer than two inliers, 1 when the least
-    squares failed (``inliers``: the last ones), 2 for a line."""
-    found, inl = _ransac_line_kernel(v, d, w, i, j, tol)
+def _line_fit_kernel(v, d, w, i, j, tol, rounds, min_slope):
+    """The robust line of a pass: RANSAC over the pairs ``(i, j)`` (:func:`_ransac_line_kernel`, slopes
+    above ``min_slope``), then up to ``rounds`` least-squares rounds (:func:`_line_refit_kernel`).
+    Returns ``(status, a0, a1, inliers)``: status 0 when RANSAC found no line or fewer than two
+    inliers, 1 when the least squares failed (``inliers``: the last ones), 2 for a line."""
+    found, inl = _ransac_line_kernel(v, d, w, i, j, tol, min_slope)
     if not found or np.count_nonzero(inl) < 2:
         return 0, 0.0, 0.0, inl
     ok, a0, a1, inl = _line_refit_kernel(v, d, w, inl, tol, rounds)
@@ -567,6 +568,10 @@ def checked_disparity(disparity: np.ndarray, node: str) -> np.ndarray:
     return np.ascontiguousarray(disparity, dtype=np.float32)
 
 
+#: the most v-disparity bins (max_disparity / bin_size) the params may ask for
+MAX_BINS = 1024
+
+
 def n_bins(max_disparity: float, bin_size: float) -> int:
     return max(1, int(math.ceil(max_disparity / bin_size)))
 
@@ -638,7 +643,17 @@ class VDisparityParams(NodeParams):
     max_disparity: float = Field(
         128.0, gt=0.0, le=1024.0, description="disparities >= this are left out, pixels; D = ceil(max / bin)"
     )
-    bin_size: float = Field(1.0, gt=0.0, le=16.0, description="width of a disparity bin, pixels")
+    bin_size: float = Field(1.0, ge=0.25, le=16.0, description="width of a disparity bin, pixels (>= 0.25; at most 1024 bins)")
+
+    @model_validator(mode="after")
+    def _bins_bounded(self):
+        # memory and time grow with the number of bins: at most 8x the default's 128
+        if self.max_disparity / self.bin_size > MAX_BINS:
+            raise ValueError(
+                f"max_disparity / bin_size = {self.max_disparity / self.bin_size:.0f} disparity bins, more than {MAX_BINS}; "
+                "raise bin_size or lower max_disparity"
+            )
+        return self
 
 
 @node_type(
@@ -659,7 +674,7 @@ class ProfileParams(NodeParams):
     """Params of ``road.profile``."""
 
     max_disparity: float = Field(128.0, gt=0.0, le=1024.0, description="v-disparity range, pixels")
-    bin_size: float = Field(1.0, gt=0.0, le=16.0, description="v-disparity bin width, pixels")
+    bin_size: float = Field(1.0, ge=0.25, le=16.0, description="v-disparity bin width, pixels (>= 0.25; at most 1024 bins)")
     smoothness: float = Field(
         0.02,
         ge=0.0,
@@ -678,7 +693,7 @@ class ProfileParams(NodeParams):
         "linear", description="road profile d(v): linear (flat road) or quadratic; pose always from the line"
     )
     fit_tolerance_px: float = Field(1.0, gt=0.0, le=16.0, description="RANSAC inlier tolerance, pixels")
-    ransac_iterations: int = Field(300, ge=1, le=100000, description="RANSAC samples (fixed seed)")
+    ransac_iterations: int = Field(300, ge=1, le=10000, description="RANSAC samples (fixed seed)")
     column_step: int = Field(
         4,
         ge=1,
@@ -740,6 +755,16 @@ class ProfileParams(NodeParams):
         6.0, gt=0.0, le=100.0, description="a larger height estimate is invalid, metres"
     )
 
+    @model_validator(mode="after")
+    def _bins_bounded(self):
+        # memory and time grow with the number of bins: at most 8x the default's 128
+        if self.max_disparity / self.bin_size > MAX_BINS:
+            raise ValueError(
+                f"max_disparity / bin_size = {self.max_disparity / self.bin_size:.0f} disparity bins, more than {MAX_BINS}; "
+                "raise bin_size or lower max_disparity"
+            )
+        return self
+
 
 @functools.lru_cache(maxsize=512)
 def _sample_pairs(n: int, iterations: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -777,11 +802,11 @@ def _weighted_polyfit(v: np.ndarray, d: np.ndarray, w: np.ndarray, deg: int) -> 
     return coef if np.all(np.isfinite(coef)) else None
 
 
-def _robust_fit(v, d, w, deg, tol, iterations, init: np.ndarray | None, seed: int = 0):
-    """RANSAC (for the line: ``iterations`` pairs drawn by :func:`_sample_pairs`) then least squares
-    with inlier re-selection (four rounds at most); with ``init`` (inliers) only the least squares.
-    The line is one kernel (:func:`_line_fit_kernel`). Returns (coef, inliers), coef None when no
-    fit (inliers None when RANSAC found none)."""
+def _robust_fit(v, d, w, deg, tol, iterations, init: np.ndarray | None, seed: int = 0, min_slope: float = 0.0):
+    """RANSAC (for the line: ``iterations`` pairs drawn by :func:`_sample_pairs`, slopes above
+    ``min_slope``) then least squares with inlier re-selection (four rounds at most); with ``init``
+    (inliers) only the least squares. The line is one kernel (:func:`_line_fit_kernel`). Returns
+    (coef, inliers), coef None when no fit (inliers None when RANSAC found none)."""
     v = np.ascontiguousarray(v, dtype=np.float64)
     d = np.ascontiguousarray(d, dtype=np.float64)
     w = np.ascontiguousarray(w, dtype=np.float64)
@@ -791,7 +816,7 @@ def _robust_fit(v, d, w, deg, tol, iterations, init: np.ndarray | None, seed: in
         if v.size < 2:
             return None, None
         i, j = _sample_pairs(v.size, int(iterations), int(seed))
-        status, a0, a1, inl = _line_fit_kernel(v, d, w, i, j, float(tol), 4)
+        status, a0, a1, inl = _line_fit_kernel(v, d, w, i, j, float(tol), 4, float(min_slope))
         if status == 0:
             return None, None
         return (np.array([a0, a1]), inl) if status == 2 else (None, inl)
@@ -820,7 +845,15 @@ def _robust_refit_np(v, d, w, deg, tol, inl):
 
 
 def _profile_pass(
-    H: int, W: int, pixels, vd, params: ProfileParams, height: float | None = None, vd_columns: int | None = None, step: int | None = None
+    H: int,
+    W: int,
+    pixels,
+    vd,
+    params: ProfileParams,
+    height: float | None = None,
+    vd_columns: int | None = None,
+    step: int | None = None,
+    min_slope: float = 0.0,
 ):
     """DP + refinement + robust fit in (roll-corrected) rows over the pass's ``pixels`` (``(rows,
     disparities)`` from :func:`select_and_count`, every ``step``-th column, default ``column_step``)
@@ -832,7 +865,9 @@ def _profile_pass(
     a low object next to the road does not pull the far rows.
 
     Two kernels: :func:`_profile_kernel` (DP, refinements, profile, fit rows) and
-    :func:`_line_fit_kernel` (through :func:`_robust_fit`).
+    :func:`_line_fit_kernel` (through :func:`_robust_fit`), whose lines rise by more than
+    ``min_slope`` disparity per row: a flatter line is a camera higher than ``max_height_m``, the
+    wall of trees or a hillside far beyond the road, not the road.
 
     Returns ``((line, coef), profile, inlier_rows)``, coefficients lowest power first; the first
     item is None when there is no fit.
@@ -857,7 +892,7 @@ def _profile_pass(
     )
     if rows.size < params.min_fit_rows:
         return None, profile, None
-    line, inl = _robust_fit(rows, dv, wv, 1, params.fit_tolerance_px, params.ransac_iterations, None)
+    line, inl = _robust_fit(rows, dv, wv, 1, params.fit_tolerance_px, params.ransac_iterations, None, min_slope=min_slope)
     if line is None or np.count_nonzero(inl) < params.min_fit_rows or not line[1] > 0:
         return None, profile, None
     coef = line
@@ -923,7 +958,11 @@ def estimate_road(
     if vdisparity is None:
         vd = counted
 
-    fit, profile, inl = _profile_pass(H, W, (rows, d), vd, params, vd_columns=W if vdisparity is not None else None, step=step1)
+    # the road line rises by at least f B / (fy max_height_m) per row (eq. 3 at zero pitch)
+    min_slope = float(calib.f * calib.baseline / (calib.f_y * params.max_height_m))
+    fit, profile, inl = _profile_pass(
+        H, W, (rows, d), vd, params, vd_columns=W if vdisparity is not None else None, step=step1, min_slope=min_slope
+    )
     if fit is None:
         return _invalid(profile), vd
     line = fit[0]
@@ -940,7 +979,7 @@ def estimate_road(
     band = (params.road_band_m / h1, *plane) if params.road_band_m > 0 else None
     s, c = geometry.roll_row_coeffs(roll, calib)
     rows, d, vd = select_and_count(disp, cx, cy, s, c, params.max_disparity, params.bin_size, band, params.column_step)
-    fit, profile, inl = _profile_pass(H, W, (rows, d), vd, params, h1)
+    fit, profile, inl = _profile_pass(H, W, (rows, d), vd, params, h1, min_slope=min_slope)
     if fit is None:
         return _invalid(profile, roll), vd
     line, coef = fit

@@ -13,9 +13,12 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, ValidationInfo, field_validator
 
 from lanegraph import NodeParams, Port, RunContext, hookimpl, node_type
+from lanegraph.errors import InputError
+from lanegraph.frames import select_frames, selection_text
+from lanegraph.types import calibration_problems
 
 from .objects import Box, Pole, car
 from .scene import KITTI_CALIB, PRESETS, Frame, Marking, SceneRenderer, SceneSpec, preset
@@ -100,11 +103,21 @@ class SyntheticSource:
     def __init__(self, params: SyntheticParams, context: RunContext):
         self.params = params
         self.renderer = SceneRenderer(spec_from_params(params))
-        sel = (context.frames if context is not None else None) or slice(None)
-        self.indices = list(range(params.frames))[sel]
+        problems = calibration_problems(self.renderer.calib)
+        if problems:  # the params' bounds keep this from happening; checked like every source's
+            raise InputError("implausible calibration: " + "; ".join(f"{k}: {m}" for k, m in problems))
+        sel = context.frames if context is not None else None
+        what = f"--frames {selection_text(sel)}"
+        selected = select_frames(range(params.frames), [(what, sel)], f"io.synthetic ({params.frames} frames)")
+        self.skipped = min(max(int(getattr(context, "skip", 0)), 0), len(selected))
+        self.indices = selected[self.skipped :]
 
     def constants(self) -> dict:
         return {"calib": self.renderer.calib}
+
+    def identity(self) -> str:
+        """The rendered frames are determined by the params (for a resumed run's check)."""
+        return f"synthetic:{self.params.model_dump_json()}"
 
     def frame_key(self, frame: str) -> str:
         """A rendered frame is determined by the params and the frame index (for result caches)."""
@@ -129,7 +142,20 @@ class SyntheticSource:
 class AutoParams(NodeParams):
     """Params of ``io.auto``."""
 
-    default: str = Field("io.synthetic", description="source node type used when no --input is given")
+    default: str = Field("io.synthetic", description="source node type used when no --input is given (an installed source type)")
+
+    @field_validator("default")
+    @classmethod
+    def _a_source(cls, v: str, info: ValidationInfo) -> str:
+        types = (info.context or {}).get("node_types")
+        if types is None:  # validated outside a graph: nothing to look the name up in
+            return v
+        nt = types.get(v)
+        if nt is None or not nt.source or v == "io.auto":
+            sources = sorted(n for n, t in types.items() if t.source and n != "io.auto")
+            what = "is not an installed node type" if nt is None else "is not a source node type"
+            raise ValueError(f"{v!r} {what}; expected one of {', '.join(sources)}")
+        return v
 
 
 @node_type("io.auto", source=True, outputs=STEREO_OUTPUTS)

@@ -64,6 +64,33 @@ def test_size_bound_evicts_least_recently_used(tmp_path):
     assert cache.get(f"{0:064x}") is ResultCache.MISS
 
 
+def test_edited_plugin_code_changes_the_keys(tmp_path, monkeypatch):
+    """A node's results are keyed by its code too: an upgraded or edited plugin package never gets
+    results its old code computed (the digest covers every source file of the package)."""
+    import sys
+
+    from lanegraph.nodes import NodeType, _code_version
+
+    pkg = tmp_path / "lg_edited"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("from ._impl import double\n")
+    (pkg / "_impl.py").write_text("def double(params, x):\n    return {'y': 2 * x}\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    sys.modules.pop("lg_edited", None)
+    import lg_edited
+
+    nt = NodeType("toy.edited", lg_edited.double)
+    before = nt.code_version
+    _code_version.cache_clear()
+    assert NodeType("toy.edited", lg_edited.double).code_version == before  # stable while unchanged
+    (pkg / "_helpers.py").write_text("SCALE = 3\n")  # any file of the package, not only the node's
+    _code_version.cache_clear()
+    assert nt.code_version != before
+    _code_version.cache_clear()
+    sys.modules.pop("lg_edited", None)
+    sys.modules.pop("lg_edited._impl", None)
+
+
 # -- a cache folder shared by several processes (the workers of a Dask cluster) ----------------------
 class _Exploit:
     """Pickles as a call of os.system: what a crafted entry in a shared folder would hold."""

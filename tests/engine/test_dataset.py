@@ -73,7 +73,8 @@ def test_a_broken_dataset_file_is_located(tmp_path, text, message):
 
 
 def test_selection_rules():
-    assert parse_selection("3") == slice(3, 4) and parse_selection("-1") == slice(-1, 0)
+    assert parse_selection("3") == slice(3, 4) and parse_selection("-1") == slice(-1, None)  # the last frame
+    assert [0, 1, 2][parse_selection("-1")] == [2] and [0, 1, 2][parse_selection("-2")] == [1]
     assert parse_selection(":5") == slice(None, 5) and parse_selection(None) is None
     for bad in ("1:2:0", "1:2:3:4", "x"):
         with pytest.raises(ValueError):

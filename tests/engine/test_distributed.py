@@ -163,7 +163,7 @@ def test_a_failed_task_on_the_cluster_is_reported_and_the_others_finish(tmp_path
         sched = ["--scheduler", address] if where == "cluster" else []
         r = CliRunner().invoke(main, ["ablate", PAPER, "--dataset", str(ds), "--out", str(outs[where]), "--no-cache", "--quiet", *sched])
         assert r.exit_code == 1, r.output
-        assert "error: paper / curve: node 'src' (io.folder) failed on frame 0000000002" in r.stderr
+        assert "error: run paper / curve failed: node 'src' (io.folder) failed on frame 0000000002" in r.stderr
     assert lanes_files(outs["cluster"]) == lanes_files(outs["here"])
     assert len((outs["cluster"] / "runs" / "paper" / "straight" / "lanes.jsonl").read_text().splitlines()) == 5
 

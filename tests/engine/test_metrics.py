@@ -68,3 +68,30 @@ def test_aggregate_and_missing_frames():
     assert res["detection_ratio"] == 0.0  # a has a false lane, b is missing
     assert res["precision"] == 0.5 and res["ego_recall"] == 0.5 and res["mean_abs_dx_px"] == 4.0
     assert [f["frame"] for f in res["failed_frames"]] == ["a", "b"]
+
+
+def test_match_frame_exposes_each_lane_and_marking_outcome():
+    from lanegraph.metrics import match_frame
+
+    gt = {
+        "frame": "a",
+        "markings": [{"id": 7, "points": GT_ROWS}, {"id": 8, "points": shifted(200)}, {"id": 9, "points": shifted(-200)}],
+        "ego": {"left": 7, "right": 8},
+    }
+    # lane 0 is 30 px off every marking (false), lane 1 lies on marking 9 (not an ego boundary),
+    # lane 2 on marking 7, 3 px off; marking 8 (ego right) is missed
+    lanes = [{"points": shifted(30)}, {"points": shifted(-200)}, {"points": shifted(3)}]
+    m = match_frame(lanes, gt)
+    assert m.lane_marking == [None, 2, 0] and m.lane_dx == [None, 0.0, 3.0]
+    assert m.marking_lane == [2, None, 1]
+    assert m.lane_outcomes() == ["false", "matched", "matched"]
+    assert m.marking_outcomes() == ["matched", "missed_ego", "matched"]
+    assert m.ego == {"left": 0, "right": 1}
+    # the frame's figures are counted from this matching
+    r = evaluate_frame(lanes, gt)
+    assert r.match == m and not r.correct and r.matched == 2 and r.ego_matched == 1
+    assert r.reasons == ["1 false lane(s) (reported lane index [0])", "ego right boundary (marking 8) not matched"]
+    # an ego id that names no marking counts as missed, and no marking is flagged for it
+    m2 = match_frame([], {"markings": [{"id": 1, "points": GT_ROWS}], "ego": {"left": 5, "right": None}})
+    assert m2.ego == {"left": None} and m2.marking_outcomes() == ["unmatched"]
+    assert not evaluate_frame([], {"frame": "b", "markings": [], "ego": {"left": 5}}).correct

@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import json
 import os
+import random
 import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = str(ROOT / "graphs" / "paper.yaml")
@@ -52,3 +56,145 @@ def test_resume_without_checkpoint_starts_over(tmp_path):
     r = lanegraph("run", PAPER, "--out", str(tmp_path), "--frames", "0:2", "--quiet", "--resume")
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "lanes.jsonl").read_text().count("\n") == 2
+
+
+# ------------------------------------------------------------------ interrupted again and again
+TESTS = Path(__file__).resolve().parent
+SMALL = ["--set", "src.type=io.synthetic", "--set", "src.scale=0.4", "--set", "src.frames=9", "--set", "src.preset=curved"]
+
+
+def interrupted_run(out: Path, spec: str | None, *extra: str) -> subprocess.CompletedProcess:
+    """`lanegraph run paper.yaml` on a small synthetic sequence, interrupted at ``spec`` (see interrupter.py)."""
+    from .interrupter import DRIVER
+
+    env = {**os.environ, "LANEGRAPH_TEST_INTERRUPT": spec or ""}
+    args = [sys.executable, "-c", DRIVER, str(TESTS), "run", PAPER, "--out", str(out), "--quiet", *SMALL, *extra]
+    return subprocess.run(args, capture_output=True, text=True, env=env, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory) -> str:
+    out = tmp_path_factory.mktemp("full")
+    r = interrupted_run(out, None)
+    assert r.returncode == 0, r.stderr
+    text = (out / "lanes.jsonl").read_text()
+    assert text.count("\n") == 9 and '"points":[[' in text, "the sequence should have lanes to carry from frame to frame"
+    return text
+
+
+POINTS = [("write", "after"), ("write", "before"), ("fit", "before"), ("verify", "after"), ("src", "after")]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_interrupted_again_and_again_equals_uninterrupted(tmp_path, uninterrupted, seed):
+    """SIGINT and SIGKILL at random nodes and frames, several times in a row, each followed by
+    --resume: the final lanes.jsonl is the uninterrupted run's, byte for byte."""
+    rng = random.Random(seed)
+    out = tmp_path / "out"
+    first = True
+    stops = []
+    for _ in range(rng.randint(2, 3)):
+        sig = rng.choice(["INT", "KILL"])
+        node, when = rng.choice(POINTS)
+        spec = f"{sig}:{node}:{when}:{rng.randint(1, 3)}"
+        r = interrupted_run(out, spec, *([] if first else ["--resume"]))
+        first = False
+        stops.append((spec, r.returncode))
+        if r.returncode == 0:  # fewer frames left than the chosen one: the run finished
+            break
+        assert r.returncode == (130 if sig == "INT" else -signal.SIGKILL), (spec, r.stderr)
+        if sig == "INT":
+            assert "interrupted (Ctrl-C)" in r.stderr and "Traceback" not in r.stderr, r.stderr
+            assert json.loads((out / "run.json").read_text())["status"] == "stopped"
+    r = interrupted_run(out, None, "--resume")
+    assert r.returncode == 0, (stops, r.stderr)
+    assert (out / "lanes.jsonl").read_text() == uninterrupted, stops
+    assert json.loads((out / "run.json").read_text())["frames_ok"] == 9
+    if seed:
+        return
+    # resuming a complete run changes nothing
+    r = interrupted_run(out, None, "--resume")
+    assert r.returncode == 0 and "nothing to resume" in r.stderr, r.stderr
+    assert (out / "lanes.jsonl").read_text() == uninterrupted
+
+
+# ------------------------------------------------------------------ the executor's side, with the toy plugin
+def _toy_graph(tmp_path, pm, extra: dict | None = None):
+    import yaml
+
+    from lanegraph.graph import load_graph
+
+    from .test_graph import VALID
+
+    data = {**VALID, "nodes": {**VALID["nodes"], **(extra or {})}}
+    p = tmp_path / "g.yaml"
+    p.write_text(yaml.safe_dump(data))
+    return load_graph(p, pm=pm)
+
+
+def test_a_source_that_cannot_skip_is_read_past_the_frames_done(tmp_path, pm):
+    """toy.count ignores context.skip: the executor drops the frames done itself, and the feedback
+    value (a running sum) continues where the checkpoint left it."""
+    from lanegraph.executor import Executor
+    from lanegraph.nodes import RunContext
+    from lanegraph.resume import load_checkpoint
+
+    from . import toyplugin
+
+    ck = tmp_path / "checkpoint.json"
+
+    from lanegraph import hookimpl
+
+    class Stop:
+        @hookimpl
+        def lanegraph_before_node(self, node_id, frame):
+            if node_id == "sink" and frame == "0002":
+                raise KeyboardInterrupt
+
+    pm.register(Stop(), name="stop")
+    with pytest.raises(KeyboardInterrupt):
+        Executor(_toy_graph(tmp_path, pm), RunContext(), pm, checkpoint=ck).run()
+    pm.unregister(name="stop")
+    assert toyplugin.Collect.out == [("0000", 0.0), ("0001", 2.0)]
+    state = load_checkpoint(ck)
+    assert state.position == 2 and state.total == 4 and state.feedback[0].value == 2.0
+    ex = Executor(_toy_graph(tmp_path, pm), RunContext(skip=state.position, extra={"resume": True}), pm, checkpoint=ck, resume=state)
+    res = ex.run()
+    assert toyplugin.Collect.out == [("0002", 6.0), ("0003", 12.0)]  # as in the uninterrupted run
+    assert res.frames == 4 and res.resumed_frames == 2 and load_checkpoint(ck).complete
+
+
+def test_a_feedback_value_a_checkpoint_cannot_hold(tmp_path, pm):
+    """A plugin's own type on a feedback edge: the run goes on and says that it cannot be resumed;
+    --resume then refuses, saying why."""
+    from lanegraph import NodeParams, Port, hookimpl, node_type
+    from lanegraph.errors import UsageError
+    from lanegraph.executor import Executor
+    from lanegraph.nodes import RunContext
+    from lanegraph.resume import load_checkpoint
+
+    class Opaque:
+        pass
+
+    @node_type("toy.opaque", inputs={"x": "number", "prev": Port("any", optional=True)}, outputs={"o": "any"})
+    def opaque(params: NodeParams, x, prev=None):
+        """Wraps x in an object of its own."""
+        return {"o": Opaque()}
+
+    class Plugin:
+        @staticmethod
+        @hookimpl
+        def lanegraph_node_types():
+            return [opaque]
+
+    pm.register(Plugin, name="opaque")
+    ck = tmp_path / "checkpoint.json"
+    g = _toy_graph(tmp_path, pm, {"op": {"type": "toy.opaque", "inputs": {"x": "src.value", "prev": "op.o@prev"}}})
+    res = Executor(g, RunContext(), pm, checkpoint=ck).run()
+    assert res.frames == 4
+    assert any("--resume will not be possible" in w and "Opaque cannot be stored" in w for w in res.warnings())
+    state = load_checkpoint(ck)
+    assert state.unresumable and state.feedback == []
+    g = _toy_graph(tmp_path, pm, {"op": {"type": "toy.opaque", "inputs": {"x": "src.value", "prev": "op.o@prev"}}})
+    with pytest.raises(UsageError, match="cannot be resumed: a feedback value cannot be stored"):
+        Executor(g, RunContext(skip=state.position), pm, checkpoint=ck, resume=state)

@@ -416,7 +416,7 @@ def test_sgbm_auto_penalties_follow_block_size():
     assert ld.SgbmParams(block_size=3, p1=10, p2=0).penalties() == (10, 288)
 
 
-@pytest.mark.parametrize("model", [ld.SgbmParams, ld.BmParams, ld.SgmParams, ld.FileParams])
+@pytest.mark.parametrize("model", [ld.SgbmParams, ld.BmParams, ld.SgmParams, ld.FileParams, ld.OnnxParams])
 def test_every_param_is_documented_and_bounded(model):
     for name, f in model.model_fields.items():
         assert f.description and len(f.description) > 10, f"{model.__name__}.{name}"
@@ -425,9 +425,9 @@ def test_every_param_is_documented_and_bounded(model):
             assert {"Ge", "Le"} <= bounds, f"{model.__name__}.{name} lacks ge/le bounds"
 
 
-def test_plugin_registers_the_four_backends():
+def test_plugin_registers_the_five_backends():
     types = {t.name: t for t in ld.lanegraph_node_types()}
-    assert set(types) == {"disparity.sgbm", "disparity.bm", "disparity.sgm", "disparity.file"}
+    assert set(types) == {"disparity.sgbm", "disparity.bm", "disparity.sgm", "disparity.file", "disparity.onnx"}
     for t in types.values():
         assert t.outputs["disparity"].type == "disparity"
         assert t.inputs["left"].type == "image" and t.inputs["right"].type == "image"
@@ -435,6 +435,7 @@ def test_plugin_registers_the_four_backends():
         assert t.summary
     assert types["disparity.file"].inputs["frame"].optional
     assert types["disparity.sgm"].params is ld.SgmParams
+    assert types["disparity.onnx"].params is ld.OnnxParams and types["disparity.onnx"].stateful
 
 
 # --------------------------------------------------------------------------- file backend

@@ -15,8 +15,9 @@ from lanegraph.errors import InputError
 from lanegraph.nodes import RunContext
 from lanegraph.types import Lane
 
-P2 = "7.215377e+02 0 6.095593e+02 4.485728e+01 0 7.215377e+02 1.728540e+02 2.163791e-01 0 0 1 2.745884e-03"
-P3 = "7.215377e+02 0 6.095593e+02 -3.395242e+02 0 7.215377e+02 1.728540e+02 2.199936e+00 0 0 1 2.729905e-03"
+# KITTI's colour pair with the principal point moved into the 20 x 12 images of these tests
+P2 = "7.215377e+02 0 9.5593 4.485728e+01 0 7.215377e+02 5.854 2.163791e-01 0 0 1 2.745884e-03"
+P3 = "7.215377e+02 0 9.5593 -3.395242e+02 0 7.215377e+02 5.854 2.199936e+00 0 0 1 2.729905e-03"
 
 
 def img(h=12, w=20, v=100, colour=True):
@@ -45,7 +46,7 @@ def test_kitti_raw_layout(tmp_path):
     assert detect_source(drive) == "io.kitti_raw"
     src = open_source(KittiRawSource, {}, drive)
     c = src.constants()["calib"]
-    assert c.f == pytest.approx(721.5377) and c.cx == pytest.approx(609.5593) and c.cy == pytest.approx(172.854)
+    assert c.f == pytest.approx(721.5377) and c.cx == pytest.approx(9.5593) and c.cy == pytest.approx(5.854)
     assert c.baseline == pytest.approx((44.85728 + 339.5242) / 721.5377, abs=1e-6)
     frames = list(src)
     assert [f["frame"] for f in frames] == ["0000000000", "0000000001", "0000000002"]
@@ -120,7 +121,7 @@ def test_kitti_odometry(tmp_path):
         (seq / cam).mkdir(parents=True)
         for i in range(2):
             cv2.imwrite(str(seq / cam / f"{i:06d}.png"), img(colour=False))
-    rows = [f"P{k}: " + " ".join(["700", "0", "600", str(-700 * 0.54 * (k % 2)), "0", "700", "180", "0", "0", "0", "1", "0"]) for k in range(4)]
+    rows = [f"P{k}: " + " ".join(["700", "0", "10", str(-700 * 0.54 * (k % 2)), "0", "700", "6", "0", "0", "0", "1", "0"]) for k in range(4)]
     (seq / "calib.txt").write_text("\n".join(rows) + "\n")
     assert detect_source(seq) == "io.kitti_odometry"
     src = open_source(KittiOdometrySource, {}, seq)

@@ -447,10 +447,12 @@ def test_ransac_kernel_matches_numpy_twin(degree):
         samples = ransac_samples(t.size, degree + 1, 60, seed)
         assert samples.shape == (60, degree + 1) and np.all(np.sort(samples, 1)[:, 1:] != np.sort(samples, 1)[:, :-1])
         np.testing.assert_array_equal(ransac_samples(t.size, degree + 1, 60, seed), samples)  # deterministic
-        np.testing.assert_array_equal(_ransac_kernel(t, y, samples, 3.0), ransac_np(t, y, samples, 3.0))
+        tol = np.full(t.size, 3.0)
+        tol[::3] = 1.5  # per point, as the residuals in image pixels give them
+        np.testing.assert_array_equal(_ransac_kernel(t, y, samples, tol), ransac_np(t, y, samples, tol))
     # every sample degenerate (one abscissa): nothing usable
     t = np.full(10, 4.0)
-    assert not _ransac_kernel(t, np.arange(10.0), ransac_samples(10, 2, 20), 1.0).any()
+    assert not _ransac_kernel(t, np.arange(10.0), ransac_samples(10, 2, 20), np.ones(10)).any()
 
 
 def lane_roi_points_np(features, lane, width_px):
@@ -516,7 +518,7 @@ def test_irls_kernel_matches_lstsq_twin(degree, loss):
     for seed in range(5):
         t, y, _ = parabola_with_outliers(n=60 + 100 * seed, seed=seed)
         t = np.round(t)  # BEV rows
-        ok, coef, w = _irls_kernel(t, y, degree, 10, loss == "tukey", 4.685 if loss == "tukey" else 1.345, 0.01)
+        ok, coef, w = _irls_kernel(t, y, degree, 10, loss == "tukey", 4.685 if loss == "tukey" else 1.345, 0.01, np.empty(0), np.empty(0))
         assert ok
         ref, wref = irls_fit_lstsq(t, y, degree, 10, loss)
         np.testing.assert_allclose(coef, ref, rtol=1e-7, atol=1e-9)
@@ -524,7 +526,7 @@ def test_irls_kernel_matches_lstsq_twin(degree, loss):
         np.testing.assert_allclose(irls_fit(t, y, degree, 10, loss)[0], ref, rtol=1e-7, atol=1e-9)
     # one row only: singular for a line or a parabola; the lstsq path takes over
     t, y = np.full(20, 7.0), np.arange(20.0)
-    ok, _, _ = _irls_kernel(t, y, 1, 10, True, 4.685, 0.01)
+    ok, _, _ = _irls_kernel(t, y, 1, 10, True, 4.685, 0.01, np.empty(0), np.empty(0))
     assert not ok
     np.testing.assert_allclose(irls_fit(t, y, 1)[0], irls_fit_lstsq(t, y, 1)[0])
     # beyond the kernel's degree 3: the lstsq path
@@ -547,6 +549,53 @@ def test_fit_nodes_on_curved_stripe(node):
     c0, c1, c2 = lanes[0].coeffs
     fitted = c0 + c1 * t + c2 * t * t
     assert np.abs(fitted - centre).max() < 1.5 and lanes[0].side == "left"
+
+
+def _clothoid_bev(dashed: bool, rows: int = 800, cols: int = 240) -> tuple[np.ndarray, np.ndarray]:
+    """A BEV (5 cm pixels, 5-45 m) of a line whose curvature grows with the distance (a clothoid:
+    ``col = 100 + 0.02 t + 1e-7 t^3``), solid or dashed (3 m of paint, 9 m gaps); and its centre."""
+    bev = np.full((rows, cols), 80, np.uint8)
+    t = np.arange(rows)
+    centre = 100 + 0.02 * t + 1e-7 * t**3
+    for tt, cc in zip(t, centre):
+        if not dashed or (tt // 60) % 4 == 1:
+            bev[rows - 1 - tt, int(round(cc)) - 1 : int(round(cc)) + 2] = 220
+    return bev, centre
+
+
+@pytest.mark.parametrize("node", [fit_irls, fit_ransac])
+def test_near_fit_follows_a_solid_line_whose_curvature_changes(node):
+    """A parabola over 5-45 m misses the near part of a clothoid; fitted to the near 25 m it does
+    not, and the lane then ends there."""
+    bev, centre = _clothoid_bev(dashed=False)
+    f = eslt.func(eslt.params(), image=bev)["features"]
+    g = geometry(*bev.shape)
+    line = Line(rho=100.0, theta=math.atan2(1, 0.06), side="left")
+    near = 400  # BEV rows of the near 20 m (near_fit_m 25 from z_min 5)
+    t = np.arange(near)
+
+    def near_error(params):
+        (lane,) = node.func(params, features=f, lines=[line], geometry=g)["lanes"]
+        c0, c1, c2 = lane.coeffs
+        return np.abs(c0 + c1 * t + c2 * t * t - centre[:near]).max(), lane
+
+    err_full, full = near_error(node.params())
+    err_near, lane = near_error(node.params(near_fit_m=25.0))
+    assert err_full > 1.5 and err_near < 0.5 * err_full and err_near < 1.0
+    assert lane.bev_rows[0] >= bev.shape[0] - near and full.bev_rows[0] < bev.shape[0] - near
+
+
+@pytest.mark.parametrize("node", [fit_irls, fit_ransac])
+def test_near_fit_leaves_a_dashed_line_to_the_whole_bev(node):
+    """A dashed line covers a quarter of the near rows: its one or two near dashes would bend the
+    parabola, so it is fitted over the whole BEV, as without near_fit_m."""
+    bev, _ = _clothoid_bev(dashed=True)
+    f = eslt.func(eslt.params(), image=bev)["features"]
+    g = geometry(*bev.shape)
+    line = Line(rho=100.0, theta=math.atan2(1, 0.06), side="left")
+    a = node.func(node.params(near_fit_m=25.0), features=f, lines=[line], geometry=g)["lanes"]
+    b = node.func(node.params(), features=f, lines=[line], geometry=g)["lanes"]
+    assert len(a) == len(b) == 1 and a[0].coeffs == b[0].coeffs and a[0].bev_rows == b[0].bev_rows
 
 
 @pytest.mark.parametrize("node", [fit_irls, fit_ransac])
@@ -729,15 +778,21 @@ def test_side_texture_kernel_matches_twin(measure, gap, band):
                 np.testing.assert_allclose(got, exp, rtol=1e-12, atol=1e-9)
 
 
+def TEXTURE(**kw):
+    """``lanes.verify`` params with the texture check (at its former default threshold, 13.3)
+    instead of the paint check."""
+    return verify.params(**{"paint_check": False, "max_texture": 13.3, **kw})
+
+
 def test_verify_drops_lane_beside_texture():
     rng = np.random.default_rng(0)
     img = np.full((100, 80), 100, np.uint8)
     img[:, 50:80] = rng.integers(0, 255, (100, 30))  # gravel right of column 50
     kerb = Lane((46.0, 0.0, 0.0), (0, 99), "right", 0.9)
     paint = Lane((12.0, 0.0, 0.0), (0, 99), "left", 0.9)
-    out = verify.func(verify.params(), lanes=[kerb, paint], image=img)["lanes"]
+    out = verify.func(TEXTURE(), geometry=geometry(*img.shape), lanes=[kerb, paint], image=img)["lanes"]
     assert [ln.side for ln in out] == ["left"]
-    out = verify.func(verify.params(measure="std", max_texture=18), lanes=[kerb, paint], image=img)["lanes"]
+    out = verify.func(TEXTURE(measure="std", max_texture=18), geometry=geometry(*img.shape), lanes=[kerb, paint], image=img)["lanes"]
     assert [ln.side for ln in out] == ["left"]
 
 
@@ -747,9 +802,9 @@ def test_verify_keeps_lane_beside_a_shadow_edge_by_default():
     img[:, 60:] = 40
     img[:, 58:62] = [85, 70, 55, 45]  # a soft edge
     line = Lane((46.0, 0.0, 0.0), (0, 99), "right", 0.9)
-    assert [ln.side for ln in verify.func(verify.params(), lanes=[line], image=img)["lanes"]] == ["right"]
+    assert [ln.side for ln in verify.func(TEXTURE(), geometry=geometry(*img.shape), lanes=[line], image=img)["lanes"]] == ["right"]
     # the std measure mistakes it for texture
-    assert verify.func(verify.params(measure="std", max_texture=18), lanes=[line], image=img)["lanes"] == []
+    assert verify.func(TEXTURE(measure="std", max_texture=18), geometry=geometry(*img.shape), lanes=[line], image=img)["lanes"] == []
 
 
 def _kerb_scene(gain: float = 1.0) -> tuple[np.ndarray, Lane, Lane]:
@@ -767,10 +822,10 @@ def _kerb_scene(gain: float = 1.0) -> tuple[np.ndarray, Lane, Lane]:
 @pytest.mark.parametrize("gain", [1.0, 0.6, 0.4, 1.3])
 def test_verify_decides_the_same_at_any_exposure(gain):
     img, paint, kerb = _kerb_scene(gain)
-    out = verify.func(verify.params(), lanes=[paint, kerb], image=img)["lanes"]
+    out = verify.func(TEXTURE(), geometry=geometry(*img.shape), lanes=[paint, kerb], image=img)["lanes"]
     assert [ln.side for ln in out] == ["left"]
     # the textures are reported in the reference road's grey levels: about the same at every gain
-    ref = verify.func(verify.params(), lanes=[paint], image=_kerb_scene()[0])["lanes"][0].extra["texture"]
+    ref = verify.func(TEXTURE(), geometry=geometry(*img.shape), lanes=[paint], image=_kerb_scene()[0])["lanes"][0].extra["texture"]
     assert np.allclose(out[0].extra["texture"], ref, atol=1.0)
 
 
@@ -778,7 +833,7 @@ def test_absolute_brightness_lets_a_dark_kerb_through():
     """The reason for 'relative': at 0.4 exposure the gravel's texture is 0.4 times as large and an
     absolute threshold no longer sees it."""
     img, paint, kerb = _kerb_scene(0.4)
-    out = verify.func(verify.params(brightness="absolute"), lanes=[paint, kerb], image=img)["lanes"]
+    out = verify.func(TEXTURE(brightness="absolute"), geometry=geometry(*img.shape), lanes=[paint, kerb], image=img)["lanes"]
     assert [ln.side for ln in out] == ["left", "right"]
 
 
@@ -791,13 +846,13 @@ def test_verify_road_level_from_the_mask():
     assert _verify.road_level(dark, mask, 0.8) == pytest.approx(np.quantile(dark[::4, ::4][mask[::4, ::4]], 0.8), abs=1)
     assert _verify.road_level(dark, None, 0.8) == pytest.approx(np.quantile(dark[::4, ::4][dark[::4, ::4] > 0], 0.8), abs=1)
     with pytest.raises(InputError, match="mask: expected the BEV image's shape"):
-        verify.func(verify.params(), lanes=[paint], image=img, mask=mask[:, :50])
+        verify.func(TEXTURE(), geometry=geometry(*img.shape), lanes=[paint], image=img, mask=mask[:, :50])
 
 
 def test_verify_wants_a_grey_bev():
     img, paint, _ = _kerb_scene()
     with pytest.raises(InputError, match="image: expected an Hb x Wb grey BEV image"):
-        verify.func(verify.params(), lanes=[paint], image=np.dstack([img] * 3), mask=np.ones(img.shape, bool))
+        verify.func(TEXTURE(), geometry=geometry(*img.shape), lanes=[paint], image=np.dstack([img] * 3), mask=np.ones(img.shape, bool))
 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32])
@@ -821,8 +876,8 @@ def test_row_quantile_sees_gravel_resolved_on_the_near_rows_only():
     img, paint, kerb = _kerb_scene()
     far = np.random.default_rng(4).normal(150, 2, (72, 36))
     img[:72, 74:] = np.clip(far, 0, 255).astype(np.uint8)  # the gravel smoothed on the far 60 %
-    assert [ln.side for ln in verify.func(verify.params(), lanes=[paint, kerb], image=img)["lanes"]] == ["left"]
-    kept = verify.func(verify.params(row_quantile=0.5), lanes=[paint, kerb], image=img)["lanes"]
+    assert [ln.side for ln in verify.func(TEXTURE(), geometry=geometry(*img.shape), lanes=[paint, kerb], image=img)["lanes"]] == ["left"]
+    kept = verify.func(TEXTURE(row_quantile=0.5), geometry=geometry(*img.shape), lanes=[paint, kerb], image=img)["lanes"]
     assert [ln.side for ln in kept] == ["left", "right"]
 
 
@@ -836,6 +891,173 @@ def test_mdiff_ignores_a_few_sharp_edges():
     _, right_mean = _verify.side_texture(img, line, 6, 30, "diff")
     _, right_median = _verify.side_texture(img, line, 6, 30, "mdiff")
     assert right_mean > 9 and right_median == 0.0
+
+
+def paint_rows_twin(img, r0, r1, coeffs, band, gap, align, min_row_contrast, sat):
+    """NumPy twin of ``_paint_rows_kernel``: ``(inside, painted, saturated, profile sum, contrasts, ratios)``."""
+    rows, cols = img.shape
+    c0, c1, c2 = coeffs
+    prof = np.zeros(2 * band + 1)
+    con, rat = [], []
+    inside = saturated = 0
+    for r in range(max(r0, 0), min(r1, rows - 1) + 1):
+        t = rows - 1 - r
+        ce = int(np.rint(c0 + c1 * t + c2 * t * t))
+        if ce - band - align < 0 or ce + band + align >= cols:
+            continue
+        best = ce - align + int(np.argmax(img[r, ce - align : ce + align + 1]))  # the first brightest
+        strip = img[r, best - band : best + band + 1].astype(np.float64)
+        if (strip == 0).any():
+            continue
+        inside += 1
+        left, right = np.median(strip[: band - gap + 1]), np.median(strip[band + gap :])
+        hi = max(left, right)
+        if hi <= 0 or strip[band] / hi - 1.0 < min_row_contrast:
+            continue
+        prof += strip / hi
+        con.append(strip[band] / hi - 1.0)
+        rat.append(min(left, right) / hi)
+        saturated += int(strip[band] >= sat)
+    return inside, len(con), saturated, prof, np.array(con), np.array(rat)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.float32])
+def test_paint_rows_kernel_matches_twin(dtype):
+    rng = np.random.default_rng(21)
+    for _ in range(25):
+        rows, cols = int(rng.integers(20, 90)), int(rng.integers(30, 120))
+        img = rng.integers(0, 256, (rows, cols)).astype(dtype)
+        img[rng.random((rows, cols)) < 0.02] = 0  # outside the camera's view
+        c = float(rng.uniform(-5, cols + 5))
+        col = np.clip(np.rint(c).astype(int), 0, cols - 1)
+        img[:, max(col - 1, 0) : col + 2] = np.maximum(img[:, max(col - 1, 0) : col + 2], 200)  # a line
+        coeffs = (c, float(rng.uniform(-0.2, 0.2)), float(rng.uniform(-1e-3, 1e-3)))
+        band = int(rng.integers(3, 20))
+        gap = int(rng.integers(1, band))
+        align = int(rng.integers(0, 3))
+        r0, r1 = int(rng.integers(-5, rows // 2)), int(rng.integers(rows // 2, rows + 5))
+        mrc = float(rng.choice([0.0, 0.15, 0.5]))
+        n = max(r1 - r0 + 1, 0)
+        prof, con, rat = np.zeros(2 * band + 1), np.empty(n), np.empty(n)
+        hist = _verify._median_hist(img)
+        sat = 250.0
+        got = _verify._paint_rows_kernel(img, r0, r1, *coeffs, band, gap, align, mrc, sat, hist, prof, con, rat)
+        ref = paint_rows_twin(img, r0, r1, coeffs, band, gap, align, mrc, sat)
+        assert got == ref[:3]
+        painted = got[1]
+        np.testing.assert_allclose(prof, ref[3], rtol=1e-12)
+        np.testing.assert_allclose(con[:painted], ref[4], rtol=1e-12)
+        np.testing.assert_allclose(rat[:painted], ref[5], rtol=1e-12)
+
+
+def _road_bev(rows=600, cols=200, level=100.0, noise=3.0, seed=0):
+    """A BEV of asphalt (5 cm pixels, 30 m of road from 5 m) and its geometry."""
+    rng = np.random.default_rng(seed)
+    return level + rng.normal(0, noise, (rows, cols)), geometry(rows, cols)
+
+
+def _stripe(img, centre, width_px, value, soft_px=0.0):
+    """A stripe of ``width_px`` (its edges ramping over ``soft_px`` each side) at column ``centre``."""
+    x = np.arange(img.shape[1]) - centre
+    ramp = np.clip((width_px / 2 + soft_px - np.abs(x)) / max(soft_px, 1e-9), 0, 1) if soft_px else (np.abs(x) <= width_px / 2)
+    img[:] = img * (1 - ramp) + value * ramp
+    return img
+
+
+def _paint_scene(kind: str, gain: float = 1.0) -> tuple[np.ndarray, Lane, BevGeometry]:
+    """A BEV with one candidate at column 100: ``paint`` (15 cm at twice the road's level),
+    ``dashed`` (3 m painted, 6 m gaps), ``edge_grass`` (paint, then rough darker grass from 40 cm),
+    ``kerb`` (a kerb's lit edge, 5 cm, then dark gravel), ``kerb_top`` (a kerb's top 15 cm wide,
+    brighter than the road, then dark gravel), ``shadow`` (paint with a smooth shadow along its
+    right), ``step`` (the road's edge against a darker verge, no stripe), ``gutter`` (a light
+    concrete band 45 cm wide with soft edges)."""
+    img, g = _road_bev()
+    rng = np.random.default_rng(1)
+    if kind in ("paint", "dashed", "edge_grass", "shadow"):
+        _stripe(img, 100, 3, 200.0)
+        if kind == "shadow":
+            img[:, 103:] = 55 + rng.normal(0, 2, (img.shape[0], img.shape[1] - 103))
+        if kind == "dashed":
+            for start in range(0, img.shape[0], 180):
+                img[start + 60 : start + 180, 98:103] = _road_bev(seed=2)[0][start + 60 : start + 180, 98:103]
+        if kind == "edge_grass":
+            img[:, 108:] = 80 + rng.normal(0, 18, (img.shape[0], img.shape[1] - 108))
+    elif kind == "kerb":
+        img[:, 100] = 135.0
+        img[:, 101:] = 50 + rng.normal(0, 20, (img.shape[0], img.shape[1] - 101))
+    elif kind == "kerb_top":
+        _stripe(img, 100, 3, 140.0)
+        img[:, 102:] = 55 + rng.normal(0, 20, (img.shape[0], img.shape[1] - 102))
+    elif kind == "step":
+        img[:, 101:] = 60 + rng.normal(0, 5, (img.shape[0], img.shape[1] - 101))
+    elif kind == "gutter":
+        _stripe(img, 100, 5, 150.0, soft_px=2.5)
+    else:
+        raise ValueError(kind)
+    img = np.clip(img * gain, 1, 255).astype(np.uint8)
+    return img, Lane((100.0, 0.0, 0.0), (0, img.shape[0] - 1), "right", 0.9), g
+
+
+@pytest.mark.parametrize("gain", [1.0, 0.4, 1.3])
+@pytest.mark.parametrize(
+    ("kind", "paint"),
+    [("paint", True), ("dashed", True), ("edge_grass", True), ("shadow", True), ("kerb", False), ("kerb_top", False), ("step", False), ("gutter", False)],
+)
+def test_verify_keeps_paint_drops_kerbs_edges_and_gutters(kind, paint, gain):
+    """What the paint check is for, at any exposure (its measures are relative)."""
+    img, lane, g = _paint_scene(kind, gain)
+    kept = verify.func(verify.params(), lanes=[lane], image=img, geometry=g)["lanes"]
+    assert len(kept) == int(paint), _verify.paint_cues(img, lane, g)
+    if paint:
+        cues = kept[0].extra["paint"]
+        assert 0.12 <= cues["width_m"] <= 0.2 and cues["contrast"] > 0.6
+        assert (cues["side_ratio"] < 0.75) == (kind == "shadow")
+
+
+def test_overexposed_paint_is_kept():
+    """Clipped at 255 in a bright frame (road at 215), paint shows 19 % over the road: as bright as
+    the image can show it. A kerb's lit edge clipped alike stays too narrow."""
+    img, lane, g = _paint_scene("paint", gain=1.0)
+    bright = np.clip(img.astype(np.float64) * 2.15, 0, 255).astype(np.uint8)
+    cues = _verify.paint_cues(bright, lane, g)
+    assert cues.contrast < verify.params().min_paint_contrast and cues.saturated == cues.painted
+    assert len(verify.func(verify.params(), lanes=[lane], image=bright, geometry=g)["lanes"]) == 1
+    img, lane, g = _paint_scene("kerb")
+    bright = np.clip(img.astype(np.float64) * 2.15, 0, 255).astype(np.uint8)
+    assert verify.func(verify.params(), lanes=[lane], image=bright, geometry=g)["lanes"] == []
+
+
+def test_paint_cues_name_the_failing_cue():
+    """Each non-paint candidate fails for its own reason."""
+    p = verify.params()
+    kerb = _verify.paint_cues(*_paint_scene("kerb"))
+    assert kerb.side_ratio < 0.75 and kerb.width_m < p.min_width_m
+    gutter = _verify.paint_cues(*_paint_scene("gutter"))
+    assert gutter.contrast > p.min_paint_contrast and gutter.side_ratio > 0.9 and gutter.foot_width_m > p.max_foot_width_m
+    top = _verify.paint_cues(*_paint_scene("kerb_top"))  # like paint but for the rough dark side
+    assert top.contrast > p.min_paint_contrast and p.min_width_m < top.width_m and top.foot_width_m < p.max_foot_width_m
+    assert top.side_ratio < p.min_side_ratio
+    assert len(verify.func(verify.params(min_side_ratio=0.0), lanes=[_paint_scene("kerb_top")[1]], image=_paint_scene("kerb_top")[0], geometry=_paint_scene("kerb_top")[2])["lanes"]) == 1
+    step = _verify.paint_cues(*_paint_scene("step"))
+    assert step.painted < p.min_painted_rows  # no row's centre stands above the brighter side
+    dashed = _verify.paint_cues(*_paint_scene("dashed"))
+    paint = _verify.paint_cues(*_paint_scene("paint"))
+    assert 0.25 < dashed.painted / paint.painted < 0.45 and abs(dashed.width_m - paint.width_m) < 0.02
+
+
+def test_the_texture_check_drops_an_edge_line_beside_grass():
+    """Why the paint check replaced it: rough grass beside an edge line measures as a kerb's gravel."""
+    img, lane, g = _paint_scene("edge_grass")
+    assert verify.func(TEXTURE(), lanes=[lane], image=img, geometry=g)["lanes"] == []
+    assert len(verify.func(verify.params(), lanes=[lane], image=img, geometry=g)["lanes"]) == 1
+
+
+def test_paint_check_reads_the_near_rows_only():
+    """Paint only beyond max_distance_m (25 m: BEV rows above 100 of 600) is not measured."""
+    img, lane, g = _paint_scene("paint")
+    img[101:, 95:106] = _road_bev()[0][101:, 95:106]
+    assert verify.func(verify.params(), lanes=[lane], image=img, geometry=g)["lanes"] == []
+    assert len(verify.func(verify.params(max_distance_m=40.0), lanes=[lane], image=img, geometry=g)["lanes"]) == 1
 
 
 def bar_profile_twin(img, r0, r1, coeffs, band, min_contrast):
@@ -916,8 +1138,11 @@ def test_verify_drops_a_crossing_bar_keeps_lane_lines():
     for c in (65.0, 105.0, 165.0):  # a bar at the edge, one inside, the last
         lane = Lane((c - 0.5, 0.0, 0.0), (300, 399), "left", 0.9)
         assert _verify.crossing_pattern(_verify.neighbour_bars(zebra, lane, 50, 12, 16, 15.0))
-        assert verify.func(verify.params(), lanes=[lane], image=zebra)["lanes"] == []
-        assert len(verify.func(verify.params(crossing_check=False), lanes=[lane], image=zebra)["lanes"]) == 1
+        # the paint check off: a bar is 0.5 m wide, wider than paint, and would be dropped anyway
+        g = geometry(*zebra.shape)
+        assert verify.func(verify.params(paint_check=False), lanes=[lane], image=zebra, geometry=g)["lanes"] == []
+        assert len(verify.func(verify.params(paint_check=False, crossing_check=False), lanes=[lane], image=zebra, geometry=g)["lanes"]) == 1
+        assert verify.func(verify.params(crossing_check=False), lanes=[lane], image=zebra, geometry=g)["lanes"] == []
     cases = {
         "single": _bev_with_bars([145], width=4, rows=(0, 400)),
         "double": _bev_with_bars([145, 153], width=4, rows=(0, 400)),
@@ -928,7 +1153,7 @@ def test_verify_drops_a_crossing_bar_keeps_lane_lines():
     cases["pavement"][:, 175:] = 200  # a wide bright pavement from 1.4 m on
     for name, img in cases.items():
         lane = Lane((146.5, 0.0, 0.0), (0, 399), "left", 0.9)
-        assert len(verify.func(verify.params(), lanes=[lane], image=img)["lanes"]) == 1, name
+        assert len(verify.func(verify.params(), lanes=[lane], image=img, geometry=geometry(*img.shape))["lanes"]) == 1, name
 
 
 def test_to_image_spacing_and_extent():

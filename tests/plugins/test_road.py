@@ -82,8 +82,8 @@ def plane_sums_np(disp, step, v_top, min_disp, b0, b1, b2, fixed_tol, plane_tol,
     return int(sel.sum()), np.array(sums)
 
 
-def ransac_line_np(v, d, w, tol, iterations, seed=0):
-    """The former NumPy ``_ransac_line``."""
+def ransac_line_np(v, d, w, tol, iterations, seed=0, min_slope=0.0):
+    """The former NumPy ``_ransac_line`` (lines rising by more than ``min_slope`` only)."""
     n = v.size
     if n < 2:
         return None
@@ -96,7 +96,7 @@ def ransac_line_np(v, d, w, tol, iterations, seed=0):
         return None
     a1 = (d[i] - d[j]) / (v[i] - v[j])
     a0 = d[i] - a1 * v[i]
-    good = a1 > 0
+    good = (a1 > 0) & (a1 > min_slope)
     if not good.any():
         return None
     a0, a1 = a0[good], a1[good]
@@ -439,18 +439,18 @@ def test_ransac_line_kernel_matches_numpy():
     assert ransac_kernel(v, -v, np.ones(10), 1.0, 20) is None
 
 
-def ransac_kernel(v, d, w, tol, iterations):
+def ransac_kernel(v, d, w, tol, iterations, min_slope=0.0):
     """``_ransac_line_kernel`` on the pairs ``_sample_pairs`` draws: the inliers or None."""
     if v.size < 2:
         return None
     i, j = profile._sample_pairs(v.size, iterations, 0)
-    found, inl = profile._ransac_line_kernel(v, d, w, i, j, tol)
+    found, inl = profile._ransac_line_kernel(v, d, w, i, j, tol, min_slope)
     return inl if found else None
 
 
-def line_fit_np(v, d, w, tol, iterations):
+def line_fit_np(v, d, w, tol, iterations, min_slope=0.0):
     """NumPy twin of ``_line_fit_kernel``: ``(status, coef, inliers)`` of RANSAC then the least squares."""
-    inl = ransac_line_np(v, d, w, tol, iterations)
+    inl = ransac_line_np(v, d, w, tol, iterations, min_slope=min_slope)
     if inl is None or np.count_nonzero(inl) < 2:
         return 0, None, None
     coef, inl = profile._robust_refit_np(v, d, w, 1, tol, inl)
@@ -470,7 +470,7 @@ def test_line_fit_kernel_matches_numpy():
             # keep every sum exact, so the twin's order gives the same scores)
             for w in (counts, counts + 0.5):
                 i, j = profile._sample_pairs(n, iterations, 0)
-                status, a0, a1, inl = profile._line_fit_kernel(v, d, w, i, j, 1.0, 4)
+                status, a0, a1, inl = profile._line_fit_kernel(v, d, w, i, j, 1.0, 4, 0.0)
                 ref_status, ref, ref_inl = line_fit_np(v, d, w, 1.0, iterations)
                 assert status == ref_status
                 coef, fit_inl = profile._robust_fit(v, d, w, 1, 1.0, iterations, None)
@@ -487,7 +487,7 @@ def test_line_fit_kernel_matches_numpy():
     assert profile._robust_fit(v, -v, np.ones(10), 1, 1.0, 20, None) == (None, None)
     assert profile._robust_fit(v[:1], v[:1], np.ones(1), 1, 1.0, 20, None) == (None, None)
     i, j = profile._sample_pairs(5, 20, 0)
-    assert profile._line_fit_kernel(np.full(5, 3.0), np.arange(5.0), np.ones(5), i, j, 1.0, 4)[0] == 0
+    assert profile._line_fit_kernel(np.full(5, 3.0), np.arange(5.0), np.ones(5), i, j, 1.0, 4, 0.0)[0] == 0
 
 
 def test_line_refit_kernel_matches_numpy():
