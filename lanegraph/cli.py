@@ -338,6 +338,8 @@ def _run_dataset(graph, sets, dataset_path, out_dir, frames, quiet, scheduler, c
     status = 0
     for s in summary:
         line = f"{s['sequence']}: {s['frames']} frame(s) -> {out_dir / s['sequence']}/lanes.jsonl"
+        if s["error"] is not None and s["error"].get("before_any_frame"):
+            line = f"{s['sequence']}: not run (see {out_dir / s['sequence']}/run.json)"
         if s["failures"]:
             line += f", {len(s['failures'])} frame(s) failed"
             status = 1

@@ -211,3 +211,21 @@ def test_a_scheduler_without_dask_installed_is_a_usage_error(tmp_path, synthetic
     assert p.returncode == 2, p.stderr
     assert 'error: --scheduler needs Dask: pip install "lanegraph[distributed]"' in p.stderr
     assert not list((tmp_path / "out").rglob("lanes.jsonl")) if (tmp_path / "out").exists() else True
+
+
+def test_a_sequence_that_cannot_start_does_not_stop_the_others(tmp_path, synthetic_dataset):
+    empty = tmp_path / "empty"
+    (empty / "left").mkdir(parents=True)
+    (empty / "right").mkdir()
+    ds = tmp_path / "ds.yaml"
+    ds.write_text(f"sequences:\n  - {{name: good, input: {synthetic_dataset.parent / 'a'}, frames: '0:2'}}\n  - {{name: bad, input: {empty}}}\n")
+    out = tmp_path / "out"
+    r = CliRunner().invoke(main, ["run", PAPER, "--dataset", str(ds), "--out", str(out), "--quiet"])
+    assert r.exit_code == 1, r.output
+    assert "error: bad: " in r.stderr and "good: 2 frame(s)" in r.output
+    assert len((out / "good" / "lanes.jsonl").read_text().splitlines()) == 2
+    record = json.loads((out / "bad" / "run.json").read_text())
+    assert record["status"] == "stopped" and record["before_any_frame"] is True and record["error"]
+    ds.write_text(f"sequences:\n  - {{name: bad, input: {empty}}}\n")  # nothing can start: exit 2
+    r = CliRunner().invoke(main, ["run", PAPER, "--dataset", str(ds), "--out", str(tmp_path / "out2"), "--quiet"])
+    assert r.exit_code == 2, r.output
