@@ -94,7 +94,7 @@ def onnx_backends(
     for name, values in configs:
         try:
             params = ld.OnnxParams(**{"providers": providers, **values})
-            node = ld.OnnxDisparity.func(params, RunContext(node_id=name))
+            node = ld.OnnxDisparity(params, RunContext(node_id=name))
         except Exception as exc:  # noqa: BLE001 - report and go on with the other backends
             out.append((name, f"failed: {type(exc).__name__}: {exc}"))
             continue
@@ -133,9 +133,9 @@ def main() -> None:
     print(
         f"{len(pairs)} frames of {w}x{h} from {args.drive.name}; {os.cpu_count()} CPUs; cv2 {cv2.__version__}"
     )
-    reference = {stem: ld.sgbm.func(ld.SgbmParams(), left, right)["disparity"] for stem, left, right in pairs}
+    reference = {stem: ld.sgbm(ld.SgbmParams(), left, right)["disparity"] for stem, left, right in pairs}
     backends: list[tuple[str, Callable[[np.ndarray, np.ndarray], np.ndarray] | str]] = [
-        (name, lambda left, right, node=node, params=params: node.func(params, left, right)["disparity"])
+        (name, lambda left, right, node=node, params=params: node(params, left, right)["disparity"])
         for name, node, params in BACKENDS
     ]
     tmp = tempfile.TemporaryDirectory(prefix="bench-onnx-")

@@ -76,10 +76,10 @@ def main() -> None:
 
     params = IncParams()
     t0 = time.perf_counter()
-    for f in Src.func(SrcParams(n=a.frames), RunContext()):
+    for f in Src(SrcParams(n=a.frames), RunContext()):
         x = f["value"]
         for _ in range(a.nodes):
-            x = inc.func(params, x=x)["y"]
+            x = inc(params, x=x)["y"]
     direct = time.perf_counter() - t0
     per = (engine - direct) / (a.frames * a.nodes) * 1e6
     print(f"frames={a.frames} nodes={a.nodes}")

@@ -106,10 +106,10 @@ def main() -> None:
     vd_p, prof_p, mask_p, ipm_p = rd.VDisparityParams(), rd.ProfileParams(), rd.MaskParams(), rd.IpmParams()
     # warm-up (numba compilation / cache load) so the timings are per frame
     warm = np.zeros((8, 16), np.float32)
-    rd.road_vdisparity.func(vd_p, disparity=warm)
-    rd.road_profile.func(prof_p, disparity=warm, calib=CALIB)
+    rd.road_vdisparity(vd_p, disparity=warm)
+    rd.road_profile(prof_p, disparity=warm, calib=CALIB)
     warm_road = RoadModel(a0=-50.0, a1=0.3, height=1.6)
-    rd.road_mask.func(mask_p, disparity=warm + 1.0, road=warm_road, calib=CALIB)
+    rd.road_mask(mask_p, disparity=warm + 1.0, road=warm_road, calib=CALIB)
 
     times: dict[str, list[float]] = {
         "disparity": [],
@@ -127,17 +127,17 @@ def main() -> None:
         disp = sgbm_disparity(left, right)
         times["disparity"].append(1e3 * (time.perf_counter() - t))
         t = time.perf_counter()
-        vd = rd.road_vdisparity.func(vd_p, disparity=disp)["vdisparity"]
+        vd = rd.road_vdisparity(vd_p, disparity=disp)["vdisparity"]
         times["road.vdisparity"].append(1e3 * (time.perf_counter() - t))
         t = time.perf_counter()
-        res = rd.road_profile.func(prof_p, disparity=disp, calib=CALIB, vdisparity=vd)
+        res = rd.road_profile(prof_p, disparity=disp, calib=CALIB, vdisparity=vd)
         times["road.profile"].append(1e3 * (time.perf_counter() - t))
         road = res["road"]
         t = time.perf_counter()
-        mask = rd.road_mask.func(mask_p, disparity=disp, road=road, calib=CALIB)["mask"]
+        mask = rd.road_mask(mask_p, disparity=disp, road=road, calib=CALIB)["mask"]
         times["road.mask"].append(1e3 * (time.perf_counter() - t))
         t = time.perf_counter()
-        bev = rd.bev_ipm.func(ipm_p, image=left, mask=mask, road=road, calib=CALIB)
+        bev = rd.bev_ipm(ipm_p, image=left, mask=mask, road=road, calib=CALIB)
         times["bev.ipm"].append(1e3 * (time.perf_counter() - t))
         rows.append((road.valid, math.degrees(road.pitch), math.degrees(road.roll), road.height))
         print(

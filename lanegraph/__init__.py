@@ -1,11 +1,19 @@
-"""lanegraph: stereo lane-marking detection as validated, plugin-based processing graphs."""
+"""lanegraph: stereo lane-marking detection as validated, plugin-based processing graphs.
+
+What a plugin author needs is importable from here: :func:`node_type` (a node stays a plain
+function), :class:`NodeParams`, :class:`Port` and :class:`PortType`, :data:`hookimpl`, the value
+types of :mod:`lanegraph.types`, the errors, and :func:`jit` / :data:`prange` for numba kernels with
+the project's flags (imported on first use: ``import lanegraph`` does not load numba).
+"""
 
 from __future__ import annotations
 
+from typing import Any
+
 from .errors import GraphError, InputError, LanegraphError, NodeError, Problem, UsageError
 from .hookspecs import hookimpl, hookspec
-from .nodes import NodeParams, NodeType, NoParams, Port, RunContext, node_type
-from .types import BevGeometry, Calibration, FeatureMap, Lane, Line, RoadModel
+from .nodes import NodeParams, NodeType, NoParams, Port, RunContext, node_type, node_type_of
+from .types import BevGeometry, Calibration, FeatureMap, Lane, Line, PortType, RoadModel
 
 __version__ = "0.1.0"
 
@@ -23,11 +31,25 @@ __all__ = [
     "NodeType",
     "NoParams",
     "Port",
+    "PortType",
     "Problem",
     "RoadModel",
     "RunContext",
     "UsageError",
     "hookimpl",
     "hookspec",
+    "jit",
     "node_type",
+    "node_type_of",
+    "prange",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    """``lanegraph.jit`` and ``lanegraph.prange``: numba's, with the project's flags and kernel
+    cache (:mod:`lanegraph._numba`), loaded when first asked for."""
+    if name in ("jit", "prange"):
+        from . import _numba
+
+        return getattr(_numba, name)
+    raise AttributeError(f"module 'lanegraph' has no attribute {name!r}")

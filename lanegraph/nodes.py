@@ -9,7 +9,12 @@ A node type is a plain function plus a pydantic params model::
     def blur(params: BlurParams, image):
         return {"image": cv2.GaussianBlur(image, (params.ksize,) * 2, 0)}
 
-Plugins return such objects from the ``lanegraph_node_types`` hook.
+    blur(BlurParams(ksize=3), image=img)     # still the plain function
+    node_type_of(blur).name                  # "image.blur": the record the registry keeps
+
+``@node_type`` returns the function itself with its :class:`NodeType` attached (``blur.node_type``,
+or :func:`node_type_of`); plugins return such functions (or classes) from the
+``lanegraph_node_types`` hook.
 
 A *stateless* node function is called as ``func(params, **inputs)`` and returns a
 dict mapping output port names to values. A *stateful* node (``stateful=True``)
@@ -17,21 +22,33 @@ is a class: ``cls(params, context)`` once per run, then ``obj(**inputs)`` per fr
 and ``obj.close()`` (if defined) at the end. A *source* is stateful and produces
 frames: ``obj.constants()`` returns its constant outputs (e.g. calibration),
 ``iter(obj)`` yields one dict of per-frame outputs per frame.
+
+Capabilities a node class may declare (static methods, called before anything is instantiated):
+
+``select_source(params, input_path, detect) -> str``
+    a source that stands for others (``io.auto``): the name of the source node type that reads
+    ``input_path`` (``detect(path)`` asks every plugin's ``lanegraph_detect_source``); the executor
+    runs that type, with its default params, in its place. Raise ``ValueError`` saying why when no
+    source fits.
+``result_files(params) -> dict[str, str]``
+    a sink: the files it writes that other commands read back, by kind, relative to the output
+    folder (``{"lanes": ...}``: the lanes the metrics read, see :mod:`lanegraph.results`).
 """
 
 from __future__ import annotations
 
 import functools
 import inspect
+import re
 import typing
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from pydantic import BaseModel, ConfigDict, ValidationInfo, field_validator
 
-from .types import PORT_TYPES
+F = TypeVar("F", bound=Callable[..., Any])
 
 
 def _numeric_not_bool(annotation: Any) -> bool:
@@ -64,6 +81,9 @@ class NoParams(NodeParams):
     """A node type without params."""
 
 
+_PORT_TYPE_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
+
+
 @dataclass(frozen=True)
 class Port:
     """A typed input or output port.
@@ -79,8 +99,10 @@ class Port:
     rate: str = "frame"
 
     def __post_init__(self) -> None:
-        if self.type not in PORT_TYPES:
-            raise ValueError(f"unknown port type {self.type!r}; known: {', '.join(sorted(PORT_TYPES))}")
+        # any name: port types are an open registry (lanegraph_port_types); a graph that wires a
+        # port whose type no installed plugin registers gets a located problem (lanegraph.graph)
+        if not (isinstance(self.type, str) and _PORT_TYPE_NAME.match(self.type)):
+            raise ValueError(f"port type must be a lower-case identifier such as 'image' or 'point_cloud', got {self.type!r}")
         if self.rate not in ("frame", "constant"):
             raise ValueError(f"port rate must be 'frame' or 'constant', got {self.rate!r}")
 
@@ -153,6 +175,20 @@ class NodeType:
     def summary(self) -> str:
         return self.doc.strip().splitlines()[0] if self.doc.strip() else ""
 
+    @property
+    def selects_source(self) -> bool:
+        """Whether this source stands for others: it names the source type that reads an input
+        (the ``select_source`` capability, see the module docstring)."""
+        return self.source and callable(getattr(self.func, "select_source", None))
+
+    def result_files(self, params: NodeParams) -> dict[str, str]:
+        """The files this sink writes that other commands read back, ``{kind: path relative to the
+        output folder}`` (the ``result_files`` capability; empty for a node without it)."""
+        declare = getattr(self.func, "result_files", None)
+        if not (self.sink and callable(declare)):
+            return {}
+        return {str(k): str(v) for k, v in (declare(params) or {}).items()}
+
 
 @functools.cache
 def _code_version(module: str) -> str:
@@ -198,6 +234,19 @@ def _params_from_annotation(func: Callable[..., Any]) -> type[NodeParams] | None
     return ann if isinstance(ann, type) and issubclass(ann, BaseModel) else None
 
 
+def node_type_of(obj: Any) -> NodeType | None:
+    """The :class:`NodeType` record of a node function or class decorated with :func:`node_type`
+    (a :class:`NodeType` is returned as it is); None for anything else. A class's record is its
+    own, never one inherited from a decorated base class."""
+    if isinstance(obj, NodeType):
+        return obj
+    try:
+        record = vars(obj).get("node_type")
+    except TypeError:  # no __dict__
+        return None
+    return record if isinstance(record, NodeType) else None
+
+
 def node_type(
     name: str,
     *,
@@ -208,16 +257,18 @@ def node_type(
     source: bool = False,
     sink: bool = False,
     doc: str = "",
-) -> Callable[[Callable[..., Any]], NodeType]:
-    """Decorator turning a function (or, for stateful nodes, a class) into a :class:`NodeType`.
+) -> Callable[[F], F]:
+    """Decorator declaring a function (or, for stateful nodes, a class) a node type.
 
-    When ``params`` is omitted it is taken from the annotation of the function's
-    first parameter.
+    It returns the function (or class) unchanged, with its :class:`NodeType` record attached as
+    ``func.node_type`` (see :func:`node_type_of`): the node stays a plain function, callable
+    without the engine as ``func(params, **inputs)``. When ``params`` is omitted it is taken from
+    the annotation of the function's first parameter.
     """
 
-    def wrap(func: Callable[..., Any]) -> NodeType:
+    def wrap(func: F) -> F:
         p = params if params is not None else _params_from_annotation(func)
-        return NodeType(
+        func.node_type = NodeType(  # type: ignore[attr-defined]
             name=name,
             func=func,
             params=p or NoParams,
@@ -228,5 +279,6 @@ def node_type(
             source=source,
             sink=sink,
         )
+        return func
 
     return wrap

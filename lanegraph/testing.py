@@ -31,9 +31,9 @@ import yaml
 from pydantic import Field
 
 from .hookspecs import hookimpl
-from .nodes import NodeParams, NodeType, Port, RunContext, node_type
+from .nodes import NodeParams, NodeType, Port, RunContext, node_type, node_type_of
 from .plugins import PluginManager
-from .types import PORT_TYPES, Calibration
+from .types import Calibration, PortType
 
 try:  # the fixture is only defined when pytest is importable
     import pytest
@@ -42,9 +42,14 @@ except ImportError:  # pragma: no cover
 
 
 # --------------------------------------------------------------------------- running one node
-def _resolve(node: NodeType | str, pm: PluginManager | None) -> NodeType:
-    if isinstance(node, NodeType):
-        return node
+def _resolve(node: Any, pm: PluginManager | None) -> NodeType:
+    """The record of a node given as its function or class (decorated with ``@node_type``), its
+    :class:`NodeType` or its registered name."""
+    if not isinstance(node, str):
+        nt = node_type_of(node)
+        if nt is None:
+            raise TypeError(f"{node!r} is not a node type (a function or class decorated with @lanegraph.node_type)")
+        return nt
     from .plugins import get_plugin_manager
 
     nt = (pm or get_plugin_manager()).get_node_type(node)
@@ -54,14 +59,15 @@ def _resolve(node: NodeType | str, pm: PluginManager | None) -> NodeType:
 
 
 def run_node(
-    node: NodeType | str,
+    node: Any,
     inputs: Mapping[str, Any] | None = None,
     *,
     pm: PluginManager | None = None,
     context: RunContext | None = None,
     **params: Any,
 ) -> dict[str, Any]:
-    """Run one node type once, without a graph, and return its outputs.
+    """Run one node type once, without a graph, and return its outputs. ``node``: its function or
+    class, its :class:`NodeType`, or its registered name (looked up in ``pm``).
 
     ``params`` are validated by the node type's params model; unconnected optional inputs get
     ``None``. A stateful node is instantiated with ``context`` (a temporary output folder by
@@ -146,7 +152,7 @@ class _FeedParams(NodeParams):
     frames: int = Field(2, ge=1, le=100, description="how many times the sample inputs are emitted")
 
 
-def _feed_source(sample: Mapping[str, Any], types: Mapping[str, str]) -> NodeType:
+def _feed_source(sample: Mapping[str, Any], types: Mapping[str, str]) -> type:
     outputs = {"frame": Port("frame_id")}
     outputs.update({k: Port(t) for k, t in types.items()})
 
@@ -184,19 +190,29 @@ def _equal(a: Any, b: Any) -> bool:
     return bool(a == b)
 
 
-def check_node_type(node: NodeType, sample_inputs: Mapping[str, Any], params: Mapping[str, Any] | None = None) -> None:
-    """Assert that ``node`` follows the lanegraph node contract; raises AssertionError naming the rule.
+def check_node_type(
+    node: Any, sample_inputs: Mapping[str, Any], params: Mapping[str, Any] | None = None, pm: PluginManager | None = None
+) -> None:
+    """Assert that ``node`` (its function or class, or its :class:`NodeType`) follows the lanegraph
+    node contract; raises AssertionError naming the rule.
 
-    1. typed ports (every port type is known), a docstring;
+    1. typed ports (every port type is lanegraph's own or registered by a plugin of ``pm``, default
+       the installed plugins), a docstring;
     2. documented params: every field has a description, numeric fields have lower and upper bounds;
     3. deterministic: two calls on the same inputs give equal outputs;
     4. does not mutate its inputs;
     5. round-trips through a graph file: a graph feeding ``sample_inputs`` to it validates and runs.
     """
+    node = _resolve(node, pm)
+    if pm is None:
+        from .plugins import get_plugin_manager
+
+        pm = get_plugin_manager()
+    port_types = pm.port_types
     assert node.doc.strip(), f"{node.name}: no docstring"
     for where, ports in (("input", node.inputs), ("output", node.outputs)):
         for name, port in ports.items():
-            assert port.type in PORT_TYPES, f"{node.name}: {where} port {name!r} has unknown type {port.type!r}"
+            assert port.type in port_types, f"{node.name}: {where} port {name!r} has unknown type {port.type!r} (not registered by any plugin)"
     for name, f in node.params.model_fields.items():
         assert f.description, f"{node.name}: param {name!r} has no description"
         ann = f.annotation
@@ -216,9 +232,15 @@ def check_node_type(node: NodeType, sample_inputs: Mapping[str, Any], params: Ma
     assert _equal(given, frozen), f"{node.name}: mutated its inputs"
     assert set(first) >= set(node.outputs) or node.sink, f"{node.name}: missing outputs {set(node.outputs) - set(first)}"
 
-    # graph round trip
+    _round_trip(node, sample_inputs, params, pm.port_types)
+
+
+def _round_trip(node: NodeType, sample_inputs: Mapping[str, Any], params: Mapping[str, Any], port_types: Mapping[str, PortType]) -> None:
+    """The conformance check's last rule: a graph feeding ``sample_inputs`` to ``node`` validates,
+    round-trips through a graph file and runs."""
     from .executor import Executor
     from .graph import load_graph
+    from .types import PORT_TYPES as own
 
     types = {k: node.inputs[k].type for k in sample_inputs}
     feed = _feed_source(sample_inputs, types)
@@ -229,13 +251,18 @@ def check_node_type(node: NodeType, sample_inputs: Mapping[str, Any], params: Ma
         def lanegraph_node_types():
             return [feed, node]
 
+        @staticmethod
+        @hookimpl
+        def lanegraph_port_types() -> list[PortType]:
+            return [pt for pt in port_types.values() if pt.name not in own]
+
     pm = PluginManager()
     pm.register(_Plugin, name="conformance")
     graph = {
         "name": "conformance",
         "nodes": {
             "src": {"type": "testing.feed"},
-            "node": {"type": node.name, "params": params, "inputs": {k: f"src.{k}" for k in sample_inputs}},
+            "node": {"type": node.name, "params": dict(params), "inputs": {k: f"src.{k}" for k in sample_inputs}},
         },
     }
     with tempfile.TemporaryDirectory() as tmp:

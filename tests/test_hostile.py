@@ -571,17 +571,17 @@ def test_a_road_profile_invalid_on_every_frame_is_a_warning(cli, tmp_path):
 
 # ============================================================================ 6. lanes inside the image
 def test_image_size_from_the_frames(tmp_path):
-    from lanegraph_io._sources import FolderSource, KittiOdometrySource
+    from lanegraph_io._sources import FolderParams, FolderSource, KittiOdometryParams, KittiOdometrySource
 
     from lanegraph.nodes import RunContext
 
     seq = kitti_odometry(tmp_path)
-    src = KittiOdometrySource.func(KittiOdometrySource.params(), RunContext(input_path=seq))
+    src = KittiOdometrySource(KittiOdometryParams(), RunContext(input_path=seq))
     assert (src.constants()["calib"].width, src.constants()["calib"].height) == (64, 48)
     d = pair_folder(tmp_path / "in")
     cv2.imwrite(str(d / "left" / "000001.png"), texture(5, h=40))
     cv2.imwrite(str(d / "right" / "000001.png"), texture(5, h=40))
-    src = FolderSource.func(FolderSource.params(), RunContext(input_path=d))
+    src = FolderSource(FolderParams(), RunContext(input_path=d))
     items = list(src)
     assert "image is 64x40, the calibration expects 64x48" in str(items[1]) and items[2]["frame"] == "000002"
 
@@ -646,7 +646,7 @@ def test_a_read_only_out(cli, tmp_path, monkeypatch):
 def test_a_full_disk_during_the_run(cli, tmp_path, monkeypatch):
     from lanegraph_io import _sinks
 
-    writer = _sinks.WriteLanes.func  # the node type's class
+    writer = _sinks.WriteLanes  # the node type's class
     real = writer.__call__
     calls = {"n": 0}
 

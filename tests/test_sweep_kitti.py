@@ -11,7 +11,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from lanegraph_io._sources import KittiOdometrySource, KittiRawSource
+from lanegraph_io._sources import KittiOdometryParams, KittiOdometrySource, KittiRawParams, KittiRawSource
 
 from lanegraph.errors import InputError
 from lanegraph.nodes import RunContext
@@ -50,7 +50,7 @@ def tiny_drive(tmp_path: Path) -> Path:
 
 
 def calib_of(drive: Path):
-    return KittiRawSource.func(KittiRawSource.params(), RunContext(input_path=drive)).constants()["calib"]
+    return KittiRawSource(KittiRawParams(), RunContext(input_path=drive)).constants()["calib"]
 
 
 @pytest.mark.parametrize(
@@ -146,7 +146,7 @@ def tiny_odometry(tmp_path: Path, n: int = 2, markings: bool = True, name: str =
 
 
 def odometry_calib_of(seq: Path):
-    return KittiOdometrySource.func(KittiOdometrySource.params(), RunContext(input_path=seq)).constants()["calib"]
+    return KittiOdometrySource(KittiOdometryParams(), RunContext(input_path=seq)).constants()["calib"]
 
 
 def grey(path: Path) -> np.ndarray:

@@ -15,7 +15,7 @@ import pytest
 from lanegraph_disparity import _common, _sgm
 from pydantic import ValidationError
 
-from lanegraph import InputError
+from lanegraph import InputError, node_type_of
 
 # --------------------------------------------------------------------------- NumPy twins
 
@@ -127,7 +127,7 @@ BACKENDS = [
 
 
 def run(node, params, left, right, **update) -> np.ndarray:
-    out = node.func(params.model_copy(update=update) if update else params, left, right)["disparity"]
+    out = node(params.model_copy(update=update) if update else params, left, right)["disparity"]
     assert out.dtype == np.float32 and out.shape == left.shape[:2]
     assert np.all(np.isfinite(out)) and np.all(out >= 0)
     return out
@@ -346,18 +346,18 @@ def test_sgm_with_more_disparities_than_columns_runs():
 def test_opencv_too_narrow_for_the_range_is_an_input_error(node, params):
     left, right = shifted_pair(3, h=30, w=100)
     with pytest.raises(InputError, match="num_disparities"):
-        node.func(params, left, right)
+        node(params, left, right)
 
 
 def test_mismatched_pair_is_an_input_error():
     left, _ = shifted_pair(3)
     with pytest.raises(InputError, match=r"left 40x64, right 40x60"):
-        ld.sgm.func(ld.SgmParams(num_disparities=8), left, left[:, :60])
+        ld.sgm(ld.SgmParams(num_disparities=8), left, left[:, :60])
 
 
 def test_wrong_image_shape_is_an_input_error():
     with pytest.raises(InputError, match="input 'right'"):
-        ld.bm.func(
+        ld.bm(
             ld.BmParams(num_disparities=16), np.zeros((40, 64), np.uint8), np.zeros((40, 64, 2), np.uint8)
         )
 
@@ -379,8 +379,8 @@ def test_wls_without_ximgproc_says_what_is_missing(monkeypatch):
     monkeypatch.delattr(cv2, "ximgproc", raising=False)
     left, right = shifted_pair(7)
     with pytest.raises(RuntimeError, match="cv2.ximgproc"):
-        ld.sgbm.func(ld.SgbmParams(num_disparities=16, wls=True), left, right)
-    ld.sgbm.func(ld.SgbmParams(num_disparities=16), left, right)  # without wls it is not needed
+        ld.sgbm(ld.SgbmParams(num_disparities=16, wls=True), left, right)
+    ld.sgbm(ld.SgbmParams(num_disparities=16), left, right)  # without wls it is not needed
 
 
 # --------------------------------------------------------------------------- params
@@ -426,7 +426,7 @@ def test_every_param_is_documented_and_bounded(model):
 
 
 def test_plugin_registers_the_five_backends():
-    types = {t.name: t for t in ld.lanegraph_node_types()}
+    types = {t.name: t for t in map(node_type_of, ld.lanegraph_node_types())}
     assert set(types) == {"disparity.sgbm", "disparity.bm", "disparity.sgm", "disparity.file", "disparity.onnx"}
     for t in types.values():
         assert t.outputs["disparity"].type == "disparity"
@@ -447,7 +447,7 @@ def test_file_backend_reads_a_kitti_png(tmp_path):
     disp[3:6, 4:9] = 0
     assert cv2.imwrite(str(tmp_path / "0000000007.png"), np.round(disp * 256).astype(np.uint16))
     left = np.zeros((20, 30, 3), np.uint8)
-    out = ld.file.func(ld.FileParams(dir=str(tmp_path)), left, None, frame="0000000007")["disparity"]
+    out = ld.file(ld.FileParams(dir=str(tmp_path)), left, None, frame="0000000007")["disparity"]
     assert out.dtype == np.float32
     np.testing.assert_allclose(out, disp, atol=1e-6)
     assert not out[3:6, 4:9].any()
@@ -457,7 +457,7 @@ def test_file_backend_reads_npy_and_invalidates_nan(tmp_path):
     disp = np.linspace(1, 50, 12 * 16, dtype=np.float64).reshape(12, 16)
     disp[0, 0], disp[1, 1] = np.nan, -3.0
     np.save(tmp_path / "f1.npy", disp)
-    out = ld.file.func(ld.FileParams(dir=str(tmp_path)), np.zeros((12, 16), np.uint8), frame="f1")[
+    out = ld.file(ld.FileParams(dir=str(tmp_path)), np.zeros((12, 16), np.uint8), frame="f1")[
         "disparity"
     ]
     assert out.dtype == np.float32 and out[0, 0] == 0 and out[1, 1] == 0
@@ -467,7 +467,7 @@ def test_file_backend_reads_npy_and_invalidates_nan(tmp_path):
 def test_file_backend_wrong_size_names_file_and_frame(tmp_path):
     cv2.imwrite(str(tmp_path / "0000000003.png"), np.ones((20, 30), np.uint16) * 256)
     with pytest.raises(InputError, match=r"20x30 .* left image is 375x1242") as err:
-        ld.file.func(ld.FileParams(dir=str(tmp_path)), np.zeros((375, 1242, 3), np.uint8), frame="0000000003")
+        ld.file(ld.FileParams(dir=str(tmp_path)), np.zeros((375, 1242, 3), np.uint8), frame="0000000003")
     assert err.value.path == str(tmp_path / "0000000003.png") and err.value.frame == "0000000003"
     assert "0000000003.png" in str(err.value) and "frame 0000000003" in str(err.value)
 
@@ -482,31 +482,31 @@ def test_file_backend_wrong_size_names_file_and_frame(tmp_path):
 def test_file_backend_wrong_png_kind(tmp_path, image, message):
     cv2.imwrite(str(tmp_path / "a.png"), image)
     with pytest.raises(InputError, match=message) as err:
-        ld.file.func(ld.FileParams(dir=str(tmp_path)), np.zeros((20, 30), np.uint8), frame="a")
+        ld.file(ld.FileParams(dir=str(tmp_path)), np.zeros((20, 30), np.uint8), frame="a")
     assert err.value.frame == "a"
 
 
 def test_file_backend_wrong_npy_kind(tmp_path):
     np.save(tmp_path / "b.npy", np.zeros((2, 20, 30)))
     with pytest.raises(InputError, match="HxW"):
-        ld.file.func(ld.FileParams(dir=str(tmp_path)), np.zeros((20, 30), np.uint8), frame="b")
+        ld.file(ld.FileParams(dir=str(tmp_path)), np.zeros((20, 30), np.uint8), frame="b")
 
 
 def test_file_backend_missing_file_or_frame(tmp_path):
     with pytest.raises(InputError, match=r"expected .*nope\.png or .*nope\.npy \(no such file\)") as err:
-        ld.file.func(ld.FileParams(dir=str(tmp_path)), np.zeros((4, 4), np.uint8), frame="nope")
+        ld.file(ld.FileParams(dir=str(tmp_path)), np.zeros((4, 4), np.uint8), frame="nope")
     assert err.value.frame == "nope"
     with pytest.raises(InputError, match="folder does not exist"):
-        ld.file.func(ld.FileParams(dir=str(tmp_path / "missing")), np.zeros((4, 4), np.uint8), frame="x")
+        ld.file(ld.FileParams(dir=str(tmp_path / "missing")), np.zeros((4, 4), np.uint8), frame="x")
     with pytest.raises(InputError, match="needs the 'frame' input"):
-        ld.file.func(ld.FileParams(dir=str(tmp_path)), np.zeros((4, 4), np.uint8))
+        ld.file(ld.FileParams(dir=str(tmp_path)), np.zeros((4, 4), np.uint8))
 
 
 def test_file_backend_format_restricts_the_extension(tmp_path):
     np.save(tmp_path / "c.npy", np.ones((4, 4)))
     params = ld.FileParams(dir=str(tmp_path), format="png")
     with pytest.raises(InputError, match=r"c\.png \(no such file\)"):
-        ld.file.func(params, np.zeros((4, 4), np.uint8), frame="c")
+        ld.file(params, np.zeros((4, 4), np.uint8), frame="c")
 
 
 # --------------------------------------------------------------------------- real data

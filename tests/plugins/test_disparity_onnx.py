@@ -34,7 +34,13 @@ from lanegraph_disparity import _onnx  # noqa: E402
 from lanegraph_disparity.onnx_models import IR_VERSION, OPSET, cost_volume_model  # noqa: E402
 from onnx import TensorProto, helper, numpy_helper  # noqa: E402
 
-from lanegraph import GraphError, InputError, RunContext, hookimpl  # noqa: E402
+from lanegraph import (  # noqa: E402
+    GraphError,
+    InputError,
+    RunContext,
+    hookimpl,
+    node_type_of,  # noqa: E402
+)
 from lanegraph.cli import main  # noqa: E402
 from lanegraph.plugins import get_plugin_manager  # noqa: E402
 from lanegraph.testing import check_node_type, run_node  # noqa: E402
@@ -166,7 +172,7 @@ def disparity(model: str, left, right, **params) -> np.ndarray:
 
 def open_node(model: str, **params) -> _onnx.OnnxDisparity:
     params.setdefault("providers", "cpu")
-    return ld.OnnxDisparity.func(ld.OnnxParams(model=model, **params), WHERE)
+    return ld.OnnxDisparity(ld.OnnxParams(model=model, **params), WHERE)
 
 
 def normalised(img: np.ndarray, channels: str, scale: float, mean, std) -> np.ndarray:
@@ -476,7 +482,7 @@ def test_plugin_imports_and_lists_the_node_without_onnxruntime(monkeypatch):
         monkeypatch.delitem(sys.modules, name, raising=False)
     fresh = importlib.import_module("lanegraph_disparity")
     assert fresh is not ld
-    assert "disparity.onnx" in [t.name for t in fresh.lanegraph_node_types()]
+    assert "disparity.onnx" in [node_type_of(t).name for t in fresh.lanegraph_node_types()]
     r = CliRunner().invoke(main, ["nodes"])
     assert r.exit_code == 0
     assert "disparity.onnx  [lanegraph_disparity] (stateful)" in r.output

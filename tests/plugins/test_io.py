@@ -9,10 +9,11 @@ import cv2
 import numpy as np
 import pytest
 from lanegraph_io import WriteLanes, WriteOverlay, detect_source, parse_frames, read_calibration_yaml
+from lanegraph_io._sinks import OverlayParams, WriteLanesParams
 from lanegraph_io._sources import FolderSource, KittiOdometrySource, KittiRawSource
 
 from lanegraph.errors import InputError
-from lanegraph.nodes import RunContext
+from lanegraph.nodes import RunContext, node_type_of
 from lanegraph.types import Lane
 
 # KITTI's colour pair with the principal point moved into the 20 x 12 images of these tests
@@ -38,7 +39,7 @@ def kitti_raw(tmp_path: Path, n=3, calib_rows=None, w=20, h=12) -> Path:
 
 
 def open_source(cls, params, path, frames=None):
-    return cls.func(cls.params(**params), RunContext(input_path=path, frames=frames))
+    return cls(node_type_of(cls).params(**params), RunContext(input_path=path, frames=frames))
 
 
 def test_kitti_raw_layout(tmp_path):
@@ -153,7 +154,7 @@ def test_missing_input_folder(tmp_path):
 
 
 def test_write_lanes_flushes_every_frame(tmp_path):
-    w = WriteLanes.func(WriteLanes.params(), RunContext(out_dir=tmp_path))
+    w = WriteLanes(WriteLanesParams(), RunContext(out_dir=tmp_path))
     lane = Lane(coeffs=(1.0, 0.0, 0.0), bev_rows=(0, 10), side="left", score=0.5, points=np.array([[10.0, 370.0], [12.0, 360.0]]))
     w(frame="0001", lanes=[lane])
     w(frame="0002", lanes=None)
@@ -162,14 +163,14 @@ def test_write_lanes_flushes_every_frame(tmp_path):
     rec = json.loads(lines[0])["lanes"][0]
     assert rec["points"] == [[10.0, 370.0], [12.0, 360.0]] and rec["side"] == "left" and rec["score"] == 0.5
     w.close()
-    w2 = WriteLanes.func(WriteLanes.params(append=True), RunContext(out_dir=tmp_path))
+    w2 = WriteLanes(WriteLanesParams(append=True), RunContext(out_dir=tmp_path))
     w2(frame="0003")
     w2.close()
     assert len((tmp_path / "lanes.jsonl").read_text().splitlines()) == 3
 
 
 def test_write_overlay(tmp_path):
-    w = WriteOverlay.func(WriteOverlay.params(every=2), RunContext(out_dir=tmp_path))
+    w = WriteOverlay(OverlayParams(every=2), RunContext(out_dir=tmp_path))
     lane = Lane(coeffs=(1.0, 0.0, 0.0), bev_rows=(0, 10), side="left", score=0.5, points=np.array([[2.0, 11.0], [5.0, 1.0]]))
     w(frame="a", image=img(), lanes=[lane], mask=np.ones((12, 20), bool))
     w(frame="b", image=img())
@@ -184,3 +185,19 @@ def test_real_kitti_drive(kitti_drive):
     assert c.baseline == pytest.approx(0.5327, abs=1e-3) and (c.width, c.height) == (1242, 375)
     f = next(iter(src))
     assert f["left"].shape == (375, 1242, 3) and f["right"].shape == (375, 1242, 3)
+
+
+def test_io_auto_selects_the_source_by_the_input(tmp_path):
+    """io.auto is never instantiated: its select_source names the source for the input (the engine
+    passes every plugin's lanegraph_detect_source as ``detect``)."""
+    from lanegraph_io._sources import AutoParams, AutoSource
+
+    odo = kitti_raw(tmp_path)
+    assert AutoSource.select_source(AutoParams(), None, detect_source) == "io.synthetic"
+    assert AutoSource.select_source(AutoParams(default="io.folder"), None, detect_source) == "io.folder"
+    assert AutoSource.select_source(AutoParams(), odo, detect_source) == "io.kitti_raw"
+    (tmp_path / "nothing").mkdir()
+    with pytest.raises(ValueError, match="no installed source node type recognises the input"):
+        AutoSource.select_source(AutoParams(), tmp_path / "nothing", detect_source)
+    with pytest.raises(RuntimeError, match="never instantiated"):
+        AutoSource(AutoParams(), RunContext())

@@ -8,13 +8,21 @@ import cv2
 import numpy as np
 import pytest
 from lanegraph_lanes import _features, _hough, _verify
-from lanegraph_lanes._features import edge_orientation, eslt, mask_features, slt  # noqa: F401
-from lanegraph_lanes._fit import fit_irls, fit_ransac, irls_fit, ransac_fit
-from lanegraph_lanes._hough import line1d, line2d, orientation
-from lanegraph_lanes._temporal import image_points, temporal_mask, to_image
-from lanegraph_lanes._verify import verify
+from lanegraph_lanes._features import (  # noqa: F401
+    EsltParams,
+    MaskParams,
+    SltParams,
+    edge_orientation,
+    eslt,
+    mask_features,
+    slt,
+)
+from lanegraph_lanes._fit import IrlsParams, fit_irls, fit_ransac, irls_fit, ransac_fit
+from lanegraph_lanes._hough import Hough2dParams, HoughParams, OrientationParams, line1d, line2d, orientation
+from lanegraph_lanes._temporal import TemporalParams, ToImageParams, image_points, temporal_mask, to_image
+from lanegraph_lanes._verify import VerifyParams, verify
 
-from lanegraph import InputError
+from lanegraph import InputError, node_type_of
 from lanegraph.testing import check_node_type, make_bev_image
 from lanegraph.types import BevGeometry, FeatureMap, Lane, Line
 
@@ -121,9 +129,9 @@ def test_eslt_node_uint8_path_equals_float_path(shape):
     rng = np.random.default_rng(5)
     img = rng.integers(0, 256, shape).astype(np.uint8)
     img[:, shape[1] // 2 :: 5] = 255  # some stripes
-    p = eslt.params(window=3, threshold=5.0)
-    a = eslt.func(p, image=img)["features"]
-    b = eslt.func(p, image=img.astype(np.float32))["features"]  # cv2.Sobel on float32
+    p = EsltParams(window=3, threshold=5.0)
+    a = eslt(p, image=img)["features"]
+    b = eslt(p, image=img.astype(np.float32))["features"]  # cv2.Sobel on float32
     np.testing.assert_array_equal(a.mask, b.mask)
     # the same integer gradients; the kernels compiled for int16 and float32 may round the last bit
     np.testing.assert_allclose(a.orientation, b.orientation, rtol=0, atol=1e-6)
@@ -143,7 +151,7 @@ def test_eslt_even_sobel_aperture_is_refused_where_it_is_set(tmp_path, ksize):
     msg = str(info.value)
     assert "g.yaml" in msg and "feat" in msg and "sobel_ksize" in msg and "odd" in msg, msg
     for k in (1, 3, 5, 7):
-        assert eslt.params(sobel_ksize=k).sobel_ksize == k
+        assert EsltParams(sobel_ksize=k).sobel_ksize == k
 
 
 def _boundary_rows(count=3):
@@ -226,15 +234,15 @@ def test_feature_nodes_where_input(node):
     mask of the wrong shape is refused with the port named."""
     img = make_bev_image(rows=60, cols=80, lane_cols=(20.0, 60.0), slope=0.2, noise=8.0, seed=7).astype(np.uint8)
     where = _random_where(img.shape, 9).astype(bool)
-    p = node.params(window=4, threshold=6.0)
-    full = node.func(p, image=img)["features"]
-    part = node.func(p, image=img, where=where)["features"]
+    p = node_type_of(node).params(window=4, threshold=6.0)
+    full = node(p, image=img)["features"]
+    part = node(p, image=img, where=where)["features"]
     assert full.mask.any() and (full.mask & ~where).any()
     np.testing.assert_array_equal(part.mask, full.mask & where)
     if full.orientation is not None:
         np.testing.assert_array_equal(part.orientation, np.where(where, full.orientation, np.float32(-1.0)))
     with pytest.raises(InputError, match=r"where: expected a BEV mask of the image's shape \(60, 80\)"):
-        node.func(p, image=img, where=where[:, :10])
+        node(p, image=img, where=where[:, :10])
 
 
 def test_vote_kernels_match_twin():
@@ -261,11 +269,11 @@ def test_vote_kernels_match_twin():
 # ----------------------------------------------------------------------------- features
 def test_slt_and_eslt_find_stripes_with_orientation():
     bev = make_bev_image(rows=120, cols=100, lane_cols=(30.0, 70.0), width_px=3, slope=0.25, noise=3)
-    f = slt.func(slt.params(), image=bev)["features"]
+    f = slt(SltParams(), image=bev)["features"]
     assert f.orientation is None
     cols = np.nonzero(f.mask[-1])[0]
     assert set(cols) <= {29, 30, 31, 69, 70, 71} and len(cols) >= 2
-    e = eslt.func(eslt.params(), image=bev)["features"]
+    e = eslt(EsltParams(), image=bev)["features"]
     ori = e.orientation[e.mask]
     assert e.mask.sum() > 100
     assert np.median(ori) == pytest.approx(math.atan2(1.0, 0.25), abs=math.radians(3))
@@ -275,7 +283,7 @@ def test_slt_and_eslt_find_stripes_with_orientation():
 def test_eslt_rejects_a_single_edge():
     img = np.full((20, 40), 80, np.uint8)
     img[:, 20:] = 200  # a step: bright on one side only
-    e = eslt.func(eslt.params(), image=img)["features"]
+    e = eslt(EsltParams(), image=img)["features"]
     assert e.mask.sum() == 0
 
 
@@ -285,7 +293,7 @@ def test_mask_features_erodes_and_combines():
     road[:, 5:15] = True
     tmp = np.ones((20, 20), bool)
     tmp[:10] = False
-    out = mask_features.func(mask_features.params(erode_px=2), features=fm, mask=road, temporal=tmp)["features"]
+    out = mask_features(MaskParams(erode_px=2), features=fm, mask=road, temporal=tmp)["features"]
     assert out.mask[15, 7:13].all() and not out.mask[15, 5:7].any() and not out.mask[5].any()
     assert (out.orientation[~out.mask] == -1).all()
 
@@ -297,20 +305,20 @@ def geometry(rows=200, cols=160, res=0.05):
 
 def features_for(lane_cols, rows=200, cols=160, slope=0.0):
     bev = make_bev_image(rows=rows, cols=cols, lane_cols=lane_cols, slope=slope, noise=2)
-    return eslt.func(eslt.params(), image=bev)["features"]
+    return eslt(EsltParams(), image=bev)["features"]
 
 
 def test_orientation_histogram_and_default():
     f = features_for((50.0, 110.0), slope=0.2)
-    th = orientation.func(orientation.params(), features=f)["orientation"]
+    th = orientation(OrientationParams(), features=f)["orientation"]
     assert th == pytest.approx(math.atan2(1, 0.2), abs=math.radians(1.5))
-    assert orientation.func(orientation.params(default_deg=80), features=FeatureMap(f.mask))["orientation"] == pytest.approx(math.radians(80))
+    assert orientation(OrientationParams(default_deg=80), features=FeatureMap(f.mask))["orientation"] == pytest.approx(math.radians(80))
 
 
 def test_line1d_finds_rho_and_sides():
     f = features_for((50.0, 110.0), slope=0.2)
     th = math.atan2(1, 0.2)
-    lines = line1d.func(line1d.params(min_votes=20), features=f, orientation=th, geometry=geometry())["lines"]
+    lines = line1d(HoughParams(min_votes=20), features=f, orientation=th, geometry=geometry())["lines"]
     assert [ln.side for ln in lines] == ["left", "right"]
     assert lines[0].rho == pytest.approx(50, abs=1.5) and lines[1].rho == pytest.approx(110, abs=1.5)
 
@@ -320,17 +328,17 @@ def test_nearest_rule_vs_paper_rule():
     rows, cols = 200, 240
     bev = make_bev_image(rows=rows, cols=cols, lane_cols=(90.0, 150.0, 200.0), noise=2)
     bev[:, 197:204] = 230  # wide bright outer stripe: more votes
-    f = slt.func(slt.params(window=8), image=bev)["features"]
+    f = slt(SltParams(window=8), image=bev)["features"]
     g = geometry(rows, cols)
-    near = line1d.func(line1d.params(min_votes=20), features=f, orientation=math.pi / 2, geometry=g)["lines"]
+    near = line1d(HoughParams(min_votes=20), features=f, orientation=math.pi / 2, geometry=g)["lines"]
     assert [round(ln.rho) for ln in near] == [90, 150]
-    paper = line1d.func(line1d.params(min_votes=20, select="paper"), features=f, orientation=math.pi / 2, geometry=g)["lines"]
+    paper = line1d(HoughParams(min_votes=20, select="paper"), features=f, orientation=math.pi / 2, geometry=g)["lines"]
     assert any(abs(ln.rho - 200) < 5 for ln in paper)
 
 
 def test_line2d_finds_the_same_lines():
     f = features_for((50.0, 110.0), slope=0.2)
-    lines = line2d.func(line2d.params(min_votes=20), features=f, geometry=geometry())["lines"]
+    lines = line2d(Hough2dParams(min_votes=20), features=f, geometry=geometry())["lines"]
     assert [round(ln.rho) for ln in lines] == pytest.approx([50, 110], abs=2)
     assert lines[0].theta == pytest.approx(math.atan2(1, 0.2), abs=math.radians(1))
 
@@ -343,9 +351,9 @@ def test_nearest_rule_takes_the_line_being_crossed_in_a_lane_change(node):
     g = geometry(rows, cols)
 
     def lines(lane_cols, previous, **params):
-        f = slt.func(slt.params(window=8), image=make_bev_image(rows=rows, cols=cols, lane_cols=lane_cols, noise=2))["features"]
-        p = node.params(min_votes=20, **params)
-        return [round(ln.rho) for ln in node.func(p, features=f, orientation=math.pi / 2, geometry=g, previous=previous)["lines"]]
+        f = slt(SltParams(window=8), image=make_bev_image(rows=rows, cols=cols, lane_cols=lane_cols, noise=2))["features"]
+        p = node_type_of(node).params(min_votes=20, **params)
+        return [round(ln.rho) for ln in node(p, features=f, orientation=math.pi / 2, geometry=g, previous=previous)["lines"]]
 
     def lane(col, side):
         return Lane((col, 0.0, 0.0), (0, rows - 1), side, 0.9)
@@ -364,9 +372,9 @@ def test_nearest_rule_takes_the_line_being_crossed_in_a_lane_change(node):
 def test_hough_on_empty_features():
     empty = FeatureMap(np.zeros((50, 40), bool), np.full((50, 40), -1, np.float32))
     g = geometry(50, 40)
-    assert line1d.func(line1d.params(), features=empty, orientation=math.pi / 2, geometry=g)["lines"] == []
-    assert line2d.func(line2d.params(), features=empty, geometry=g)["lines"] == []
-    assert fit_irls.func(fit_irls.params(), features=empty, lines=[], geometry=g)["lanes"] == []
+    assert line1d(HoughParams(), features=empty, orientation=math.pi / 2, geometry=g)["lines"] == []
+    assert line2d(Hough2dParams(), features=empty, geometry=g)["lines"] == []
+    assert fit_irls(IrlsParams(), features=empty, lines=[], geometry=g)["lanes"] == []
 
 
 # ----------------------------------------------------------------------------- fitting
@@ -542,9 +550,9 @@ def test_fit_nodes_on_curved_stripe(node):
     centre = 60 + 0.05 * t + 3e-4 * t * t
     for tt, cc in zip(t, centre):
         bev[rows - 1 - tt, int(round(cc)) - 1 : int(round(cc)) + 2] = 220
-    f = eslt.func(eslt.params(), image=bev)["features"]
+    f = eslt(EsltParams(), image=bev)["features"]
     line = Line(rho=60.0, theta=math.atan2(1, 0.1), side="left")
-    lanes = node.func(node.params(), features=f, lines=[line], geometry=geometry(rows, cols))["lanes"]
+    lanes = node(node_type_of(node).params(), features=f, lines=[line], geometry=geometry(rows, cols))["lanes"]
     assert len(lanes) == 1
     c0, c1, c2 = lanes[0].coeffs
     fitted = c0 + c1 * t + c2 * t * t
@@ -568,19 +576,19 @@ def test_near_fit_follows_a_solid_line_whose_curvature_changes(node):
     """A parabola over 5-45 m misses the near part of a clothoid; fitted to the near 25 m it does
     not, and the lane then ends there."""
     bev, centre = _clothoid_bev(dashed=False)
-    f = eslt.func(eslt.params(), image=bev)["features"]
+    f = eslt(EsltParams(), image=bev)["features"]
     g = geometry(*bev.shape)
     line = Line(rho=100.0, theta=math.atan2(1, 0.06), side="left")
     near = 400  # BEV rows of the near 20 m (near_fit_m 25 from z_min 5)
     t = np.arange(near)
 
     def near_error(params):
-        (lane,) = node.func(params, features=f, lines=[line], geometry=g)["lanes"]
+        (lane,) = node(params, features=f, lines=[line], geometry=g)["lanes"]
         c0, c1, c2 = lane.coeffs
         return np.abs(c0 + c1 * t + c2 * t * t - centre[:near]).max(), lane
 
-    err_full, full = near_error(node.params())
-    err_near, lane = near_error(node.params(near_fit_m=25.0))
+    err_full, full = near_error(node_type_of(node).params())
+    err_near, lane = near_error(node_type_of(node).params(near_fit_m=25.0))
     assert err_full > 1.5 and err_near < 0.5 * err_full and err_near < 1.0
     assert lane.bev_rows[0] >= bev.shape[0] - near and full.bev_rows[0] < bev.shape[0] - near
 
@@ -590,11 +598,11 @@ def test_near_fit_leaves_a_dashed_line_to_the_whole_bev(node):
     """A dashed line covers a quarter of the near rows: its one or two near dashes would bend the
     parabola, so it is fitted over the whole BEV, as without near_fit_m."""
     bev, _ = _clothoid_bev(dashed=True)
-    f = eslt.func(eslt.params(), image=bev)["features"]
+    f = eslt(EsltParams(), image=bev)["features"]
     g = geometry(*bev.shape)
     line = Line(rho=100.0, theta=math.atan2(1, 0.06), side="left")
-    a = node.func(node.params(near_fit_m=25.0), features=f, lines=[line], geometry=g)["lanes"]
-    b = node.func(node.params(), features=f, lines=[line], geometry=g)["lanes"]
+    a = node(node_type_of(node).params(near_fit_m=25.0), features=f, lines=[line], geometry=g)["lanes"]
+    b = node(node_type_of(node).params(), features=f, lines=[line], geometry=g)["lanes"]
     assert len(a) == len(b) == 1 and a[0].coeffs == b[0].coeffs and a[0].bev_rows == b[0].bev_rows
 
 
@@ -609,22 +617,22 @@ def test_fit_follows_the_previous_lane_where_the_hough_found_nothing(node):
     for tt, cc in zip(t, centre):
         if (tt // 20) % 2 == 0:  # dashes
             bev[rows - 1 - tt, int(round(cc)) - 1 : int(round(cc)) + 2] = 220
-    f = eslt.func(eslt.params(), image=bev)["features"]
+    f = eslt(EsltParams(), image=bev)["features"]
     g = geometry(rows, cols)
     previous = [Lane((48.0, 0.06, 4e-4), (0, rows - 1), "left", 0.5)]  # 10 cm off, a little turned
-    lanes = node.func(node.params(), features=f, lines=[], geometry=g, previous=previous)["lanes"]
+    lanes = node(node_type_of(node).params(), features=f, lines=[], geometry=g, previous=previous)["lanes"]
     assert len(lanes) == 1 and lanes[0].side == "left" and lanes[0].extra["tracked"] is True
     c0, c1, c2 = lanes[0].coeffs
     assert c2 == pytest.approx(4e-4)  # the previous lane's curvature
     assert np.abs(c0 + c1 * t + c2 * t * t - centre).max() < 1.5
     # without the previous lane, or with a weak one, nothing is reported on that side
-    assert node.func(node.params(), features=f, lines=[], geometry=g)["lanes"] == []
+    assert node(node_type_of(node).params(), features=f, lines=[], geometry=g)["lanes"] == []
     weak = [Lane((48.0, 0.06, 4e-4), (0, rows - 1), "left", 0.05)]
-    assert node.func(node.params(), features=f, lines=[], geometry=g, previous=weak)["lanes"] == []
+    assert node(node_type_of(node).params(), features=f, lines=[], geometry=g, previous=weak)["lanes"] == []
     # the side is where the lane is now: a previous "right" lane that lies left of the vehicle
     # (column 79.5 here) after a lane change is reported as the left one
     moved = [Lane((48.0, 0.06, 4e-4), (0, rows - 1), "right", 0.5)]
-    lanes = node.func(node.params(), features=f, lines=[], geometry=g, previous=moved)["lanes"]
+    lanes = node(node_type_of(node).params(), features=f, lines=[], geometry=g, previous=moved)["lanes"]
     assert [ln.side for ln in lanes] == ["left"]
     # a line the vehicle has moved away from (after a lane change: 3.5 m from it) is no ego
     # boundary: not kept alive by fitting around it. A line under the vehicle (0.05 m) is the one
@@ -632,17 +640,17 @@ def test_fit_follows_the_previous_lane_where_the_hough_found_nothing(node):
     bev_far = np.full((rows, cols), 80, np.uint8)
     bev_far[:, 77:80] = 220  # a solid line 0.05 m left of the vehicle (column 79.5)
     bev_far[:, 8:11] = 220  # and one 3.5 m left of it
-    f_far = eslt.func(eslt.params(), image=bev_far)["features"]
-    strict = node.params(track_lane_change=False)
+    f_far = eslt(EsltParams(), image=bev_far)["features"]
+    strict = node_type_of(node).params(track_lane_change=False)
     for x, kept in ((78.0, True), (9.0, False)):
         prev = [Lane((x, 0.0, 0.0), (0, rows - 1), "left", 0.5)]
-        assert len(node.func(node.params(), features=f_far, lines=[], geometry=g, previous=prev)["lanes"]) == int(kept)
-        assert node.func(strict, features=f_far, lines=[], geometry=g, previous=prev)["lanes"] == []
-        wide = node.params(track_min_offset_m=0.0, track_max_offset_m=10.0, track_lane_change=False)  # the check is what rejects them
-        assert len(node.func(wide, features=f_far, lines=[], geometry=g, previous=prev)["lanes"]) == 1
+        assert len(node(node_type_of(node).params(), features=f_far, lines=[], geometry=g, previous=prev)["lanes"]) == int(kept)
+        assert node(strict, features=f_far, lines=[], geometry=g, previous=prev)["lanes"] == []
+        wide = node_type_of(node).params(track_min_offset_m=0.0, track_max_offset_m=10.0, track_lane_change=False)  # the check is what rejects them
+        assert len(node(wide, features=f_far, lines=[], geometry=g, previous=prev)["lanes"]) == 1
     # a side with a Hough line is fitted around the line only
     line = Line(rho=50.0, theta=math.atan2(1, 0.05), side="left")
-    lanes = node.func(node.params(), features=f, lines=[line], geometry=g, previous=[Lane((120.0, 0.0, 0.0), (0, 299), "left", 0.9)])["lanes"]
+    lanes = node(node_type_of(node).params(), features=f, lines=[line], geometry=g, previous=[Lane((120.0, 0.0, 0.0), (0, 299), "left", 0.9)])["lanes"]
     assert len(lanes) <= 1 and all("tracked" not in ln.extra for ln in lanes)
 
 
@@ -653,33 +661,33 @@ def test_fit_does_not_report_the_line_being_crossed_twice(node):
     rows, cols = 300, 160
     bev = np.full((rows, cols), 80, np.uint8)
     bev[:, 77:80] = 220
-    f = eslt.func(eslt.params(), image=bev)["features"]
+    f = eslt(EsltParams(), image=bev)["features"]
     g = geometry(rows, cols)
     line = Line(rho=80.5, theta=math.pi / 2, side="right")
     previous = [Lane((77.0, 0.0, 0.0), (0, rows - 1), "left", 0.9)]
-    lanes = node.func(node.params(), features=f, lines=[line], geometry=g, previous=previous)["lanes"]
+    lanes = node(node_type_of(node).params(), features=f, lines=[line], geometry=g, previous=previous)["lanes"]
     assert len(lanes) == 1 and "tracked" not in lanes[0].extra
 
 
 def test_fit_rejects_weak_support():
     f = FeatureMap(np.zeros((100, 80), bool))
     f.mask[90:100, 40] = True  # 10 features only
-    lanes = fit_irls.func(fit_irls.params(), features=f, lines=[Line(40.0, math.pi / 2)], geometry=geometry(100, 80))["lanes"]
+    lanes = fit_irls(IrlsParams(), features=f, lines=[Line(40.0, math.pi / 2)], geometry=geometry(100, 80))["lanes"]
     assert lanes == []
 
 
 # ----------------------------------------------------------------------------- temporal mask, verify, projection
 def test_temporal_mask_falls_back_and_bands():
     g = geometry(100, 80)
-    full = temporal_mask.func(temporal_mask.params(), geometry=g, previous=None)["mask"]
+    full = temporal_mask(TemporalParams(), geometry=g, previous=None)["mask"]
     assert full.all()
-    assert temporal_mask.func(temporal_mask.params(), geometry=g, previous=[])["mask"].all()
+    assert temporal_mask(TemporalParams(), geometry=g, previous=[])["mask"].all()
     lane = Lane((20.0, 0.0, 0.0), (0, 99), "left", 0.9)
-    m = temporal_mask.func(temporal_mask.params(band_px=5), geometry=g, previous=[lane])["mask"]
+    m = temporal_mask(TemporalParams(band_px=5), geometry=g, previous=[lane])["mask"]
     assert m[50, 20] and m[50, 25] and not m[50, 30] and not m[50, 10]
     assert m[:, 40:].all()  # the right side has no previous lane: open
     weak = Lane((20.0, 0.0, 0.0), (0, 99), "left", 0.01)
-    assert temporal_mask.func(temporal_mask.params(), geometry=g, previous=[weak])["mask"].all()
+    assert temporal_mask(TemporalParams(), geometry=g, previous=[weak])["mask"].all()
 
 
 def test_temporal_mask_band_follows_a_line_across_the_vehicle():
@@ -687,13 +695,13 @@ def test_temporal_mask_band_follows_a_line_across_the_vehicle():
     # reaches into the left side, which has a lane of its own (else it would be open anyway)
     g = geometry(100, 80)
     prev = [Lane((20.0, 0.0, 0.0), (0, 99), "left", 0.9), Lane((42.0, 0.0, 0.0), (0, 99), "right", 0.9)]
-    m = temporal_mask.func(temporal_mask.params(band_px=5, open_crossing_m=0.0), geometry=g, previous=prev)["mask"]
+    m = temporal_mask(TemporalParams(band_px=5, open_crossing_m=0.0), geometry=g, previous=prev)["mask"]
     assert m[:, 37:48].all() and not m[:, 48:].any() and not m[:, 26:37].any()
     # and the side of the crossed line (0.125 m from the vehicle) stays open: the lane the vehicle
     # moves into has its far boundary there
-    m = temporal_mask.func(temporal_mask.params(band_px=5), geometry=g, previous=prev)["mask"]
+    m = temporal_mask(TemporalParams(band_px=5), geometry=g, previous=prev)["mask"]
     assert m[:, 40:].all() and m[:, 37:40].all() and not m[:, 26:37].any()
-    assert temporal_mask.func(temporal_mask.params(band_px=5, open_crossing_m=0.1), geometry=g, previous=prev)["mask"][:, 48:].sum() == 0
+    assert temporal_mask(TemporalParams(band_px=5, open_crossing_m=0.1), geometry=g, previous=prev)["mask"][:, 48:].sum() == 0
 
 
 def test_temporal_mask_reacquires_when_band_is_unsupported():
@@ -701,7 +709,7 @@ def test_temporal_mask_reacquires_when_band_is_unsupported():
     lane = Lane((20.0, 0.0, 0.0), (0, 99), "left", 0.9)
     fm = np.zeros((100, 80), bool)
     fm[:, 5] = True  # this frame's marking is elsewhere on the left side
-    m = temporal_mask.func(temporal_mask.params(band_px=5), geometry=g, previous=[lane], features=FeatureMap(fm))["mask"]
+    m = temporal_mask(TemporalParams(band_px=5), geometry=g, previous=[lane], features=FeatureMap(fm))["mask"]
     assert m[:, :40].all()
 
 
@@ -781,7 +789,7 @@ def test_side_texture_kernel_matches_twin(measure, gap, band):
 def TEXTURE(**kw):
     """``lanes.verify`` params with the texture check (at its former default threshold, 13.3)
     instead of the paint check."""
-    return verify.params(**{"paint_check": False, "max_texture": 13.3, **kw})
+    return VerifyParams(**{"paint_check": False, "max_texture": 13.3, **kw})
 
 
 def test_verify_drops_lane_beside_texture():
@@ -790,9 +798,9 @@ def test_verify_drops_lane_beside_texture():
     img[:, 50:80] = rng.integers(0, 255, (100, 30))  # gravel right of column 50
     kerb = Lane((46.0, 0.0, 0.0), (0, 99), "right", 0.9)
     paint = Lane((12.0, 0.0, 0.0), (0, 99), "left", 0.9)
-    out = verify.func(TEXTURE(), geometry=geometry(*img.shape), lanes=[kerb, paint], image=img)["lanes"]
+    out = verify(TEXTURE(), geometry=geometry(*img.shape), lanes=[kerb, paint], image=img)["lanes"]
     assert [ln.side for ln in out] == ["left"]
-    out = verify.func(TEXTURE(measure="std", max_texture=18), geometry=geometry(*img.shape), lanes=[kerb, paint], image=img)["lanes"]
+    out = verify(TEXTURE(measure="std", max_texture=18), geometry=geometry(*img.shape), lanes=[kerb, paint], image=img)["lanes"]
     assert [ln.side for ln in out] == ["left"]
 
 
@@ -802,9 +810,9 @@ def test_verify_keeps_lane_beside_a_shadow_edge_by_default():
     img[:, 60:] = 40
     img[:, 58:62] = [85, 70, 55, 45]  # a soft edge
     line = Lane((46.0, 0.0, 0.0), (0, 99), "right", 0.9)
-    assert [ln.side for ln in verify.func(TEXTURE(), geometry=geometry(*img.shape), lanes=[line], image=img)["lanes"]] == ["right"]
+    assert [ln.side for ln in verify(TEXTURE(), geometry=geometry(*img.shape), lanes=[line], image=img)["lanes"]] == ["right"]
     # the std measure mistakes it for texture
-    assert verify.func(TEXTURE(measure="std", max_texture=18), geometry=geometry(*img.shape), lanes=[line], image=img)["lanes"] == []
+    assert verify(TEXTURE(measure="std", max_texture=18), geometry=geometry(*img.shape), lanes=[line], image=img)["lanes"] == []
 
 
 def _kerb_scene(gain: float = 1.0) -> tuple[np.ndarray, Lane, Lane]:
@@ -822,10 +830,10 @@ def _kerb_scene(gain: float = 1.0) -> tuple[np.ndarray, Lane, Lane]:
 @pytest.mark.parametrize("gain", [1.0, 0.6, 0.4, 1.3])
 def test_verify_decides_the_same_at_any_exposure(gain):
     img, paint, kerb = _kerb_scene(gain)
-    out = verify.func(TEXTURE(), geometry=geometry(*img.shape), lanes=[paint, kerb], image=img)["lanes"]
+    out = verify(TEXTURE(), geometry=geometry(*img.shape), lanes=[paint, kerb], image=img)["lanes"]
     assert [ln.side for ln in out] == ["left"]
     # the textures are reported in the reference road's grey levels: about the same at every gain
-    ref = verify.func(TEXTURE(), geometry=geometry(*img.shape), lanes=[paint], image=_kerb_scene()[0])["lanes"][0].extra["texture"]
+    ref = verify(TEXTURE(), geometry=geometry(*img.shape), lanes=[paint], image=_kerb_scene()[0])["lanes"][0].extra["texture"]
     assert np.allclose(out[0].extra["texture"], ref, atol=1.0)
 
 
@@ -833,7 +841,7 @@ def test_absolute_brightness_lets_a_dark_kerb_through():
     """The reason for 'relative': at 0.4 exposure the gravel's texture is 0.4 times as large and an
     absolute threshold no longer sees it."""
     img, paint, kerb = _kerb_scene(0.4)
-    out = verify.func(TEXTURE(brightness="absolute"), geometry=geometry(*img.shape), lanes=[paint, kerb], image=img)["lanes"]
+    out = verify(TEXTURE(brightness="absolute"), geometry=geometry(*img.shape), lanes=[paint, kerb], image=img)["lanes"]
     assert [ln.side for ln in out] == ["left", "right"]
 
 
@@ -846,13 +854,13 @@ def test_verify_road_level_from_the_mask():
     assert _verify.road_level(dark, mask, 0.8) == pytest.approx(np.quantile(dark[::4, ::4][mask[::4, ::4]], 0.8), abs=1)
     assert _verify.road_level(dark, None, 0.8) == pytest.approx(np.quantile(dark[::4, ::4][dark[::4, ::4] > 0], 0.8), abs=1)
     with pytest.raises(InputError, match="mask: expected the BEV image's shape"):
-        verify.func(TEXTURE(), geometry=geometry(*img.shape), lanes=[paint], image=img, mask=mask[:, :50])
+        verify(TEXTURE(), geometry=geometry(*img.shape), lanes=[paint], image=img, mask=mask[:, :50])
 
 
 def test_verify_wants_a_grey_bev():
     img, paint, _ = _kerb_scene()
     with pytest.raises(InputError, match="image: expected an Hb x Wb grey BEV image"):
-        verify.func(TEXTURE(), geometry=geometry(*img.shape), lanes=[paint], image=np.dstack([img] * 3), mask=np.ones(img.shape, bool))
+        verify(TEXTURE(), geometry=geometry(*img.shape), lanes=[paint], image=np.dstack([img] * 3), mask=np.ones(img.shape, bool))
 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32])
@@ -876,8 +884,8 @@ def test_row_quantile_sees_gravel_resolved_on_the_near_rows_only():
     img, paint, kerb = _kerb_scene()
     far = np.random.default_rng(4).normal(150, 2, (72, 36))
     img[:72, 74:] = np.clip(far, 0, 255).astype(np.uint8)  # the gravel smoothed on the far 60 %
-    assert [ln.side for ln in verify.func(TEXTURE(), geometry=geometry(*img.shape), lanes=[paint, kerb], image=img)["lanes"]] == ["left"]
-    kept = verify.func(TEXTURE(row_quantile=0.5), geometry=geometry(*img.shape), lanes=[paint, kerb], image=img)["lanes"]
+    assert [ln.side for ln in verify(TEXTURE(), geometry=geometry(*img.shape), lanes=[paint, kerb], image=img)["lanes"]] == ["left"]
+    kept = verify(TEXTURE(row_quantile=0.5), geometry=geometry(*img.shape), lanes=[paint, kerb], image=img)["lanes"]
     assert [ln.side for ln in kept] == ["left", "right"]
 
 
@@ -1006,7 +1014,7 @@ def _paint_scene(kind: str, gain: float = 1.0) -> tuple[np.ndarray, Lane, BevGeo
 def test_verify_keeps_paint_drops_kerbs_edges_and_gutters(kind, paint, gain):
     """What the paint check is for, at any exposure (its measures are relative)."""
     img, lane, g = _paint_scene(kind, gain)
-    kept = verify.func(verify.params(), lanes=[lane], image=img, geometry=g)["lanes"]
+    kept = verify(VerifyParams(), lanes=[lane], image=img, geometry=g)["lanes"]
     assert len(kept) == int(paint), _verify.paint_cues(img, lane, g)
     if paint:
         cues = kept[0].extra["paint"]
@@ -1020,16 +1028,16 @@ def test_overexposed_paint_is_kept():
     img, lane, g = _paint_scene("paint", gain=1.0)
     bright = np.clip(img.astype(np.float64) * 2.15, 0, 255).astype(np.uint8)
     cues = _verify.paint_cues(bright, lane, g)
-    assert cues.contrast < verify.params().min_paint_contrast and cues.saturated == cues.painted
-    assert len(verify.func(verify.params(), lanes=[lane], image=bright, geometry=g)["lanes"]) == 1
+    assert cues.contrast < VerifyParams().min_paint_contrast and cues.saturated == cues.painted
+    assert len(verify(VerifyParams(), lanes=[lane], image=bright, geometry=g)["lanes"]) == 1
     img, lane, g = _paint_scene("kerb")
     bright = np.clip(img.astype(np.float64) * 2.15, 0, 255).astype(np.uint8)
-    assert verify.func(verify.params(), lanes=[lane], image=bright, geometry=g)["lanes"] == []
+    assert verify(VerifyParams(), lanes=[lane], image=bright, geometry=g)["lanes"] == []
 
 
 def test_paint_cues_name_the_failing_cue():
     """Each non-paint candidate fails for its own reason."""
-    p = verify.params()
+    p = VerifyParams()
     kerb = _verify.paint_cues(*_paint_scene("kerb"))
     assert kerb.side_ratio < 0.75 and kerb.width_m < p.min_width_m
     gutter = _verify.paint_cues(*_paint_scene("gutter"))
@@ -1037,7 +1045,7 @@ def test_paint_cues_name_the_failing_cue():
     top = _verify.paint_cues(*_paint_scene("kerb_top"))  # like paint but for the rough dark side
     assert top.contrast > p.min_paint_contrast and p.min_width_m < top.width_m and top.foot_width_m < p.max_foot_width_m
     assert top.side_ratio < p.min_side_ratio
-    assert len(verify.func(verify.params(min_side_ratio=0.0), lanes=[_paint_scene("kerb_top")[1]], image=_paint_scene("kerb_top")[0], geometry=_paint_scene("kerb_top")[2])["lanes"]) == 1
+    assert len(verify(VerifyParams(min_side_ratio=0.0), lanes=[_paint_scene("kerb_top")[1]], image=_paint_scene("kerb_top")[0], geometry=_paint_scene("kerb_top")[2])["lanes"]) == 1
     step = _verify.paint_cues(*_paint_scene("step"))
     assert step.painted < p.min_painted_rows  # no row's centre stands above the brighter side
     dashed = _verify.paint_cues(*_paint_scene("dashed"))
@@ -1048,16 +1056,16 @@ def test_paint_cues_name_the_failing_cue():
 def test_the_texture_check_drops_an_edge_line_beside_grass():
     """Why the paint check replaced it: rough grass beside an edge line measures as a kerb's gravel."""
     img, lane, g = _paint_scene("edge_grass")
-    assert verify.func(TEXTURE(), lanes=[lane], image=img, geometry=g)["lanes"] == []
-    assert len(verify.func(verify.params(), lanes=[lane], image=img, geometry=g)["lanes"]) == 1
+    assert verify(TEXTURE(), lanes=[lane], image=img, geometry=g)["lanes"] == []
+    assert len(verify(VerifyParams(), lanes=[lane], image=img, geometry=g)["lanes"]) == 1
 
 
 def test_paint_check_reads_the_near_rows_only():
     """Paint only beyond max_distance_m (25 m: BEV rows above 100 of 600) is not measured."""
     img, lane, g = _paint_scene("paint")
     img[101:, 95:106] = _road_bev()[0][101:, 95:106]
-    assert verify.func(verify.params(), lanes=[lane], image=img, geometry=g)["lanes"] == []
-    assert len(verify.func(verify.params(max_distance_m=40.0), lanes=[lane], image=img, geometry=g)["lanes"]) == 1
+    assert verify(VerifyParams(), lanes=[lane], image=img, geometry=g)["lanes"] == []
+    assert len(verify(VerifyParams(max_distance_m=40.0), lanes=[lane], image=img, geometry=g)["lanes"]) == 1
 
 
 def bar_profile_twin(img, r0, r1, coeffs, band, min_contrast):
@@ -1140,9 +1148,9 @@ def test_verify_drops_a_crossing_bar_keeps_lane_lines():
         assert _verify.crossing_pattern(_verify.neighbour_bars(zebra, lane, 50, 12, 16, 15.0))
         # the paint check off: a bar is 0.5 m wide, wider than paint, and would be dropped anyway
         g = geometry(*zebra.shape)
-        assert verify.func(verify.params(paint_check=False), lanes=[lane], image=zebra, geometry=g)["lanes"] == []
-        assert len(verify.func(verify.params(paint_check=False, crossing_check=False), lanes=[lane], image=zebra, geometry=g)["lanes"]) == 1
-        assert verify.func(verify.params(crossing_check=False), lanes=[lane], image=zebra, geometry=g)["lanes"] == []
+        assert verify(VerifyParams(paint_check=False), lanes=[lane], image=zebra, geometry=g)["lanes"] == []
+        assert len(verify(VerifyParams(paint_check=False, crossing_check=False), lanes=[lane], image=zebra, geometry=g)["lanes"]) == 1
+        assert verify(VerifyParams(crossing_check=False), lanes=[lane], image=zebra, geometry=g)["lanes"] == []
     cases = {
         "single": _bev_with_bars([145], width=4, rows=(0, 400)),
         "double": _bev_with_bars([145, 153], width=4, rows=(0, 400)),
@@ -1153,7 +1161,7 @@ def test_verify_drops_a_crossing_bar_keeps_lane_lines():
     cases["pavement"][:, 175:] = 200  # a wide bright pavement from 1.4 m on
     for name, img in cases.items():
         lane = Lane((146.5, 0.0, 0.0), (0, 399), "left", 0.9)
-        assert len(verify.func(verify.params(), lanes=[lane], image=img, geometry=geometry(*img.shape))["lanes"]) == 1, name
+        assert len(verify(VerifyParams(), lanes=[lane], image=img, geometry=geometry(*img.shape))["lanes"]) == 1, name
 
 
 def test_to_image_spacing_and_extent():
@@ -1161,7 +1169,7 @@ def test_to_image_spacing_and_extent():
     H = np.array([[2.0, 0, 10], [0, 0.5, 100], [0, 0, 1]])
     g = BevGeometry(-4, 4, 5, 15, 0.05, H)
     lane = Lane((40.0, 0.1, 0.0), (20, 180), "left", 0.8)
-    out = to_image.func(to_image.params(), lanes=[lane], geometry=g)["lanes"][0]
+    out = to_image(ToImageParams(), lanes=[lane], geometry=g)["lanes"][0]
     y = out.points[:, 1]
     assert np.all(np.abs(np.diff(y)) <= 10) and y[0] == pytest.approx(190) and y[-1] == pytest.approx(110)
     assert np.all(np.diff(y) < 0)  # bottom first
@@ -1171,7 +1179,7 @@ def test_nodes_follow_the_contract():
     bev = make_bev_image(rows=60, cols=50, lane_cols=(15.0, 35.0))
     check_node_type(slt, {"image": bev})
     check_node_type(eslt, {"image": bev})
-    f = eslt.func(eslt.params(), image=bev)["features"]
+    f = eslt(EsltParams(), image=bev)["features"]
     check_node_type(orientation, {"features": f})
 
 
@@ -1268,7 +1276,7 @@ def test_feature_map_points_match_nonzero(cols, oriented):
 @pytest.mark.parametrize("node", [slt, eslt])
 def test_feature_nodes_carry_their_points(node):
     bev = make_bev_image(rows=60, cols=50, lane_cols=(15.0, 35.0))
-    f = node.func(node.params(), image=bev)["features"]
+    f = node(node_type_of(node).params(), image=bev)["features"]
     ref = FeatureMap(np.array(f.mask), None if f.orientation is None else np.array(f.orientation))
     for a, b in zip(f.points(), ref.points()):
         np.testing.assert_array_equal(a, b)
@@ -1301,7 +1309,7 @@ def test_mask_features_sparse_equals_dense_twin(erode_px, oriented):
     temporal = rng.random(mask.shape) < 0.7
     for tm in (temporal, None):
         for fm in (FeatureMap(mask, ori), _features._feature_map(mask.astype(np.uint8), ori)):
-            out = mask_features.func(mask_features.params(erode_px=erode_px), features=fm, mask=road, temporal=tm)["features"]
+            out = mask_features(MaskParams(erode_px=erode_px), features=fm, mask=road, temporal=tm)["features"]
             assert "mask" not in vars(out)  # sparse: nothing dense made
             m, o = mask_features_twin(fm, road, tm, erode_px)
             np.testing.assert_array_equal(out.mask, m)
@@ -1313,7 +1321,7 @@ def test_mask_features_sparse_equals_dense_twin(erode_px, oriented):
             assert _equal(out, FeatureMap(m, o))
     # a float64 orientation map: float32 out, as before
     f64 = FeatureMap(mask, np.where(mask, 1.2345678912345, -1.0))
-    out = mask_features.func(mask_features.params(erode_px=erode_px), features=f64, mask=road)["features"]
+    out = mask_features(MaskParams(erode_px=erode_px), features=f64, mask=road)["features"]
     assert out.point_orientations().dtype == np.float32
 
 
@@ -1321,8 +1329,8 @@ def test_orientation_reads_sparse_and_dense_maps_alike():
     f = features_for([50.0, 110.0])
     r, c = f.points()
     sparse = FeatureMap.from_points(f.shape, r, c, f.point_orientations())
-    p = orientation.params()
-    assert orientation.func(p, features=sparse)["orientation"] == orientation.func(p, features=f)["orientation"]
+    p = OrientationParams()
+    assert orientation(p, features=sparse)["orientation"] == orientation(p, features=f)["orientation"]
     assert "orientation" not in vars(sparse)
 
 
@@ -1387,7 +1395,7 @@ def test_temporal_mask_rejects_features_of_another_shape():
     g = geometry()
     lane = Lane((80.0, 0.0, 0.0), (0, 199), "right", 0.9)
     with pytest.raises(InputError, match="features"):
-        temporal_mask.func(temporal_mask.params(), geometry=g, previous=[lane], features=FeatureMap(np.zeros((10, 10), bool)))
+        temporal_mask(TemporalParams(), geometry=g, previous=[lane], features=FeatureMap(np.zeros((10, 10), bool)))
 
 
 def to_image_twin(lane, geometry, row_step, w=None, h=None):
@@ -1415,7 +1423,7 @@ def to_image_twin(lane, geometry, row_step, w=None, h=None):
 def test_to_image_matches_sort_unique_twin(H):
     g = BevGeometry(-4, 4, 5, 15, 0.05, H)
     lanes = [Lane((40.0, 0.1, 0.0), (20, 180), "left", 0.8), Lane((120.0, -0.9, 0.004), (0, 199), "right", 0.5)]
-    out = to_image.func(to_image.params(), lanes=lanes, geometry=g)["lanes"]
+    out = to_image(ToImageParams(), lanes=lanes, geometry=g)["lanes"]
     ref = [p for p in (to_image_twin(ln, g, 5.0) for ln in lanes) if p is not None]
     assert len(out) == len(ref)
     for ln, p in zip(out, ref):
@@ -1426,11 +1434,11 @@ def test_eslt_node_dense_orientation_is_minus_one_off_the_features():
     """The node leaves its orientation buffer unfilled off the features; the map's dense
     orientation, built on first read, is the kernel's filled one (-1 where no feature)."""
     img = make_bev_image(rows=60, cols=50, lane_cols=(15.0, 35.0), noise=6.0, seed=2)
-    f = eslt.func(eslt.params(), image=img)["features"]
+    f = eslt(EsltParams(), image=img)["features"]
     gx, gy = cv2.spatialGradient(np.ascontiguousarray(img, dtype=np.uint8), ksize=3)
     mask = np.empty(img.shape, np.uint8)
     ori = np.empty(img.shape, np.float32)
-    p = eslt.params()
+    p = EsltParams()
     _features._eslt(img.astype(np.uint8), gx, gy, p.window, float(p.threshold), math.radians(p.max_angle_deg), _features._EVERYWHERE, mask, ori)
     assert mask.any()
     np.testing.assert_array_equal(f.mask, mask.view(bool))

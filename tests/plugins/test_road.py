@@ -268,13 +268,13 @@ def test_profile_treats_non_finite_disparities_as_invalid(scene):
 
 def test_vdisparity_edge_cases():
     disp = np.zeros((5, 6), np.float32)
-    vd = rd.road_vdisparity.func(rd.VDisparityParams(max_disparity=16), disparity=disp)["vdisparity"]
+    vd = rd.road_vdisparity(rd.VDisparityParams(max_disparity=16), disparity=disp)["vdisparity"]
     assert vd.shape == (5, 16) and vd.dtype == np.float32 and vd.sum() == 0
     disp[:] = 16.0  # exactly max: left out
     disp[0, 0] = 100.0
     disp[1, 1] = np.nan  # sanitised to invalid
     disp[2, 2] = 15.99
-    vd = rd.road_vdisparity.func(rd.VDisparityParams(max_disparity=16), disparity=disp)["vdisparity"]
+    vd = rd.road_vdisparity(rd.VDisparityParams(max_disparity=16), disparity=disp)["vdisparity"]
     assert vd.sum() == 1 and vd[2, 15] == 1
 
 
@@ -790,7 +790,7 @@ def scene():
 
 def test_profile_recovers_pitch_roll_height(scene):
     disp, _, _ = scene
-    out = rd.road_profile.func(rd.ProfileParams(), disparity=noisy(disp), calib=CALIB)
+    out = rd.road_profile(rd.ProfileParams(), disparity=noisy(disp), calib=CALIB)
     road = out["road"]
     assert road.valid
     assert math.degrees(abs(road.pitch - PITCH)) < 0.2
@@ -804,7 +804,7 @@ def test_profile_recovers_pitch_roll_height(scene):
 def test_profile_other_poses_and_quadratic(pitch_deg, roll_deg, height):
     disp, _, _ = render_scene(pitch=math.radians(pitch_deg), roll=math.radians(roll_deg), height=height)
     for model in ("linear", "quadratic"):
-        road = rd.road_profile.func(rd.ProfileParams(model=model), disparity=noisy(disp, 1), calib=CALIB)[
+        road = rd.road_profile(rd.ProfileParams(model=model), disparity=noisy(disp, 1), calib=CALIB)[
             "road"
         ]
         assert road.valid
@@ -817,7 +817,7 @@ def test_profile_other_poses_and_quadratic(pitch_deg, roll_deg, height):
 
 def test_profile_without_roll_estimation_is_biased_by_roll(scene):
     disp, _, _ = scene
-    road = rd.road_profile.func(rd.ProfileParams(estimate_roll=False), disparity=noisy(disp), calib=CALIB)[
+    road = rd.road_profile(rd.ProfileParams(estimate_roll=False), disparity=noisy(disp), calib=CALIB)[
         "road"
     ]
     assert road.roll == 0.0 and road.valid
@@ -826,11 +826,11 @@ def test_profile_without_roll_estimation_is_biased_by_roll(scene):
 @pytest.mark.parametrize("shape", [(40, 50), (1, 50), (30, 1)])
 def test_profile_all_invalid_disparity(shape):
     disp = np.zeros(shape, np.float32)
-    out = rd.road_profile.func(rd.ProfileParams(), disparity=disp, calib=CALIB)
+    out = rd.road_profile(rd.ProfileParams(), disparity=disp, calib=CALIB)
     assert out["road"].valid is False
-    m = rd.road_mask.func(rd.MaskParams(), disparity=disp, road=out["road"], calib=CALIB)["mask"]
+    m = rd.road_mask(rd.MaskParams(), disparity=disp, road=out["road"], calib=CALIB)["mask"]
     assert m.shape == shape and m.all()
-    m = rd.road_mask.func(rd.MaskParams(invalid_road="none"), disparity=disp, road=out["road"], calib=CALIB)[
+    m = rd.road_mask(rd.MaskParams(invalid_road="none"), disparity=disp, road=out["road"], calib=CALIB)[
         "mask"
     ]
     assert not m.any()
@@ -838,27 +838,27 @@ def test_profile_all_invalid_disparity(shape):
 
 def test_profile_rejects_a_mismatched_vdisparity(scene):
     with pytest.raises(ValueError, match="vdisparity: expected shape"):
-        rd.road_profile.func(rd.ProfileParams(), disparity=scene[0], calib=CALIB, vdisparity=np.zeros((3, 3)))
+        rd.road_profile(rd.ProfileParams(), disparity=scene[0], calib=CALIB, vdisparity=np.zeros((3, 3)))
 
 
 def test_profile_accepts_the_vdisparity_node_output(scene):
     disp = noisy(scene[0])
-    vd = rd.road_vdisparity.func(rd.VDisparityParams(), disparity=disp)["vdisparity"]
+    vd = rd.road_vdisparity(rd.VDisparityParams(), disparity=disp)["vdisparity"]
     # every column: the node's v-disparity is the profile's own first one
     p1 = rd.ProfileParams(column_step=1, first_pass_column_step=1)
-    a = rd.road_profile.func(p1, disparity=disp, calib=CALIB, vdisparity=vd)["road"]
-    b = rd.road_profile.func(p1, disparity=disp, calib=CALIB)["road"]
+    a = rd.road_profile(p1, disparity=disp, calib=CALIB, vdisparity=vd)["road"]
+    b = rd.road_profile(p1, disparity=disp, calib=CALIB)["road"]
     assert (a.pitch, a.roll, a.height) == (b.pitch, b.roll, b.height)
     # every 2nd column (the default): the full-resolution v-disparity is scaled, the pose agrees
-    a = rd.road_profile.func(rd.ProfileParams(), disparity=disp, calib=CALIB, vdisparity=vd)["road"]
+    a = rd.road_profile(rd.ProfileParams(), disparity=disp, calib=CALIB, vdisparity=vd)["road"]
     assert a.valid and abs(a.pitch - b.pitch) < 1e-3 and abs(a.roll - b.roll) < 1e-3 and abs(a.height - b.height) < 0.01
 
 
 def test_mask_removes_box_and_kerb_keeps_road(scene):
     disp, label, _ = scene
     d = noisy(disp)
-    road = rd.road_profile.func(rd.ProfileParams(), disparity=d, calib=CALIB)["road"]
-    m = rd.road_mask.func(rd.MaskParams(), disparity=d, road=road, calib=CALIB)["mask"]
+    road = rd.road_profile(rd.ProfileParams(), disparity=d, calib=CALIB)["road"]
+    m = rd.road_mask(rd.MaskParams(), disparity=d, road=road, calib=CALIB)["mask"]
     near = disp > CALIB.f * CALIB.baseline / 40.0  # within 40 m
     box, kerb_top, road_px = label == 4, (label == 2) & near, (label == 1) & near
     assert box.sum() > 500 and kerb_top.sum() > 500
@@ -870,7 +870,7 @@ def test_mask_removes_box_and_kerb_keeps_road(scene):
     resolvable = disp > CALIB.f * CALIB.baseline / 25.0
     kerb_top &= resolvable
     road_px &= resolvable
-    raw = rd.road_mask.func(
+    raw = rd.road_mask(
         rd.MaskParams(free_space=False, open_px=0, close_px=0, keep="all", fill_holes_max_above=0),
         disparity=d,
         road=road,
@@ -884,14 +884,14 @@ def test_mask_column_step_matches_every_column(scene):
     the height classes of the computed columns are those of every column there."""
     disp, label, _ = scene
     d = noisy(disp)
-    road = rd.road_profile.func(rd.ProfileParams(), disparity=d, calib=CALIB)["road"]
-    full = rd.road_mask.func(rd.MaskParams(column_step=1), disparity=d, road=road, calib=CALIB)["mask"]
-    half = rd.road_mask.func(rd.MaskParams(column_step=2), disparity=d, road=road, calib=CALIB)["mask"]
+    road = rd.road_profile(rd.ProfileParams(), disparity=d, calib=CALIB)["road"]
+    full = rd.road_mask(rd.MaskParams(column_step=1), disparity=d, road=road, calib=CALIB)["mask"]
+    half = rd.road_mask(rd.MaskParams(column_step=2), disparity=d, road=road, calib=CALIB)["mask"]
     assert half.shape == full.shape and full.any()
     assert np.mean(half == full) >= 0.99
     raw = dict(free_space=False, open_px=0, close_px=0, keep="all", fill_holes_max_above=0)
-    a = rd.road_mask.func(rd.MaskParams(column_step=1, **raw), disparity=d, road=road, calib=CALIB)["mask"]
-    b = rd.road_mask.func(rd.MaskParams(column_step=2, **raw), disparity=d, road=road, calib=CALIB)["mask"]
+    a = rd.road_mask(rd.MaskParams(column_step=1, **raw), disparity=d, road=road, calib=CALIB)["mask"]
+    b = rd.road_mask(rd.MaskParams(column_step=2, **raw), disparity=d, road=road, calib=CALIB)["mask"]
     assert np.mean(a[:, ::2] == b[:, ::2]) >= 0.9999  # rounding of the roll-corrected row at most
     np.testing.assert_array_equal(b[:, 1:-1:2], b[:, 0:-2:2] & b[:, 2::2])
 
@@ -904,7 +904,7 @@ def test_mask_height_tolerance_is_metric():
             *geometry.line_from_pose(PITCH, HEIGHT, CALIB), roll=ROLL, pitch=PITCH, height=HEIGHT
         )
         p = rd.MaskParams(free_space=False, open_px=0, close_px=0, keep="all", fill_holes_max_above=0)
-        m = rd.road_mask.func(p, disparity=disp, road=road, calib=CALIB)["mask"]
+        m = rd.road_mask(p, disparity=disp, road=road, calib=CALIB)["mask"]
         top = (label == 2) & (disp > CALIB.f * CALIB.baseline / 25.0)
         assert (m[top].mean() < 0.05) == rejected
 
@@ -930,7 +930,7 @@ def _line_columns(bev, mask):
 def test_ipm_maps_lane_lines_to_vertical_columns(interp):
     _, _, img = render_scene(marks=(-1.8, 1.8))
     road = RoadModel(*geometry.line_from_pose(PITCH, HEIGHT, CALIB), roll=ROLL, pitch=PITCH, height=HEIGHT)
-    out = rd.bev_ipm.func(rd.IpmParams(**IPM_PARAMS, interpolation=interp), image=img, road=road, calib=CALIB)
+    out = rd.bev_ipm(rd.IpmParams(**IPM_PARAMS, interpolation=interp), image=img, road=road, calib=CALIB)
     geom: BevGeometry = out["geometry"]
     assert out["image"].shape == (geom.rows, geom.cols) == (480, 160)
     left, right = _line_columns(out["image"], out["mask"])
@@ -943,8 +943,8 @@ def test_ipm_maps_lane_lines_to_vertical_columns(interp):
 def test_ipm_with_estimated_pose(scene):
     disp, _, _ = render_scene()
     _, _, img = render_scene(marks=(-1.8, 1.8))
-    road = rd.road_profile.func(rd.ProfileParams(), disparity=noisy(disp, 3), calib=CALIB)["road"]
-    out = rd.bev_ipm.func(rd.IpmParams(**IPM_PARAMS), image=img, road=road, calib=CALIB)
+    road = rd.road_profile(rd.ProfileParams(), disparity=noisy(disp, 3), calib=CALIB)["road"]
+    out = rd.bev_ipm(rd.IpmParams(**IPM_PARAMS), image=img, road=road, calib=CALIB)
     left, right = _line_columns(out["image"], out["mask"])
     exp_l, exp_r = out["geometry"].metric_to_bev(np.array([-1.8, 1.8]), np.array([10.0, 10.0]))[0]
     assert np.nanmax(np.abs(left - exp_l)) < 2.0 and np.nanmax(np.abs(right - exp_r)) < 2.0
@@ -954,7 +954,7 @@ def test_ipm_mask_geometry_and_fallback():
     img = np.full((CALIB.height, CALIB.width, 3), 120, np.uint8)
     road = RoadModel(*geometry.line_from_pose(PITCH, HEIGHT, CALIB), roll=ROLL, pitch=PITCH, height=HEIGHT)
     p = rd.IpmParams(x_min=-20.0, x_max=20.0, z_min=2.0, z_max=60.0, resolution=0.1)
-    out = rd.bev_ipm.func(p, image=img, road=road, calib=CALIB)
+    out = rd.bev_ipm(p, image=img, road=road, calib=CALIB)
     bev, m, geom = out["image"], out["mask"], out["geometry"]
     assert bev.ndim == 2 and bev.dtype == np.uint8 and m.dtype == bool
     assert 0.05 < m.mean() < 0.95  # wide grid: part of it is outside the image
@@ -974,11 +974,11 @@ def test_ipm_mask_geometry_and_fallback():
     # an image mask is carried over
     half = np.zeros(img.shape[:2], bool)
     half[:, : CALIB.width // 2] = True
-    m2 = rd.bev_ipm.func(p, image=img, road=road, calib=CALIB, mask=half)["mask"]
+    m2 = rd.bev_ipm(p, image=img, road=road, calib=CALIB, mask=half)["mask"]
     assert m2.sum() < m.sum() and not (m2 & ~m).any()
     # invalid road: the fallback pose is used
     bad = RoadModel(a0=0.0, a1=0.0, valid=False)
-    fb = rd.bev_ipm.func(
+    fb = rd.bev_ipm(
         rd.IpmParams(fallback_pitch_deg=1.5, fallback_height_m=1.6), image=img, road=bad, calib=CALIB
     )
     exp = ipm.bev_geometry(rd.IpmParams(), CALIB, math.radians(1.5), 0.0, 1.6).H_img_from_bev
@@ -1049,14 +1049,14 @@ def test_kitti_frame0_height_and_pitch(kitti_drive, kitti_calib):
     left = cv2.imread(str(kitti_drive / "image_02" / "data" / "0000000000.png"), cv2.IMREAD_COLOR)
     right = cv2.imread(str(kitti_drive / "image_03" / "data" / "0000000000.png"), cv2.IMREAD_COLOR)
     disp = _sgbm(left, right)
-    road = rd.road_profile.func(rd.ProfileParams(), disparity=disp, calib=kitti_calib)["road"]
+    road = rd.road_profile(rd.ProfileParams(), disparity=disp, calib=kitti_calib)["road"]
     assert road.valid
     assert 1.45 <= road.height <= 1.85
     assert abs(math.degrees(road.pitch)) < 3.0
-    m = rd.road_mask.func(rd.MaskParams(), disparity=disp, road=road, calib=kitti_calib)["mask"]
+    m = rd.road_mask(rd.MaskParams(), disparity=disp, road=road, calib=kitti_calib)["mask"]
     # the road ahead of the car is road; the sky, the parked cars' bodies and the tram bed are not
     assert m[330:375, 450:700].mean() > 0.95
     assert not m[:150].any()
     assert m[300:375, 950:1242].mean() < 0.05
-    bev = rd.bev_ipm.func(rd.IpmParams(), image=left, mask=m, road=road, calib=kitti_calib)
+    bev = rd.bev_ipm(rd.IpmParams(), image=left, mask=m, road=road, calib=kitti_calib)
     assert bev["image"].shape == (800, 400) and bev["mask"].any()

@@ -19,6 +19,7 @@ from lanegraph_synthetic import (
     SceneRenderer,
     SceneSpec,
     SyntheticParams,
+    SyntheticSource,
     preset,
     write_sequence,
 )
@@ -385,9 +386,9 @@ def test_write_sequence(tmp_path):
 
 def test_io_synthetic_node_yields_the_requested_frames():
     nt = get_plugin_manager().get_node_type("io.synthetic")
-    assert nt is not None and nt.source and get_plugin_manager().get_node_type("io.auto") is not None
-    params = nt.params(preset="curved", frames=4, scale=0.25, pitch_deg=2.0, seed=5)
-    src = nt.func(params, RunContext(frames=slice(1, 3)))
+    assert nt is not None and nt.source and nt.func is SyntheticSource and nt.params is SyntheticParams
+    params = SyntheticParams(preset="curved", frames=4, scale=0.25, pitch_deg=2.0, seed=5)
+    src = SyntheticSource(params, RunContext(frames=slice(1, 3)))  # the node class, called as it is
     assert len(src) == 2
     calib = src.constants()["calib"]
     assert (calib.width, calib.height) == (310, 94)
@@ -406,5 +407,5 @@ def test_io_synthetic_node_yields_the_requested_frames():
     with pytest.raises(ValidationError):
         SyntheticParams(frames=0)
     # the defaults (what io.auto falls back to) render the straight preset at full size
-    default = nt.func(nt.params(), RunContext())
+    default = SyntheticSource(SyntheticParams(), RunContext())
     assert len(default) == 10 and default.renderer.spec.preset == "straight"
