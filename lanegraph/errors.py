@@ -7,7 +7,22 @@ file at once so a user can fix them in one go.
 
 from __future__ import annotations
 
+import difflib
+from collections.abc import Iterable
 from dataclasses import dataclass, field
+
+
+def did_you_mean(word: object, choices: Iterable[object], *, listing: str | None = None, cutoff: float = 0.6) -> str | None:
+    """The hint for a name that is not one of ``choices``: ``did you mean 'X'?`` for the closest
+    one (``difflib``, similarity at least ``cutoff``); otherwise ``LISTING: a, b, c`` (``(none)``
+    when there are no choices) when a ``listing`` label is given, else None."""
+    names = [str(c) for c in choices]
+    close = difflib.get_close_matches(str(word), names, n=1, cutoff=cutoff)
+    if close:
+        return f"did you mean '{close[0]}'?"
+    if listing is not None:
+        return f"{listing}: {', '.join(names) or '(none)'}"
+    return None
 
 
 class LanegraphError(Exception):

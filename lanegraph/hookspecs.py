@@ -17,7 +17,15 @@ hookimpl = pluggy.HookimplMarker("lanegraph")
 
 @hookspec
 def lanegraph_node_types() -> list[Any]:
-    """Return the node types (:class:`lanegraph.nodes.NodeType`) this plugin provides."""
+    """Return the node types this plugin provides: functions and classes decorated with
+    :func:`lanegraph.node_type` (or their :class:`~lanegraph.nodes.NodeType` records)."""
+
+
+@hookspec
+def lanegraph_port_types() -> list[Any]:
+    """Return the port types this plugin adds (:class:`lanegraph.types.PortType`: a name, what a
+    value of it is, and the parent type whose ports it may feed). Node types of any plugin may use
+    them; a graph that wires a port of a type no installed plugin registers is invalid."""
 
 
 @hookspec
@@ -27,13 +35,21 @@ def lanegraph_before_node(node_id: str, node_type: str, frame: str | None, input
 
 @hookspec
 def lanegraph_after_node(
-    node_id: str, node_type: str, frame: str | None, outputs: dict[str, Any] | None, elapsed_ms: float
+    node_id: str,
+    node_type: str,
+    frame: str | None,
+    outputs: dict[str, Any] | None,
+    elapsed_ms: float,
+    error: BaseException | None,
 ) -> None:
     """Called right after a node processed a frame, with its outputs and wall time in ms.
 
-    The source node (an iterator read ahead) fires only this hook: once with its constants
-    (``frame`` None) and once per frame. Nodes that run once (constant inputs only) fire it with
-    ``frame`` None.
+    ``error`` is None when the node succeeded (``outputs`` then holds what it returned, ``{}`` for
+    a sink); when it raised, ``error`` is the exception and ``outputs`` None, whatever the node's
+    error policy does next (so a tracing or caching plugin can tell a failure from an empty
+    output). The source node (an iterator read ahead) fires only this hook: once with its
+    constants (``frame`` None), once per frame, and with the error of a frame it could not read.
+    Nodes that run once (constant inputs only) fire it with ``frame`` None.
     """
 
 
@@ -55,3 +71,10 @@ def lanegraph_render(node_type: str, port: str, value: Any) -> Any:
 @hookspec(firstresult=True)
 def lanegraph_detect_source(path: Any) -> str | None:
     """Return the name of the source node type that reads ``path`` (a folder or file), or None."""
+
+
+@hookspec(firstresult=True)
+def lanegraph_read_calibration(path: Any) -> Any:
+    """Read the calibration file ``path`` if this plugin knows its format: a
+    :class:`lanegraph.types.Calibration`, or None to decline. Raise an
+    :class:`~lanegraph.errors.InputError` for a file of its format that is malformed."""
