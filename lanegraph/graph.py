@@ -26,22 +26,26 @@ Everything is checked before any frame runs; every problem names the file, node 
 from __future__ import annotations
 
 import copy
-import difflib
 import re
 import reprlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, StringConstraints, ValidationError, field_validator
 
-from .errors import GraphError, Problem
+from .errors import GraphError, Problem, did_you_mean
 from .loader import read_graph_file
 from .nodes import NodeParams, NodeType
 from .paths import output_fields, output_problems
 from .plugins import PluginManager, get_plugin_manager
 from .types import port_compatible
+
+#: a node's error policy: ``fail`` stops the run, ``skip`` drops the frame, ``empty`` passes None on
+ON_ERROR_CHOICES = ("fail", "skip", "empty")
+OnError = Annotated[str, StringConstraints(pattern=f"^({'|'.join(ON_ERROR_CHOICES)})$")]
 
 _REF = re.compile(r"^(?P<node>[A-Za-z_][\w-]*)\.(?P<port>[A-Za-z_]\w*)(?P<prev>@prev)?$")
 _ID = r"^[A-Za-z_][\w-]*$"
@@ -70,9 +74,7 @@ class NodeSpec(BaseModel):
         description="input port -> 'node_id.port' (append '@prev' for the previous frame's value) or the long form",
     )
     doc: str = Field("", description="free text: why this node is here")
-    on_error: str | None = Field(
-        None, pattern="^(fail|skip|empty)$", description="error policy for this node: fail | skip | empty"
-    )
+    on_error: OnError | None = Field(None, description=f"error policy for this node: {' | '.join(ON_ERROR_CHOICES)}")
 
 
 class GraphSpec(BaseModel):
@@ -84,7 +86,7 @@ class GraphSpec(BaseModel):
     name: str = Field("", description="short name of the graph")
     description: str = Field("", description="what the graph does")
     extends: str | None = Field(None, description="base graph file, relative to this file")
-    on_error: str = Field("fail", pattern="^(fail|skip|empty)$", description="default error policy of every node")
+    on_error: OnError = Field("fail", description="default error policy of every node")
     nodes: dict[str, NodeSpec | None] = Field(default_factory=dict, description="node id -> node")
     remove: list[str] = Field(default_factory=list, description="ids of base-graph nodes to remove")
 
@@ -199,34 +201,7 @@ def _resolve(
     base_raw: dict[str, Any] = {"nodes": {}}
     ext = data.get("extends")
     if ext is not None:
-        if not isinstance(ext, str):
-            raise GraphError([Problem(f"expected a file path, got {_short(ext)}", file=display, field="extends")])
-        try:
-            base_path = (path.parent / ext).resolve()
-            base_found = base_path.is_file()
-        except (OSError, ValueError) as exc:  # a NUL byte, a name too long for the file system
-            raise GraphError([Problem(f"invalid path {_short(ext)}: {exc}", file=display, field="extends")]) from None
-        except RuntimeError as exc:  # a symbolic link loop
-            raise GraphError([Problem(f"invalid path {_short(ext)}: {exc}", file=display, field="extends")]) from None
-        if base_path in chain or base_path == path.resolve():
-            cyc = " -> ".join(str(p) for p in (*chain, path.resolve(), base_path))
-            raise GraphError([Problem(f"extends cycle: {cyc}", file=display, field="extends")])
-        if roots is not None and not any(base_path.is_relative_to(r) for r in roots):
-            raise GraphError(
-                [
-                    Problem(
-                        f"{ext!r} resolves to {base_path}, outside the allowed roots "
-                        f"({', '.join(map(str, roots))})",
-                        file=display,
-                        field="extends",
-                    )
-                ]
-            )
-        base_display = str(Path(display).parent / ext) if display else str(base_path)
-        if not base_found:
-            raise GraphError(
-                [Problem(f"base graph file not found: {base_display} (resolved to {base_path})", file=display, field="extends")]
-            )
+        base_path, base_display = _base_file(ext, path, display, chain, roots)
         base_raw, origin = _resolve(base_path, base_display, (*chain, path.resolve()), roots)
     merged = {k: v for k, v in base_raw.items() if k not in ("extends", "remove")}
     for key, value in data.items():
@@ -239,53 +214,86 @@ def _resolve(
         raise GraphError(
             [Problem(f"expected a mapping of node id -> node, got {type(own_nodes).__name__}", file=display, field="nodes")]
         )
+    problems = _override_nodes(nodes, own_nodes, origin, display, extends=ext is not None)
+    problems += _remove_nodes(nodes, data.get("remove") or [], origin, display)
+    if problems:
+        raise GraphError(problems)
+    merged["nodes"] = nodes
+    return merged, origin
+
+
+def _base_file(ext: Any, path: Path, display: str, chain: tuple[Path, ...], roots: list[Path] | None) -> tuple[Path, str]:
+    """The file ``extends: EXT`` of graph file ``path`` names, checked: a path, no cycle, inside
+    the allowed ``roots``, present. Returns (resolved path, how messages show it)."""
+
+    def problem(message: str) -> GraphError:
+        return GraphError([Problem(message, file=display, field="extends")])
+
+    if not isinstance(ext, str):
+        raise problem(f"expected a file path, got {_short(ext)}")
+    try:
+        base_path = (path.parent / ext).resolve()
+        base_found = base_path.is_file()
+    except (OSError, ValueError, RuntimeError) as exc:  # a NUL byte, a name too long, a symbolic link loop
+        raise problem(f"invalid path {_short(ext)}: {exc}") from None
+    if base_path in chain or base_path == path.resolve():
+        raise problem("extends cycle: " + " -> ".join(str(p) for p in (*chain, path.resolve(), base_path)))
+    if roots is not None and not any(base_path.is_relative_to(r) for r in roots):
+        raise problem(f"{ext!r} resolves to {base_path}, outside the allowed roots ({', '.join(map(str, roots))})")
+    base_display = str(Path(display).parent / ext) if display else str(base_path)
+    if not base_found:
+        raise problem(f"base graph file not found: {base_display} (resolved to {base_path})")
+    return base_path, base_display
+
+
+def _override_nodes(
+    nodes: dict[str, Any], own: dict[Any, Any], origin: dict[str, str], display: str, extends: bool
+) -> list[Problem]:
+    """Apply a file's own ``nodes`` to those of its base (in place): ``null`` removes a node, a
+    mapping for a base node is merged into it, a new node needs a ``type``."""
     problems = []
-
-    def did_you_mean(nid: Any) -> str:
-        close = difflib.get_close_matches(str(nid), [str(k) for k in nodes], n=1)
-        return f"did you mean '{close[0]}'?" if close else f"nodes: {', '.join(map(str, nodes)) or '(none)'}"
-
-    for nid, spec in own_nodes.items():
+    for nid, spec in own.items():
         if spec is None:
             if nid not in nodes:
-                problems.append(
-                    Problem("cannot remove: no such node in the base graph", file=display, node=str(nid), hint=did_you_mean(nid))
-                )
+                hint = did_you_mean(nid, nodes, listing="nodes")
+                problems.append(Problem("cannot remove: no such node in the base graph", file=display, node=str(nid), hint=hint))
             nodes.pop(nid, None)
             origin.pop(nid, None)
             origin[f"{nid}@removed"] = display
         elif isinstance(spec, dict) and isinstance(nodes.get(nid), dict):
             nodes[nid] = _merge_node(nodes[nid], spec)
             origin[nid] = display
-        elif ext is not None and isinstance(spec, dict) and "type" not in spec and nid not in nodes:
+        elif extends and isinstance(spec, dict) and "type" not in spec and nid not in nodes:
             problems.append(
                 Problem(
                     "cannot override: no such node in the base graph (a new node needs a 'type')",
                     file=display,
                     node=str(nid),
-                    hint=did_you_mean(nid),
+                    hint=did_you_mean(nid, nodes, listing="nodes"),
                 )
             )
         else:
             nodes[nid] = spec
             origin[nid] = display
-    removes = data.get("remove") or []
+    return problems
+
+
+def _remove_nodes(nodes: dict[str, Any], removes: Any, origin: dict[str, str], display: str) -> list[Problem]:
+    """Apply a file's ``remove: [ids]`` (in place)."""
     if not isinstance(removes, list):
-        problems.append(Problem(f"expected a list of node ids, got {removes!r}", file=display, field="remove"))
-        removes = []
+        return [Problem(f"expected a list of node ids, got {removes!r}", file=display, field="remove")]
+    problems = []
     for nid in removes:
         if not isinstance(nid, str):
             problems.append(Problem(f"expected a node id, got {nid!r}", file=display, field="remove"))
             continue
         if nid not in nodes:
-            problems.append(Problem("cannot remove: no such node", file=display, node=nid, field="remove", hint=did_you_mean(nid)))
+            hint = did_you_mean(nid, nodes, listing="nodes")
+            problems.append(Problem("cannot remove: no such node", file=display, node=nid, field="remove", hint=hint))
         nodes.pop(nid, None)
         origin.pop(nid, None)
         origin[f"{nid}@removed"] = display
-    if problems:
-        raise GraphError(problems)
-    merged["nodes"] = nodes
-    return merged, origin
+    return problems
 
 
 def parse_set(item: str) -> tuple[str, list[str], Any]:
@@ -313,15 +321,8 @@ def _apply_sets(raw: dict[str, Any], sets: list[str], origin: dict[str, str]) ->
         nid, path, value = parse_set(item)
         spec = nodes.get(nid)
         if not isinstance(spec, dict):
-            hint = difflib.get_close_matches(nid, names, n=1)
-            problems.append(
-                Problem(
-                    f"--set {item!r}: no node with this id",
-                    node=nid,
-                    field="--set",
-                    hint=f"did you mean '{hint[0]}'?" if hint else f"nodes: {', '.join(names)}",
-                )
-            )
+            hint = did_you_mean(nid, names, listing="nodes")
+            problems.append(Problem(f"--set {item!r}: no node with this id", node=nid, field="--set", hint=hint))
             continue
         if path == ["type"]:
             spec.update(_merge_node(spec, {"type": value}))
@@ -398,9 +399,7 @@ def _param_hint(model: type[NodeParams], problems: list[Problem]) -> list[Proble
     out = []
     for p in problems:
         if p.message == "unknown key" and p.field:
-            key = p.field.split(".")[-1]
-            close = difflib.get_close_matches(key, fields, n=1)
-            hint = f"did you mean '{close[0]}'?" if close else f"known params: {', '.join(fields) or '(none)'}"
+            hint = did_you_mean(p.field.split(".")[-1], fields, listing="known params")
             p = Problem(p.message, p.file, p.node, p.node_type, p.field, hint)
         out.append(p)
     return out
@@ -410,200 +409,238 @@ def validate_raw(
     raw: dict[str, Any], origin: dict[str, str], file: str, pm: PluginManager | None = None
 ) -> Graph:
     """Validate a resolved graph dict against the installed node types; raise one :class:`GraphError`
-    listing every problem."""
+    listing every problem.
+
+    The graph format is checked first (a malformed file stops there); then the passes of
+    :data:`PASSES` run in turn on what the earlier ones established, each returning its problems.
+    """
     pm = pm or get_plugin_manager()
+    spec = _parse_spec(raw, origin, file)
+    state = _Validation(spec, origin, file, pm, {k: v for k, v in spec.nodes.items() if v is not None})
+    problems: list[Problem] = []
+    for check in PASSES:
+        problems += check(state)
+    if problems:
+        raise GraphError(_dedupe(problems))
+    return Graph(spec.name or Path(file).stem, spec.description, file, state.nodes, state.order, raw, spec.on_error)
+
+
+@dataclass
+class _Validation:
+    """What the validation passes share: the parsed graph and what the earlier passes found."""
+
+    spec: GraphSpec
+    origin: dict[str, str]
+    file: str
+    pm: PluginManager
+    specs: dict[str, NodeSpec]  # the nodes that are not removed
+    types: dict[str, NodeType] = field(default_factory=dict)  # node id -> its (known) type
+    nodes: dict[str, GraphNode] = field(default_factory=dict)  # node id -> the validated node
+    order: list[str] = field(default_factory=list)
+
+    def file_of(self, nid: str) -> str:
+        """The file that (last) defined node ``nid``."""
+        return self.origin.get(nid, self.file)
+
+
+# --------------------------------------------------------------------------- the graph format
+def _parse_spec(raw: dict[str, Any], origin: dict[str, str], file: str) -> GraphSpec:
+    """The graph format (:class:`GraphSpec`): every problem of a malformed file, located."""
     try:
-        spec = GraphSpec.model_validate(raw)
+        return GraphSpec.model_validate(raw)
     except ValidationError as exc:
-        problems = []
-        for err in exc.errors():
-            loc = err["loc"]
-            node = str(loc[1]) if len(loc) >= 2 and loc[0] == "nodes" else None
-            rest = loc[2:] if node else loc
-            # pydantic reports union branches; keep the informative one
-            if node and len(rest) >= 1 and rest[0] == "NodeSpec":
-                rest = rest[1:]
-            model: type[BaseModel] = NodeSpec if node else GraphSpec
-            msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
-            if err["type"] not in ("extra_forbidden", "missing"):
-                msg = f"expected: {msg[0].lower() + msg[1:]}; got {_short(err.get('input'))}"
-            if node and len(rest) >= 3 and rest[0] == "inputs" and rest[2] in ("str", "InputSpec"):
-                value = ((raw.get("nodes") or {}).get(loc[1]) or {}).get("inputs", {}).get(rest[1])
-                if (rest[2] == "InputSpec") != isinstance(value, dict):
-                    continue  # the branch of the other form
-                if rest[2] == "str":
-                    msg = f"expected 'node_id.port', 'node_id.port@prev' or {{from: node_id.port, previous: true}}; got {_short(value)}"
-                rest, model = (*rest[:2], *rest[3:]), InputSpec
-            hint = None
-            if node and not rest and isinstance(err.get("input"), str):
-                hint = f"a node is a mapping: {node}: {{type: {err['input']}}}"
-            if err["type"] == "extra_forbidden" and rest:
-                names = [f.alias or k for k, f in model.model_fields.items()]
-                close = difflib.get_close_matches(str(rest[-1]), names, n=1)
-                hint = f"did you mean '{close[0]}'?" if close else f"known keys: {', '.join(names)}"
-            nfile = origin.get(node, file) if node else file
-            problems.append(Problem(msg, file=nfile, node=node, field=_loc_str(rest) or None, hint=hint))
+        problems = [p for err in exc.errors() if (p := _format_problem(err, raw, origin, file)) is not None]
         raise GraphError(_dedupe(problems)) from None
 
+
+def _format_problem(err: Any, raw: dict[str, Any], origin: dict[str, str], file: str) -> Problem | None:
+    """One pydantic error of the graph format as a located problem (None for the union branch of
+    an input's other form)."""
+    loc = err["loc"]
+    node = str(loc[1]) if len(loc) >= 2 and loc[0] == "nodes" else None
+    rest = loc[2:] if node else loc
+    # pydantic reports union branches; keep the informative one
+    if node and len(rest) >= 1 and rest[0] == "NodeSpec":
+        rest = rest[1:]
+    model: type[BaseModel] = NodeSpec if node else GraphSpec
+    msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
+    if err["type"] not in ("extra_forbidden", "missing"):
+        msg = f"expected: {msg[0].lower() + msg[1:]}; got {_short(err.get('input'))}"
+    if node and len(rest) >= 3 and rest[0] == "inputs" and rest[2] in ("str", "InputSpec"):
+        value = ((raw.get("nodes") or {}).get(loc[1]) or {}).get("inputs", {}).get(rest[1])
+        if (rest[2] == "InputSpec") != isinstance(value, dict):
+            return None  # the branch of the other form
+        if rest[2] == "str":
+            msg = f"expected 'node_id.port', 'node_id.port@prev' or {{from: node_id.port, previous: true}}; got {_short(value)}"
+        rest, model = (*rest[:2], *rest[3:]), InputSpec
+    hint = None
+    if node and not rest and isinstance(err.get("input"), str):
+        hint = f"a node is a mapping: {node}: {{type: {err['input']}}}"
+    if err["type"] == "extra_forbidden" and rest:
+        hint = did_you_mean(rest[-1], [f.alias or k for k, f in model.model_fields.items()], listing="known keys")
+    nfile = origin.get(node, file) if node else file
+    return Problem(msg, file=nfile, node=node, field=_loc_str(rest) or None, hint=hint)
+
+
+# --------------------------------------------------------------------------- the passes
+def _node_types_pass(v: _Validation) -> list[Problem]:
+    """Every node's type is installed and its params are valid for it."""
     problems: list[Problem] = []
-    nodes: dict[str, GraphNode] = {}
-    specs = {k: v for k, v in spec.nodes.items() if v is not None}
-    # params validators may look up other node types (io.auto's default must name a source)
-    context = {"node_types": pm.node_types}
-    types: dict[str, NodeType] = {}
-    for nid, ns in specs.items():
-        nfile = origin.get(nid, file)
-        nt = pm.get_node_type(ns.type)
+    context = {"node_types": v.pm.node_types}  # params validators may look up other node types
+    for nid, ns in v.specs.items():
+        nt = v.pm.get_node_type(ns.type)
         if nt is None:
-            sug = pm.suggest(ns.type)
-            problems.append(
-                Problem(
-                    f"unknown node type {ns.type!r}",
-                    file=nfile,
-                    node=nid,
-                    field="type",
-                    hint=(f"did you mean '{sug}'?" if sug else "run `lanegraph nodes` to list the installed types"),
-                )
-            )
+            problems.append(_unknown_type(v, nid, ns.type))
             continue
-        types[nid] = nt
+        v.types[nid] = nt
         try:
             params = nt.params.model_validate(ns.params, context=context)
         except ValidationError as exc:
-            problems += _param_hint(nt.params, _pydantic_problems(exc, nfile, nid, nt.name, "params"))
+            problems += _param_hint(nt.params, _pydantic_problems(exc, v.file_of(nid), nid, nt.name, "params"))
             params = None
-        nodes[nid] = GraphNode(nid, nt, params, {}, nfile, ns.doc, ns.on_error or spec.on_error)  # type: ignore[arg-type]
+        v.nodes[nid] = GraphNode(nid, nt, params, {}, v.file_of(nid), ns.doc, ns.on_error or v.spec.on_error)  # type: ignore[arg-type]
+    return problems
 
-    # wiring
-    for nid, ns in specs.items():
-        if nid not in types:
+
+def _unknown_type(v: _Validation, nid: str, name: str) -> Problem:
+    sug = v.pm.suggest(name)
+    hint = f"did you mean '{sug}'?" if sug else "run `lanegraph nodes` to list the installed types"
+    missing = v.pm.missing_type_hint(name)
+    if missing is not None:  # a plugin was not loaded: say so (it holds this type, or may)
+        hint = missing if missing.startswith("it is a node type") else f"{hint}; {missing}"
+    return Problem(f"unknown node type {name!r}", file=v.file_of(nid), node=nid, field="type", hint=hint)
+
+
+def _wiring_pass(v: _Validation) -> list[Problem]:
+    """Every input names a port of the node's type and an output of a node of the graph whose port
+    type fits; every required input is connected."""
+    problems: list[Problem] = []
+    for nid, ns in v.specs.items():
+        nt = v.types.get(nid)
+        if nt is None:
             continue
-        nt = types[nid]
-        nfile = origin.get(nid, file)
         for port, ref in ns.inputs.items():
-            fld = f"inputs.{port}"
-            if port not in nt.inputs:
-                close = difflib.get_close_matches(port, list(nt.inputs), n=1)
-                problems.append(
-                    Problem(
-                        f"unknown input port {port!r}",
-                        file=nfile,
-                        node=nid,
-                        node_type=nt.name,
-                        field=fld,
-                        hint=(f"did you mean '{close[0]}'?" if close else f"inputs: {', '.join(nt.inputs) or '(none)'}"),
-                    )
-                )
-                continue
-            if ref is None:
-                continue
-            text, previous = (ref.from_, ref.previous) if isinstance(ref, InputSpec) else (ref, False)
-            m = _REF.match(text.strip())
-            if not m:
-                problems.append(
-                    Problem(
-                        f"expected 'node_id.port' or 'node_id.port@prev', got {text!r}",
-                        file=nfile,
-                        node=nid,
-                        node_type=nt.name,
-                        field=fld,
-                    )
-                )
-                continue
-            src, sport, previous = m["node"], m["port"], previous or bool(m["prev"])
-            if src not in specs:
-                close = difflib.get_close_matches(src, list(specs), n=1)
-                hint = f"did you mean '{close[0]}'?" if close else None
-                if f"{src}@removed" in origin:
-                    hint = (
-                        f"{origin[src + '@removed']} removes node {src!r}; unwire this input there "
-                        f"({nid}: {{inputs: {{{port}: null}}}}) or wire it to another node"
-                    )
-                problems.append(
-                    Problem(f"refers to unknown node {src!r}", file=nfile, node=nid, node_type=nt.name, field=fld, hint=hint)
-                )
-                continue
-            if src not in types:
-                continue  # already reported: unknown type
-            st = types[src]
-            if sport not in st.outputs:
-                close = difflib.get_close_matches(sport, list(st.outputs), n=1)
-                problems.append(
-                    Problem(
-                        f"node {src!r} ({st.name}) has no output port {sport!r}",
-                        file=nfile,
-                        node=nid,
-                        node_type=nt.name,
-                        field=fld,
-                        hint=(f"did you mean '{close[0]}'?" if close else f"outputs: {', '.join(st.outputs) or '(none)'}"),
-                    )
-                )
-                continue
-            produced, expected = st.outputs[sport].type, nt.inputs[port].type
-            if not port_compatible(produced, expected):
-                problems.append(
-                    Problem(
-                        f"port type mismatch: expected {expected!r}, got {produced!r} from {src}.{sport}",
-                        file=nfile,
-                        node=nid,
-                        node_type=nt.name,
-                        field=fld,
-                    )
-                )
-                continue
-            if nid in nodes:
-                nodes[nid].inputs[port] = Edge(src, sport, nid, port, previous)
-        for port, p in nt.inputs.items():
-            if not p.optional and port not in ns.inputs:
-                problems.append(
-                    Problem(
-                        f"required input port {port!r} ({p.type}) is not connected",
-                        file=nfile,
-                        node=nid,
-                        node_type=nt.name,
-                        field=f"inputs.{port}",
-                    )
-                )
-            elif not p.optional and ns.inputs.get(port) is None and port in ns.inputs:
-                problems.append(
-                    Problem(
-                        f"required input port {port!r} ({p.type}) cannot be unwired",
-                        file=nfile,
-                        node=nid,
-                        node_type=nt.name,
-                        field=f"inputs.{port}",
-                    )
-                )
+            problem, edge = _input_edge(v, nid, nt, port, ref)
+            if problem is not None:
+                problems.append(problem)
+            elif edge is not None and nid in v.nodes:
+                v.nodes[nid].inputs[port] = edge
+        problems += _required_inputs(v, nid, nt, ns)
+    return problems
 
-    sources = [nid for nid, t in types.items() if t.source]
-    if len(sources) != 1 and not any(p.field == "type" for p in problems):
+
+def _input_edge(v: _Validation, nid: str, nt: NodeType, port: str, ref: Any) -> tuple[Problem | None, Edge | None]:
+    """The edge that feeds input ``port`` of node ``nid`` from ``ref``, or the problem with it."""
+    where = {"file": v.file_of(nid), "node": nid, "node_type": nt.name, "field": f"inputs.{port}"}
+    if port not in nt.inputs:
+        return Problem(f"unknown input port {port!r}", **where, hint=did_you_mean(port, nt.inputs, listing="inputs")), None
+    if ref is None:
+        return None, None
+    text, previous = (ref.from_, ref.previous) if isinstance(ref, InputSpec) else (ref, False)
+    m = _REF.match(text.strip())
+    if not m:
+        return Problem(f"expected 'node_id.port' or 'node_id.port@prev', got {text!r}", **where), None
+    src, sport, previous = m["node"], m["port"], previous or bool(m["prev"])
+    if src not in v.specs:
+        hint = did_you_mean(src, v.specs)
+        if f"{src}@removed" in v.origin:
+            hint = (
+                f"{v.origin[src + '@removed']} removes node {src!r}; unwire this input there "
+                f"({nid}: {{inputs: {{{port}: null}}}}) or wire it to another node"
+            )
+        return Problem(f"refers to unknown node {src!r}", **where, hint=hint), None
+    st = v.types.get(src)
+    if st is None:
+        return None, None  # already reported: unknown type
+    if sport not in st.outputs:
+        hint = did_you_mean(sport, st.outputs, listing="outputs")
+        return Problem(f"node {src!r} ({st.name}) has no output port {sport!r}", **where, hint=hint), None
+    produced, expected = st.outputs[sport].type, nt.inputs[port].type
+    known = v.pm.port_types
+    for ptype, what in ((expected, f"input port {port!r} of {nt.name}"), (produced, f"output {src}.{sport} of {st.name}")):
+        if ptype not in known:
+            hint = did_you_mean(ptype, known) or "no installed plugin registers it (through the lanegraph_port_types hook)"
+            return Problem(f"unknown port type {ptype!r} ({what})", **where, hint=hint), None
+    if not port_compatible(produced, expected, known):
+        return Problem(f"port type mismatch: expected {expected!r}, got {produced!r} from {src}.{sport}", **where), None
+    return None, Edge(src, sport, nid, port, previous)
+
+
+def _required_inputs(v: _Validation, nid: str, nt: NodeType, ns: NodeSpec) -> list[Problem]:
+    problems = []
+    for port, p in nt.inputs.items():
+        if p.optional:
+            continue
+        if port not in ns.inputs:
+            what = "is not connected"
+        elif ns.inputs.get(port) is None:
+            what = "cannot be unwired"
+        else:
+            continue
         problems.append(
             Problem(
-                f"a graph needs exactly one source node (an io.* node type that produces frames), found "
-                f"{len(sources)}" + (f": {', '.join(sources)}" if sources else ""),
-                file=file,
-                field="nodes",
-                hint="add e.g. `src: {type: io.auto}`" if not sources else None,
+                f"required input port {port!r} ({p.type}) {what}",
+                file=v.file_of(nid),
+                node=nid,
+                node_type=nt.name,
+                field=f"inputs.{port}",
             )
         )
+    return problems
 
-    problems += _output_problems(nodes)
-    problems += _feedback_only_problems(nodes)
 
-    order, cycle = _toposort(nodes)
-    if cycle:
-        problems.append(
-            Problem(
-                "cycle without a feedback edge: " + " -> ".join(cycle),
-                file=origin.get(cycle[0], file),
-                node=cycle[0],
-                field="inputs",
-                hint="mark an edge that carries the previous frame's value with '@prev'",
-            )
+def _source_pass(v: _Validation) -> list[Problem]:
+    """Exactly one source node (when every node's type is known)."""
+    sources = [nid for nid, t in v.types.items() if t.source]
+    if len(sources) == 1 or len(v.types) < len(v.specs):
+        return []
+    installed = [(name, t) for name, t in v.pm.node_types.items() if t.source]
+    families = " or ".join(sorted({f"an {t.family}.*" if t.family[0] in "aeiou" else f"a {t.family}.*" for _, t in installed}))
+    example = next((n for n, t in installed if t.selects_source), installed[0][0] if installed else None)
+    return [
+        Problem(
+            f"a graph needs exactly one source node ({families or 'a'} node type that produces frames), found "
+            f"{len(sources)}" + (f": {', '.join(sources)}" if sources else ""),
+            file=v.file,
+            field="nodes",
+            hint=f"add e.g. `src: {{type: {example}}}`" if not sources and example else None,
         )
-    if problems:
-        raise GraphError(_dedupe(problems))
-    return Graph(spec.name or Path(file).stem, spec.description, file, nodes, order, raw, spec.on_error)
+    ]
+
+
+def _sinks_pass(v: _Validation) -> list[Problem]:
+    return _output_problems(v.nodes)
+
+
+def _feedback_pass(v: _Validation) -> list[Problem]:
+    return _feedback_only_problems(v.nodes)
+
+
+def _order_pass(v: _Validation) -> list[Problem]:
+    """An execution order: no cycle of same-frame edges."""
+    v.order, cycle = _toposort(v.nodes)
+    if not cycle:
+        return []
+    return [
+        Problem(
+            "cycle without a feedback edge: " + " -> ".join(cycle),
+            file=v.file_of(cycle[0]),
+            node=cycle[0],
+            field="inputs",
+            hint="mark an edge that carries the previous frame's value with '@prev'",
+        )
+    ]
+
+
+#: the validation passes, in order; each returns its problems
+PASSES: tuple[Callable[[_Validation], list[Problem]], ...] = (
+    _node_types_pass,
+    _wiring_pass,
+    _source_pass,
+    _sinks_pass,
+    _feedback_pass,
+    _order_pass,
+)
 
 
 def _output_problems(nodes: dict[str, GraphNode]) -> list[Problem]:
@@ -669,7 +706,7 @@ def _toposort(nodes: dict[str, GraphNode]) -> tuple[list[str], list[str] | None]
                     ready.append(other)
     if len(order) == len(nodes):
         # sinks that feed nothing run last, so a frame that fails (or is skipped) in any other node
-        # never reaches a sink: no lanes.jsonl line for a frame that did not complete
+        # never reaches a sink: no line in a sink's file for a frame that did not complete
         feeding = {e.src_node for n in nodes.values() for e in n.inputs.values()}
         last = [nid for nid in order if nodes[nid].type.sink and nid not in feeding]
         return [nid for nid in order if nid not in last] + last, None
@@ -722,7 +759,7 @@ def graph_json_schema(pm: PluginManager | None = None) -> dict[str, Any]:
                     "additionalProperties": False,
                 },
                 "doc": {"type": "string"},
-                "on_error": {"enum": ["fail", "skip", "empty"]},
+                "on_error": {"enum": list(ON_ERROR_CHOICES)},
             },
             "required": ["type"],
             "additionalProperties": False,
