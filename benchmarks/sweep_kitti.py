@@ -71,7 +71,8 @@ from lanegraph.dataset import POOLED, Dataset, evaluate_sequences, load_dataset,
 from lanegraph.errors import InputError
 from lanegraph.frames import selection_text
 from lanegraph.metrics import evaluate, read_ground_truth, read_predictions
-from lanegraph.nodes import RunContext
+from lanegraph.nodes import RunContext, node_type_of
+from lanegraph.results import LANES, find_result
 from lanegraph.types import Calibration
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -145,7 +146,7 @@ def open_sequence(folder: str | Path) -> StereoSequence:
             path=str(folder),
         )
     node = SOURCES[source]
-    src = node.func(node.params(), RunContext(input_path=folder))
+    src = node(node_type_of(node).params(), RunContext(input_path=folder))
     left, right = src.all_pairs[0][1].parent, src.all_pairs[0][2].parent
     cameras = (left.relative_to(src.root), right.relative_to(src.root))
     calib_path = src.root.resolve().parent / "calib_cam_to_cam.txt" if source == "io.kitti_raw" else src.root / "calib.txt"
@@ -397,7 +398,7 @@ def main(argv: list[str] | None = None) -> int:
             bar.update()
             if not failed:
                 try:
-                    pred = read_predictions(out / "lanes.jsonl")
+                    pred = read_predictions(find_result(out, LANES) or out / "lanes.jsonl")
                 except InputError as exc:
                     failed = f"unreadable predictions: {exc}"
             if failed:

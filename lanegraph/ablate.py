@@ -2,7 +2,8 @@
 tabulated, with the work the variants share computed once (:mod:`lanegraph.cache`).
 
 The input is a :class:`~lanegraph.dataset.Dataset` (one or more sequences). Writes
-``OUT/runs/<variant>/<sequence>/lanes.jsonl`` and ``timings.json`` per run, and ``OUT/results.csv``
+``OUT/runs/<variant>/<sequence>/`` per run (what its sinks write, ``timings.json``, ``run.json``;
+its lanes are found through :mod:`lanegraph.results`), and ``OUT/results.csv``
 (one row per variant and sequence, and a pooled row per variant with ``sequence`` = ``all``),
 ``OUT/results.md``, ``OUT/accuracy.png`` (pooled accuracy per variant) and ``OUT/accuracy_vs_ms.png``.
 A run whose resolved graph, input files and frame selection are unchanged since the last ablation
@@ -34,6 +35,7 @@ from .dataset import POOLED, Dataset, evaluate_sequences, read_gt
 from .metrics import evaluate, read_predictions
 from .paths import inside, safe_name, write_bytes_atomic, write_text_atomic
 from .plugins import get_plugin_manager
+from .results import LANES, find_result
 from .resume import input_identity
 
 
@@ -90,7 +92,7 @@ def run_ablation(
     """Run every variant on every sequence of ``dataset``, evaluate and tabulate; returns the rows
     (one per variant and sequence, then the variant's pooled row, ``sequence`` = ``all``).
 
-    Outputs: ``OUT/runs/<variant>/<sequence>/lanes.jsonl``, ``timings.json`` and ``run.json``,
+    Outputs: ``OUT/runs/<variant>/<sequence>/`` (the sinks' files, ``timings.json``, ``run.json``),
     ``OUT/results.csv``, ``OUT/results.md`` and the plots. ``frames`` (``--frames``) applies to
     sequences that do not choose their own. The runs are the tasks of :mod:`lanegraph.batch`: in
     this process one after another, or on a Dask cluster with ``scheduler``, with the same outputs;
@@ -145,8 +147,8 @@ def run_ablation(
 
 
 def _rows(plans: list[tuple[Variant, list[Planned]]], gts: dict[str, Any], finished_only: bool = False) -> list[dict[str, Any]]:
-    """The rows of the planned runs, from their folders' run.json and lanes.jsonl (``finished_only``:
-    of the variants whose every run ended)."""
+    """The rows of the planned runs, from their folders' run.json and lanes (``finished_only``: of
+    the variants whose every run ended)."""
     rows: list[dict[str, Any]] = []
     for var, var_plans in plans:
         if finished_only and any(p.record is None and not p.reused for p in var_plans):
@@ -161,9 +163,9 @@ def _rows(plans: list[tuple[Variant, list[Planned]]], gts: dict[str, Any], finis
             row["error"] = record.get("error")
             row["failed_frames"] = len(record.get("failures") or [])
             row["before_any_frame"] = bool(record.get("before_any_frame"))
-            lanes_file = run_dir / "lanes.jsonl"
             gt = gts[plan.sequence]
-            if gt is not None and lanes_file.is_file() and not row["error"]:
+            lanes_file = find_result(run_dir, LANES) if gt is not None and not row["error"] else None
+            if lanes_file is not None:
                 pred = read_predictions(lanes_file)
                 ev = evaluate(pred, gt)
                 row.update({k: ev[k] for k in ("frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px")})
@@ -241,6 +243,12 @@ def write_reports(rows: list[dict[str, Any]], out_dir: Path) -> None:
     """``results.csv`` (every row), ``results.md`` (the pooled table, then each sequence's) and the
     two plots (pooled rows)."""
     stages = list(dict.fromkeys(s for r in rows for s in r.get("stage_ms", {})))
+    _write_csv(rows, stages, out_dir / "results.csv")
+    write_text_atomic(out_dir / "results.md", _results_md(rows, stages))
+    _plots([r for r in rows if r.get("sequence") == POOLED], out_dir)
+
+
+def _write_csv(rows: list[dict[str, Any]], stages: list[str], path: Path) -> None:
     cols = ["variant", "sequence", "frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px", "culane_f1", "ms_per_frame"]
     buf = io.StringIO(newline="")
     w = csv.writer(buf)
@@ -250,7 +258,10 @@ def write_reports(rows: list[dict[str, Any]], out_dir: Path) -> None:
             [r.get(c) for c in cols] + [r["stage_ms"].get(s) for s in stages]
             + [r["wall_s"], r["reused"], r["cache_hits"], r.get("failed_frames", 0), r.get("error") or ""]
         )
-    write_text_atomic(out_dir / "results.csv", buf.getvalue())
+    write_text_atomic(path, buf.getvalue())
+
+
+def _results_md(rows: list[dict[str, Any]], stages: list[str]) -> str:
     pooled = [r for r in rows if r.get("sequence") == POOLED]
     sequences = list(dict.fromkeys(r["sequence"] for r in rows if r.get("sequence") != POOLED))
     head = [
@@ -282,8 +293,7 @@ def write_reports(rows: list[dict[str, Any]], out_dir: Path) -> None:
         for r in failed:
             what = r.get("error") or f"{r['failed_frames']} frame(s) failed (on_error skip), figures over the others"
             lines.append(f"- {r['variant']} / {r['sequence']}: {what}")
-    write_text_atomic(out_dir / "results.md", "\n".join(lines) + "\n")
-    _plots(pooled, out_dir)
+    return "\n".join(lines) + "\n"
 
 
 def _save(fig: Any, path: Path) -> None:

@@ -40,6 +40,7 @@ from .executor import Executor, FrameFailure, RunResult
 from .graph import load_raw, validate_raw
 from .nodes import RunContext
 from .plugins import PluginManager, get_plugin_manager
+from .sources import close_source, open_source, select_source
 
 _SCHEDULER = re.compile(r"^local(?::(?P<n>[^:]*))?$")
 
@@ -94,8 +95,8 @@ class ResolvedGraph:
         return cls(raw, origin, display)
 
     def validate(self, pm: PluginManager | None = None):
-        """A fresh :class:`~lanegraph.graph.Graph` (the executor resolves ``io.auto`` in place, so
-        every run validates its own copy)."""
+        """A fresh :class:`~lanegraph.graph.Graph` (the executor replaces a selecting source in
+        place, so every run validates its own copy)."""
         return validate_raw(copy.deepcopy(self.raw), dict(self.origin), self.display, pm)
 
 
@@ -215,7 +216,7 @@ def run_record(
     to reuse a run (``error``, ``timings``, ``before_any_frame``)."""
     status = "stopped" if error is not None else ("failed frames" if result.failures else "ok")
     record: dict[str, Any] = {"graph": graph_file, "input": input_path, **extra, "status": status, "error": error["message"] if error else None}
-    record.update(frames_ok=result.frames, failures=[f.to_json() for f in result.failures], warnings=result.warnings())
+    record.update(frames_ok=result.frames, failures=[f.to_json() for f in result.failures], warnings=result.warnings(), results=result.results)
     record["timings"] = timings if timings is not None else result.timings_json()
     if error is not None:
         record["stopped"] = {"error": error["message"], "node": error["node"], "frame": error["frame"]}
@@ -295,7 +296,7 @@ def execute_task(
 
 def merge_chunks(tasks: list[RunTask], outcomes: list[TaskOutcome]) -> TaskOutcome:
     """Put a chunked run's folder together: every file of the chunk folders, in chunk order (a file
-    several chunks wrote, such as ``lanes.jsonl``, is their concatenation), ``timings.json`` and
+    several chunks wrote, such as the lanes, is their concatenation), ``timings.json`` and
     ``run.json`` over all chunks."""
     first = tasks[0]
     run_dir = Path(first.run_dir)
@@ -314,6 +315,7 @@ def merge_chunks(tasks: list[RunTask], outcomes: list[TaskOutcome]) -> TaskOutco
         r = out.result
         merged.frames += r.frames
         merged.node_types.update(r.node_types)
+        merged.results = merged.results or dict(r.results)
         for nid, ts in r.timings_ms.items():
             merged.timings_ms.setdefault(nid, []).extend(ts)
         merged.failures += r.failures
@@ -335,23 +337,15 @@ def count_frames(graph: ResolvedGraph, input_path: Path | None, frames: slice | 
     when the source cannot tell); opens the source only. Raises what opening it raises: an
     :class:`~lanegraph.errors.InputError` for an unusable input (no frames, no calibration ...)."""
     g = graph.validate(pm)
-    Executor(g, RunContext(input_path=input_path, frames=frames, graph_file=g.file), pm)  # resolves io.auto
     src = g.source
-    ctx = RunContext(input_path=input_path, frames=frames, graph_file=g.file, node_id=src.id)
-    try:
-        inst = src.type.func(src.params, ctx)
-    except LanegraphError:
-        raise
-    except Exception as exc:  # noqa: BLE001
-        raise NodeError(src.id, src.type.name, None, exc) from exc
+    nt = select_source(pm, src.type, src.params, input_path, file=g.file, node=src.id)
+    inst = open_source(nt, src.params if nt is src.type else nt.params(), input_path, frames, src.id)
     try:
         return len(inst)
     except TypeError:
         return None
     finally:
-        close = getattr(inst, "close", None)
-        if close is not None:
-            close()
+        close_source(inst)
 
 
 def _as_slice(r: range) -> slice:
@@ -571,9 +565,9 @@ def run_dataset(
     echo: Callable[[str], None] | None = None,
 ) -> list[dict[str, Any]]:
     """``lanegraph run GRAPH --dataset FILE``: the graph on every sequence, into
-    ``OUT/<sequence>/`` (``lanes.jsonl`` and what the graph's sinks write, ``timings.json``,
-    ``run.json``). Returns one summary per sequence: ``sequence``, ``frames``, ``failures`` (failed
-    frames), ``error`` (what stopped the run, or ``None``)."""
+    ``OUT/<sequence>/`` (what the graph's sinks write, ``timings.json``, ``run.json``). Returns one
+    summary per sequence: ``sequence``, ``frames``, ``failures`` (failed frames), ``error`` (what
+    stopped the run, or ``None``), ``results`` (the sinks' result files, :mod:`lanegraph.results`)."""
     pm = get_plugin_manager()
     graph.validate(pm)  # a GraphError before anything runs
     planner = Planner(pm, chunk_frames, warmup)
@@ -593,5 +587,8 @@ def run_dataset(
     for plan in plans:
         out = plan.outcome
         assert out is not None
-        summary.append({"sequence": plan.sequence, "frames": out.result.frames, "failures": out.result.failures, "error": out.error, "wall_s": out.wall_s})
+        results = out.result.results if out.error is None or not out.error.get("before_any_frame") else {}
+        summary.append(
+            {"sequence": plan.sequence, "frames": out.result.frames, "failures": out.result.failures, "error": out.error, "wall_s": out.wall_s, "results": results}
+        )
     return summary

@@ -73,12 +73,18 @@ def allowed_roots(graph_path: Path) -> list[Path]:
     return roots
 
 
-def _load(graph: str, sets: tuple[str, ...] = ()) -> Graph:
+def _plugins() -> PluginManager:
+    """The installed plugins; each plugin that could not be loaded is a warning line on stderr
+    (every command that loads plugins prints them, once)."""
     pm = get_plugin_manager()
-    for err in pm.load_errors:
+    for err in pm.plugin_errors:
         click.echo(f"warning: {err}", err=True)
+    return pm
+
+
+def _load(graph: str, sets: tuple[str, ...] = (), pm: PluginManager | None = None) -> Graph:
     path = resolve_graph_path(graph)
-    return load_graph(path, list(sets), pm, roots=allowed_roots(path))
+    return load_graph(path, list(sets), pm or get_plugin_manager(), roots=allowed_roots(path))
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -97,7 +103,7 @@ def main() -> None:
 @click.option("--resume", is_flag=True, help="continue an interrupted run in OUT after its last frame done (same graph, params, input and --frames)")
 @click.option("--debug-dir", type=click.Path(path_type=Path), help="save every node's output of the chosen frames as pictures, and a mosaic")
 @click.option("--debug-frames", help="frames for --debug-dir: ids or indices, comma-separated (default: all)")
-@click.option("--dataset", "dataset_path", type=click.Path(path_type=Path), help="a dataset file (YAML list of sequences) in place of --input: writes OUT/<sequence>/lanes.jsonl for each")
+@click.option("--dataset", "dataset_path", type=click.Path(path_type=Path), help="a dataset file (YAML list of sequences) in place of --input: writes each sequence's run into OUT/<sequence>/")
 @click.option("--scheduler", metavar="SPEC", help="with --dataset: run the sequences on a Dask cluster: local, local:N (N worker processes) or a scheduler address tcp://HOST:PORT")
 @click.option("--chunk-frames", type=int, metavar="K", help="with --dataset: split sequences into chunks of K frames run as separate tasks")
 @click.option("--warmup", type=int, default=0, show_default=True, metavar="W", help="with --chunk-frames: run W frames before each chunk and discard their outputs")
@@ -118,9 +124,9 @@ def run(
     warmup: int,
     make_report: bool = False,
 ) -> None:
-    """Run GRAPH (a file or a name under graphs/, default: paper) and write OUT/lanes.jsonl and
-    OUT/timings.json; with --dataset, every sequence into OUT/<sequence>/ (in this process, or on a
-    Dask cluster with --scheduler)."""
+    """Run GRAPH (a file or a name under graphs/, default: paper): its sinks write into OUT (the
+    lanes, overlays), with OUT/timings.json and OUT/run.json; with --dataset, every sequence into
+    OUT/<sequence>/ (in this process, or on a Dask cluster with --scheduler)."""
     if dataset_path is not None:
         _run_dataset(graph, sets, dataset_path, out_dir, frames, quiet, scheduler, chunk_frames, warmup, input_path, resume, debug_dir, make_report)
         return
@@ -131,7 +137,7 @@ def run(
     from .paths import OutputLock, prepare_dir
 
     try:
-        g = _load(graph, sets)
+        g = _load(graph, sets, _plugins())
     except GraphError as exc:
         _fail(exc)
     if input_path is not None and not input_path.exists():
@@ -173,31 +179,9 @@ def _run_locked(
     make_report: bool = False,
 ) -> int:
     """The body of ``lanegraph run`` once OUT is locked; returns the exit code."""
-    from tqdm import tqdm
-
     from .executor import Executor
-    from .resume import CHECKPOINT_NAME, LEGACY_NAME, load_checkpoint
 
-    checkpoint = out_dir / CHECKPOINT_NAME
-    legacy = out_dir / LEGACY_NAME
-    ckpt = None
-    try:
-        if resume and legacy.is_file() and not checkpoint.is_file():
-            raise UsageError(
-                f"{legacy}: a checkpoint of an older lanegraph (a pickle, which could run code); it is never read; "
-                "cannot resume (run without --resume to start over)"
-            )
-        legacy.unlink(missing_ok=True)
-        if checkpoint.exists() and not checkpoint.is_file():
-            raise UsageError(f"{checkpoint}: exists and is not a file (lanegraph keeps its checkpoint there)")
-        if resume and checkpoint.is_file():
-            ckpt = load_checkpoint(checkpoint)
-        elif not resume:
-            checkpoint.unlink(missing_ok=True)
-    except LanegraphError as exc:
-        _fail(exc)
-    except OSError as exc:
-        _fail(UsageError(f"{out_dir}: {exc.strerror or exc}"))
+    ckpt, checkpoint = _checkpoint(out_dir, resume)
     ctx = RunContext(
         input_path=input_path,
         out_dir=out_dir,
@@ -212,32 +196,86 @@ def _run_locked(
         _fail(exc, 2)
     if ckpt is not None:
         if ckpt.complete:
-            try:  # the input and the outputs must still be those of the checkpoint
-                ex.open()
-            except LanegraphError as exc:
-                _fail(exc, 2)
-            finally:
-                for inst in ex.instances.values():
-                    close = getattr(inst, "close", None)
-                    if close is not None:
-                        close()
-            click.echo(
-                f"nothing to resume: the run in {out_dir} is complete ({ckpt.frames_ok} frame(s) done, "
-                f"{len(ckpt.failures)} failed); its outputs are left as they are",
-                err=True,
-            )
-            return 1 if ckpt.failures else 0
+            return _nothing_to_resume(ex, ckpt, out_dir)
         click.echo(f"resuming after frame {ckpt.last_frame} ({ckpt.position} frame(s) of the selection already done)", err=True)
-    bar = None
     recorder = None
-    result = None
     pm = get_plugin_manager()
-    try:
-        if debug_dir is not None:
-            from .render import DebugRecorder
+    if debug_dir is not None:
+        from .render import DebugRecorder
 
-            recorder = DebugRecorder(debug_dir, debug_frames, pm)
-            pm.register(recorder)
+        recorder = DebugRecorder(debug_dir, debug_frames, pm)
+        pm.register(recorder)
+    try:
+        result, code = _execute(ex, g, out_dir, input_path, quiet)
+    finally:
+        if recorder is not None:
+            pm.unregister(recorder)
+    if result is None:
+        return code
+    status = _report_run(ex, result, g, out_dir, input_path, recorder, debug_frames)
+    if make_report and status != -1:
+        try:
+            dbg = debug_dir if debug_dir is not None and debug_dir.is_dir() else None  # none if no frame was chosen
+            _write_report(out_dir, graph=g, input_path=input_path, frames=selection, debug_dir=dbg, quiet=quiet)
+        except LanegraphError as exc:  # the run's own outputs are written: they stay
+            click.echo(f"error: report: {exc}", err=True)
+            status = 1
+    return 1 if status == -1 else status
+
+
+def _checkpoint(out_dir: Path, resume: bool) -> tuple[Any, Path]:
+    """The checkpoint to resume (with ``--resume``, when OUT has one; validated) and where the run
+    keeps its own; a checkpoint of an older lanegraph is never read."""
+    from .resume import CHECKPOINT_NAME, LEGACY_NAME, load_checkpoint
+
+    checkpoint = out_dir / CHECKPOINT_NAME
+    legacy = out_dir / LEGACY_NAME
+    try:
+        if resume and legacy.is_file() and not checkpoint.is_file():
+            raise UsageError(
+                f"{legacy}: a checkpoint of an older lanegraph (a pickle, which could run code); it is never read; "
+                "cannot resume (run without --resume to start over)"
+            )
+        legacy.unlink(missing_ok=True)
+        if checkpoint.exists() and not checkpoint.is_file():
+            raise UsageError(f"{checkpoint}: exists and is not a file (lanegraph keeps its checkpoint there)")
+        if resume and checkpoint.is_file():
+            return load_checkpoint(checkpoint), checkpoint
+        if not resume:
+            checkpoint.unlink(missing_ok=True)
+    except LanegraphError as exc:
+        _fail(exc)
+    except OSError as exc:
+        _fail(UsageError(f"{out_dir}: {exc.strerror or exc}"))
+    return None, checkpoint
+
+
+def _nothing_to_resume(ex: Any, ckpt: Any, out_dir: Path) -> int:
+    """``--resume`` of a complete run: its input and outputs are checked, nothing runs."""
+    try:  # the input and the outputs must still be those of the checkpoint
+        ex.open()
+    except LanegraphError as exc:
+        _fail(exc, 2)
+    finally:
+        for inst in ex.instances.values():
+            close = getattr(inst, "close", None)
+            if close is not None:
+                close()
+    click.echo(
+        f"nothing to resume: the run in {out_dir} is complete ({ckpt.frames_ok} frame(s) done, "
+        f"{len(ckpt.failures)} failed); its outputs are left as they are",
+        err=True,
+    )
+    return 1 if ckpt.failures else 0
+
+
+def _execute(ex: Any, g: Graph, out_dir: Path, input_path: Path | None, quiet: bool) -> tuple[Any, int]:
+    """Open and run the executor with a progress bar: ``(result, 0)``, or ``(None, exit code)``
+    when it stopped (its partial record written: ``run.json`` says what it did and why it stopped)."""
+    from tqdm import tqdm
+
+    bar = None
+    try:
         try:
             ex.open()
         except (InputError, UsageError) as exc:  # unusable input found before any frame ran: like a bad --input
@@ -248,7 +286,7 @@ def _run_locked(
             bar.update(1)
             bar.set_postfix_str(str(frame))
 
-        result = ex.run(on_frame=tick)
+        return ex.run(on_frame=tick), 0
     except (LanegraphError, KeyboardInterrupt, OSError) as exc:
         if bar is not None:
             bar.close()
@@ -264,13 +302,15 @@ def _run_locked(
         if partial is not None:  # the run started: record what it did and why it stopped
             _write_run_files(out_dir, g, input_path, partial, stopped=err)
         click.echo(f"error: {err}", err=True)
-        return code
+        return None, code
     finally:
         if bar is not None:
             bar.close()
-        if recorder is not None:
-            pm.unregister(recorder)
-    assert result is not None
+
+
+def _report_run(ex: Any, result: Any, g: Graph, out_dir: Path, input_path: Path | None, recorder: Any, debug_frames: set[str] | None) -> int:
+    """Write the run's record and say what it did: 0, 1 (frames failed) or -1 (its record could
+    not be written)."""
     status = 0
     written = _write_run_files(out_dir, g, input_path, result)
     if result.failures:
@@ -285,20 +325,13 @@ def _run_locked(
         if missed:
             click.echo(f"warning: --debug-frames {', '.join(missed)} matched no frame of the run; nothing recorded for them", err=True)
     if not written:
-        return 1
+        return -1
     outputs = [str(p) for inst in ex.instances.values() for p in getattr(inst, "outputs", [])]
     total = result.timings_json().get("total", {})
     click.echo(
         f"{result.frames} frame(s) processed -> {', '.join([*outputs, str(out_dir / 'timings.json')])}"
         + (f" (median {total['median_ms']:.1f} ms/frame)" if total else "")
     )
-    if make_report:
-        try:
-            dbg = debug_dir if debug_dir is not None and debug_dir.is_dir() else None  # none if no frame was chosen
-            _write_report(out_dir, graph=g, input_path=input_path, frames=selection, debug_dir=dbg, quiet=quiet)
-        except LanegraphError as exc:  # the run's own outputs are written: they stay
-            click.echo(f"error: report: {exc}", err=True)
-            status = 1
     return status
 
 
@@ -313,9 +346,7 @@ def _run_dataset(graph, sets, dataset_path, out_dir, frames, quiet, scheduler, c
         if given is not None:
             click.echo(f"error: {flag} is for a run on one input; --dataset names the inputs (give one or the other)", err=True)
             sys.exit(2)
-    pm = get_plugin_manager()
-    for err in pm.load_errors:
-        click.echo(f"warning: {err}", err=True)
+    _plugins()
     try:
         spec = parse_scheduler(scheduler)
         dataset = load_dataset(dataset_path)
@@ -337,7 +368,8 @@ def _run_dataset(graph, sets, dataset_path, out_dir, frames, quiet, scheduler, c
         lock.release()
     status = 0
     for s in summary:
-        line = f"{s['sequence']}: {s['frames']} frame(s) -> {out_dir / s['sequence']}/lanes.jsonl"
+        files = [str(out_dir / s["sequence"] / f) for f in s.get("results", {}).values()]
+        line = f"{s['sequence']}: {s['frames']} frame(s) -> {', '.join(files) or out_dir / s['sequence']}"
         if s["error"] is not None and s["error"].get("before_any_frame"):
             line = f"{s['sequence']}: not run (see {out_dir / s['sequence']}/run.json)"
         if s["failures"]:
@@ -367,6 +399,7 @@ def _write_run_files(out_dir: Path, g: Graph, input_path: Path | None, result: A
         "resumed_frames": result.resumed_frames,
         "failures": [f.to_json() for f in result.failures],
         "warnings": result.warnings(),
+        "results": result.results,
     }
     if stopped is not None:
         record["stopped"] = {
@@ -389,7 +422,7 @@ def _write_run_files(out_dir: Path, g: Graph, input_path: Path | None, result: A
 def validate(graph: str, sets: tuple[str, ...]) -> None:
     """Validate GRAPH (exit 2 with every problem listed when invalid)."""
     try:
-        g = _load(graph, sets)
+        g = _load(graph, sets, _plugins())
     except GraphError as exc:
         _fail(exc)
     click.echo(f"{g.file}: ok ({len(g.nodes)} nodes, {sum(e.previous for e in g.edges)} feedback edge(s))")
@@ -495,8 +528,9 @@ def nodes_markdown(types: dict[str, NodeType], title: str = "Node reference") ->
 @click.option("--markdown", "as_markdown", is_flag=True, help="the node reference as Markdown (docs/nodes.md)")
 @click.option("--builtin", is_flag=True, help="only the node types of lanegraph's own plugins")
 def nodes(as_json: bool, as_markdown: bool, builtin: bool) -> None:
-    """List the installed node types with their ports and params."""
-    pm = get_plugin_manager()
+    """List the installed node types with their ports and params, the port types, and the plugins
+    that could not be loaded."""
+    pm = _plugins() if as_markdown else get_plugin_manager()  # the listing and --json show them themselves
     types = builtin_node_types(pm) if builtin else pm.node_types
     if as_markdown:
         click.echo(nodes_markdown(types), nl=False)
@@ -517,7 +551,8 @@ def nodes(as_json: bool, as_markdown: bool, builtin: bool) -> None:
                     "params": nt.params.model_json_schema(),
                 }
             )
-        click.echo(json.dumps({"node_types": out, "plugin_errors": [str(e) for e in pm.load_errors]}, indent=2))
+        ports = [{"name": t.name, "description": t.description, "parent": t.parent} for t in pm.port_types.values()]
+        click.echo(json.dumps({"node_types": out, "port_types": ports, "plugin_errors": [str(e) for e in pm.plugin_errors]}, indent=2))
         return
     for name, nt in types.items():
         flags = ",".join(f for f, on in (("source", nt.source), ("sink", nt.sink), ("stateful", nt.stateful and not nt.source)) if on)
@@ -530,14 +565,23 @@ def nodes(as_json: bool, as_markdown: bool, builtin: bool) -> None:
         for fname, f in nt.params.model_fields.items():
             default = "(required)" if f.is_required() else f"= {f.default!r}"
             click.echo(f"    - {fname} {default}: {f.description or ''}")
-    for err in pm.load_errors + pm.registry_errors:
-        click.echo(f"warning: {err}", err=True)
+    from .types import PORT_TYPES
+
+    added = [t for t in pm.port_types.values() if t.name not in PORT_TYPES]
+    if added:
+        click.echo("port types added by plugins:")
+        for t in added:
+            click.echo(f"    {t.name}" + (f" (feeds {t.parent} ports)" if t.parent else "") + f": {t.description}")
+    if pm.plugin_errors:
+        click.echo("plugins not loaded:")
+        for err in pm.plugin_errors:
+            click.echo(f"    warning: {err}")
 
 
 @main.command()
 def schema() -> None:
     """Print the JSON Schema of the graph format, with every installed node type's params."""
-    click.echo(json.dumps(graph_json_schema(), indent=2))
+    click.echo(json.dumps(graph_json_schema(_plugins()), indent=2))
 
 
 @main.command()
@@ -547,7 +591,7 @@ def schema() -> None:
 def show(graph: str, fmt: str, sets: tuple[str, ...]) -> None:
     """Print the resolved graph (after extends and overrides) as YAML, Graphviz dot or Mermaid."""
     try:
-        g = _load(graph, sets)
+        g = _load(graph, sets, _plugins())
     except GraphError as exc:
         _fail(exc)
     if fmt == "yaml":
@@ -607,14 +651,88 @@ def ablate(base, variants, input_path, gt_path, dataset_path, sweeps, out_dir, f
     each and write OUT/results.csv (per sequence and pooled), OUT/results.md and plots; runs go to
     OUT/runs/<variant>/<sequence>/; work shared between variants is computed once. A run that
     fails gets its row with the error and the others go on (exit 1)."""
-    from .ablate import Variant, expand_sweeps, run_ablation
     from .batch import parse_scheduler
-    from .cache import ResultCache
 
+    pm = _plugins()
     try:
         spec = parse_scheduler(scheduler)
     except LanegraphError as exc:
         _fail(exc, 2)
+    runs = _ablation_variants(base, variants, sweeps)
+    try:
+        dataset = _dataset_option(dataset_path, input_path, gt_path)
+    except LanegraphError as exc:
+        _fail(exc, 2)
+    for r in runs:  # validate everything before running anything
+        try:
+            _load(str(r.graph), tuple(r.sets), pm)
+        except GraphError as exc:
+            _fail(exc)
+    selection = parse_frames(frames)
+    lock, cache = _ablation_out(out_dir, no_cache, cache_dir, cache_max_gb)
+    t0 = time.perf_counter()
+    options = {"progress": not quiet, "scheduler": spec, "chunk_frames": chunk_frames, "warmup": warmup}
+    rows = _run_ablation(lock, runs, dataset, out_dir, selection, cache, options)
+    _ablation_end(rows, out_dir, cache, time.perf_counter() - t0)
+    if make_report:
+        try:  # the base variant's source reads the left images; its graph is drawn
+            _write_report(out_dir, dataset=dataset, frames=selection, graph=_load(str(runs[0].graph), tuple(runs[0].sets), pm), quiet=quiet)
+        except LanegraphError as exc:  # the ablation's own outputs are written: they stay
+            _fail(exc, 1)
+    _ablation_failures(rows)
+
+
+def _run_ablation(lock: Any, runs: list[Any], dataset: Any, out_dir: Path, selection: slice | None, cache: Any, options: dict[str, Any]) -> list[dict[str, Any]]:
+    """:func:`lanegraph.ablate.run_ablation` with OUT locked; its errors located, exit 2 for an
+    input or usage found unusable before any run, 130 on Ctrl-C (the finished runs stay)."""
+    from .ablate import run_ablation
+
+    try:
+        return run_ablation(runs, dataset, out_dir, selection, cache, **options)
+    except (InputError, UsageError) as exc:  # a ground truth, input or usage unusable before any run: like `run`, exit 2
+        _fail(exc, 2)
+    except LanegraphError as exc:
+        _fail(exc)
+    except KeyboardInterrupt:
+        click.echo(f"error: interrupted (Ctrl-C); the finished runs are in {out_dir}/runs and results.md", err=True)
+        sys.exit(130)
+    except OSError as exc:
+        _fail(LanegraphError(f"{str(exc.filename) + ': ' if exc.filename else ''}{exc.strerror or exc}"), 1)
+    finally:
+        lock.release()
+    raise AssertionError("unreachable")  # pragma: no cover - _fail exits
+
+
+def _ablation_end(rows: list[dict[str, Any]], out_dir: Path, cache: Any, seconds: float) -> None:
+    """Print the results table and where it went; exit 2 when no run could start at all."""
+    runs_rows = [r for r in rows if r.get("sequence") != "all"]
+    failed = [r for r in runs_rows if r.get("error")]
+    if failed and all(r.get("before_any_frame") for r in failed) and len(failed) == len(runs_rows):
+        for r in failed:  # nothing ran at all: the input is unusable (exit 2, as `run` says)
+            click.echo(f"error: {r['variant']} / {r['sequence']}: {r['error']}", err=True)
+        sys.exit(2)
+    click.echo((out_dir / "results.md").read_text())
+    hits = f", cache {cache.hits} hits / {cache.misses} misses" if cache is not None else ", no cache"
+    click.echo(f"{len(rows)} row(s) in {seconds:.1f} s{hits} -> {out_dir}/results.md, results.csv, accuracy.png, accuracy_vs_ms.png")
+
+
+def _ablation_failures(rows: list[dict[str, Any]]) -> None:
+    """The runs that failed and the frames that failed in the others: exit 1 when there are any."""
+    runs_rows = [r for r in rows if r.get("sequence") != "all"]
+    failed = [r for r in runs_rows if r.get("error")]
+    if failed or any(r.get("failed_frames") for r in runs_rows):
+        for r in failed:
+            click.echo(f"error: run {r['variant']} / {r['sequence']} failed: {r['error']}", err=True)
+        n_frames = sum(int(r.get("failed_frames") or 0) for r in runs_rows if not r.get("error"))
+        if n_frames:
+            click.echo(f"{n_frames} frame(s) failed in runs that went on (on_error skip); see results.md", err=True)
+        sys.exit(1)
+
+
+def _ablation_variants(base: Path, variants: tuple[Path, ...], sweeps: tuple[str, ...]) -> list[Any]:
+    """BASE, each VARIANT (named by its file; by folder/file where two files share a name) and a
+    variant of BASE per ``--sweep`` value."""
+    from .ablate import Variant, expand_sweeps
 
     paths = [resolve_graph_path(str(p)) for p in (base, *variants)]
     runs = [Variant(p.stem, p) for p in paths]
@@ -627,18 +745,14 @@ def ablate(base, variants, input_path, gt_path, dataset_path, sweeps, out_dir, f
     except ValueError as exc:
         click.echo(f"error: {exc}", err=True)
         sys.exit(2)
-    try:
-        dataset = _dataset_option(dataset_path, input_path, gt_path)
-    except LanegraphError as exc:
-        _fail(exc, 2)
-    for r in runs:  # validate everything before running anything
-        try:
-            _load(str(r.graph), tuple(r.sets))
-        except GraphError as exc:
-            _fail(exc)
-    selection = parse_frames(frames)
+    return runs
+
+
+def _ablation_out(out_dir: Path, no_cache: bool, cache_dir: Path | None, cache_max_gb: float) -> tuple[Any, Any]:
+    """OUT checked and locked, and the result cache (None with ``--no-cache``)."""
     import math
 
+    from .cache import ResultCache
     from .paths import OutputLock, prepare_dir
 
     if not (math.isfinite(cache_max_gb) and cache_max_gb > 0):
@@ -653,42 +767,9 @@ def ablate(base, variants, input_path, gt_path, dataset_path, sweeps, out_dir, f
     try:
         cache = None if no_cache else ResultCache(cache_dir, int(cache_max_gb * 1024**3))
     except OSError as exc:
-        _fail(UsageError(f"--cache-dir: cannot use the result cache: {exc.strerror or exc}"))
-    t0 = time.perf_counter()
-    try:
-        rows = run_ablation(runs, dataset, out_dir, selection, cache, progress=not quiet, scheduler=spec, chunk_frames=chunk_frames, warmup=warmup)
-    except (InputError, UsageError) as exc:  # a ground truth, input or usage unusable before any run: like `run`, exit 2
-        _fail(exc, 2)
-    except LanegraphError as exc:
-        _fail(exc)
-    except KeyboardInterrupt:
-        click.echo(f"error: interrupted (Ctrl-C); the finished runs are in {out_dir}/runs and results.md", err=True)
-        sys.exit(130)
-    except OSError as exc:
-        _fail(LanegraphError(f"{str(exc.filename) + ': ' if exc.filename else ''}{exc.strerror or exc}"), 1)
-    finally:
         lock.release()
-    runs_rows = [r for r in rows if r.get("sequence") != "all"]
-    failed = [r for r in runs_rows if r.get("error")]
-    if failed and all(r.get("before_any_frame") for r in failed) and len(failed) == len(runs_rows):
-        for r in failed:  # nothing ran at all: the input is unusable (exit 2, as `run` says)
-            click.echo(f"error: {r['variant']} / {r['sequence']}: {r['error']}", err=True)
-        sys.exit(2)
-    click.echo((out_dir / "results.md").read_text())
-    hits = f", cache {cache.hits} hits / {cache.misses} misses" if cache is not None else ", no cache"
-    click.echo(f"{len(rows)} row(s) in {time.perf_counter() - t0:.1f} s{hits} -> {out_dir}/results.md, results.csv, accuracy.png, accuracy_vs_ms.png")
-    if make_report:
-        try:  # the base variant's source reads the left images; its graph is drawn
-            _write_report(out_dir, dataset=dataset, frames=selection, graph=_load(str(runs[0].graph), tuple(runs[0].sets)), quiet=quiet)
-        except LanegraphError as exc:  # the ablation's own outputs are written: they stay
-            _fail(exc, 1)
-    if failed or any(r.get("failed_frames") for r in runs_rows):
-        for r in failed:
-            click.echo(f"error: run {r['variant']} / {r['sequence']} failed: {r['error']}", err=True)
-        n_frames = sum(int(r.get("failed_frames") or 0) for r in runs_rows if not r.get("error"))
-        if n_frames:
-            click.echo(f"{n_frames} frame(s) failed in runs that went on (on_error skip); see results.md", err=True)
-        sys.exit(1)
+        _fail(UsageError(f"--cache-dir: cannot use the result cache: {exc.strerror or exc}"))
+    return lock, cache
 
 
 def _dataset_option(dataset_path: Path | None, input_path: Path | None, gt_path: Path | None):
@@ -733,13 +814,14 @@ def _is_number(v: object) -> bool:
 @main.command(name="eval")
 @click.argument("pred", type=click.Path(path_type=Path))
 @click.argument("gt", type=click.Path(path_type=Path), required=False)
-@click.option("--dataset", "dataset_path", type=click.Path(path_type=Path), help="a dataset file: PRED is then a folder with PRED/<sequence>/lanes.jsonl (as `run --dataset` writes)")
+@click.option("--dataset", "dataset_path", type=click.Path(path_type=Path), help="a dataset file: PRED is then a folder with a run folder PRED/<sequence>/ per sequence (as `run --dataset` writes)")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
 @click.option("--metrics", default="readme,culane,tusimple", show_default=True, help="readme, culane, tusimple, lateral (comma-separated)")
 @click.option("--scene", type=click.Path(path_type=Path), help="scene.json of a synthetic sequence (pitch, height) for the lateral error")
-@click.option("--calib", type=click.Path(path_type=Path), help="calib.yaml (f, cx, cy, baseline) for the lateral error")
+@click.option("--calib", type=click.Path(path_type=Path), help="the calibration for the lateral error: a calibration file, or an input folder (default: the folder of --scene)")
 def eval_cmd(pred: Path, gt: Path | None, dataset_path: Path | None, as_json: bool, metrics: str, scene: Path | None, calib: Path | None) -> None:
-    """Evaluate PRED lanes.jsonl against GT lanes_gt.jsonl: the lane metric of the data README, plus
+    """Evaluate PRED (a run's lanes file, or its run folder) against GT lanes_gt.jsonl: the lane
+    metric of the data README, plus
     CULane-style F1, TuSimple-style accuracy and, for synthetic scenes, the lateral error in cm.
     With --dataset, every sequence of the dataset and all of them pooled."""
     wanted = {m.strip() for m in metrics.split(",") if m.strip()}
@@ -756,7 +838,7 @@ def eval_cmd(pred: Path, gt: Path | None, dataset_path: Path | None, as_json: bo
         _eval_dataset(pred, dataset_path, as_json)
         return
     if gt is None:
-        click.echo("error: missing GT (a lanes_gt.jsonl), or --dataset FILE with PRED a folder of <sequence>/lanes.jsonl", err=True)
+        click.echo("error: missing GT (a lanes_gt.jsonl), or --dataset FILE with PRED a folder of <sequence>/ run folders", err=True)
         sys.exit(2)
     try:
         res = _eval_one(pred, gt, wanted, scene, calib)
@@ -773,6 +855,8 @@ def _eval_one(pred: Path, gt: Path, wanted: set[str], scene: Path | None, calib:
     from .metrics import evaluate, read_ground_truth, read_predictions
     from .metrics_extra import culane_metrics, lateral_error_cm, tusimple_metrics
 
+    if pred.is_dir():  # a run folder: the lanes its sinks recorded
+        pred = _run_lanes(pred)
     pred_recs, gt_recs = read_predictions(pred), read_ground_truth(gt)
     pred_frames, gt_frames = {str(r["frame"]) for r in pred_recs}, {str(r["frame"]) for r in gt_recs}
     if pred_frames and gt_frames and not pred_frames & gt_frames:
@@ -789,13 +873,23 @@ def _eval_one(pred: Path, gt: Path, wanted: set[str], scene: Path | None, calib:
         res["tusimple"] = tusimple_metrics(pred_recs, gt_recs)
     if "lateral" in wanted:
         if scene is None:
-            raise UsageError("--metrics lateral needs --scene scene.json (and --calib, default: calib.yaml beside it)")
-        from lanegraph_io import read_calibration_yaml
+            raise UsageError("--metrics lateral needs --scene scene.json (and --calib, default: the calibration of the input folder holding it)")
+        from .sources import read_calibration
 
-        cal = read_calibration_yaml(calib or Path(scene).with_name("calib.yaml"))
+        cal = read_calibration(_plugins(), calib or Path(scene).parent)
         pitch, height = _scene_pose(Path(scene))
         res["lateral_error_cm"] = lateral_error_cm(pred_recs, gt_recs, cal, pitch, height)
     return res
+
+
+def _run_lanes(folder: Path, what: str = "") -> Path:
+    """The lanes file of run folder ``folder`` (the one its run.json records; :mod:`lanegraph.results`)."""
+    from .results import LANES, describe, find_result
+
+    lanes = find_result(folder, LANES, get_plugin_manager())
+    if lanes is None:
+        raise UsageError(f"{folder}: no predictions{' for ' + what if what else ''} (expected {describe(folder, LANES)})")
+    return lanes
 
 
 def _pct(x: float | None) -> str:
@@ -832,15 +926,13 @@ def _eval_dataset(pred_dir: Path, dataset_path: Path, as_json: bool) -> None:
     try:
         ds = load_dataset(dataset_path)
         if not pred_dir.is_dir():
-            raise UsageError(f"{pred_dir}: expected a folder with <sequence>/lanes.jsonl for each sequence of {dataset_path}")
+            raise UsageError(f"{pred_dir}: expected a folder with a run folder <sequence>/ for each sequence of {dataset_path}")
         pairs = []
         for seq in ds:
             gt = read_gt(seq, seq.frames)
             if gt is None:
                 continue
-            lanes = pred_dir / seq.name / "lanes.jsonl"
-            if not lanes.is_file():
-                raise UsageError(f"{lanes}: no predictions for sequence {seq.name!r} of {dataset_path}")
+            lanes = _run_lanes(pred_dir / seq.name, f"sequence {seq.name!r} of {dataset_path}")
             pairs.append((seq.name, read_predictions(lanes), gt))
         if not pairs:
             raise UsageError(f"{dataset_path}: no sequence has a ground truth ('gt') to evaluate against")
@@ -872,7 +964,7 @@ def _eval_dataset(pred_dir: Path, dataset_path: Path, as_json: bool) -> None:
 @main.command()
 @click.argument("run_dir", type=click.Path(path_type=Path))
 @click.option("--gt", "gt_path", type=click.Path(path_type=Path), help="ground truth lanes_gt.jsonl (default: lanes_gt.jsonl in the input folder, when there is one)")
-@click.option("--dataset", "dataset_path", type=click.Path(path_type=Path), help="a dataset file: each sequence's input and ground truth (RUN_DIR/<sequence>/lanes.jsonl, or an ablation's runs)")
+@click.option("--dataset", "dataset_path", type=click.Path(path_type=Path), help="a dataset file: each sequence's input and ground truth (RUN_DIR/<sequence>/ run folders, or an ablation's runs)")
 @click.option("--input", "input_path", type=click.Path(path_type=Path), help="the input folder, where run.json names none or it moved (an ablation over one --input)")
 @click.option("--frames", help="the frame selection A:B or A:B:S the run was made with (the ground truth is cut alike)")
 @click.option("--set", "sets", multiple=True, metavar="NODE.PARAM=VALUE", help="the --set overrides the run was made with (its source node reads the left images)")

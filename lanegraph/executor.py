@@ -28,11 +28,12 @@ import numpy as np
 
 from ._runtime import tune_allocator
 from .cache import ResultCache, digest
-from .errors import GraphError, InputError, LanegraphError, NodeError, Problem, UsageError
+from .errors import InputError, LanegraphError, NodeError, UsageError
 from .frames import selection_text
 from .graph import Graph, GraphNode
 from .nodes import RunContext
 from .plugins import PluginManager, get_plugin_manager
+from .results import graph_result_files
 from .resume import (
     _HINT,
     FORMAT,
@@ -47,6 +48,7 @@ from .resume import (
     resolved_input,
     save_checkpoint,
 )
+from .sources import select_source
 
 
 @dataclass
@@ -83,6 +85,7 @@ class RunResult:
     invalid_outputs: dict[str, list[int]] = field(default_factory=dict)
     resumed_frames: int = 0
     notes: list[str] = field(default_factory=list)
+    results: dict[str, str] = field(default_factory=dict)  # the sinks' result files by kind (lanegraph.results)
 
     def warnings(self) -> list[str]:
         """Things that did not fail a frame but make the result doubtful: an output invalid on every
@@ -118,6 +121,17 @@ class _SkipFrame(Exception):
     pass
 
 
+@dataclass
+class _Position:
+    """How far a run's stream got: frames of the selection consumed, the last frame done, and the
+    feedback edges' values (and cache keys) for the next frame."""
+
+    position: int = 0
+    last_frame: str | None = None
+    previous: dict[tuple[str, str], Any] = field(default_factory=dict)
+    prev_keys: dict[tuple[str, str], str | None] = field(default_factory=dict)
+
+
 class Executor:
     """Runs a validated :class:`~lanegraph.graph.Graph` over the frames of its source node."""
 
@@ -148,7 +162,7 @@ class Executor:
         self.warmup = max(0, int(warmup))
         self.graph = graph
         ctx0 = context or RunContext()
-        resolved = graph.resolved_dict()  # before io.auto is replaced: what the user's graph says
+        resolved = graph.resolved_dict()  # before a selecting source is replaced: what the user's graph says
         self.identity = {
             "graph": graph.file,
             "graph_digest": graph_identity(resolved),
@@ -174,38 +188,20 @@ class Executor:
         )
         self.pm = pm or get_plugin_manager()
         self.context = context or RunContext()
-        self._resolve_auto_source()
+        self._select_source()
+        self.result_files = graph_result_files(graph)
         self.instances: dict[str, Any] = {}
         self.constant_nodes: set[str] = self._constant_nodes()
 
     # -- compile -------------------------------------------------------------
-    def _resolve_auto_source(self) -> None:
-        """Replace an ``io.auto`` source by the source type that reads the input path."""
+    def _select_source(self) -> None:
+        """A source node that stands for others (``select_source``, e.g. ``io.auto``) is replaced
+        by the source type it names for the input path, with that type's default params."""
         src = self.graph.source
-        if src.type.name != "io.auto":
-            return
-        path = self.context.input_path
-        if path is None:
-            name = getattr(src.params, "default", "io.synthetic")
-        else:
-            name = self.pm.hook.lanegraph_detect_source(path=path)
-            if name is None:
-                raise GraphError(
-                    [
-                        Problem(
-                            f"no installed source node type recognises the input {str(path)!r}",
-                            file=self.graph.file,
-                            node=src.id,
-                            node_type=src.type.name,
-                            hint="expected a KITTI raw drive folder, a KITTI odometry sequence or a folder of left/right pairs",
-                        )
-                    ]
-                )
-        nt = self.pm.get_node_type(name)
-        if nt is None:
-            raise GraphError([Problem(f"source node type {name!r} is not installed", file=self.graph.file, node=src.id)])
-        src.type = nt
-        src.params = nt.params()
+        nt = select_source(self.pm, src.type, src.params, self.context.input_path, file=self.graph.file, node=src.id)
+        if nt is not src.type:
+            src.type = nt
+            src.params = nt.params()
 
     def _constant_nodes(self) -> set[str]:
         const: set[str] = set()
@@ -237,7 +233,7 @@ class Executor:
                 result.timings_ms.setdefault(node.id, []).append(hit["ms"])  # the time it took to compute
                 result.cache_hits[node.id] = result.cache_hits.get(node.id, 0) + 1
                 hook.lanegraph_after_node(
-                    node_id=node.id, node_type=node.type.name, frame=frame, outputs=hit["outputs"], elapsed_ms=hit["ms"]
+                    node_id=node.id, node_type=node.type.name, frame=frame, outputs=hit["outputs"], elapsed_ms=hit["ms"], error=None
                 )
                 return hit["outputs"]
         t0 = time.perf_counter()
@@ -262,7 +258,7 @@ class Executor:
         elapsed = (time.perf_counter() - t0) * 1000.0
         result.timings_ms.setdefault(node.id, []).append(elapsed)
         if err is not None:
-            hook.lanegraph_after_node(node_id=node.id, node_type=node.type.name, frame=frame, outputs=None, elapsed_ms=elapsed)
+            hook.lanegraph_after_node(node_id=node.id, node_type=node.type.name, frame=frame, outputs=None, elapsed_ms=elapsed, error=err)
             if node.on_error == "fail" or (node.on_error == "skip" and index < 0):  # index -1: runs once
                 raise NodeError(node.id, node.type.name, frame, err) from err
             result.failures.append(FrameFailure(frame, index, node.id, node.type.name, f"{type(err).__name__}: {err}"))
@@ -272,7 +268,7 @@ class Executor:
         if use_cache:
             self.cache.put(key, {"outputs": out, "ms": elapsed})
             result.cache_misses[node.id] = result.cache_misses.get(node.id, 0) + 1
-        hook.lanegraph_after_node(node_id=node.id, node_type=node.type.name, frame=frame, outputs=out, elapsed_ms=elapsed)
+        hook.lanegraph_after_node(node_id=node.id, node_type=node.type.name, frame=frame, outputs=out, elapsed_ms=elapsed, error=None)
         return out
 
     def _write_checkpoint(self, position: int, frame: str | None, previous: dict, prev_keys: dict, complete: bool = False) -> None:
@@ -389,113 +385,17 @@ class Executor:
         tune_allocator()  # once per process; see lanegraph._runtime
         g = self.graph
         # kept on the executor so that a caller still has the partial result when the run stops
-        self.result = result = RunResult(node_types={nid: n.type.name for nid, n in g.nodes.items()})
+        self.result = result = RunResult(node_types={nid: n.type.name for nid, n in g.nodes.items()}, results=dict(self.result_files))
         self.open()
-        ck = self.resume
-        position = 0
-        previous: dict[tuple[str, str], Any] = {}
-        prev_keys: dict[tuple[str, str], str | None] = {}
-        if ck is not None:
-            result.frames = result.resumed_frames = ck.frames_ok
-            result.failures = [FrameFailure(f.frame, f.index, f.node, f.type, f.error) for f in ck.failures]
-            result.invalid_outputs = {k: list(v) for k, v in ck.invalid_outputs.items()}
-            position = ck.position
-            previous, prev_keys = self._resumed_feedback
+        at = self._start()
         self.pm.hook.lanegraph_run_start(graph=g, context=self.context)
-        src_id = g.source.id
-        source = self.instances[src_id]
-        values: dict[tuple[str, str], Any] = {}
-        keys: dict[tuple[str, str], str | None] = {}
-        caching = self.cache is not None
-        src_params = g.source.params.model_dump(mode="json")
-        last_frame = ck.last_frame if ck is not None else None
         try:
-            consts = source.constants() if hasattr(source, "constants") else {}
-            for port, v in consts.items():
-                values[(src_id, port)] = v
-                keys[(src_id, port)] = digest(g.source.type.name, g.source.type.code_version, src_params, "constant", port, repr(v)) if caching else None
-            if consts:
-                self.pm.hook.lanegraph_after_node(node_id=src_id, node_type=g.source.type.name, frame=None, outputs=dict(consts), elapsed_ms=0.0)
-            for nid in g.order:
-                if nid in self.constant_nodes:
-                    n = g.nodes[nid]
-                    ins = {p: values.get((e.src_node, e.src_port)) for p, e in n.inputs.items()}
-                    key = self._key(n, keys, {}) if caching else None
-                    out = self._call(n, ins, None, -1, result, key)
-                    for port, v in out.items():
-                        values[(nid, port)] = v
-                        keys[(nid, port)] = None if key is None else digest(key, port)
-            feedback = {(e.src_node, e.src_port) for e in g.edges if e.previous}
+            values, keys = self._run_constants()
             if self.checkpoint is not None:
-                self._write_checkpoint(position, last_frame, previous, prev_keys)
-            frame_key = getattr(source, "frame_key", None)
-            warm = RunResult(node_types=result.node_types) if self.warmup else result
-            drop = max(self.context.skip - self._skipped, 0)  # frames done that the source did not leave out
-            for index, frame_out in self._frames(source, src_id, result, position, drop):
-                position = index + 1
-                if frame_out is None:  # the source could not read this frame (recorded as a failure)
-                    previous, prev_keys = {}, {}
-                    if self.checkpoint is not None:
-                        self._write_checkpoint(position, last_frame, previous, prev_keys)
-                    continue
-                warming = index < self.warmup
-                res = warm if warming else result
-                frame = frame_out.get("frame")
-                t_frame = time.perf_counter()
-                cur = dict(values)
-                cur_keys = dict(keys)
-                identity = frame_key(frame) if (caching and frame_key is not None) else None
-                for port, v in frame_out.items():
-                    cur[(src_id, port)] = v
-                    cur_keys[(src_id, port)] = None if identity is None else digest(g.source.type.name, g.source.type.code_version, src_params, identity, port)
-                # the source is an iterator read ahead, so it fires only the after-node hook
-                src_ms = (result.timings_ms.get(src_id) or [0.0])[-1]
-                self.pm.hook.lanegraph_after_node(node_id=src_id, node_type=g.source.type.name, frame=frame, outputs=frame_out, elapsed_ms=src_ms)
-                try:
-                    for nid in g.order:
-                        if nid == src_id or nid in self.constant_nodes:
-                            continue
-                        n = g.nodes[nid]
-                        if warming and n.type.sink:
-                            continue
-                        ins = {
-                            p: (previous.get((e.src_node, e.src_port)) if e.previous else cur.get((e.src_node, e.src_port)))
-                            for p, e in n.inputs.items()
-                        }
-                        for p, port in n.type.inputs.items():
-                            if p not in ins and port.optional:
-                                ins[p] = None
-                        key = self._key(n, cur_keys, prev_keys) if caching else None
-                        out = self._call(n, ins, frame, index, res, key)
-                        for port, v in out.items():
-                            cur[(nid, port)] = v
-                            cur_keys[(nid, port)] = None if key is None else digest(key, port)
-                            valid = getattr(v, "valid", None)
-                            if isinstance(valid, bool):
-                                counts = res.invalid_outputs.setdefault(f"{nid}.{port}", [0, 0])
-                                counts[0] += not valid
-                                counts[1] += 1
-                except _SkipFrame:
-                    previous, prev_keys = {}, {}
-                    last_frame = frame
-                    if self.checkpoint is not None:
-                        self._write_checkpoint(position, last_frame, previous, prev_keys)
-                    if on_frame and not warming:
-                        on_frame(index, frame)
-                    continue
-                previous = {k: cur[k] for k in feedback if k in cur}
-                prev_keys = {k: cur_keys.get(k) for k in feedback}
-                if warming:
-                    continue
-                result.frames += 1
-                last_frame = frame
-                if self.checkpoint is not None:
-                    self._write_checkpoint(position, last_frame, previous, prev_keys)
-                result.frame_ms.append((time.perf_counter() - t_frame) * 1000.0)
-                if on_frame:
-                    on_frame(index, frame)
+                self._write_checkpoint(at.position, at.last_frame, at.previous, at.prev_keys)
+            self._stream(values, keys, at, on_frame)
             if self.checkpoint is not None:
-                self._write_checkpoint(position, last_frame, previous, prev_keys, complete=True)
+                self._write_checkpoint(at.position, at.last_frame, at.previous, at.prev_keys, complete=True)
         finally:
             for inst in self.instances.values():
                 close = getattr(inst, "close", None)
@@ -506,6 +406,126 @@ class Executor:
                         pass
             self.pm.hook.lanegraph_run_end(graph=g, context=self.context, frames=result.frames)
         return result
+
+    def _start(self) -> _Position:
+        """Where the stream starts: the beginning, or where a resumed checkpoint left off (its
+        frames, failures and feedback values taken over)."""
+        ck, result = self.resume, self.result
+        if ck is None:
+            return _Position()
+        result.frames = result.resumed_frames = ck.frames_ok
+        result.failures = [FrameFailure(f.frame, f.index, f.node, f.type, f.error) for f in ck.failures]
+        result.invalid_outputs = {k: list(v) for k, v in ck.invalid_outputs.items()}
+        previous, prev_keys = self._resumed_feedback
+        return _Position(ck.position, ck.last_frame, previous, prev_keys)
+
+    def _run_constants(self) -> tuple[dict[tuple[str, str], Any], dict[tuple[str, str], str | None]]:
+        """The source's constants and the outputs of the nodes that run once (constant inputs
+        only), with their cache keys."""
+        g, result = self.graph, self.result
+        src = g.source
+        source = self.instances[src.id]
+        values: dict[tuple[str, str], Any] = {}
+        keys: dict[tuple[str, str], str | None] = {}
+        caching = self.cache is not None
+        src_params = src.params.model_dump(mode="json")
+        consts = source.constants() if hasattr(source, "constants") else {}
+        for port, v in consts.items():
+            values[(src.id, port)] = v
+            keys[(src.id, port)] = digest(src.type.name, src.type.code_version, src_params, "constant", port, repr(v)) if caching else None
+        if consts:
+            self.pm.hook.lanegraph_after_node(node_id=src.id, node_type=src.type.name, frame=None, outputs=dict(consts), elapsed_ms=0.0, error=None)
+        for nid in g.order:
+            if nid in self.constant_nodes:
+                n = g.nodes[nid]
+                ins = {p: values.get((e.src_node, e.src_port)) for p, e in n.inputs.items()}
+                key = self._key(n, keys, {}) if caching else None
+                out = self._call(n, ins, None, -1, result, key)
+                for port, v in out.items():
+                    values[(nid, port)] = v
+                    keys[(nid, port)] = None if key is None else digest(key, port)
+        return values, keys
+
+    def _stream(self, values: dict, keys: dict, at: _Position, on_frame: Callable[[int, str | None], None] | None) -> None:
+        """Every frame of the source through the graph, from ``at`` (updated as frames are consumed)."""
+        g, result = self.graph, self.result
+        source = self.instances[g.source.id]
+        feedback = {(e.src_node, e.src_port) for e in g.edges if e.previous}
+        warm = RunResult(node_types=result.node_types) if self.warmup else result
+        drop = max(self.context.skip - self._skipped, 0)  # frames done that the source did not leave out
+        for index, frame_out in self._frames(source, g.source.id, result, at.position, drop):
+            at.position = index + 1
+            if frame_out is None:  # the source could not read this frame (recorded as a failure)
+                at.previous, at.prev_keys = {}, {}
+                self._consumed(at)
+                continue
+            warming = index < self.warmup
+            frame = frame_out.get("frame")
+            t_frame = time.perf_counter()
+            try:
+                cur, cur_keys = self._run_frame(frame_out, values, keys, at.prev_keys, at.previous, index, warm if warming else result)
+            except _SkipFrame:
+                at.previous, at.prev_keys, at.last_frame = {}, {}, frame
+                self._consumed(at)
+                if on_frame and not warming:
+                    on_frame(index, frame)
+                continue
+            at.previous = {k: cur[k] for k in feedback if k in cur}
+            at.prev_keys = {k: cur_keys.get(k) for k in feedback}
+            if warming:
+                continue
+            result.frames += 1
+            at.last_frame = frame
+            self._consumed(at)
+            result.frame_ms.append((time.perf_counter() - t_frame) * 1000.0)
+            if on_frame:
+                on_frame(index, frame)
+
+    def _consumed(self, at: _Position) -> None:
+        if self.checkpoint is not None:
+            self._write_checkpoint(at.position, at.last_frame, at.previous, at.prev_keys)
+
+    def _run_frame(
+        self, frame_out: dict[str, Any], values: dict, keys: dict, prev_keys: dict, previous: dict, index: int, res: RunResult
+    ) -> tuple[dict, dict]:
+        """Run the per-frame nodes on one frame of the source; returns every output and its cache
+        key. Raises :class:`_SkipFrame` when a node under ``on_error: skip`` failed."""
+        g = self.graph
+        src_id = g.source.id
+        warming = index < self.warmup
+        frame = frame_out.get("frame")
+        cur = dict(values)
+        cur_keys = dict(keys)
+        frame_key = getattr(self.instances[src_id], "frame_key", None)
+        identity = frame_key(frame) if (self.cache is not None and frame_key is not None) else None
+        src_params = g.source.params.model_dump(mode="json") if identity is not None else None
+        for port, v in frame_out.items():
+            cur[(src_id, port)] = v
+            cur_keys[(src_id, port)] = None if identity is None else digest(g.source.type.name, g.source.type.code_version, src_params, identity, port)
+        # the source is an iterator read ahead, so it fires only the after-node hook
+        src_ms = (self.result.timings_ms.get(src_id) or [0.0])[-1]
+        self.pm.hook.lanegraph_after_node(node_id=src_id, node_type=g.source.type.name, frame=frame, outputs=frame_out, elapsed_ms=src_ms, error=None)
+        for nid in g.order:
+            if nid == src_id or nid in self.constant_nodes:
+                continue
+            n = g.nodes[nid]
+            if warming and n.type.sink:
+                continue
+            ins = {p: (previous.get((e.src_node, e.src_port)) if e.previous else cur.get((e.src_node, e.src_port))) for p, e in n.inputs.items()}
+            for p, port in n.type.inputs.items():
+                if p not in ins and port.optional:
+                    ins[p] = None
+            key = self._key(n, cur_keys, prev_keys) if self.cache is not None else None
+            out = self._call(n, ins, frame, index, res, key)
+            for port, v in out.items():
+                cur[(nid, port)] = v
+                cur_keys[(nid, port)] = None if key is None else digest(key, port)
+                valid = getattr(v, "valid", None)
+                if isinstance(valid, bool):
+                    counts = res.invalid_outputs.setdefault(f"{nid}.{port}", [0, 0])
+                    counts[0] += not valid
+                    counts[1] += 1
+        return cur, cur_keys
 
     def _frames(
         self, source: Any, src_id: str, result: RunResult, start: int = 0, drop: int = 0
@@ -532,9 +552,10 @@ class Executor:
             rec = scratch if index < self.warmup else result
             if kind == "error":
                 exc = item
+                frame = getattr(exc, "frame", None)
+                self.pm.hook.lanegraph_after_node(node_id=src_id, node_type=node.type.name, frame=frame, outputs=None, elapsed_ms=0.0, error=exc)
                 if not isinstance(exc, LanegraphError):
                     raise NodeError(src_id, node.type.name, None, exc) from exc
-                frame = getattr(exc, "frame", None)
                 if node.on_error == "fail":
                     raise NodeError(src_id, node.type.name, frame, exc) from exc
                 rec.failures.append(FrameFailure(frame, index, src_id, node.type.name, str(exc)))

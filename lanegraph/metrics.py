@@ -223,7 +223,8 @@ def _check_frame(rec: dict[str, Any], where: str, seen: dict[str, int], k: int) 
 
 
 def validate_predictions(records: list[dict[str, Any]], lines: list[int]) -> None:
-    """Check ``lanes.jsonl`` records: ``{"frame": id, "lanes": [{"points": [[x, y], ...], ...}]}``,
+    """Check predictions records (a run's lanes, :data:`lanegraph.results.LANES`): ``{"frame": id,
+    "lanes": [{"points": [[x, y], ...], ...}]}``,
     one record per frame; raises ``ValueError`` naming the line."""
     seen: dict[str, int] = {}
     for rec, k in zip(records, lines):
@@ -282,7 +283,7 @@ def validate_ground_truth(records: list[dict[str, Any]], lines: list[int]) -> No
 
 
 def read_predictions(path: str | Path) -> list[dict[str, Any]]:
-    """A predictions file (``lanes.jsonl``), validated: a malformed one raises :class:`InputError`
+    """A predictions file (a run's lanes), validated: a malformed one raises :class:`InputError`
     naming the file and the line."""
     return _read_validated(path, validate_predictions)
 

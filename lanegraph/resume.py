@@ -111,64 +111,94 @@ def decode_value(data: Any, where: str = "value") -> Any:
         raise CheckpointValueError(f"{where}: expected a JSON scalar, a list or a tagged object {{'$t': ...}}, got {str(data)[:80]}")
     tag = data["$t"]
     try:
-        if tag == "float":
-            if data["v"] not in ("nan", "inf", "-inf"):
-                raise CheckpointValueError(f"{where}: expected 'nan', 'inf' or '-inf', got {data['v']!r}")
-            return float(data["v"])
-        if tag == "tuple":
-            return tuple(decode_value(v, f"{where}[{i}]") for i, v in enumerate(_list(data["v"], where)))
-        if tag == "dict":
-            out = {}
-            for i, item in enumerate(_list(data["v"], where)):
-                if not (isinstance(item, list) and len(item) == 2):
-                    raise CheckpointValueError(f"{where}[{i}]: expected a [key, value] pair")
-                key = decode_value(item[0], f"{where} key")
-                try:
-                    hash(key)
-                except TypeError:
-                    raise CheckpointValueError(f"{where}: a dict key must be hashable, got {str(key)[:60]}") from None
-                out[key] = decode_value(item[1], f"{where}[{key!r}]")
-            return out
-        if tag == "ndarray":
-            dtype = _dtype(data["dtype"], where)
-            shape = data["shape"]
-            if not (isinstance(shape, list) and all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in shape)):
-                raise CheckpointValueError(f"{where}: shape: expected a list of integers >= 0, got {str(shape)[:60]}")
-            raw = base64.b64decode(data["data"], validate=True)
-            if len(raw) != int(np.prod(shape, dtype=np.int64)) * dtype.itemsize:
-                raise CheckpointValueError(f"{where}: {len(raw)} bytes of data do not make an array of shape {shape} and dtype {dtype}")
-            return np.frombuffer(raw, dtype=dtype).reshape(shape).copy()
-        if tag == "scalar":
-            dtype = _dtype(data["dtype"], where)
-            raw = base64.b64decode(data["data"], validate=True)
-            if len(raw) != dtype.itemsize:
-                raise CheckpointValueError(f"{where}: {len(raw)} bytes of data are not one {dtype}")
-            return np.frombuffer(raw, dtype=dtype)[0]
-        if tag == "FeatureMap":
-            shape = data["shape"]
-            if not (isinstance(shape, list) and len(shape) == 2 and all(isinstance(n, int) and n >= 0 for n in shape)):
-                raise CheckpointValueError(f"{where}: shape: expected [rows, cols], got {str(shape)[:60]}")
-            rows, cols = decode_value(data["rows"], f"{where}.rows"), decode_value(data["cols"], f"{where}.cols")
-            values = decode_value(data["values"], f"{where}.values")
-            if not (isinstance(rows, np.ndarray) and isinstance(cols, np.ndarray) and rows.shape == cols.shape and rows.ndim == 1):
-                raise CheckpointValueError(f"{where}: rows, cols: expected two 1-D arrays of one length")
-            if rows.size and (rows.min() < 0 or cols.min() < 0 or rows.max() >= shape[0] or cols.max() >= shape[1]):
-                raise CheckpointValueError(f"{where}: feature points outside the {shape[0]}x{shape[1]} map")
-            return FeatureMap.from_points(tuple(shape), rows, cols, values)
-        cls = VALUE_TYPES.get(tag)
-        if cls is None:
-            raise CheckpointValueError(f"{where}: unknown value type {tag!r} (known: {', '.join(['ndarray', 'FeatureMap', *VALUE_TYPES])})")
-        fields = data["v"]
-        if not isinstance(fields, dict):
-            raise CheckpointValueError(f"{where}: expected the fields of a {tag}")
-        known = {f.name for f in dataclasses.fields(cls) if f.init}
-        if set(fields) != known:
-            raise CheckpointValueError(f"{where}: a {tag} has the fields {sorted(known)}, got {sorted(fields)}")
-        return cls(**{k: decode_value(v, f"{where}.{k}") for k, v in fields.items()})
+        decode = _DECODERS.get(tag, _decode_dataclass)
+        return decode(data, where)
     except CheckpointValueError:
         raise
     except (KeyError, TypeError, ValueError) as exc:
         raise CheckpointValueError(f"{where}: malformed {tag!r} value ({type(exc).__name__}: {exc})") from None
+
+
+def _decode_float(data: dict[str, Any], where: str) -> float:
+    if data["v"] not in ("nan", "inf", "-inf"):
+        raise CheckpointValueError(f"{where}: expected 'nan', 'inf' or '-inf', got {data['v']!r}")
+    return float(data["v"])
+
+
+def _decode_tuple(data: dict[str, Any], where: str) -> tuple:
+    return tuple(decode_value(v, f"{where}[{i}]") for i, v in enumerate(_list(data["v"], where)))
+
+
+def _decode_dict(data: dict[str, Any], where: str) -> dict:
+    out = {}
+    for i, item in enumerate(_list(data["v"], where)):
+        if not (isinstance(item, list) and len(item) == 2):
+            raise CheckpointValueError(f"{where}[{i}]: expected a [key, value] pair")
+        key = decode_value(item[0], f"{where} key")
+        try:
+            hash(key)
+        except TypeError:
+            raise CheckpointValueError(f"{where}: a dict key must be hashable, got {str(key)[:60]}") from None
+        out[key] = decode_value(item[1], f"{where}[{key!r}]")
+    return out
+
+
+def _decode_ndarray(data: dict[str, Any], where: str) -> np.ndarray:
+    dtype = _dtype(data["dtype"], where)
+    shape = data["shape"]
+    if not (isinstance(shape, list) and all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in shape)):
+        raise CheckpointValueError(f"{where}: shape: expected a list of integers >= 0, got {str(shape)[:60]}")
+    raw = base64.b64decode(data["data"], validate=True)
+    if len(raw) != int(np.prod(shape, dtype=np.int64)) * dtype.itemsize:
+        raise CheckpointValueError(f"{where}: {len(raw)} bytes of data do not make an array of shape {shape} and dtype {dtype}")
+    return np.frombuffer(raw, dtype=dtype).reshape(shape).copy()
+
+
+def _decode_scalar(data: dict[str, Any], where: str) -> np.generic:
+    dtype = _dtype(data["dtype"], where)
+    raw = base64.b64decode(data["data"], validate=True)
+    if len(raw) != dtype.itemsize:
+        raise CheckpointValueError(f"{where}: {len(raw)} bytes of data are not one {dtype}")
+    return np.frombuffer(raw, dtype=dtype)[0]
+
+
+def _decode_feature_map(data: dict[str, Any], where: str) -> FeatureMap:
+    shape = data["shape"]
+    if not (isinstance(shape, list) and len(shape) == 2 and all(isinstance(n, int) and n >= 0 for n in shape)):
+        raise CheckpointValueError(f"{where}: shape: expected [rows, cols], got {str(shape)[:60]}")
+    rows, cols = decode_value(data["rows"], f"{where}.rows"), decode_value(data["cols"], f"{where}.cols")
+    values = decode_value(data["values"], f"{where}.values")
+    if not (isinstance(rows, np.ndarray) and isinstance(cols, np.ndarray) and rows.shape == cols.shape and rows.ndim == 1):
+        raise CheckpointValueError(f"{where}: rows, cols: expected two 1-D arrays of one length")
+    if rows.size and (rows.min() < 0 or cols.min() < 0 or rows.max() >= shape[0] or cols.max() >= shape[1]):
+        raise CheckpointValueError(f"{where}: feature points outside the {shape[0]}x{shape[1]} map")
+    return FeatureMap.from_points(tuple(shape), rows, cols, values)
+
+
+def _decode_dataclass(data: dict[str, Any], where: str) -> Any:
+    """A value of one of :data:`VALUE_TYPES`, from exactly its fields."""
+    tag = data["$t"]
+    cls = VALUE_TYPES.get(tag)
+    if cls is None:
+        raise CheckpointValueError(f"{where}: unknown value type {tag!r} (known: {', '.join(['ndarray', 'FeatureMap', *VALUE_TYPES])})")
+    fields = data["v"]
+    if not isinstance(fields, dict):
+        raise CheckpointValueError(f"{where}: expected the fields of a {tag}")
+    known = {f.name for f in dataclasses.fields(cls) if f.init}
+    if set(fields) != known:
+        raise CheckpointValueError(f"{where}: a {tag} has the fields {sorted(known)}, got {sorted(fields)}")
+    return cls(**{k: decode_value(v, f"{where}.{k}") for k, v in fields.items()})
+
+
+#: how each tag of :func:`encode_value` is decoded (any other tag: a value type's fields)
+_DECODERS = {
+    "float": _decode_float,
+    "tuple": _decode_tuple,
+    "dict": _decode_dict,
+    "ndarray": _decode_ndarray,
+    "scalar": _decode_scalar,
+    "FeatureMap": _decode_feature_map,
+}
 
 
 def _list(v: Any, where: str) -> list:

@@ -1,7 +1,7 @@
 """``lanegraph report``: a self-contained browser report of a run or an ablation.
 
-:func:`write_report` reads a ``lanegraph run`` output folder (``lanes.jsonl``, ``timings.json``,
-``run.json``; with a dataset file, ``<sequence>/lanes.jsonl`` per sequence) or a ``lanegraph
+:func:`write_report` reads a ``lanegraph run`` output folder (its lanes, ``timings.json``,
+``run.json``; with a dataset file, a run folder ``<sequence>/`` per sequence) or a ``lanegraph
 ablate`` output folder (``runs/<variant>/<sequence>/``, ``results.csv``) and writes
 ``OUT/index.html`` with its pictures in ``OUT/assets/``:
 

@@ -76,8 +76,8 @@ def write_report(
     Parameters
     ----------
     run_dir
-        the output folder of ``lanegraph run`` (``lanes.jsonl``; with ``dataset``,
-        ``<sequence>/lanes.jsonl``) or of ``lanegraph ablate`` (``runs/``, ``results.csv``).
+        the output folder of ``lanegraph run`` (its lanes; with ``dataset``, a run folder
+        ``<sequence>/`` per sequence) or of ``lanegraph ablate`` (``runs/``, ``results.csv``).
     out_dir
         where ``index.html`` and its ``assets/`` go (default ``run_dir/report``).
     gt, dataset, input_path, frames
@@ -104,20 +104,24 @@ def write_report(
     pm = pm or get_plugin_manager()
     run_dir = Path(run_dir)
     out = Path(out_dir) if out_dir is not None else run_dir / "report"
-    data = collect(
-        run_dir,
-        gt=Path(gt) if gt is not None else None,
-        dataset=dataset,
-        input_path=Path(input_path) if input_path is not None else None,
-        frames=frames,
-        sets=list(sets),
-        graph=graph,
-        pm=pm,
-    )
+    opt = {"gt": Path(gt) if gt is not None else None, "input_path": Path(input_path) if input_path is not None else None}
+    data = collect(run_dir, dataset=dataset, frames=frames, sets=list(sets), graph=graph, pm=pm, **opt)
     debug = Path(debug_dir) if debug_dir is not None else None
     if debug is not None and not debug.is_dir():
         raise UsageError(f"--debug-dir {debug}: no such folder")
     log = _Log(progress)
+    frames_json, failed, debug_frames = _assemble(data, out, pm, debug, image_width, log)
+    files = [out / "index.html", *(p for p in (out / "assets").rglob("*") if p.is_file())]
+    for note in data.notes:
+        log(f"note: {note}")
+    size = sum(p.stat().st_size for p in files)
+    elapsed = time.perf_counter() - t0
+    return ReportSummary(out / "index.html", data.kind, len(frames_json), failed, debug_frames, len(files), size, elapsed, data.notes, data.variants[0])
+
+
+def _assemble(data: Collected, out: Path, pm: PluginManager, debug: Path | None, image_width: int, log: _Log) -> tuple[list[dict[str, Any]], int, int]:
+    """Evaluate the frames, write the pictures and the page into ``out``; returns the frames, how
+    many the first variant fails, and how many have node pictures."""
     frames_json, failed = _frames(data)
     # the new pictures go to a folder of their own; the earlier report stays whole until the end
     assets = _new_assets(out)
@@ -129,21 +133,7 @@ def write_report(
     finally:
         if assets.exists():
             shutil.rmtree(assets)
-    files = [out / "index.html", *(p for p in (out / "assets").rglob("*") if p.is_file())]
-    for note in data.notes:
-        log(f"note: {note}")
-    return ReportSummary(
-        out / "index.html",
-        data.kind,
-        len(frames_json),
-        failed,
-        debug_frames,
-        len(files),
-        sum(p.stat().st_size for p in files),
-        time.perf_counter() - t0,
-        data.notes,
-        data.variants[0],
-    )
+    return frames_json, failed, debug_frames
 
 
 class _Log:
@@ -203,10 +193,11 @@ def _number(x: Any) -> float | None:
     return float(x) if isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) else None
 
 
-def _metric_line(res: Any, n_lanes: int, missing: bool, error: str | None) -> str:
+def _metric_line(res: Any, n_lanes: int, missing: str | None, error: str | None) -> str:
+    """A frame's line under its picture; ``missing``: the lanes file the frame is not in."""
     parts = []
     if missing:
-        parts.append("not in lanes.jsonl (counted as nothing reported)")
+        parts.append(f"not in {missing} (counted as nothing reported)")
     if error:
         parts.append(f"failed while running: {error}")
     if res is None:
@@ -229,85 +220,21 @@ def _frames(data: Collected) -> tuple[list[dict[str, Any]], int]:
     out: list[dict[str, Any]] = []
     failed_first = 0
     for si, seq in enumerate(data.sequences):
-        runs = {vi: data.runs.get((vi, si)) for vi in range(len(data.variants))}
-        per_variant: dict[int, dict[str, Any]] = {}
-        for vi, rf in runs.items():
-            if rf is None:
-                continue
-            lanes = {str(r.get("frame")): list(r.get("lanes") or []) for r in rf.records}
-            results = None
-            if seq.gt is not None:
-                results = {r.frame: r for r in evaluate(rf.records, seq.gt)["per_frame"]}
-            per_variant[vi] = {
-                "lanes": lanes,
-                "results": results,
-                "failures": rf.failures,
-                "file": str(rf.folder / "lanes.jsonl"),
-            }
+        per_variant = _variant_lanes(data, si, seq)
         if seq.gt is not None:
             ids = [str(g.get("frame")) for g in seq.gt]
             gts = {str(g.get("frame")): g for g in seq.gt}
         else:
             ids = list(dict.fromkeys(f for v in per_variant.values() for f in [*v["lanes"], *v["failures"]]))
             gts = {}
-        absent: dict[int, int] = {}  # per variant: frames not in its lanes.jsonl
+        absent: dict[int, int] = {}  # per variant: frames not in its lanes file
         for fid in ids:
-            g = gts.get(fid)
             entry: dict[str, Any] = {"s": si, "id": fid, "img": None, "w": None, "h": None, "r": []}
-            if g is not None:
-                size = g.get("image_size")
-                if isinstance(size, list) and len(size) == 2:
-                    entry["w"], entry["h"] = size
-                ego = g.get("ego") or {}
-                entry["gt"] = [
-                    {
-                        "id": m.get("id"),
-                        "kind": str(m.get("kind", "")),
-                        "ego": next(
-                            (
-                                side
-                                for side in ("left", "right")
-                                if ego.get(side) is not None and ego.get(side) == m.get("id")
-                            ),
-                            None,
-                        ),
-                        "pts": _points(m, str(seq.gt_path)),
-                    }
-                    for m in g.get("markings") or []
-                ]
+            if fid in gts:
+                _add_ground_truth(entry, gts[fid], str(seq.gt_path))
             for vi in range(len(data.variants)):
                 v = per_variant.get(vi)
-                if v is None:
-                    entry["r"].append(None)
-                    continue
-                lanes = v["lanes"].get(fid)
-                missing = lanes is None
-                lanes = lanes or []
-                res = v["results"].get(fid) if v["results"] is not None else None
-                m = res.match if res is not None else None
-                outcomes = m.lane_outcomes() if m is not None else [None] * len(lanes)
-                error = v["failures"].get(fid)
-                entry["r"].append(
-                    {
-                        "lanes": [
-                            {
-                                "pts": _points(ln, f"{v['file']}: frame {fid}"),
-                                "side": str(ln.get("side", "")),
-                                "score": _number(ln.get("score")),
-                                "o": outcomes[i],
-                                "dx": None if m is None or m.lane_dx[i] is None else round(m.lane_dx[i], 2),
-                            }
-                            for i, ln in enumerate(lanes)
-                        ],
-                        "mo": m.marking_outcomes() if m is not None else None,
-                        "ok": None if res is None else res.correct,
-                        "missing": missing,
-                        "fail": (not res.correct) if res is not None else error is not None,
-                        "line": _metric_line(
-                            res, len(lanes), missing and (res is not None or error is None), error
-                        ),
-                    }
-                )
+                entry["r"].append(None if v is None else _variant_frame(v, fid))
             for vi, r in enumerate(entry["r"]):
                 if r is not None and r["missing"]:
                     absent[vi] = absent.get(vi, 0) + 1
@@ -316,11 +243,78 @@ def _frames(data: Collected) -> tuple[list[dict[str, Any]], int]:
             out.append(entry)
         for vi, n in absent.items():
             if seq.gt is not None:
+                name = per_variant[vi]["name"]
                 data.notes.append(
-                    f"{data.variants[vi]} on {seq.name}: {n} of {len(ids)} ground-truth frame(s) are not in lanes.jsonl and count "
+                    f"{data.variants[vi]} on {seq.name}: {n} of {len(ids)} ground-truth frame(s) are not in {name} and count "
                     "as failed (as in lanegraph eval); was the run made with --frames? give the report the same --frames"
                 )
     return out, failed_first
+
+
+def _variant_lanes(data: Collected, si: int, seq: Any) -> dict[int, dict[str, Any]]:
+    """Per variant that ran on sequence ``si``: its lanes by frame, their outcomes against the
+    ground truth, its failed frames and its lanes file."""
+    per_variant: dict[int, dict[str, Any]] = {}
+    for vi in range(len(data.variants)):
+        rf = data.runs.get((vi, si))
+        if rf is None:
+            continue
+        results = None
+        if seq.gt is not None:
+            results = {r.frame: r for r in evaluate(rf.records, seq.gt)["per_frame"]}
+        lanes_file = rf.lanes_file or rf.folder
+        per_variant[vi] = {
+            "lanes": {str(r.get("frame")): list(r.get("lanes") or []) for r in rf.records},
+            "results": results,
+            "failures": rf.failures,
+            "file": str(lanes_file),
+            "name": lanes_file.name,
+        }
+    return per_variant
+
+
+def _add_ground_truth(entry: dict[str, Any], g: dict[str, Any], where: str) -> None:
+    """A frame's image size and markings (with the ego side each one is) from its ground truth."""
+    size = g.get("image_size")
+    if isinstance(size, list) and len(size) == 2:
+        entry["w"], entry["h"] = size
+    ego = g.get("ego") or {}
+
+    def side(m: dict[str, Any]) -> str | None:
+        return next((s for s in ("left", "right") if ego.get(s) is not None and ego.get(s) == m.get("id")), None)
+
+    entry["gt"] = [
+        {"id": m.get("id"), "kind": str(m.get("kind", "")), "ego": side(m), "pts": _points(m, where)}
+        for m in g.get("markings") or []
+    ]
+
+
+def _variant_frame(v: dict[str, Any], fid: str) -> dict[str, Any]:
+    """One variant's lanes on frame ``fid`` with their outcomes and the frame's metric line."""
+    lanes = v["lanes"].get(fid)
+    missing = lanes is None
+    lanes = lanes or []
+    res = v["results"].get(fid) if v["results"] is not None else None
+    m = res.match if res is not None else None
+    outcomes = m.lane_outcomes() if m is not None else [None] * len(lanes)
+    error = v["failures"].get(fid)
+    return {
+        "lanes": [
+            {
+                "pts": _points(ln, f"{v['file']}: frame {fid}"),
+                "side": str(ln.get("side", "")),
+                "score": _number(ln.get("score")),
+                "o": outcomes[i],
+                "dx": None if m is None or m.lane_dx[i] is None else round(m.lane_dx[i], 2),
+            }
+            for i, ln in enumerate(lanes)
+        ],
+        "mo": m.marking_outcomes() if m is not None else None,
+        "ok": None if res is None else res.correct,
+        "missing": missing,
+        "fail": (not res.correct) if res is not None else error is not None,
+        "line": _metric_line(res, len(lanes), v["name"] if missing and (res is not None or error is None) else None, error),
+    }
 
 
 def _left_images(
@@ -331,66 +325,16 @@ def _left_images(
     try:
         for si, seq in enumerate(data.sequences):
             entries = {f["id"]: f for f in frames if f["s"] == si}
-            if not entries:
-                continue
-            if seq.input is None and not seq.default_source:
+            if not entries or (seq.input is None and not seq.default_source):
                 continue
             choice = choose_source(pm, data.graph, seq.input, allow_default=seq.default_source)
             if choice is None:
-                data.notes.append(
-                    f"sequence {seq.name}: no installed source reads {seq.input}: no left images"
-                )
+                data.notes.append(f"sequence {seq.name}: no installed source reads {seq.input}: no left images")
                 continue
-            folder = assets / "frames" / f"s{si}"
-            folder.mkdir(parents=True, exist_ok=True)
-            log(
-                f"reading the left images of {len(entries)} frame(s) of {seq.name} ({choice.node_type.name}) ..."
-            )
-            numbers = {fid: k for k, fid in enumerate(entries)}
-
-            def on_image(
-                fid: str, left: Any, folder: Path = folder, numbers: dict = numbers, entries: dict = entries
-            ) -> None:
-                e = entries[fid]
-                name = f"f{numbers[fid]:05d}.jpg"
-                writer.submit(folder / name, left, width)
-                e["img"] = f"assets/frames/{folder.name}/{name}"
-                e["h"], e["w"] = int(left.shape[0]), int(left.shape[1])
-
-            from tqdm import tqdm
-
-            bar = tqdm(
-                total=len(entries),
-                desc=f"report: {seq.name}",
-                unit="frame",
-                disable=not log.on or None,
-                file=sys.stderr,
-                leave=False,
-            )
-            try:
-                order = read_left_images(
-                    choice,
-                    seq.input,
-                    seq.frames,
-                    set(entries),
-                    on_image,
-                    on_frame=lambda bar=bar: bar.update(1),
-                )
-            except LanegraphError as exc:
-                data.notes.append(f"sequence {seq.name}: the left images could not be read: {exc}")
-                continue
-            finally:
-                bar.close()
-            missing = [fid for fid, e in entries.items() if e["img"] is None]
-            if missing:
-                data.notes.append(
-                    f"sequence {seq.name}: {len(missing)} frame(s) not read by the source (e.g. {missing[0]}): shown without image"
-                )
-            if seq.gt is None:  # without ground truth: the source's order
+            order = _sequence_images(data, si, seq, choice, entries, assets, writer, width, log)
+            if order is not None and seq.gt is None:  # without ground truth: the source's order
                 rank = {fid: k for k, fid in enumerate(order)}
-                block = sorted(
-                    (f for f in frames if f["s"] == si), key=lambda f: rank.get(f["id"], len(rank))
-                )
+                block = sorted((f for f in frames if f["s"] == si), key=lambda f: rank.get(f["id"], len(rank)))
                 idx = [k for k, f in enumerate(frames) if f["s"] == si]
                 for k, f in zip(idx, block):
                     frames[k] = f
@@ -400,13 +344,42 @@ def _left_images(
         raise LanegraphError(f"writing the report's images failed: {errors[0]}")
     for f in frames:  # a size for frames without image or ground-truth size: from what is drawn
         if f["w"] is None:
-            xs = [p[0] for r in f["r"] if r for ln in r["lanes"] for p in ln["pts"]] + [
-                p[0] for m in f.get("gt") or [] for p in m["pts"]
-            ]
-            ys = [p[1] for r in f["r"] if r for ln in r["lanes"] for p in ln["pts"]] + [
-                p[1] for m in f.get("gt") or [] for p in m["pts"]
-            ]
-            f["w"], f["h"] = int(max(xs, default=1242) * 1.05), int(max(ys, default=375) * 1.05)
+            pts = [p for r in f["r"] if r for ln in r["lanes"] for p in ln["pts"]] + [p for m in f.get("gt") or [] for p in m["pts"]]
+            f["w"] = int(max((p[0] for p in pts), default=1242) * 1.05)
+            f["h"] = int(max((p[1] for p in pts), default=375) * 1.05)
+
+
+def _sequence_images(
+    data: Collected, si: int, seq: Any, choice: Any, entries: dict[str, Any], assets: Path, writer: JpegWriter, width: int, log: _Log
+) -> list[str] | None:
+    """The left images of one sequence's frames in ``entries`` as JPEG files (their paths and
+    sizes set in the entries); returns the source's frame order (None when it could not be read)."""
+    from tqdm import tqdm
+
+    folder = assets / "frames" / f"s{si}"
+    folder.mkdir(parents=True, exist_ok=True)
+    log(f"reading the left images of {len(entries)} frame(s) of {seq.name} ({choice.node_type.name}) ...")
+    numbers = {fid: k for k, fid in enumerate(entries)}
+
+    def on_image(fid: str, left: Any) -> None:
+        e = entries[fid]
+        name = f"f{numbers[fid]:05d}.jpg"
+        writer.submit(folder / name, left, width)
+        e["img"] = f"assets/frames/{folder.name}/{name}"
+        e["h"], e["w"] = int(left.shape[0]), int(left.shape[1])
+
+    bar = tqdm(total=len(entries), desc=f"report: {seq.name}", unit="frame", disable=not log.on or None, file=sys.stderr, leave=False)
+    try:
+        order = read_left_images(choice, seq.input, seq.frames, set(entries), on_image, on_frame=lambda: bar.update(1))
+    except LanegraphError as exc:
+        data.notes.append(f"sequence {seq.name}: the left images could not be read: {exc}")
+        return None
+    finally:
+        bar.close()
+    missing = [fid for fid, e in entries.items() if e["img"] is None]
+    if missing:
+        data.notes.append(f"sequence {seq.name}: {len(missing)} frame(s) not read by the source (e.g. {missing[0]}): shown without image")
+    return order
 
 
 def _node_pictures(

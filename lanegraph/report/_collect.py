@@ -1,7 +1,8 @@
-"""Reading what a report shows: a ``lanegraph run`` output folder (``lanes.jsonl``, ``timings.json``,
-``run.json``; with a dataset file, ``<sequence>/lanes.jsonl`` per sequence) or a ``lanegraph
+"""Reading what a report shows: a ``lanegraph run`` output folder (its lanes, ``timings.json``,
+``run.json``; with a dataset file, a run folder ``<sequence>/`` per sequence) or a ``lanegraph
 ablate`` output folder (``runs/<variant>/<sequence>/``, ``results.csv``), the ground truth, and the
-graph the run names."""
+graph the run names. A run folder's lanes are the file its ``run.json`` records
+(:mod:`lanegraph.results`)."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from ..errors import GraphError, InputError, UsageError
 from ..graph import Graph
 from ..metrics import read_jsonl
 from ..plugins import PluginManager
+from ..results import LANES, describe, find_result
 
 #: the ground truth looked for in an input folder when none is given
 GT_NAME = "lanes_gt.jsonl"
@@ -29,6 +31,7 @@ class RunFiles:
     records: list[dict[str, Any]]
     timings: dict[str, Any] | None = None
     failures: dict[str, str] = field(default_factory=dict)  # frame -> why it failed while running
+    lanes_file: Path | None = None  # where the records come from
 
 
 @dataclass
@@ -40,7 +43,7 @@ class Sequence:
     frames: slice | None = None
     gt: list[dict[str, Any]] | None = None
     gt_path: Path | None = None
-    default_source: bool = False  # no input: the graph's (or io.auto's) default source reads it
+    default_source: bool = False  # no input: the source the graph (or a selecting source) chooses without one reads it
 
 
 @dataclass
@@ -69,9 +72,9 @@ def _read_json(path: Path) -> dict[str, Any] | None:
     return data
 
 
-def read_run(folder: Path) -> RunFiles:
-    """A run's ``lanes.jsonl`` (required), ``timings.json`` and ``run.json`` (optional)."""
-    records = read_jsonl(folder / "lanes.jsonl")
+def read_run(folder: Path, lanes: Path) -> RunFiles:
+    """A run's lanes (the file ``lanes``, required), ``timings.json`` and ``run.json`` (optional)."""
+    records = read_jsonl(lanes)
     failures: dict[str, str] = {}
     run = _read_json(folder / "run.json") or {}
     for f in run.get("failures") or []:
@@ -80,7 +83,7 @@ def read_run(folder: Path) -> RunFiles:
     stopped = run.get("stopped")
     if isinstance(stopped, dict) and stopped.get("frame") is not None:
         failures.setdefault(str(stopped["frame"]), f"the run stopped here: {stopped.get('error')}")
-    return RunFiles(folder, records, _read_json(folder / "timings.json"), failures)
+    return RunFiles(folder, records, _read_json(folder / "timings.json"), failures, lanes)
 
 
 def _gt_records(path: Path | None, frames: slice | None) -> list[dict[str, Any]] | None:
@@ -172,7 +175,7 @@ def collect(
             "--dataset names every sequence's input and ground truth: give it instead of --gt/--input, not with them"
         )
     if (run_dir / "runs").is_dir() and (run_dir / "results.csv").is_file():
-        return _collect_ablation(run_dir, gt, dataset, input_path, frames, graph)
+        return _collect_ablation(run_dir, gt, dataset, input_path, frames, graph, pm)
     return _collect_run(run_dir, gt, dataset, input_path, frames, sets, graph, pm)
 
 
@@ -182,24 +185,26 @@ def _collect_run(run_dir, gt, dataset, input_path, frames, sets, graph, pm) -> C
     if graph is None:
         graph = load_recorded_graph(run_json, run_dir, sets, pm, notes)
     variant = graph.name if graph is not None else Path(str(run_json.get("graph") or "run")).stem
-    if dataset is not None:  # `run --dataset`: RUN_DIR/<sequence>/lanes.jsonl
+    if dataset is not None:  # `run --dataset`: a run folder RUN_DIR/<sequence>/ per sequence
         seqs, runs = [], {}
         for s in _from_dataset(dataset, frames):
             folder = run_dir / s.name
-            if (folder / "lanes.jsonl").is_file():
-                runs[(0, len(seqs))] = read_run(folder)
+            lanes = find_result(folder, LANES, pm) if folder.is_dir() else None
+            if lanes is not None:
+                runs[(0, len(seqs))] = read_run(folder, lanes)
                 seqs.append(s)
             else:
-                notes.append(f"sequence {s.name}: no {folder / 'lanes.jsonl'}: left out")
+                notes.append(f"sequence {s.name}: no lanes file ({describe(folder, LANES, pm)}): left out")
         if not seqs:
             raise UsageError(
-                f"{run_dir}: no <sequence>/lanes.jsonl for any sequence of {dataset.file or dataset.name}"
+                f"{run_dir}: no run folder <sequence>/ with lanes for any sequence of {dataset.file or dataset.name}"
             )
         return Collected("run", run_dir, [variant], seqs, runs, graph, notes=notes)
-    if not (run_dir / "lanes.jsonl").is_file():
+    lanes = find_result(run_dir, LANES, pm)
+    if lanes is None:
         raise UsageError(
-            f"{run_dir}: not a run folder (no lanes.jsonl) nor an ablation folder (no runs/ and results.csv); "
-            "for a `run --dataset` folder give --dataset FILE"
+            f"{run_dir}: not a run folder (no lanes file: {describe(run_dir, LANES, pm)}) nor an ablation folder (no runs/ and "
+            "results.csv); for a `run --dataset` folder give --dataset FILE"
         )
     if input_path is None and run_json.get("input"):
         input_path = _resolve_recorded(str(run_json["input"]), run_dir)
@@ -222,7 +227,7 @@ def _collect_run(run_dir, gt, dataset, input_path, frames, sets, graph, pm) -> C
         gt,
         default_source=input_path is None and not run_json.get("input"),
     )
-    return Collected("run", run_dir, [variant], [seq], {(0, 0): read_run(run_dir)}, graph, notes=notes)
+    return Collected("run", run_dir, [variant], [seq], {(0, 0): read_run(run_dir, lanes)}, graph, notes=notes)
 
 
 def _safe_folder(name: str) -> str:
@@ -230,7 +235,7 @@ def _safe_folder(name: str) -> str:
     return "".join(ch if ch.isalnum() or ch in "-_.=[]" else "_" for ch in name)
 
 
-def _collect_ablation(run_dir, gt, dataset, input_path, frames, graph) -> Collected:
+def _collect_ablation(run_dir, gt, dataset, input_path, frames, graph, pm) -> Collected:
     notes: list[str] = []
     with (run_dir / "results.csv").open(newline="", encoding="utf-8") as fh:
         results = list(csv.DictReader(fh))
@@ -248,9 +253,8 @@ def _collect_ablation(run_dir, gt, dataset, input_path, frames, graph) -> Collec
         vfolders.append(f)
     if not variants:
         raise UsageError(f"{run_dir}: an ablation folder without runs (runs/ is empty)")
-    seq_names = list(
-        dict.fromkeys(p.name for f in vfolders for p in sorted(f.iterdir()) if (p / "lanes.jsonl").is_file())
-    )
+    lanes = {(f, p.name): path for f in vfolders for p in sorted(f.iterdir()) if p.is_dir() and (path := find_result(p, LANES, pm))}
+    seq_names = list(dict.fromkeys(name for _, name in lanes))
     if dataset is not None:
         seqs = [s for s in _from_dataset(dataset, frames) if s.name in seq_names]
         if not seqs:
@@ -284,6 +288,6 @@ def _collect_ablation(run_dir, gt, dataset, input_path, frames, graph) -> Collec
     runs = {}
     for vi, f in enumerate(vfolders):
         for si, s in enumerate(seqs):
-            if (f / s.name / "lanes.jsonl").is_file():
-                runs[(vi, si)] = read_run(f / s.name)
+            if (f, s.name) in lanes:
+                runs[(vi, si)] = read_run(f / s.name, lanes[(f, s.name)])
     return Collected("ablation", run_dir, variants, seqs, runs, graph, results, notes)

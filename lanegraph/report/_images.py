@@ -15,11 +15,11 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..errors import LanegraphError
-from ..nodes import RunContext
+from ..errors import GraphError, LanegraphError, NodeError
 from ..plugins import PluginManager
 from ..render import _safe as debug_folder_name
 from ..render import to_bgr
+from ..sources import detect_source, open_source, select_source
 
 #: the ``--debug-dir`` picture of one node output: ``<node id>.<port>.png`` (node ids have no dot)
 _PICTURE = re.compile(r"^(?P<node>[^.]+)\.(?P<port>.+)\.png$")
@@ -39,24 +39,22 @@ class SourceChoice:
 def choose_source(
     pm: PluginManager, graph: Any | None, input_path: Path | None, allow_default: bool
 ) -> SourceChoice | None:
-    """The source that reads ``input_path``: the graph's source node (``io.auto`` resolved as the
-    executor resolves it), else the installed source type that recognises the folder
-    (``lanegraph_detect_source``), else, with ``allow_default`` and no input, the default of
-    ``io.auto`` (the built-in synthetic scene). None when nothing reads it."""
-    node_id, default = "src", None
+    """The source that reads ``input_path``: the graph's source node (a selecting source replaced
+    as the executor replaces it), else the installed source type that recognises the folder
+    (``lanegraph_detect_source``), else, with ``allow_default`` and no input, what an installed
+    selecting source chooses without an input (the built-in synthetic scene). None when nothing
+    reads it."""
     if graph is not None:
         src = graph.source
-        if src.type.name != "io.auto":
-            return SourceChoice(src.type, src.params, src.id)
-        node_id, default = src.id, getattr(src.params, "default", None)
-    elif allow_default:
-        auto = pm.get_node_type("io.auto")
-        default = getattr(auto.params(), "default", None) if auto is not None else None
-    name = pm.hook.lanegraph_detect_source(path=input_path) if input_path is not None else default
-    nt = pm.get_node_type(name) if name else None
-    if nt is None or not nt.source:
+        try:
+            nt = select_source(pm, src.type, src.params, input_path)
+        except GraphError:
+            return None
+        return SourceChoice(nt, src.params if nt is src.type else nt.params(), src.id)
+    if input_path is None and not allow_default:
         return None
-    return SourceChoice(nt, nt.params(), node_id)
+    nt = detect_source(pm, input_path)
+    return SourceChoice(nt, nt.params()) if nt is not None else None
 
 
 def read_left_images(
@@ -74,14 +72,11 @@ def read_left_images(
 
     Raises :class:`~lanegraph.errors.LanegraphError` when the source cannot be opened.
     """
-    ctx = RunContext(input_path=input_path, frames=frames, node_id=choice.node_id)
     try:
-        source = choice.node_type.func(choice.params, ctx)
-    except LanegraphError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - a third-party source: reported, the report goes on
+        source = open_source(choice.node_type, choice.params, input_path, frames, choice.node_id)
+    except NodeError as exc:  # a third-party source: reported, the report goes on
         raise LanegraphError(
-            f"source {choice.node_type.name!r} could not be opened: {type(exc).__name__}: {exc}"
+            f"source {choice.node_type.name!r} could not be opened: {type(exc.cause).__name__}: {exc.cause}"
         ) from exc
     order: list[str] = []
     left_to_see = set(wanted)

@@ -174,7 +174,7 @@ def _graph(data: Collected) -> str:
     rf = data.runs.get((0, 0))
     timings = ((rf.timings or {}).get("nodes") or {}) if rf is not None else {}
     edges = [(e.src_node, e.src_port, e.dst_node, e.dst_port, e.previous) for e in g.edges]
-    # the type that ran (timings.json: io.auto resolved) before the graph file's
+    # the type that ran (timings.json: a selecting source replaced) before the graph file's
     types = {nid: str((timings.get(nid) or {}).get("type") or n.type.name) for nid, n in g.nodes.items()}
     svg = _svg.graph_svg(list(g.order), types, edges, timings)
     whose = (

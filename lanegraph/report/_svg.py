@@ -30,10 +30,16 @@ def _clip(text: str, n: int) -> str:
     return text if len(text) <= n else text[: n - 1] + "…"
 
 
+#: box width and height of a node, gaps between boxes and layers, margin, pixels
+_BW, _BH, _HGAP, _VGAP, _MARGIN = 168, 52, 22, 34, 16
+
+Edge = tuple[str, str, str, str, bool]
+
+
 def graph_svg(
     order: Sequence[str],
     types: Mapping[str, str],
-    edges: Sequence[tuple[str, str, str, str, bool]],
+    edges: Sequence[Edge],
     timings: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> str:
     """The graph in layers, top to bottom, as SVG.
@@ -44,108 +50,113 @@ def graph_svg(
     ``timings.json``. A node's fill is darker the larger its share of the summed median times.
     """
     timings = timings or {}
-    index = {nid: i for i, nid in enumerate(order)}
-    parents: dict[str, list[str]] = {nid: [] for nid in order}
-    for s, _, d, _, prev in edges:
-        if not prev and s in parents and d in parents:
-            parents[d].append(s)
-    layer: dict[str, int] = {}
-    for nid in order:  # execution order is topological over the forward edges
-        layer[nid] = max((layer[p] + 1 for p in parents[nid] if p in layer), default=0)
-    layers: list[list[str]] = [[] for _ in range(max(layer.values(), default=-1) + 1)]
-    for nid in order:
-        layers[layer[nid]].append(nid)
-    bw, bh, hgap, vgap, margin = 168, 52, 22, 34, 16
-    x: dict[str, float] = {}
-    for li, ids in enumerate(layers):  # parents' mean position first: fewer crossings
-        if li:
-            ids.sort(
-                key=lambda n: (
-                    sum(x[p] for p in parents[n]) / len(parents[n]) if parents[n] else 0.0,
-                    index[n],
-                )
-            )
-        for k, nid in enumerate(ids):
-            x[nid] = k * (bw + hgap)
-    width = max((len(ids) * (bw + hgap) - hgap for ids in layers), default=bw)
-    for ids in layers:  # centre each layer
-        shift = (width - (len(ids) * (bw + hgap) - hgap)) / 2
-        for nid in ids:
-            x[nid] += shift
-    y = {nid: layer[nid] * (bh + vgap) for nid in order}
-    forward = [e for e in edges if not e[4] and e[0] in x and e[2] in x]
-    # inputs enter a node's top side spread out in port order; outputs leave its bottom per port
-    ins: dict[str, list[tuple[str, str, str, str, bool]]] = {}
-    outs: dict[str, list[str]] = {}
-    for e in forward:
-        ins.setdefault(e[2], []).append(e)
-        if e[1] not in outs.setdefault(e[0], []):
-            outs[e[0]].append(e[1])
-    # an edge that skips layers bows out to the left, past the nodes it skips
-    longest = max((layer[e[2]] - layer[e[0]] for e in forward), default=1)
-    left = (
-        0.0 if longest <= 1 else max(0.0, 0.75 * (150 + 10 * longest) - bw / 2 - min(x.values(), default=0.0))
-    )
-    for nid in x:
-        x[nid] += left
-    has_feedback = any(e[4] for e in edges)
-    right_pad = 60 if has_feedback else 0
-    W = left + width + 2 * margin + right_pad
-    H = len(layers) * (bh + vgap) - vgap + 2 * margin
+    lay = _Layout(order, edges)
+    W = lay.left + lay.width + 2 * _MARGIN + lay.right_pad
+    H = lay.n_layers * (_BH + _VGAP) - _VGAP + 2 * _MARGIN
     medians = {nid: (timings.get(nid) or {}).get("median_ms") or 0.0 for nid in order}
     total = sum(medians.values()) or 1.0
     out = [
         f'<svg xmlns="http://www.w3.org/2000/svg" class="graph" viewBox="0 0 {W:.0f} {H:.0f}" width="{W:.0f}" height="{H:.0f}" {_FONT} font-size="11">',
         '<defs><marker id="arrow" viewBox="0 0 8 8" refX="7" refY="4" markerWidth="7" markerHeight="7" orient="auto">'
         '<path d="M0,0 L8,4 L0,8 z" fill="#667"/></marker></defs>',
-        f'<g transform="translate({margin},{margin})">',
+        f'<g transform="translate({_MARGIN},{_MARGIN})">',
     ]
-    for e in edges:
-        s, sp, d, dp, prev = e
-        if s not in x or d not in x:
-            continue
-        title = f"<title>{escape(s)}.{escape(sp)} → {escape(d)}.{escape(dp)}{' (previous frame)' if prev else ''}</title>"
-        if prev:  # feedback: out of the source's right side, up along the right, into the target's right side
-            x0, y0 = x[s] + bw, y[s] + bh / 2
-            x1, y1 = x[d] + bw, y[d] + bh / 2
-            xr = left + width + right_pad * 0.7
-            path = f"M{x0:.1f},{y0:.1f} C{xr:.1f},{y0:.1f} {xr:.1f},{y1:.1f} {x1 + 2:.1f},{y1:.1f}"
-            out.append(
-                f'<path d="{path}" fill="none" stroke="#a05" stroke-width="1.3" stroke-dasharray="5 3" marker-end="url(#arrow)">{title}</path>'
-            )
-            continue
-        ports = outs[s]
-        x0, y0 = x[s] + bw * (ports.index(sp) + 1) / (len(ports) + 1), y[s] + bh
-        k, n = ins[d].index(e), len(ins[d])
-        x1, y1 = x[d] + bw * (k + 1) / (n + 1), y[d]
-        skipped = layer[d] - layer[s]
-        if skipped > 1:
-            bow = 150 + 10 * skipped
-            path = f"M{x0:.1f},{y0:.1f} C{x0 - bow:.1f},{y0 + 40:.1f} {x1 - bow:.1f},{y1 - 40:.1f} {x1:.1f},{y1 - 1:.1f}"
-        else:
-            my = (y0 + y1) / 2
-            path = f"M{x0:.1f},{y0:.1f} C{x0:.1f},{my:.1f} {x1:.1f},{my:.1f} {x1:.1f},{y1 - 1:.1f}"
-        out.append(
-            f'<path d="{path}" fill="none" stroke="#667" stroke-width="1.2" stroke-opacity="{0.55 if skipped > 1 else 1}" '
-            f'marker-end="url(#arrow)">{title}</path>'
-        )
-    for nid in order:
-        t = timings.get(nid) or {}
-        share = medians[nid] / total
-        light = 97 - 45 * min(share / 0.5, 1.0)  # half the time or more: the darkest
-        fill = f"hsl(28, 90%, {light:.0f}%)"
-        med, p90 = t.get("median_ms"), t.get("p90_ms")
-        times = f"{_ms(med)} / {_ms(p90)} ms" if t else "no timing"
-        tip = f"{nid} ({types.get(nid, '?')}): median {_ms(med)} ms, p90 {_ms(p90)} ms, {100 * share:.0f} % of the summed medians"
-        out.append(
-            f'<g class="node" data-node="{escape(nid)}"><title>{escape(tip)}</title>'
-            f'<rect x="{x[nid]:.1f}" y="{y[nid]:.1f}" width="{bw}" height="{bh}" rx="6" fill="{fill}" stroke="#889"/>'
-            f'<text x="{x[nid] + bw / 2:.1f}" y="{y[nid] + 16:.1f}" text-anchor="middle" font-weight="600" font-size="12">{escape(_clip(nid, 22))}</text>'
-            f'<text x="{x[nid] + bw / 2:.1f}" y="{y[nid] + 31:.1f}" text-anchor="middle" fill="#444">{escape(_clip(types.get(nid, "?"), 26))}</text>'
-            f'<text x="{x[nid] + bw / 2:.1f}" y="{y[nid] + 45:.1f}" text-anchor="middle" fill="#333">{escape(times)}</text></g>'
-        )
+    out += [_edge_svg(lay, e) for e in edges if e[0] in lay.x and e[2] in lay.x]
+    out += [_node_svg(lay, nid, types.get(nid, "?"), timings.get(nid) or {}, medians[nid] / total) for nid in order]
     out.append("</g></svg>")
     return "".join(out)
+
+
+class _Layout:
+    """Where the nodes of a graph go: layers by the longest chain of forward edges, parents' mean
+    position first within a layer (fewer crossings), each layer centred, room on the left for
+    edges that skip layers and on the right for feedback edges."""
+
+    def __init__(self, order: Sequence[str], edges: Sequence[Edge]):
+        index = {nid: i for i, nid in enumerate(order)}
+        parents: dict[str, list[str]] = {nid: [] for nid in order}
+        for s, _, d, _, prev in edges:
+            if not prev and s in parents and d in parents:
+                parents[d].append(s)
+        layer: dict[str, int] = {}
+        for nid in order:  # execution order is topological over the forward edges
+            layer[nid] = max((layer[p] + 1 for p in parents[nid] if p in layer), default=0)
+        layers: list[list[str]] = [[] for _ in range(max(layer.values(), default=-1) + 1)]
+        for nid in order:
+            layers[layer[nid]].append(nid)
+        x: dict[str, float] = {}
+        for li, ids in enumerate(layers):
+            if li:
+                ids.sort(key=lambda n: (sum(x[p] for p in parents[n]) / len(parents[n]) if parents[n] else 0.0, index[n]))
+            for k, nid in enumerate(ids):
+                x[nid] = k * (_BW + _HGAP)
+        self.width = max((len(ids) * (_BW + _HGAP) - _HGAP for ids in layers), default=_BW)
+        for ids in layers:  # centre each layer
+            shift = (self.width - (len(ids) * (_BW + _HGAP) - _HGAP)) / 2
+            for nid in ids:
+                x[nid] += shift
+        self.forward = [e for e in edges if not e[4] and e[0] in x and e[2] in x]
+        # inputs enter a node's top side spread out in port order; outputs leave its bottom per port
+        self.ins: dict[str, list[Edge]] = {}
+        self.outs: dict[str, list[str]] = {}
+        for e in self.forward:
+            self.ins.setdefault(e[2], []).append(e)
+            if e[1] not in self.outs.setdefault(e[0], []):
+                self.outs[e[0]].append(e[1])
+        # an edge that skips layers bows out to the left, past the nodes it skips
+        longest = max((layer[e[2]] - layer[e[0]] for e in self.forward), default=1)
+        self.left = 0.0 if longest <= 1 else max(0.0, 0.75 * (150 + 10 * longest) - _BW / 2 - min(x.values(), default=0.0))
+        self.x = {nid: v + self.left for nid, v in x.items()}
+        self.y = {nid: layer[nid] * (_BH + _VGAP) for nid in order}
+        self.layer = layer
+        self.n_layers = len(layers)
+        self.right_pad = 60 if any(e[4] for e in edges) else 0
+
+
+def _edge_svg(lay: _Layout, e: Edge) -> str:
+    """One edge: a curve from the source's output to the target's input; a feedback edge dashed,
+    out of the source's right side, up along the right, into the target's right side."""
+    s, sp, d, dp, prev = e
+    x, y = lay.x, lay.y
+    title = f"<title>{escape(s)}.{escape(sp)} → {escape(d)}.{escape(dp)}{' (previous frame)' if prev else ''}</title>"
+    if prev:
+        x0, y0 = x[s] + _BW, y[s] + _BH / 2
+        x1, y1 = x[d] + _BW, y[d] + _BH / 2
+        xr = lay.left + lay.width + lay.right_pad * 0.7
+        path = f"M{x0:.1f},{y0:.1f} C{xr:.1f},{y0:.1f} {xr:.1f},{y1:.1f} {x1 + 2:.1f},{y1:.1f}"
+        return f'<path d="{path}" fill="none" stroke="#a05" stroke-width="1.3" stroke-dasharray="5 3" marker-end="url(#arrow)">{title}</path>'
+    ports = lay.outs[s]
+    x0, y0 = x[s] + _BW * (ports.index(sp) + 1) / (len(ports) + 1), y[s] + _BH
+    k, n = lay.ins[d].index(e), len(lay.ins[d])
+    x1, y1 = x[d] + _BW * (k + 1) / (n + 1), y[d]
+    skipped = lay.layer[d] - lay.layer[s]
+    if skipped > 1:
+        bow = 150 + 10 * skipped
+        path = f"M{x0:.1f},{y0:.1f} C{x0 - bow:.1f},{y0 + 40:.1f} {x1 - bow:.1f},{y1 - 40:.1f} {x1:.1f},{y1 - 1:.1f}"
+    else:
+        my = (y0 + y1) / 2
+        path = f"M{x0:.1f},{y0:.1f} C{x0:.1f},{my:.1f} {x1:.1f},{my:.1f} {x1:.1f},{y1 - 1:.1f}"
+    return (
+        f'<path d="{path}" fill="none" stroke="#667" stroke-width="1.2" stroke-opacity="{0.55 if skipped > 1 else 1}" '
+        f'marker-end="url(#arrow)">{title}</path>'
+    )
+
+
+def _node_svg(lay: _Layout, nid: str, type_name: str, t: Mapping[str, Any], share: float) -> str:
+    """One node's box: its id, type and median / p90 times, darker the larger its ``share``."""
+    x, y = lay.x[nid], lay.y[nid]
+    light = 97 - 45 * min(share / 0.5, 1.0)  # half the time or more: the darkest
+    fill = f"hsl(28, 90%, {light:.0f}%)"
+    med, p90 = t.get("median_ms"), t.get("p90_ms")
+    times = f"{_ms(med)} / {_ms(p90)} ms" if t else "no timing"
+    tip = f"{nid} ({type_name}): median {_ms(med)} ms, p90 {_ms(p90)} ms, {100 * share:.0f} % of the summed medians"
+    return (
+        f'<g class="node" data-node="{escape(nid)}"><title>{escape(tip)}</title>'
+        f'<rect x="{x:.1f}" y="{y:.1f}" width="{_BW}" height="{_BH}" rx="6" fill="{fill}" stroke="#889"/>'
+        f'<text x="{x + _BW / 2:.1f}" y="{y + 16:.1f}" text-anchor="middle" font-weight="600" font-size="12">{escape(_clip(nid, 22))}</text>'
+        f'<text x="{x + _BW / 2:.1f}" y="{y + 31:.1f}" text-anchor="middle" fill="#444">{escape(_clip(type_name, 26))}</text>'
+        f'<text x="{x + _BW / 2:.1f}" y="{y + 45:.1f}" text-anchor="middle" fill="#333">{escape(times)}</text></g>'
+    )
 
 
 def node_times_svg(rows: Sequence[tuple[str, str, float | None, float | None]]) -> str:

@@ -56,6 +56,11 @@ class WriteLanesParams(NodeParams):
 class WriteLanes:
     """Writes one JSON line per frame to OUT/lanes.jsonl as each frame finishes (one write, flushed)."""
 
+    @staticmethod
+    def result_files(params: WriteLanesParams) -> dict[str, str]:
+        """The run's lanes (kind ``lanes``, what ``lanegraph eval``, ``ablate`` and ``report`` read)."""
+        return {"lanes": params.filename}
+
     def __init__(self, params: WriteLanesParams, context: RunContext):
         self.path = inside(_out_dir(context), params.filename, _where(context, "io.write_lanes", "filename"))
         self.path.parent.mkdir(parents=True, exist_ok=True)

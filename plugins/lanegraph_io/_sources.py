@@ -18,7 +18,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from pydantic import Field, model_validator
+from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from lanegraph import NodeParams, Port, RunContext, node_type
 from lanegraph.cache import digest
@@ -447,3 +447,46 @@ def detect_source(path: Path) -> str | None:
     if (p / "left").is_dir() and (p / "right").is_dir():
         return "io.folder"
     return None
+
+
+class AutoParams(NodeParams):
+    """Params of ``io.auto``."""
+
+    default: str = Field("io.synthetic", description="source node type used when no --input is given (an installed source type)")
+
+    @field_validator("default")
+    @classmethod
+    def _a_source(cls, v: str, info: ValidationInfo) -> str:
+        types = (info.context or {}).get("node_types")
+        if types is None:  # validated outside a graph: nothing to look the name up in
+            return v
+        nt = types.get(v)
+        if nt is None or not nt.source or v == "io.auto":
+            sources = sorted(n for n, t in types.items() if t.source and n != "io.auto")
+            what = "is not an installed node type" if nt is None else "is not a source node type"
+            raise ValueError(f"{v!r} {what}; expected one of {', '.join(sources)}")
+        return v
+
+
+@node_type("io.auto", source=True, outputs=STEREO_OUTPUTS)
+class AutoSource:
+    """Chooses the source from the --input path (KITTI raw, KITTI odometry, a folder of pairs, or
+    any installed source whose plugin recognises it); the built-in synthetic scene when there is
+    none. The executor runs the chosen source in its place."""
+
+    @staticmethod
+    def select_source(params: AutoParams, input_path: Path | None, detect) -> str:
+        """The source node type for ``input_path``: ``params.default`` without an input, else the
+        one a plugin's ``lanegraph_detect_source`` names (``detect``); ValueError when none does."""
+        if input_path is None:
+            return params.default
+        name = detect(input_path)
+        if name is None:
+            raise ValueError(
+                f"no installed source node type recognises the input {str(input_path)!r} (expected a KITTI raw "
+                "drive folder, a KITTI odometry sequence or a folder of left/right pairs)"
+            )
+        return name
+
+    def __init__(self, params: AutoParams, context: RunContext):  # pragma: no cover - replaced before a run
+        raise RuntimeError("io.auto stands for the source it selects (select_source) and is never instantiated")

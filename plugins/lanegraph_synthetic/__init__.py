@@ -1,4 +1,4 @@
-"""Synthetic stereo road scenes (``io.synthetic``) and the input-path dispatcher ``io.auto``.
+"""Synthetic stereo road scenes (``io.synthetic``).
 
 Python API::
 
@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field, ValidationInfo, field_validator
+from pydantic import Field
 
 from lanegraph import NodeParams, Port, RunContext, hookimpl, node_type
 from lanegraph.errors import InputError
@@ -34,6 +34,7 @@ __all__ = [
     "SceneRenderer",
     "SceneSpec",
     "SyntheticParams",
+    "SyntheticSource",
     "car",
     "disparity_to_png16",
     "preset",
@@ -139,34 +140,6 @@ class SyntheticSource:
             }
 
 
-class AutoParams(NodeParams):
-    """Params of ``io.auto``."""
-
-    default: str = Field("io.synthetic", description="source node type used when no --input is given (an installed source type)")
-
-    @field_validator("default")
-    @classmethod
-    def _a_source(cls, v: str, info: ValidationInfo) -> str:
-        types = (info.context or {}).get("node_types")
-        if types is None:  # validated outside a graph: nothing to look the name up in
-            return v
-        nt = types.get(v)
-        if nt is None or not nt.source or v == "io.auto":
-            sources = sorted(n for n, t in types.items() if t.source and n != "io.auto")
-            what = "is not an installed node type" if nt is None else "is not a source node type"
-            raise ValueError(f"{v!r} {what}; expected one of {', '.join(sources)}")
-        return v
-
-
-@node_type("io.auto", source=True, outputs=STEREO_OUTPUTS)
-class AutoSource:
-    """Chooses the source from the --input path (KITTI raw, KITTI odometry, a folder of pairs);
-    the built-in synthetic scene when there is none. Resolved by the executor before the run."""
-
-    def __init__(self, params: AutoParams, context: RunContext):  # pragma: no cover - replaced at compile time
-        raise RuntimeError("io.auto is resolved by the executor and never instantiated")
-
-
 @hookimpl
 def lanegraph_node_types():
-    return [SyntheticSource, AutoSource]
+    return [SyntheticSource]

@@ -1,12 +1,14 @@
-"""The streaming executor: order, feedback edges, constant nodes, timings, hooks, error policies."""
+"""The streaming executor: order, feedback edges, constant nodes, timings, hooks (with the error of a
+failed node), error policies, a source that selects another, the sinks' result files."""
 
 from __future__ import annotations
 
 import pytest
 import yaml
+from pydantic import Field
 
-from lanegraph import hookimpl
-from lanegraph.errors import NodeError
+from lanegraph import NodeParams, Port, hookimpl, node_type
+from lanegraph.errors import GraphError, NodeError
 from lanegraph.executor import Executor
 from lanegraph.graph import load_graph
 from lanegraph.nodes import RunContext
@@ -163,3 +165,166 @@ def test_failures_of_warmup_frames_are_not_recorded(tmp_path, pm):
     assert res.failures == [] and res.frames == 3
     res = Executor(load(tmp_path, pm, d), RunContext(), pm, warmup=1).run()
     assert [(f.frame, f.index, f.node_id) for f in res.failures] == [("0001", 1, "double"), ("0001", 1, "acc")]
+
+
+# --------------------------------------------------------------------------- lanegraph_after_node sees failures
+class AfterNode:
+    """Records what lanegraph_after_node receives."""
+
+    def __init__(self):
+        self.calls = []
+
+    @hookimpl
+    def lanegraph_after_node(self, node_id, frame, outputs, error):
+        self.calls.append((node_id, frame, outputs, error))
+
+
+@pytest.mark.parametrize("policy", ["fail", "skip", "empty"])
+def test_after_node_receives_the_error_of_a_failed_node(tmp_path, pm, policy):
+    import copy
+
+    spy = AfterNode()
+    pm.register(spy)
+    d = copy.deepcopy(VALID)
+    d["nodes"]["double"]["on_error"] = policy
+    d["nodes"]["acc"]["on_error"] = "empty"  # under 'empty' acc gets None and fails too
+    ex = Executor(load(tmp_path, pm, d, sets=["double.fail_on=2"]), RunContext(), pm)
+    if policy == "fail":
+        with pytest.raises(NodeError):
+            ex.run()
+    else:
+        ex.run()
+    failed = [(n, f, o, e) for n, f, o, e in spy.calls if e is not None]
+    node, frame, outputs, error = failed[0]
+    assert (node, frame, outputs) == ("double", "0002", None) and isinstance(error, ValueError) and "boom on 2" in str(error)
+    ok = [(n, f, o) for n, f, o, e in spy.calls if e is None and n == "double"]
+    assert ok[:2] == [("double", "0000", {"y": 0.0}), ("double", "0001", {"y": 2.0})]  # success: outputs, no error
+
+
+def test_after_node_receives_the_error_of_a_frame_the_source_could_not_read(tmp_path, pm):
+    import copy
+
+    spy = AfterNode()
+    pm.register(spy)
+    d = copy.deepcopy(VALID)
+    d["nodes"]["src"] = {"type": "toy.flaky", "params": {"n": 3, "bad": 1, "resume": True}, "on_error": "skip"}
+    d["nodes"].pop("k")
+    Executor(load(tmp_path, pm, d), RunContext(), pm, prefetch=0).run()
+    src = [(f, o is None, type(e).__name__ if e else None) for n, f, o, e in spy.calls if n == "src"]
+    assert src == [("0000", False, None), ("0001", True, "InputError"), ("0002", False, None)]
+
+
+# --------------------------------------------------------------------------- a source that selects another
+class PickParams(NodeParams):
+    default: str = Field("toy.count", description="the source without an input")
+
+
+@node_type("toy.pick", source=True, params=PickParams, outputs={"frame": "frame_id", "value": "number", "calib": Port("calibration", rate="constant")})
+class Pick:
+    """Stands for toy.count (no input) or the source a plugin detects for the input."""
+
+    @staticmethod
+    def select_source(params, input_path, detect):
+        if input_path is None:
+            return params.default
+        name = detect(input_path)
+        if name is None:
+            raise ValueError(f"nothing reads {input_path}")
+        return name
+
+
+class Picker:
+    @staticmethod
+    @hookimpl
+    def lanegraph_node_types():
+        return [Pick]
+
+    @staticmethod
+    @hookimpl
+    def lanegraph_detect_source(path):
+        return "toy.flaky" if str(path).endswith("flaky") else None
+
+
+def test_a_selecting_source_is_replaced_by_the_source_it_names(tmp_path, pm):
+    import copy
+
+    pm.register(Picker, name="picker")
+    d = copy.deepcopy(VALID)
+    d["nodes"]["src"] = {"type": "toy.pick"}
+    g = load(tmp_path, pm, d)
+    ex = Executor(g, RunContext(), pm)
+    assert g.source.type.name == "toy.count" and g.source.params.n == 3  # the chosen type's defaults
+    assert ex.identity["resolved"]["nodes"]["src"]["type"] == "toy.pick"  # what the user's graph says
+    d["nodes"].pop("k")
+    g = load(tmp_path, pm, d)
+    Executor(g, RunContext(input_path=tmp_path / "flaky"), pm)
+    assert g.source.type.name == "toy.flaky"
+    with pytest.raises(GraphError) as info:
+        Executor(load(tmp_path, pm, d), RunContext(input_path=tmp_path / "other"), pm)
+    assert str(info.value) == f"{tmp_path / 'g.yaml'}: node 'src' (toy.pick): nothing reads {tmp_path / 'other'}"
+    with pytest.raises(GraphError, match="source node type 'toy.scale' is not installed"):
+        Executor(load(tmp_path, pm, d, sets=["src.default=toy.scale"]), RunContext(), pm)
+
+
+# --------------------------------------------------------------------------- sinks declare their result files
+class WriterParams(NodeParams):
+    filename: str = Field("values.txt", description="output file, relative to the output folder")
+
+
+@node_type("toy.write", sink=True, inputs={"frame": "frame_id", "x": "number"})
+class Writer:
+    """Writes one line per frame."""
+
+    @staticmethod
+    def result_files(params: WriterParams) -> dict[str, str]:
+        return {"values": params.filename}
+
+    def __init__(self, params: WriterParams, context: RunContext):
+        self.fh = open(context.out_dir / params.filename, "w")  # noqa: SIM115 - closed by close()
+
+    def __call__(self, frame, x):
+        self.fh.write(f"{frame} {x}\n")
+        return {}
+
+    def close(self):
+        self.fh.close()
+
+
+def test_a_run_records_the_result_files_its_sinks_declare(tmp_path, pm):
+    import copy
+
+    from lanegraph.results import default_names, find_result, graph_result_files
+
+    class Writers:
+        @staticmethod
+        @hookimpl
+        def lanegraph_node_types():
+            return [Writer]
+
+    pm.register(Writers, name="writers")
+    d = copy.deepcopy(VALID)
+    d["nodes"]["w"] = {"type": "toy.write", "params": {"filename": "x.txt"}, "inputs": {"frame": "src.frame", "x": "acc.y"}}
+    g = load(tmp_path, pm, d)
+    assert graph_result_files(g) == {"values": "x.txt"}
+    res = Executor(g, RunContext(out_dir=tmp_path), pm).run()
+    assert res.results == {"values": "x.txt"} and (tmp_path / "x.txt").read_text().count("\n") == 4
+    assert default_names("values", pm) == ["values.txt"]
+    # a folder is searched for what its run.json records, else for the sinks' default files
+    (tmp_path / "run.json").write_text('{"results": {"values": "x.txt"}}')
+    assert find_result(tmp_path, "values", pm) == tmp_path / "x.txt"
+    (tmp_path / "run.json").unlink()
+    assert find_result(tmp_path, "values", pm) is None
+    (tmp_path / "values.txt").write_text("")
+    assert find_result(tmp_path, "values", pm) == tmp_path / "values.txt"
+
+
+def test_a_run_json_naming_a_result_outside_its_folder_is_refused(tmp_path, pm):
+    from lanegraph.errors import UsageError
+    from lanegraph.results import find_result
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (tmp_path / "secret.txt").write_text("not a run's")
+    (run / "run.json").write_text('{"results": {"lanes": "../secret.txt"}}')
+    with pytest.raises(UsageError, match="outside"):
+        find_result(run, "lanes", pm)
