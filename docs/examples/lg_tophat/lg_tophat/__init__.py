@@ -2,13 +2,16 @@
 
 It provides one node type, ``features.tophat``: lane features in the bird's-eye view by a
 morphological white top-hat, a classic lane-marking extractor from the related work of
-Ozgunalp, Fan et al. (a drop-in replacement for ``features.slt`` / ``features.eslt``).
+Ozgunalp, Fan et al. (a drop-in replacement for ``features.slt`` / ``features.eslt``), and one port
+type, ``bev_response``: the per-pixel response map it thresholds, for any node that wants it.
 
 The white top-hat of an image is the image minus its morphological opening. Opening with a
 horizontal line of ``width`` pixels removes every bright structure narrower than ``width``
 columns, so the top-hat keeps exactly those: near-vertical paint in the BEV, which is 2-4 px wide at
 5 cm per pixel. The response is averaged over ``smooth_rows`` rows (markings are long, noise is
-not) and a pixel is a feature when it exceeds ``threshold`` grey levels.
+not) and a pixel is a feature when it exceeds ``threshold`` grey levels. With ``min_run`` > 1 a
+feature is kept only in a vertical run of that many feature pixels in its column (a numba kernel,
+``_vertical_runs``, with lanegraph's kernel flags).
 
 Orientation (the ``FeatureMap.orientation`` that ``lanes.orientation`` histograms) comes from the
 structure tensor of the top-hat response: the dominant Sobel gradient direction averaged over an
@@ -28,9 +31,12 @@ import cv2
 import numpy as np
 from pydantic import Field
 
-from lanegraph import FeatureMap, NodeParams, Port, hookimpl, node_type
+from lanegraph import FeatureMap, NodeParams, Port, PortType, hookimpl, jit, node_type
 
-__all__ = ["TophatParams", "tophat", "white_tophat", "structure_orientation"]
+__all__ = ["TophatParams", "tophat", "vertical_runs", "white_tophat", "structure_orientation"]
+
+#: the port type this plugin adds: any node may produce or take it
+BEV_RESPONSE = PortType("bev_response", "a response map on the BEV grid, Hb x Wb float32 (larger: more marking-like)")
 
 
 def white_tophat(gray: np.ndarray, width: int) -> np.ndarray:
@@ -54,12 +60,42 @@ def structure_orientation(response: np.ndarray, window: int) -> np.ndarray:
     return np.mod(-(phi + np.pi / 2), np.pi).astype(np.float32)
 
 
+@jit
+def _vertical_runs(mask: np.ndarray, min_run: int) -> np.ndarray:
+    out = np.zeros_like(mask)
+    rows, cols = mask.shape
+    for c in range(cols):
+        r = 0
+        while r < rows:
+            if not mask[r, c]:
+                r += 1
+                continue
+            start = r
+            while r < rows and mask[r, c]:
+                r += 1
+            if r - start >= min_run:
+                out[start:r, c] = True
+    return out
+
+
+def vertical_runs(mask: np.ndarray, min_run: int) -> np.ndarray:
+    """The pixels of ``mask`` (Hb x Wb bool) that lie in a vertical run of at least ``min_run``
+    set pixels of their column (bool, same shape)."""
+    mask = np.asarray(mask)
+    if mask.ndim != 2 or mask.dtype != np.bool_:
+        raise ValueError(f"vertical_runs: expected an Hb x Wb bool mask, got {mask.dtype} of shape {mask.shape}")
+    if min_run <= 1:
+        return mask
+    return _vertical_runs(np.ascontiguousarray(mask), int(min_run))
+
+
 class TophatParams(NodeParams):
     """Params of ``features.tophat``."""
 
     width: int = Field(9, ge=3, le=99, description="horizontal line element, BEV pixels (> marking width)")
     threshold: float = Field(20.0, ge=0.0, le=255.0, description="minimum top-hat response, grey levels")
     smooth_rows: int = Field(5, ge=1, le=51, description="rows averaged before thresholding, BEV pixels")
+    min_run: int = Field(1, ge=1, le=200, description="keep a feature only in a vertical run of this many feature rows, BEV pixels (1: all)")
     orientation: Literal["structure", "vertical", "none"] = Field(
         "structure", description="feature orientation: structure tensor, constant pi/2, or none (like SLT)"
     )
@@ -69,7 +105,7 @@ class TophatParams(NodeParams):
 @node_type(
     "features.tophat",
     inputs={"image": Port("bev_image", "BEV grey image")},
-    outputs={"features": "features"},
+    outputs={"features": "features", "response": Port("bev_response", "the smoothed top-hat response, grey levels")},
 )
 def tophat(params: TophatParams, image: np.ndarray) -> dict:
     """White top-hat: T brighter than the opening by a horizontal line; structure-tensor orientation."""
@@ -79,14 +115,19 @@ def tophat(params: TophatParams, image: np.ndarray) -> dict:
     response = white_tophat(gray, params.width)
     if params.smooth_rows > 1:
         response = cv2.blur(response, (1, params.smooth_rows), borderType=cv2.BORDER_REPLICATE)
-    mask = response > params.threshold
+    mask = vertical_runs(response > params.threshold, params.min_run)
     if params.orientation == "none":
-        return {"features": FeatureMap(mask=mask, orientation=None)}
+        return {"features": FeatureMap(mask=mask, orientation=None), "response": response}
     if params.orientation == "vertical":
         theta = np.full(gray.shape, np.pi / 2, np.float32)
     else:
         theta = structure_orientation(response, params.orientation_window)
-    return {"features": FeatureMap(mask=mask, orientation=np.where(mask, theta, np.float32(-1.0)))}
+    return {"features": FeatureMap(mask=mask, orientation=np.where(mask, theta, np.float32(-1.0))), "response": response}
+
+
+@hookimpl
+def lanegraph_port_types():
+    return [BEV_RESPONSE]
 
 
 @hookimpl

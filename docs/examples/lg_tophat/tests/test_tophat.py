@@ -52,13 +52,54 @@ def test_threshold_is_monotonic(pm):
 
 
 def test_conformance(pm):
-    check_node_type(pm.node_types["features.tophat"], {"image": make_bev_image()}, {"width": 11})
+    check_node_type(lg_tophat.tophat, {"image": make_bev_image()}, {"width": 11}, pm=pm)
 
 
-def test_registered_through_the_hook(pm):
+def test_registered_through_the_hooks(pm):
     assert set(pm.node_types) == {"features.tophat"}
     nt = pm.node_types["features.tophat"]
     assert nt.inputs["image"].type == "bev_image" and nt.outputs["features"].type == "features"
+    assert nt.outputs["response"].type == "bev_response" and pm.port_types["bev_response"] is lg_tophat.BEV_RESPONSE
+
+
+def test_a_plain_function(pm):
+    """The node is the function itself: no engine needed to call it."""
+    image = make_bev_image()
+    out = lg_tophat.tophat(lg_tophat.TophatParams(), image=image)
+    assert np.array_equal(out["features"].mask, features(pm, image).mask)
+    assert out["response"].dtype == np.float32 and out["response"].shape == image.shape
+
+
+def vertical_runs_twin(mask, min_run):
+    """The kernel's plain NumPy twin: run lengths from the run starts and ends of each column."""
+    padded = np.pad(mask, ((1, 1), (0, 0))).astype(np.int8)
+    out = np.zeros_like(mask)
+    for c in range(mask.shape[1]):
+        edges = np.diff(padded[:, c])
+        for start, end in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
+            if end - start >= min_run:
+                out[start:end, c] = True
+    return out
+
+
+@pytest.mark.parametrize("min_run", [1, 2, 3, 7, 40])
+@pytest.mark.parametrize("density", [0.1, 0.5, 0.9])
+def test_vertical_runs_matches_its_twin(min_run, density):
+    rng = np.random.default_rng(min_run * 10 + int(density * 10))
+    mask = rng.random((37, 23)) < density
+    assert np.array_equal(lg_tophat.vertical_runs(mask, min_run), vertical_runs_twin(mask, min_run))
+    assert not lg_tophat.vertical_runs(np.zeros((5, 4), bool), 2).any()
+    assert lg_tophat.vertical_runs(np.ones((5, 4), bool), 5).all() and not lg_tophat.vertical_runs(np.ones((5, 4), bool), 6).any()
+
+
+def test_min_run_drops_short_speckles_and_keeps_the_markings(pm):
+    image = make_bev_image(noise=12.0, paint=200)
+    loose, strict = features(pm, image), features(pm, image, min_run=20)
+    assert strict.mask.sum() < loose.mask.sum() and not (strict.mask & ~loose.mask).any()
+    for c in (50, 110):  # the markings run the whole height: they stay
+        assert strict.mask[:, c - 2 : c + 3].any(axis=1).mean() == 1.0
+    with pytest.raises(ValueError, match="bool mask"):
+        lg_tophat.vertical_runs(np.zeros((4, 4), np.uint8), 2)
 
 
 def test_wider_than_the_element_is_not_a_marking(pm):
