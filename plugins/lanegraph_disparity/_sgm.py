@@ -21,8 +21,7 @@ import cv2
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
-from lanegraph import node_type
-from lanegraph._numba import jit, prange
+from lanegraph import jit, node_type, prange
 
 from ._common import DisparityParams, run_backend, scaled_disparities
 

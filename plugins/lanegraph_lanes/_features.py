@@ -19,8 +19,7 @@ import cv2
 import numpy as np
 from pydantic import Field, field_validator
 
-from lanegraph import InputError, NodeParams, Port, node_type
-from lanegraph._numba import jit, prange
+from lanegraph import InputError, NodeParams, Port, jit, node_type, prange
 from lanegraph.types import FeatureMap
 
 

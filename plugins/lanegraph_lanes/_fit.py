@@ -22,8 +22,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field
 
-from lanegraph import NodeParams, Port, node_type
-from lanegraph._numba import jit
+from lanegraph import NodeParams, Port, jit, node_type
 from lanegraph.types import BevGeometry, FeatureMap, Lane, Line
 
 

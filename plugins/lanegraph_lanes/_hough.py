@@ -30,8 +30,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, model_validator
 
-from lanegraph import InputError, NodeParams, Port, node_type
-from lanegraph._numba import jit, prange
+from lanegraph import InputError, NodeParams, Port, jit, node_type, prange
 from lanegraph.types import BevGeometry, FeatureMap, Lane, Line
 
 

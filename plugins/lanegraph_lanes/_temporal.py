@@ -22,8 +22,7 @@ import math
 import numpy as np
 from pydantic import Field
 
-from lanegraph import InputError, NodeParams, Port, node_type
-from lanegraph._numba import jit
+from lanegraph import InputError, NodeParams, Port, jit, node_type
 from lanegraph.types import BevGeometry, Calibration, FeatureMap, Lane
 
 

@@ -36,8 +36,7 @@ import cv2
 import numpy as np
 from pydantic import Field
 
-from lanegraph import NodeParams, Port, node_type
-from lanegraph._numba import jit
+from lanegraph import NodeParams, Port, jit, node_type
 from lanegraph.types import Calibration, RoadModel
 
 from . import geometry

@@ -36,8 +36,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, model_validator
 
-from lanegraph import InputError, NodeParams, Port, node_type
-from lanegraph._numba import jit
+from lanegraph import InputError, NodeParams, Port, jit, node_type
 from lanegraph.types import Calibration, RoadModel
 
 from . import geometry

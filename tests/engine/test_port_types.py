@@ -192,3 +192,20 @@ def test_conformance_knows_the_plugins_port_types(pm):
     check_node_type(count, {"cloud": np.zeros((4, 3))}, pm=pm)
     with pytest.raises(AssertionError, match="unknown type 'point_cloud'"):
         check_node_type(count, {"cloud": np.zeros((4, 3))}, pm=PluginManager())
+
+
+def test_lanegraph_nodes_lists_the_port_types_plugins_add(pm, monkeypatch):
+    import json
+
+    from click.testing import CliRunner
+
+    from lanegraph import plugins
+    from lanegraph.cli import main
+
+    monkeypatch.setattr(plugins, "_default", pm)
+    r = CliRunner().invoke(main, ["nodes"])
+    assert r.exit_code == 0, r.output
+    assert "port types added by plugins:" in r.output
+    assert "    ground_cloud (feeds point_cloud ports): 3-D points on the road plane" in r.output
+    listed = {t["name"]: t for t in json.loads(CliRunner().invoke(main, ["nodes", "--json"]).output)["port_types"]}
+    assert listed["ground_cloud"]["parent"] == "point_cloud" and "image" in listed
