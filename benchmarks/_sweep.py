@@ -7,6 +7,9 @@ import subprocess
 import sys
 from pathlib import Path
 
+from lanegraph.errors import InputError
+from lanegraph.results import describe, find_result
+
 KEYS = ("detection_ratio", "precision", "ego_recall")
 HEADER = f"{'detection':>9s} {'precision':>9s} {'ego rec.':>9s} {'lanes':>6s}"
 
@@ -19,6 +22,15 @@ def run_graph(graph: str, data: Path, out: Path, sets: list[str], extra: list[st
         cmd += ["--set", s]
     r = subprocess.run(cmd, capture_output=True, text=True)
     return None if r.returncode == 0 else f"lanegraph run failed (exit {r.returncode}): {r.stderr.strip()[-300:]}"
+
+
+def lanes_file(out: Path) -> Path:
+    """The lanes file of run folder ``out``, as its sinks declared it (``run.json``); raises naming
+    where it was looked for when there is none (:class:`InputError`)."""
+    path = find_result(out)
+    if path is None:
+        raise InputError(f"no lanes in {out}: looked for {describe(out)}")
+    return path
 
 
 def pct(value: float | None) -> str:

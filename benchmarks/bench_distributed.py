@@ -34,6 +34,8 @@ import threading
 import time
 from pathlib import Path
 
+from lanegraph.results import find_result
+
 ROOT = Path(__file__).resolve().parents[1]
 KITTI_RAW_FRAMES = 40_000
 
@@ -72,7 +74,8 @@ def timed(cmd: list[str], marker: str | None = None, cpus: set[int] | None = Non
 
 
 def lanes(out: Path) -> dict[str, bytes]:
-    return {str(p.relative_to(out)): p.read_bytes() for p in sorted(out.rglob("lanes.jsonl"))}
+    files = (find_result(run.parent) for run in sorted(out.rglob("run.json")))
+    return {str(p.relative_to(out)): p.read_bytes() for p in files if p is not None}
 
 
 def rows(out: Path) -> list[dict[str, str]]:
@@ -130,7 +133,7 @@ def chunk_sweep(graph: str, dataset: str, chunk: int, warmups: list[int]) -> Non
         out = tmp / label.replace(" ", "_").replace(",", "")
         timed(lanegraph("ablate", graph, "--dataset", dataset, "--no-cache", "--quiet", "--out", str(out), *extra))
         pooled = next(r for r in rows(out) if r["sequence"] == "all")
-        got = [line for f in sorted(out.rglob("lanes.jsonl")) for line in f.read_text().splitlines()]
+        got = [line for f in lanes(out) for line in (out / f).read_text().splitlines()]
         if ref is None:
             ref = got
         equal = sum(a == b for a, b in zip(got, ref))

@@ -23,7 +23,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from _sweep import run_graph  # benchmarks/ (the script's folder)
+from _sweep import lanes_file, run_graph  # benchmarks/ (the script's folder)
 
 from lanegraph.dataset import load_dataset, read_gt
 from lanegraph.metrics import match_frame, read_jsonl
@@ -58,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
             return 1
         gt = {str(g["frame"]): g for g in (read_gt(seq, None) or [])}
         groups: dict[str, dict[str, list[float]]] = {"paint": {}, "not paint": {}}
-        for rec in read_jsonl(out / "lanes.jsonl"):
+        for rec in read_jsonl(lanes_file(out)):
             lanes = rec.get("lanes") or []
             g = gt.get(str(rec["frame"]))
             if g is None:

@@ -61,7 +61,13 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from _sweep import HEADER, lanes_reported, metric_row, run_graph  # benchmarks/ (the script's folder)
+from _sweep import (  # benchmarks/ (the script's folder)
+    HEADER,
+    lanes_file,
+    lanes_reported,
+    metric_row,
+    run_graph,
+)
 from lanegraph_io import detect_source
 from lanegraph_io._calib import projection, read_key_rows
 from lanegraph_io._sources import KittiOdometrySource, KittiRawSource, read_image
@@ -72,7 +78,6 @@ from lanegraph.errors import InputError
 from lanegraph.frames import selection_text
 from lanegraph.metrics import evaluate, read_ground_truth, read_predictions
 from lanegraph.nodes import RunContext, node_type_of
-from lanegraph.results import LANES, find_result
 from lanegraph.types import Calibration
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -398,7 +403,7 @@ def main(argv: list[str] | None = None) -> int:
             bar.update()
             if not failed:
                 try:
-                    pred = read_predictions(find_result(out, LANES) or out / "lanes.jsonl")
+                    pred = read_predictions(lanes_file(out))
                 except InputError as exc:
                     failed = f"unreadable predictions: {exc}"
             if failed:

@@ -18,7 +18,13 @@ import sys
 import tempfile
 from pathlib import Path
 
-from _sweep import HEADER, lanes_reported, metric_row, run_graph  # benchmarks/ (the script's folder)
+from _sweep import (  # benchmarks/ (the script's folder)
+    HEADER,
+    lanes_file,
+    lanes_reported,
+    metric_row,
+    run_graph,
+)
 from lanegraph_synthetic import Marking, preset, write_sequence
 
 from lanegraph.metrics import evaluate, read_jsonl
@@ -82,7 +88,7 @@ def main() -> int:
         if failed:
             print(f"{name:32s} {failed}")
             continue
-        pred, gt = read_jsonl(out / "lanes.jsonl"), read_jsonl(seq / "lanes_gt.jsonl")
+        pred, gt = read_jsonl(lanes_file(out)), read_jsonl(seq / "lanes_gt.jsonl")
         n_lanes = lanes_reported(pred)
         print(f"{name:32s} {metric_row(evaluate(pred, gt), n_lanes, blank=name in LANE_COUNT_ONLY)}", flush=True)
     (work / "sweep.json").write_text(json.dumps({"graph": args.graph, "frames": args.frames, "set": args.set, "scenes": names}))
