@@ -17,11 +17,27 @@ HEADER = f"{'detection':>9s} {'precision':>9s} {'ego rec.':>9s} {'lanes':>6s}"
 def run_graph(graph: str, data: Path, out: Path, sets: list[str], extra: list[str] = ()) -> str | None:
     """``lanegraph run GRAPH --input DATA --out OUT --quiet`` with ``--set`` for each of ``sets`` and
     ``extra`` arguments; None when it succeeds, else what failed (exit status, end of stderr)."""
-    cmd = [sys.executable, "-m", "lanegraph", "run", graph, "--input", str(data), "--out", str(out), "--quiet", *extra]
+    cmd = [
+        sys.executable,
+        "-m",
+        "lanegraph",
+        "run",
+        graph,
+        "--input",
+        str(data),
+        "--out",
+        str(out),
+        "--quiet",
+        *extra,
+    ]
     for s in sets:
         cmd += ["--set", s]
     r = subprocess.run(cmd, capture_output=True, text=True)
-    return None if r.returncode == 0 else f"lanegraph run failed (exit {r.returncode}): {r.stderr.strip()[-300:]}"
+    return (
+        None
+        if r.returncode == 0
+        else f"lanegraph run failed (exit {r.returncode}): {r.stderr.strip()[-300:]}"
+    )
 
 
 def lanes_file(out: Path) -> Path:

@@ -52,7 +52,10 @@ def timed(fn, repeat: int | None = None) -> float:
 
 def row(name: str, kernel_ms: float, twin_ms: float, note: str = "") -> None:
     ROWS.append((name, kernel_ms, twin_ms))
-    print(f"{name:24s} numba {kernel_ms:9.3f} ms   numpy twin {twin_ms:10.2f} ms   speed-up {twin_ms / kernel_ms:8.1f}x  {note}", flush=True)
+    print(
+        f"{name:24s} numba {kernel_ms:9.3f} ms   numpy twin {twin_ms:10.2f} ms   speed-up {twin_ms / kernel_ms:8.1f}x  {note}",
+        flush=True,
+    )
 
 
 def bev_kernels(rng: np.random.Generator) -> None:
@@ -60,20 +63,32 @@ def bev_kernels(rng: np.random.Generator) -> None:
     small = bev[:40]
     scale = bev.size / small.size
     out = np.zeros(bev.shape, np.uint8)
-    row("_slt", timed(lambda: _features._slt(bev, 6, 10.0, _features._EVERYWHERE, out)), timed(lambda: tl.slt_twin(small, 6, 10.0), 1) * scale, f"(twin on 40 rows, x{scale:.0f})")
+    row(
+        "_slt",
+        timed(lambda: _features._slt(bev, 6, 10.0, _features._EVERYWHERE, out)),
+        timed(lambda: tl.slt_twin(small, 6, 10.0), 1) * scale,
+        f"(twin on 40 rows, x{scale:.0f})",
+    )
     gx, gy = _features.sobel(bev)
     ori = np.empty(bev.shape, np.float32)
     sgx, sgy = _features.sobel(small)
     row(
         "_eslt",
-        timed(lambda: _features._eslt(bev, gx, gy, 6, 10.0, math.radians(15), _features._EVERYWHERE, out, ori)),
+        timed(
+            lambda: _features._eslt(bev, gx, gy, 6, 10.0, math.radians(15), _features._EVERYWHERE, out, ori)
+        ),
         timed(lambda: tl.eslt_twin(small, sgx, sgy, 6, 10.0, math.radians(15)), 1) * scale,
         f"(twin on 40 rows, x{scale:.0f})",
     )
     r = rng.integers(0, 800, 20000).astype(np.int32)  # pixel coordinates, as the Hough nodes pass them
     c = rng.integers(0, 400, 20000).astype(np.int32)
     acc = np.zeros(2000)
-    row("_vote_1d", timed(lambda: _hough._vote_1d(r, c, 800.0, 0.05, 800, acc)), timed(lambda: tl.vote_twin(r, c, 800.0, 0.05, 800, 2000)), "(20000 features)")
+    row(
+        "_vote_1d",
+        timed(lambda: _hough._vote_1d(r, c, 800.0, 0.05, 800, acc)),
+        timed(lambda: tl.vote_twin(r, c, 800.0, 0.05, 800, 2000)),
+        "(20000 features)",
+    )
     inv = np.linspace(-0.5, 0.5, 121)
     acc2 = np.zeros((121, 2000))
     row(
@@ -84,7 +99,12 @@ def bev_kernels(rng: np.random.Generator) -> None:
     )
     feats = FeatureMap(mask=rng.random((800, 400)) < 0.05)
     line = Line(rho=150.0, theta=1.5, side="left")
-    row("_roi_kernel", timed(lambda: _fit.roi_points(feats, line, 40.0)), timed(lambda: tl.roi_points_np(feats, line, 40.0)), "(5 % features)")
+    row(
+        "_roi_kernel",
+        timed(lambda: _fit.roi_points(feats, line, 40.0)),
+        timed(lambda: tl.roi_points_np(feats, line, 40.0)),
+        "(5 % features)",
+    )
     t, y, _ = tl.parabola_with_outliers(n=3000, seed=1)
     row(
         "_irls_kernel",
@@ -182,7 +202,11 @@ def road_kernels(rng: np.random.Generator) -> None:
         "(255 rows, 4 rounds at most)",
     )
     hargs = (-40.0, 0.23, 0.0, calib.cx, calib.cy, s_, c_, 1.65, 0.08, 0.5, 2.0)
-    row("_height_class_kernel", timed(lambda: mask._height_class_kernel(disp, 1, *hargs)), timed(lambda: tr.height_class_np(disp, *hargs)))
+    row(
+        "_height_class_kernel",
+        timed(lambda: mask._height_class_kernel(disp, 1, *hargs)),
+        timed(lambda: tr.height_class_np(disp, *hargs)),
+    )
     labels, _ = mask._height_class_kernel(disp, 1, *hargs)
     sl = labels[:, :60]
     row(
@@ -216,10 +240,20 @@ def road_kernels(rng: np.random.Generator) -> None:
 
 def sgm_kernels(rng: np.random.Generator) -> None:
     img = rng.integers(0, 255, (187, 621)).astype(np.uint8)
-    row("_census", timed(lambda: _sgm._census(img, 7, 9)), timed(lambda: td.census_ref(img, 7, 9), 3), "(621 x 187, 7 x 9)")
+    row(
+        "_census",
+        timed(lambda: _sgm._census(img, 7, 9)),
+        timed(lambda: td.census_ref(img, 7, 9), 3),
+        "(621 x 187, 7 x 9)",
+    )
     cl = _sgm._census(img, 7, 9)
     cr = _sgm._census(np.roll(img, -3, axis=1), 7, 9)
-    row("_cost_volume", timed(lambda: _sgm._cost_volume(cl, cr, 64, 62)), timed(lambda: td.cost_volume_ref(cl, cr, 64, 62), 2), "(621 x 187 x 64)")
+    row(
+        "_cost_volume",
+        timed(lambda: _sgm._cost_volume(cl, cr, 64, 62)),
+        timed(lambda: td.cost_volume_ref(cl, cr, 64, 62), 2),
+        "(621 x 187 x 64)",
+    )
     cost = _sgm._cost_volume(cl[:40, :120], cr[:40, :120], 32, 62)
     total = np.zeros(cost.shape, np.uint16)
     row(

@@ -56,20 +56,34 @@ def bench(graph_path: str, drive: Path, frames: str, repeat: int = 3) -> None:
 
     def per_frame(res, ids):
         n = res.frames
-        return np.sum([np.asarray(res.timings_ms[i][-n:]) for i in ids if i in res.timings_ms and len(res.timings_ms[i]) >= n], axis=0)
+        return np.sum(
+            [
+                np.asarray(res.timings_ms[i][-n:])
+                for i in ids
+                if i in res.timings_ms and len(res.timings_ms[i]) >= n
+            ],
+            axis=0,
+        )
 
     # 1. the nodes' own times: the source reads each frame in the main thread before the nodes run
     #    (no prefetch thread decoding PNGs beside them on the 2 cores). The machines are shared:
     #    of `repeat` runs the one with the lowest median per-frame time is kept (the least
     #    disturbed one, as timeit's best of N)
-    runs = [Executor(load_graph(graph_path), RunContext(input_path=drive, out_dir=out_dir, frames=sel), prefetch=0).run() for _ in range(repeat)]
+    runs = [
+        Executor(
+            load_graph(graph_path), RunContext(input_path=drive, out_dir=out_dir, frames=sel), prefetch=0
+        ).run()
+        for _ in range(repeat)
+    ]
     res = min(runs, key=lambda r: float(np.median(per_frame(r, [i for i in g.nodes if i != src]))))
     # 2. end to end, as `lanegraph run` does it: the next frame is read while this one is
     #    computed; best of `repeat` runs
     walls = []
     for _ in range(repeat):
         t0 = time.perf_counter()
-        e2e = Executor(load_graph(graph_path), RunContext(input_path=drive, out_dir=out_dir, frames=sel)).run()
+        e2e = Executor(
+            load_graph(graph_path), RunContext(input_path=drive, out_dir=out_dir, frames=sel)
+        ).run()
         walls.append(time.perf_counter() - t0)
     wall = min(walls)
     n = res.frames
@@ -77,11 +91,17 @@ def bench(graph_path: str, drive: Path, frames: str, repeat: int = 3) -> None:
     for nid in g.order:
         ts = res.timings_ms.get(nid)
         if ts:
-            print(f"  {nid:14s} {g.nodes[nid].type.name:22s} median {np.median(ts):8.2f} ms   p90 {np.percentile(ts, 90):8.2f} ms")
+            print(
+                f"  {nid:14s} {g.nodes[nid].type.name:22s} median {np.median(ts):8.2f} ms   p90 {np.percentile(ts, 90):8.2f} ms"
+            )
     no_src = per_frame(res, [i for i in g.nodes if i != src])
     print(f"  after disparity (median of per-frame sum): {np.median(per_frame(res, after)):.2f} ms")
-    print(f"  every node but image reading: {1000.0 / np.median(no_src):.1f} frames/s ({np.median(no_src):.1f} ms median per frame)")
-    print(f"  end to end, reading included: {e2e.frames / wall:.1f} frames/s ({1000 * wall / e2e.frames:.1f} ms/frame, next frame read ahead)")
+    print(
+        f"  every node but image reading: {1000.0 / np.median(no_src):.1f} frames/s ({np.median(no_src):.1f} ms median per frame)"
+    )
+    print(
+        f"  end to end, reading included: {e2e.frames / wall:.1f} frames/s ({1000 * wall / e2e.frames:.1f} ms/frame, next frame read ahead)"
+    )
 
 
 def cold_start(graph_path: str, drive: Path) -> None:
@@ -95,7 +115,20 @@ def cold_start(graph_path: str, drive: Path) -> None:
             with tempfile.TemporaryDirectory() as out:
                 t0 = time.perf_counter()
                 subprocess.run(
-                    [sys.executable, "-m", "lanegraph.cli", "run", graph_path, "--input", str(drive), "--out", out, "--frames", "0:1", "--quiet"],
+                    [
+                        sys.executable,
+                        "-m",
+                        "lanegraph.cli",
+                        "run",
+                        graph_path,
+                        "--input",
+                        str(drive),
+                        "--out",
+                        out,
+                        "--frames",
+                        "0:1",
+                        "--quiet",
+                    ],
                     check=True,
                     capture_output=True,
                     env=env,
@@ -109,7 +142,9 @@ def main() -> None:
     ap.add_argument("--input", type=Path, default=DRIVE)
     ap.add_argument("--frames", default="0:54")
     ap.add_argument("--cold-start", action="store_true")
-    ap.add_argument("--repeat", type=int, default=3, help="runs per figure; the best one is reported (default 3)")
+    ap.add_argument(
+        "--repeat", type=int, default=3, help="runs per figure; the best one is reported (default 3)"
+    )
     a = ap.parse_args()
     if not a.input.is_dir():
         sys.exit(f"input folder not found: {a.input}")

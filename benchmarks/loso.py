@@ -64,16 +64,34 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--graph", default=str(ROOT / "graphs/paper.yaml"))
     ap.add_argument("--dataset", default=str(ROOT / "graphs/datasets/dev.yaml"))
-    ap.add_argument("--sweep", action="append", help="NODE.PARAM=V1,V2,... (repeatable; default: the paint check's and the fit's)")
+    ap.add_argument(
+        "--sweep",
+        action="append",
+        help="NODE.PARAM=V1,V2,... (repeatable; default: the paint check's and the fit's)",
+    )
     ap.add_argument("--out", default="out/loso")
     ap.add_argument("--markdown", action="store_true", help="print the table as Markdown")
     args = ap.parse_args(argv)
     sweeps = args.sweep or DEFAULT_SWEEPS
     out = Path(args.out)
-    cmd = [sys.executable, "-m", "lanegraph", "ablate", args.graph, "--dataset", args.dataset, "--out", str(out), "--quiet"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "lanegraph",
+        "ablate",
+        args.graph,
+        "--dataset",
+        args.dataset,
+        "--out",
+        str(out),
+        "--quiet",
+    ]
     for s in sweeps:
         cmd += ["--sweep", s]
-    print(f"running {sum(len(s.split('=', 1)[1].split(',')) for s in sweeps) + 1} variants over {args.dataset} ...", file=sys.stderr)
+    print(
+        f"running {sum(len(s.split('=', 1)[1].split(',')) for s in sweeps) + 1} variants over {args.dataset} ...",
+        file=sys.stderr,
+    )
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
         print(r.stderr[-2000:], file=sys.stderr)
@@ -83,8 +101,17 @@ def main(argv: list[str] | None = None) -> int:
         table.setdefault(row["variant"], {})[row["sequence"]] = row
     base = Path(args.graph).stem
     sequences = [s for s in table[base] if s != "all"]
-    resolved = yaml.safe_load(subprocess.run([sys.executable, "-m", "lanegraph", "show", args.graph], capture_output=True, text=True).stdout)
-    head = ["threshold", "graph's value", "values at the best pooled figure", *[f"{s} left out: chosen value -> its figure (graph's)" for s in sequences]]
+    resolved = yaml.safe_load(
+        subprocess.run(
+            [sys.executable, "-m", "lanegraph", "show", args.graph], capture_output=True, text=True
+        ).stdout
+    )
+    head = [
+        "threshold",
+        "graph's value",
+        "values at the best pooled figure",
+        *[f"{s} left out: chosen value -> its figure (graph's)" for s in sequences],
+    ]
     rows_out = [head]
     for sw in sweeps:
         key, values = sw.split("=", 1)[0], sw.split("=", 1)[1].split(",")
@@ -98,7 +125,9 @@ def main(argv: list[str] | None = None) -> int:
             scores = [pooled(table[f"{base}[{key}={v}]"], others) for v in values]
             v = choose(values, scores)
             held = float(table[f"{base}[{key}={v}]"][left]["detection_ratio"])
-            cells.append(f"{v} -> {100 * held:.1f} % ({100 * float(table[base][left]['detection_ratio']):.1f} %)")
+            cells.append(
+                f"{v} -> {100 * held:.1f} % ({100 * float(table[base][left]['detection_ratio']):.1f} %)"
+            )
         rows_out.append(cells)
     if args.markdown:
         lines = ["| " + " | ".join(r) + " |" for r in rows_out]

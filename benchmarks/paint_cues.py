@@ -29,8 +29,19 @@ from lanegraph.dataset import load_dataset, read_gt
 from lanegraph.metrics import match_frame, read_jsonl
 
 ROOT = Path(__file__).resolve().parents[1]
-OPEN = ["verify.min_paint_contrast=0", "verify.min_width_m=0", "verify.max_foot_width_m=5", "verify.min_side_ratio=0", "verify.min_painted_rows=1"]
-CUES = (("contrast", "min_paint_contrast", 1.0), ("width_m", "min_width_m", 100.0), ("foot_width_m", "max_foot_width_m", 100.0), ("side_ratio", "min_side_ratio", 1.0))
+OPEN = [
+    "verify.min_paint_contrast=0",
+    "verify.min_width_m=0",
+    "verify.max_foot_width_m=5",
+    "verify.min_side_ratio=0",
+    "verify.min_painted_rows=1",
+]
+CUES = (
+    ("contrast", "min_paint_contrast", 1.0),
+    ("width_m", "min_width_m", 100.0),
+    ("foot_width_m", "max_foot_width_m", 100.0),
+    ("side_ratio", "min_side_ratio", 1.0),
+)
 
 
 def summary(values: list[float], scale: float) -> str:
@@ -51,7 +62,11 @@ def main(argv: list[str] | None = None) -> int:
     print("cue: min / p10 / median / p90 / max (contrast and side ratio relative, widths in cm)")
     for seq in ds:
         out = work / seq.name
-        extra = ["--frames", f"{seq.frames.start or ''}:{seq.frames.stop or ''}:{seq.frames.step or ''}"] if seq.frames else []
+        extra = (
+            ["--frames", f"{seq.frames.start or ''}:{seq.frames.stop or ''}:{seq.frames.step or ''}"]
+            if seq.frames
+            else []
+        )
         err = run_graph(args.graph, seq.input, out, OPEN, extra)
         if err:
             print(f"{seq.name}: {err}", file=sys.stderr)
@@ -74,7 +89,10 @@ def main(argv: list[str] | None = None) -> int:
                         groups[kind].setdefault(key, []).append(float(cues[key]))
         for kind, cues in groups.items():
             n = len(cues.get("contrast", []))
-            print(f"{seq.name:12s} {kind:9s} ({n:3d} lanes): " + "; ".join(f"{key} {summary(cues.get(key, []), s)}" for key, _, s in CUES))
+            print(
+                f"{seq.name:12s} {kind:9s} ({n:3d} lanes): "
+                + "; ".join(f"{key} {summary(cues.get(key, []), s)}" for key, _, s in CUES)
+            )
     return 0
 
 

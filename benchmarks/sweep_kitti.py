@@ -87,7 +87,12 @@ DEFAULT = "recorded,gain:0.35,gain:0.5,gain:0.7,gain:1.2,right_gain:0.75,mirror,
 #: the source node type of each layout the sweep writes
 SOURCES = {"io.kitti_raw": KittiRawSource, "io.kitti_odometry": KittiOdometrySource}
 #: the projection rows of each camera pair, by the left camera's folder (as the sources read them)
-PROJECTIONS = {"image_02": ("P_rect_02", "P_rect_03"), "image_00": ("P_rect_00", "P_rect_01"), "image_2": ("P2", "P3"), "image_0": ("P0", "P1")}
+PROJECTIONS = {
+    "image_02": ("P_rect_02", "P_rect_03"),
+    "image_00": ("P_rect_00", "P_rect_01"),
+    "image_2": ("P2", "P3"),
+    "image_0": ("P0", "P1"),
+}
 
 
 def parse_variant(spec: str) -> tuple[str, float | tuple[int, int] | None]:
@@ -112,7 +117,9 @@ def parse_variant(spec: str) -> tuple[str, float | tuple[int, int] | None]:
         if not value > 0 or value == float("inf") or (kind == "step" and value != int(value)):
             raise ValueError(f"{spec!r}: expected a positive {'integer' if kind == 'step' else 'number'}")
         return kind, value
-    raise ValueError(f"{spec!r}: unknown variant; expected recorded, gain:G, right_gain:G, haze:C, blur:S, noise:S, crop:WxH, step:N, mirror or unpainted")
+    raise ValueError(
+        f"{spec!r}: unknown variant; expected recorded, gain:G, right_gain:G, haze:C, blur:S, noise:S, crop:WxH, step:N, mirror or unpainted"
+    )
 
 
 @dataclass(frozen=True)
@@ -154,9 +161,20 @@ def open_sequence(folder: str | Path) -> StereoSequence:
     src = node(node_type_of(node).params(), RunContext(input_path=folder))
     left, right = src.all_pairs[0][1].parent, src.all_pairs[0][2].parent
     cameras = (left.relative_to(src.root), right.relative_to(src.root))
-    calib_path = src.root.resolve().parent / "calib_cam_to_cam.txt" if source == "io.kitti_raw" else src.root / "calib.txt"
+    calib_path = (
+        src.root.resolve().parent / "calib_cam_to_cam.txt"
+        if source == "io.kitti_raw"
+        else src.root / "calib.txt"
+    )
     return StereoSequence(
-        src.root, source, cameras, PROJECTIONS[cameras[0].parts[0]], calib_path, src.calib, src.gray, {stem: (lp, rp) for stem, lp, rp in src.all_pairs}
+        src.root,
+        source,
+        cameras,
+        PROJECTIONS[cameras[0].parts[0]],
+        calib_path,
+        src.calib,
+        src.gray,
+        {stem: (lp, rp) for stem, lp, rp in src.all_pairs},
     )
 
 
@@ -212,7 +230,9 @@ def mirror_ground_truth(rec: dict, disparity: np.ndarray, width: int) -> dict:
     return {**rec, "markings": markings, "ego": {"left": ego.get("right"), "right": ego.get("left")}}
 
 
-def unpaint(left: np.ndarray, right: np.ndarray, rec: dict, disparity: np.ndarray, baseline: float) -> tuple[np.ndarray, np.ndarray]:
+def unpaint(
+    left: np.ndarray, right: np.ndarray, rec: dict, disparity: np.ndarray, baseline: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Both images with the markings of the ground-truth record ``rec`` inpainted away (see the
     module docstring): discs along each polyline every 2 rows, of radius ``0.225 m * d / baseline + 4``
     pixels (a 0.45 m wide strip) at the polyline's disparity ``d`` (interpolated between its points
@@ -231,7 +251,10 @@ def unpaint(left: np.ndarray, right: np.ndarray, rec: dict, disparity: np.ndarra
         # road's disparity is linear in the row), extrapolated from the end segments
         ys = np.arange(h - 1, max(pts[-1, 1] - 40, 0), -2.0)
         xs = np.interp(-ys, -pts[:, 1], pts[:, 0])
-        for (ya, xa), (yb, xb), sel in (((pts[0, 1], pts[0, 0]), (pts[1, 1], pts[1, 0]), ys > pts[0, 1]), ((pts[-1, 1], pts[-1, 0]), (pts[-2, 1], pts[-2, 0]), ys < pts[-1, 1])):
+        for (ya, xa), (yb, xb), sel in (
+            ((pts[0, 1], pts[0, 0]), (pts[1, 1], pts[1, 0]), ys > pts[0, 1]),
+            ((pts[-1, 1], pts[-1, 0]), (pts[-2, 1], pts[-2, 0]), ys < pts[-1, 1]),
+        ):
             xs[sel] = xa + (xb - xa) / (yb - ya) * (ys[sel] - ya)
         dp, yp = d[ok], pts[ok, 1]
         ds = np.polyval(np.polyfit(yp, dp, 1), ys) if dp.size >= 2 else np.full(ys.shape, dp[0])
@@ -244,7 +267,9 @@ def unpaint(left: np.ndarray, right: np.ndarray, rec: dict, disparity: np.ndarra
 
 
 def _sgbm(left: np.ndarray, right: np.ndarray) -> np.ndarray:
-    sgbm = cv2.StereoSGBM_create(0, 128, 5, P1=8 * 25, P2=32 * 25, uniquenessRatio=10, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+    sgbm = cv2.StereoSGBM_create(
+        0, 128, 5, P1=8 * 25, P2=32 * 25, uniquenessRatio=10, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY
+    )
     gray = [cv2.cvtColor(i, cv2.COLOR_BGR2GRAY) if i.ndim == 3 else i for i in (left, right)]
     return sgbm.compute(*gray).astype(np.float32) / 16.0
 
@@ -254,10 +279,15 @@ def _check_frames(seq: StereoSequence, gt: list[dict], gt_path: Path) -> None:
     missing = [rec["frame"] for rec in gt if str(rec["frame"]) not in seq.images]
     if missing:
         more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
-        raise InputError(f"frame {missing[0]}{more} of the ground truth is not among the images of {seq.root}/{seq.cameras[0]}", path=str(gt_path))
+        raise InputError(
+            f"frame {missing[0]}{more} of the ground truth is not among the images of {seq.root}/{seq.cameras[0]}",
+            path=str(gt_path),
+        )
 
 
-def write_variant(seq: str | Path | StereoSequence, dst: Path, kind: str, arg, gt: list[dict] | None = None) -> Path:
+def write_variant(
+    seq: str | Path | StereoSequence, dst: Path, kind: str, arg, gt: list[dict] | None = None
+) -> Path:
     """The variant of ``seq`` (a KITTI raw drive, its calibration in the parent, or a KITTI odometry
     sequence) in ``dst`` with the same layout, for the frames of ``gt`` (its ground-truth records;
     default: the sequence's ``lanes_gt.jsonl``), their ground truth beside the images as
@@ -304,7 +334,10 @@ def write_variant(seq: str | Path | StereoSequence, dst: Path, kind: str, arg, g
             L, R = (cv2.GaussianBlur(i, (0, 0), arg) for i in (L, R))
         elif kind == "noise":
             # the same noise on every colour channel: the grey image gets sigma arg
-            L, R = (np.clip(i + rng.normal(0.0, arg, i.shape[:2] + (1,) * (i.ndim - 2)), 0, 255).astype(np.uint8) for i in (L, R))
+            L, R = (
+                np.clip(i + rng.normal(0.0, arg, i.shape[:2] + (1,) * (i.ndim - 2)), 0, 255).astype(np.uint8)
+                for i in (L, R)
+            )
         elif kind == "crop":
             w, h = arg
             L, R = L[:h, :w], R[:h, :w]
@@ -332,11 +365,17 @@ def _open_dataset(args: argparse.Namespace) -> tuple[Dataset, dict[str, tuple[St
     for s in ds:
         where = f"sequence {s.name!r} of {args.dataset}: " if args.dataset else "--input: "
         if s.gt is None or not s.gt.is_file():
-            raise InputError(f"{where}no ground truth (the sweep scores every variant against it; expected {'a gt file' if args.dataset else 'lanes_gt.jsonl in the folder'})", path=str(s.gt or s.input))
+            raise InputError(
+                f"{where}no ground truth (the sweep scores every variant against it; expected {'a gt file' if args.dataset else 'lanes_gt.jsonl in the folder'})",
+                path=str(s.gt or s.input),
+            )
         seq = open_sequence(s.input)
         gt = read_gt(s, s.frames)
         if not gt:
-            raise InputError(f"{where}the ground truth lists no frame{' in the selection' if s.frames else ''}", path=str(s.gt))
+            raise InputError(
+                f"{where}the ground truth lists no frame{' in the selection' if s.frames else ''}",
+                path=str(s.gt),
+            )
         _check_frames(seq, gt, s.gt)
         opened[s.name] = (seq, gt)
     return ds, opened
@@ -345,15 +384,27 @@ def _open_dataset(args: argparse.Namespace) -> tuple[Dataset, dict[str, tuple[St
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("graph", nargs="?", default=str(ROOT / "graphs" / "paper.yaml"))
-    ap.add_argument("--input", default="", help=f"a KITTI raw drive or KITTI odometry sequence folder with lanes_gt.jsonl (default: {DRIVE})")
-    ap.add_argument("--dataset", default="", help="a dataset file (YAML list of sequences with ground truth, e.g. graphs/datasets/dev.yaml) in place of --input")
+    ap.add_argument(
+        "--input",
+        default="",
+        help=f"a KITTI raw drive or KITTI odometry sequence folder with lanes_gt.jsonl (default: {DRIVE})",
+    )
+    ap.add_argument(
+        "--dataset",
+        default="",
+        help="a dataset file (YAML list of sequences with ground truth, e.g. graphs/datasets/dev.yaml) in place of --input",
+    )
     ap.add_argument("--variants", default=DEFAULT, help=f"comma-separated (default: {DEFAULT})")
-    ap.add_argument("--set", action="append", default=[], metavar="NODE.PARAM=VALUE", help="passed to lanegraph run")
+    ap.add_argument(
+        "--set", action="append", default=[], metavar="NODE.PARAM=VALUE", help="passed to lanegraph run"
+    )
     ap.add_argument("--work", default="", help="folder for the variants and the runs (kept)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
     args = ap.parse_args(argv)
     if args.dataset and args.input:
-        ap.error("--dataset lists the inputs and their ground truths: give it instead of --input, not with it")
+        ap.error(
+            "--dataset lists the inputs and their ground truths: give it instead of --input, not with it"
+        )
     try:
         variants = [(spec, *parse_variant(spec)) for spec in args.variants.split(",") if spec]
     except ValueError as exc:
@@ -371,7 +422,13 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[dict] = []
     failed_any = False
     # on a terminal: which variant and sequence is being written or run (None: off where stderr is no terminal)
-    bar = tqdm(total=len(variants) * len(names), unit="run", file=sys.stderr, leave=False, disable=True if args.quiet else None)
+    bar = tqdm(
+        total=len(variants) * len(names),
+        unit="run",
+        file=sys.stderr,
+        leave=False,
+        disable=True if args.quiet else None,
+    )
 
     def show(spec: str, name: str, text: str) -> None:
         tqdm.write(f"{spec:20s} {name:{col}s} {text}", file=sys.stdout)
@@ -424,7 +481,13 @@ def main(argv: list[str] | None = None) -> int:
                 rows.append(_row(spec, POOLED, res, n))
                 show(spec, POOLED, metric_row(res, n))
     bar.close()
-    summary = {"graph": args.graph, "set": args.set, "dataset": str(args.dataset) if args.dataset else None, "sequences": names, "rows": rows}
+    summary = {
+        "graph": args.graph,
+        "set": args.set,
+        "dataset": str(args.dataset) if args.dataset else None,
+        "sequences": names,
+        "rows": rows,
+    }
     (work / "sweep.json").write_text(json.dumps(summary, indent=1) + "\n")
     return 1 if failed_any else 0
 

@@ -33,16 +33,35 @@ ROOT = Path(__file__).resolve().parents[1]
 
 #: name -> (preset, overrides); none of these is a scene the defaults were tuned on
 SCENES: dict[str, tuple[str, dict]] = {
-    "highway_curve_hatching_right": ("straight", dict(curvature=1 / 400, n_lanes=3, lane_width=3.75, speed=25.0, hatching=10.0, traffic=2, seed=11)),
-    "highway_curve_hatching_left": ("straight", dict(curvature=-1 / 400, n_lanes=4, lane_width=3.75, speed=25.0, hatching=14.0, traffic=1, seed=12)),
-    "highway_clothoid_hatching": ("clothoid", dict(curvature=-0.001, curvature_rate=1e-4, n_lanes=3, speed=22.0, hatching=12.0, seed=13)),
+    "highway_curve_hatching_right": (
+        "straight",
+        dict(curvature=1 / 400, n_lanes=3, lane_width=3.75, speed=25.0, hatching=10.0, traffic=2, seed=11),
+    ),
+    "highway_curve_hatching_left": (
+        "straight",
+        dict(curvature=-1 / 400, n_lanes=4, lane_width=3.75, speed=25.0, hatching=14.0, traffic=1, seed=12),
+    ),
+    "highway_clothoid_hatching": (
+        "clothoid",
+        dict(curvature=-0.001, curvature_rate=1e-4, n_lanes=3, speed=22.0, hatching=12.0, seed=13),
+    ),
     "tight_curve_left": ("straight", dict(curvature=-1 / 250, n_lanes=2, speed=12.0, seed=14)),
     "kerbs_curve_left": ("kerbs", dict(curvature=-1 / 300, seed=26)),
-    "no_markings_kerbs": ("no_markings", dict(kerb_height=0.12, parked_cars=10.0, shadows=10.0, trees=6.0, seed=15)),
+    "no_markings_kerbs": (
+        "no_markings",
+        dict(kerb_height=0.12, parked_cars=10.0, shadows=10.0, trees=6.0, seed=15),
+    ),
     "no_markings_walls": ("no_markings", dict(walls=True, poles=5.0, traffic=1, seed=16)),
     "no_markings_urban": ("urban", dict(markings=[], seed=44)),
     # a pedestrian crossing 22-26 m ahead: seven bars 0.5 m wide, 1 m apart (the ground truth has no lane)
-    "no_lines_crossing": ("no_markings", dict(markings=[Marking(-3.0 + i, "dashed", 0.5, 4.0, 296.0, 22.0) for i in range(7)], speed=8.0, seed=81)),
+    "no_lines_crossing": (
+        "no_markings",
+        dict(
+            markings=[Marking(-3.0 + i, "dashed", 0.5, 4.0, 296.0, 22.0) for i in range(7)],
+            speed=8.0,
+            seed=81,
+        ),
+    ),
     "pitch_2.5_roll_1.5": ("straight", dict(pitch_deg=2.5, roll_deg=1.5, seed=17)),
     "narrow_lanes_2.8m": ("straight", dict(lane_width=2.8, n_lanes=2, seed=18)),
     "wide_lanes_4.3m": ("straight", dict(lane_width=4.3, seed=19)),
@@ -55,7 +74,10 @@ SCENES: dict[str, tuple[str, dict]] = {
     "tall_rig_2.2m": ("straight", dict(height=2.2, pitch_deg=0.0, seed=25)),
     # the car in the rightmost lane, its right boundary an edge line beside grass or gravel
     "rough_verge_0.5m": ("straight", dict(n_lanes=2, ego_lane=1, shoulder=0.5, verge_texture=3.0, seed=31)),
-    "very_rough_verge_0.3m": ("straight", dict(n_lanes=2, ego_lane=1, shoulder=0.3, verge_texture=4.0, seed=33)),
+    "very_rough_verge_0.3m": (
+        "straight",
+        dict(n_lanes=2, ego_lane=1, shoulder=0.3, verge_texture=4.0, seed=33),
+    ),
 }
 
 #: scenes whose rendered ground truth lists the crossing's bars as markings (the README's metric
@@ -68,7 +90,9 @@ def main() -> int:
     ap.add_argument("graph", nargs="?", default=str(ROOT / "graphs" / "paper.yaml"))
     ap.add_argument("--frames", type=int, default=30)
     ap.add_argument("--scenes", default="", help="comma-separated subset of: " + ", ".join(SCENES))
-    ap.add_argument("--set", action="append", default=[], metavar="NODE.PARAM=VALUE", help="passed to lanegraph run")
+    ap.add_argument(
+        "--set", action="append", default=[], metavar="NODE.PARAM=VALUE", help="passed to lanegraph run"
+    )
     ap.add_argument("--work", default="", help="folder for the rendered scenes and the runs (kept)")
     args = ap.parse_args()
     names = [s for s in args.scenes.split(",") if s] or list(SCENES)
@@ -90,8 +114,12 @@ def main() -> int:
             continue
         pred, gt = read_jsonl(lanes_file(out)), read_jsonl(seq / "lanes_gt.jsonl")
         n_lanes = lanes_reported(pred)
-        print(f"{name:32s} {metric_row(evaluate(pred, gt), n_lanes, blank=name in LANE_COUNT_ONLY)}", flush=True)
-    (work / "sweep.json").write_text(json.dumps({"graph": args.graph, "frames": args.frames, "set": args.set, "scenes": names}))
+        print(
+            f"{name:32s} {metric_row(evaluate(pred, gt), n_lanes, blank=name in LANE_COUNT_ONLY)}", flush=True
+        )
+    (work / "sweep.json").write_text(
+        json.dumps({"graph": args.graph, "frames": args.frames, "set": args.set, "scenes": names})
+    )
     return 0
 
 

@@ -112,12 +112,19 @@ def run_ablation(
         var_plans = []
         for seq in dataset:
             sel = seq_frames[seq.name]
-            run_dir = inside(out_dir, f"runs/{_safe(var.name)}/{safe_name(seq.name)}", "ablate --out")  # links out of OUT refused
+            run_dir = inside(
+                out_dir, f"runs/{_safe(var.name)}/{safe_name(seq.name)}", "ablate --out"
+            )  # links out of OUT refused
             run_key = digest(g.resolved_dict(), idents[seq.name], str(sel), code)
             if chunk_frames is not None:
                 run_key = digest(run_key, "chunks", chunk_frames, warmup)
             stamp = run_dir / "run_key.txt"
-            if cache is not None and stamp.is_file() and stamp.read_text() == run_key and _read_record(run_dir) is not None:
+            if (
+                cache is not None
+                and stamp.is_file()
+                and stamp.read_text() == run_key
+                and _read_record(run_dir) is not None
+            ):
                 var_plans.append(Planned(var.name, seq.name, run_dir, reused=True))
                 continue
             var_plans.append(planner.add(var.name, seq.name, graph, seq.input, sel, run_dir, run_key))
@@ -146,7 +153,9 @@ def run_ablation(
     return rows
 
 
-def _rows(plans: list[tuple[Variant, list[Planned]]], gts: dict[str, Any], finished_only: bool = False) -> list[dict[str, Any]]:
+def _rows(
+    plans: list[tuple[Variant, list[Planned]]], gts: dict[str, Any], finished_only: bool = False
+) -> list[dict[str, Any]]:
     """The rows of the planned runs, from their folders' run.json and lanes (``finished_only``: of
     the variants whose every run ended)."""
     rows: list[dict[str, Any]] = []
@@ -159,7 +168,12 @@ def _rows(plans: list[tuple[Variant, list[Planned]]], gts: dict[str, Any], finis
             run_dir = plan.run_dir
             record = plan.record if plan.record is not None else (_read_record(run_dir) or {})
             timings = record.get("timings") or {}
-            row: dict[str, Any] = {"variant": var.name, "sequence": plan.sequence, "graph": str(var.graph), "sets": " ".join(var.sets)}
+            row: dict[str, Any] = {
+                "variant": var.name,
+                "sequence": plan.sequence,
+                "graph": str(var.graph),
+                "sets": " ".join(var.sets),
+            }
             row["error"] = record.get("error")
             row["failed_frames"] = len(record.get("failures") or [])
             row["before_any_frame"] = bool(record.get("before_any_frame"))
@@ -168,12 +182,19 @@ def _rows(plans: list[tuple[Variant, list[Planned]]], gts: dict[str, Any], finis
             if lanes_file is not None:
                 pred = read_predictions(lanes_file)
                 ev = evaluate(pred, gt)
-                row.update({k: ev[k] for k in ("frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px")})
+                row.update(
+                    {
+                        k: ev[k]
+                        for k in ("frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px")
+                    }
+                )
                 row.update(_extra_metrics(pred, gt))
                 evals.append((plan.sequence, pred, gt))
             nodes = timings.get("nodes", {})
             # the sum of the stages' median compute times (a cached stage counts with the time it took)
-            row["ms_per_frame"] = round(sum(v["median_ms"] or 0.0 for v in nodes.values()), 2) if nodes else None
+            row["ms_per_frame"] = (
+                round(sum(v["median_ms"] or 0.0 for v in nodes.values()), 2) if nodes else None
+            )
             row["stage_ms"] = {nid: v["median_ms"] for nid, v in nodes.items()}
             row["frames_run"] = timings.get("frames", 0)
             row["wall_s"] = round(plan.outcome.wall_s, 2) if plan.outcome is not None else 0.0
@@ -194,18 +215,27 @@ def _read_record(run_dir: Path) -> dict[str, Any] | None:
     return record if isinstance(record, dict) and isinstance(record.get("timings"), dict) else None
 
 
-def _pooled_row(var: Variant, var_rows: list[dict[str, Any]], evals: list[tuple[str, list, list]]) -> dict[str, Any]:
+def _pooled_row(
+    var: Variant, var_rows: list[dict[str, Any]], evals: list[tuple[str, list, list]]
+) -> dict[str, Any]:
     """The variant's row over all sequences: metrics over every frame as one set; times are the
     sequences' medians weighted by their frame counts. No figures when a sequence's run failed (they
     would be over other frames than the other variants')."""
-    row: dict[str, Any] = {"variant": var.name, "sequence": POOLED, "graph": str(var.graph), "sets": " ".join(var.sets)}
+    row: dict[str, Any] = {
+        "variant": var.name,
+        "sequence": POOLED,
+        "graph": str(var.graph),
+        "sets": " ".join(var.sets),
+    }
     failed = [r["sequence"] for r in var_rows if r.get("error")]
     row["error"] = f"failed on sequence(s) {', '.join(failed)}" if failed else None
     row["failed_frames"] = sum(int(r.get("failed_frames") or 0) for r in var_rows)
     row["before_any_frame"] = all(r.get("before_any_frame") for r in var_rows)
     if evals and not failed:
         ev = evaluate_sequences(evals)[POOLED]
-        row.update({k: ev[k] for k in ("frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px")})
+        row.update(
+            {k: ev[k] for k in ("frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px")}
+        )
         pred = [{**p, "frame": f"{n}/{p.get('frame')}"} for n, ps, _ in evals for p in ps]
         gt = [{**g, "frame": f"{n}/{g.get('frame')}"} for n, _, gs in evals for g in gs]
         row.update(_extra_metrics(pred, gt))
@@ -249,13 +279,26 @@ def write_reports(rows: list[dict[str, Any]], out_dir: Path) -> None:
 
 
 def _write_csv(rows: list[dict[str, Any]], stages: list[str], path: Path) -> None:
-    cols = ["variant", "sequence", "frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px", "culane_f1", "ms_per_frame"]
+    cols = [
+        "variant",
+        "sequence",
+        "frames",
+        "detection_ratio",
+        "precision",
+        "ego_recall",
+        "mean_abs_dx_px",
+        "culane_f1",
+        "ms_per_frame",
+    ]
     buf = io.StringIO(newline="")
     w = csv.writer(buf)
-    w.writerow(cols + [f"ms_{s}" for s in stages] + ["wall_s", "reused", "cache_hits", "failed_frames", "error"])
+    w.writerow(
+        cols + [f"ms_{s}" for s in stages] + ["wall_s", "reused", "cache_hits", "failed_frames", "error"]
+    )
     for r in rows:
         w.writerow(
-            [r.get(c) for c in cols] + [r["stage_ms"].get(s) for s in stages]
+            [r.get(c) for c in cols]
+            + [r["stage_ms"].get(s) for s in stages]
             + [r["wall_s"], r["reused"], r["cache_hits"], r.get("failed_frames", 0), r.get("error") or ""]
         )
     write_text_atomic(path, buf.getvalue())
@@ -279,19 +322,43 @@ def _results_md(rows: list[dict[str, Any]], stages: list[str]) -> str:
 
     frames: dict[str, int] = {}
     for r in rows:  # a failed run has fewer (or no) frames: the sequence's count is the largest
-        frames[r["sequence"]] = max(frames.get(r["sequence"], 0), int(r.get("frames") or r.get("frames_run") or 0))
-    lines = [f"All sequences pooled ({', '.join(sequences)}; {frames.get(POOLED) or 0} frames):", "", *table(pooled)]
+        frames[r["sequence"]] = max(
+            frames.get(r["sequence"], 0), int(r.get("frames") or r.get("frames_run") or 0)
+        )
+    lines = [
+        f"All sequences pooled ({', '.join(sequences)}; {frames.get(POOLED) or 0} frames):",
+        "",
+        *table(pooled),
+    ]
     if len(sequences) > 1:
         for name in sequences:
-            lines += ["", f"Sequence {name} ({frames.get(name) or 0} frames):", "", *table([r for r in rows if r.get("sequence") == name])]
-    lines += ["", "Median ms per frame per stage (pooled):", "", "| variant | " + " | ".join(stages) + " |", "|---|" + "---|" * len(stages)]
+            lines += [
+                "",
+                f"Sequence {name} ({frames.get(name) or 0} frames):",
+                "",
+                *table([r for r in rows if r.get("sequence") == name]),
+            ]
+    lines += [
+        "",
+        "Median ms per frame per stage (pooled):",
+        "",
+        "| variant | " + " | ".join(stages) + " |",
+        "|---|" + "---|" * len(stages),
+    ]
     for r in pooled:
         lines.append(f"| {r['variant']} | " + " | ".join(_fmt(r["stage_ms"].get(s)) for s in stages) + " |")
     failed = [r for r in rows if r.get("sequence") != POOLED and (r.get("error") or r.get("failed_frames"))]
     if failed:
-        lines += ["", "Failed runs (no figures for a run that stopped; see its runs/<variant>/<sequence>/run.json):", ""]
+        lines += [
+            "",
+            "Failed runs (no figures for a run that stopped; see its runs/<variant>/<sequence>/run.json):",
+            "",
+        ]
         for r in failed:
-            what = r.get("error") or f"{r['failed_frames']} frame(s) failed (on_error skip), figures over the others"
+            what = (
+                r.get("error")
+                or f"{r['failed_frames']} frame(s) failed (on_error skip), figures over the others"
+            )
             lines.append(f"- {r['variant']} / {r['sequence']}: {what}")
     return "\n".join(lines) + "\n"
 

@@ -68,14 +68,18 @@ def parse_scheduler(text: str | None) -> SchedulerSpec | None:
         return None
     text = text.strip()
     if not text:
-        raise UsageError("--scheduler: expected local, local:N or a scheduler address such as tcp://HOST:8786, got ''")
+        raise UsageError(
+            "--scheduler: expected local, local:N or a scheduler address such as tcp://HOST:8786, got ''"
+        )
     m = _SCHEDULER.match(text)
     if m:
         n = m.group("n")
         if n is None:
             return SchedulerSpec(text)
         if not n.isdigit() or int(n) < 1:
-            raise UsageError(f"--scheduler {text}: expected local:N with N a number of worker processes >= 1, got {n!r}")
+            raise UsageError(
+                f"--scheduler {text}: expected local:N with N a number of worker processes >= 1, got {n!r}"
+            )
         return SchedulerSpec(text, workers=int(n))
     return SchedulerSpec(text, address=text)
 
@@ -90,7 +94,9 @@ class ResolvedGraph:
     display: str
 
     @classmethod
-    def load(cls, path: str | Path, sets: Iterable[str] = (), roots: list[Path] | None = None) -> ResolvedGraph:
+    def load(
+        cls, path: str | Path, sets: Iterable[str] = (), roots: list[Path] | None = None
+    ) -> ResolvedGraph:
         raw, origin, display = load_raw(path, list(sets), roots)
         return cls(raw, origin, display)
 
@@ -209,14 +215,30 @@ def _error_record(task: RunTask, exc: BaseException) -> dict[str, Any]:
 
 
 def run_record(
-    graph_file: str | None, input_path: str | None, result: RunResult, error: dict[str, Any] | None = None, timings: dict[str, Any] | None = None, **extra: Any
+    graph_file: str | None,
+    input_path: str | None,
+    result: RunResult,
+    error: dict[str, Any] | None = None,
+    timings: dict[str, Any] | None = None,
+    **extra: Any,
 ) -> dict[str, Any]:
     """The content of a run folder's ``run.json``: what ``lanegraph run`` writes (``status``, frames
     done, failed frames, warnings, ``stopped``: where the run stopped) and what ``ablate`` reads back
     to reuse a run (``error``, ``timings``, ``before_any_frame``)."""
     status = "stopped" if error is not None else ("failed frames" if result.failures else "ok")
-    record: dict[str, Any] = {"graph": graph_file, "input": input_path, **extra, "status": status, "error": error["message"] if error else None}
-    record.update(frames_ok=result.frames, failures=[f.to_json() for f in result.failures], warnings=result.warnings(), results=result.results)
+    record: dict[str, Any] = {
+        "graph": graph_file,
+        "input": input_path,
+        **extra,
+        "status": status,
+        "error": error["message"] if error else None,
+    }
+    record.update(
+        frames_ok=result.frames,
+        failures=[f.to_json() for f in result.failures],
+        warnings=result.warnings(),
+        results=result.results,
+    )
     record["timings"] = timings if timings is not None else result.timings_json()
     if error is not None:
         record["stopped"] = {"error": error["message"], "node": error["node"], "frame": error["frame"]}
@@ -224,7 +246,9 @@ def run_record(
     return record
 
 
-def _write_run_files(folder: Path, task: RunTask, result: RunResult, error: dict[str, Any] | None, graph_file: str | None) -> None:
+def _write_run_files(
+    folder: Path, task: RunTask, result: RunResult, error: dict[str, Any] | None, graph_file: str | None
+) -> None:
     timings = result.timings_json()
     if task.record_cache:
         timings["cache"] = {"hits": result.cache_hits, "misses": result.cache_misses}
@@ -236,7 +260,10 @@ def _write_run_files(folder: Path, task: RunTask, result: RunResult, error: dict
 
 
 def execute_task(
-    task: RunTask, cache: ResultCache | None = None, progress: Callable[[int], None] | None = None, pm: PluginManager | None = None
+    task: RunTask,
+    cache: ResultCache | None = None,
+    progress: Callable[[int], None] | None = None,
+    pm: PluginManager | None = None,
 ) -> TaskOutcome:
     """Run ``task`` (in this process) and put its folder in place; never raises for a failure of
     the run: the outcome says where it stopped. ``progress(n)`` is called with the number of frames
@@ -265,7 +292,12 @@ def execute_task(
         graph_file = g.file
         if cache is None and task.cache_dir:
             cache = shared_cache(task.cache_dir, task.cache_max_bytes)
-        ctx = RunContext(input_path=Path(task.input) if task.input else None, out_dir=tmp, frames=task.frames, graph_file=g.file)
+        ctx = RunContext(
+            input_path=Path(task.input) if task.input else None,
+            out_dir=tmp,
+            frames=task.frames,
+            graph_file=g.file,
+        )
         ex = Executor(g, ctx, pm, cache=cache, warmup=task.warmup)
         try:
             ex.open()
@@ -283,7 +315,9 @@ def execute_task(
         result = getattr(ex, "result", None) or RunResult()
     shift = task.offset - task.warmup  # executor indices count from the first warm-up frame
     if shift:
-        result.failures = [FrameFailure(f.frame, f.index + shift, f.node_id, f.node_type, f.error) for f in result.failures]
+        result.failures = [
+            FrameFailure(f.frame, f.index + shift, f.node_id, f.node_type, f.error) for f in result.failures
+        ]
     if task.chunk is None:
         _write_run_files(tmp, task, result, error, graph_file)
         place_dir(tmp, run_dir)
@@ -320,7 +354,10 @@ def merge_chunks(tasks: list[RunTask], outcomes: list[TaskOutcome]) -> TaskOutco
             merged.timings_ms.setdefault(nid, []).extend(ts)
         merged.failures += r.failures
         merged.frame_ms += r.frame_ms
-        for src_counts, dst_counts in ((r.cache_hits, merged.cache_hits), (r.cache_misses, merged.cache_misses)):
+        for src_counts, dst_counts in (
+            (r.cache_hits, merged.cache_hits),
+            (r.cache_misses, merged.cache_misses),
+        ):
             for nid, k in src_counts.items():
                 dst_counts[nid] = dst_counts.get(nid, 0) + k
         if out.error is not None and error is None:
@@ -332,7 +369,9 @@ def merge_chunks(tasks: list[RunTask], outcomes: list[TaskOutcome]) -> TaskOutco
 
 
 # --------------------------------------------------------------------------- planning
-def count_frames(graph: ResolvedGraph, input_path: Path | None, frames: slice | None, pm: PluginManager) -> int | None:
+def count_frames(
+    graph: ResolvedGraph, input_path: Path | None, frames: slice | None, pm: PluginManager
+) -> int | None:
     """The number of frames the graph's source delivers for this input and selection (``None``
     when the source cannot tell); opens the source only. Raises what opening it raises: an
     :class:`~lanegraph.errors.InputError` for an unusable input (no frames, no calibration ...)."""
@@ -355,7 +394,9 @@ def _as_slice(r: range) -> slice:
     return slice(r.start, stop, r.step)
 
 
-def chunk_selections(n_input: int, selection: slice | None, chunk_frames: int, warmup: int) -> list[tuple[slice, int, int, int]]:
+def chunk_selections(
+    n_input: int, selection: slice | None, chunk_frames: int, warmup: int
+) -> list[tuple[slice, int, int, int]]:
     """Split the frames ``selection`` picks out of ``n_input`` into chunks of ``chunk_frames``;
     per chunk ``(slice over the input's frames, warm-up frames, first reported position, frames
     reported)``; the slice starts ``warm-up`` frames before the chunk (fewer for the first)."""
@@ -385,13 +426,21 @@ class Planner:
     """Turns (graph, sequence) runs into tasks: counts each run's frames (opening only its source,
     so an unusable input is found before anything runs) and splits it into chunks."""
 
-    def __init__(self, pm: PluginManager, chunk_frames: int | None = None, warmup: int = 0, cache: ResultCache | None = None):
+    def __init__(
+        self,
+        pm: PluginManager,
+        chunk_frames: int | None = None,
+        warmup: int = 0,
+        cache: ResultCache | None = None,
+    ):
         if chunk_frames is not None and chunk_frames < 1:
             raise UsageError(f"--chunk-frames: expected an integer >= 1, got {chunk_frames}")
         if warmup < 0:
             raise UsageError(f"--warmup: expected an integer >= 0, got {warmup}")
         if warmup and chunk_frames is None:
-            raise UsageError("--warmup is the number of frames run before each chunk: give --chunk-frames too")
+            raise UsageError(
+                "--warmup is the number of frames run before each chunk: give --chunk-frames too"
+            )
         self.pm = pm
         self.chunk_frames = chunk_frames
         self.warmup = warmup
@@ -407,7 +456,14 @@ class Planner:
         return self._counts[key]
 
     def add(
-        self, variant: str | None, sequence: str, graph: ResolvedGraph, input_path: Path | None, frames: slice | None, run_dir: Path, run_key: str | None = None
+        self,
+        variant: str | None,
+        sequence: str,
+        graph: ResolvedGraph,
+        input_path: Path | None,
+        frames: slice | None,
+        run_dir: Path,
+        run_key: str | None = None,
     ) -> Planned:
         """Plan the run of ``graph`` on a sequence into ``run_dir``."""
         cache = self.cache
@@ -435,10 +491,25 @@ class Planner:
         else:
             n_input = self._count(graph, input_path, None)
             if n is None or n_input is None:
-                raise UsageError(f"--chunk-frames: the source of {graph.display} cannot tell how many frames {input_path} has")
+                raise UsageError(
+                    f"--chunk-frames: the source of {graph.display} cannot tell how many frames {input_path} has"
+                )
             key = None if run_key is None else digest(run_key, "chunks", self.chunk_frames, self.warmup)
-            for k, (sel, w, start, count) in enumerate(chunk_selections(n_input, frames, self.chunk_frames, self.warmup)):
-                plan.tasks.append(RunTask(len(self.tasks) + k, frames=sel, run_key=key, total=count, chunk=k, warmup=w, offset=start, **common))
+            for k, (sel, w, start, count) in enumerate(
+                chunk_selections(n_input, frames, self.chunk_frames, self.warmup)
+            ):
+                plan.tasks.append(
+                    RunTask(
+                        len(self.tasks) + k,
+                        frames=sel,
+                        run_key=key,
+                        total=count,
+                        chunk=k,
+                        warmup=w,
+                        offset=start,
+                        **common,
+                    )
+                )
         self.tasks += plan.tasks
         return plan
 
@@ -456,7 +527,14 @@ class Progress:
         self._done: dict[int, tuple[str, int]] = {}
         self._finished = 0
         self._lock = threading.Lock()
-        self.bar = tqdm(total=total or None, desc=desc, unit="frame", disable=not enabled, file=sys.stderr, dynamic_ncols=True)
+        self.bar = tqdm(
+            total=total or None,
+            desc=desc,
+            unit="frame",
+            disable=not enabled,
+            file=sys.stderr,
+            dynamic_ncols=True,
+        )
         self._postfix()
 
     def _postfix(self) -> None:
@@ -547,8 +625,16 @@ def finish_runs(plans: list[Planned], outcomes: dict[int, TaskOutcome], partial:
 
 def describe_error(error: dict[str, Any]) -> str:
     """``variant / sequence: frame F: message`` for a failed run."""
-    where = f"{error['variant']} / {error['sequence']}" if error.get("variant") is not None else f"{error['sequence']}"
-    frame = f"frame {error['frame']}: " if error.get("frame") is not None and f"frame {error['frame']}" not in error["message"] else ""
+    where = (
+        f"{error['variant']} / {error['sequence']}"
+        if error.get("variant") is not None
+        else f"{error['sequence']}"
+    )
+    frame = (
+        f"frame {error['frame']}: "
+        if error.get("frame") is not None and f"frame {error['frame']}" not in error["message"]
+        else ""
+    )
     return f"{where}: {frame}{error['message']}"
 
 
@@ -589,6 +675,13 @@ def run_dataset(
         assert out is not None
         results = out.result.results if out.error is None or not out.error.get("before_any_frame") else {}
         summary.append(
-            {"sequence": plan.sequence, "frames": out.result.frames, "failures": out.result.failures, "error": out.error, "wall_s": out.wall_s, "results": results}
+            {
+                "sequence": plan.sequence,
+                "frames": out.result.frames,
+                "failures": out.result.failures,
+                "error": out.error,
+                "wall_s": out.wall_s,
+                "results": results,
+            }
         )
     return summary

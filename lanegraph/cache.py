@@ -62,7 +62,19 @@ def digest(*parts: Any) -> str:
 #: (module, name) pairs an entry may name: builtin containers, NumPy's reconstruction functions
 #: (both spellings of numpy's private core module: 1.x ``numpy.core``, 2.x ``numpy._core``)
 _ALLOWED_GLOBALS = {
-    ("builtins", name) for name in ("list", "dict", "tuple", "set", "frozenset", "bytearray", "bytes", "complex", "slice", "range")
+    ("builtins", name)
+    for name in (
+        "list",
+        "dict",
+        "tuple",
+        "set",
+        "frozenset",
+        "bytearray",
+        "bytes",
+        "complex",
+        "slice",
+        "range",
+    )
 } | {
     ("numpy", "dtype"),
     ("numpy", "ndarray"),
@@ -138,7 +150,9 @@ class ResultCache:
         try:
             value = safe_loads(data)
         except pickle.UnpicklingError as exc:
-            warnings.warn(f"result cache: {p}: entry refused ({exc}); computed again", CacheWarning, stacklevel=2)
+            warnings.warn(
+                f"result cache: {p}: entry refused ({exc}); computed again", CacheWarning, stacklevel=2
+            )
             self.misses += 1
             return self.MISS
         except Exception:  # noqa: BLE001 - a truncated or foreign file is a miss, never an error

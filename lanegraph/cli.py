@@ -62,9 +62,19 @@ def allowed_roots(graph_path: Path) -> list[Path]:
         try:
             return p.resolve()
         except (OSError, RuntimeError) as exc:  # a symbolic link loop
-            raise GraphError([Problem(f"cannot resolve {str(p)!r}: {exc} (a symbolic link loop?)", file=where, field=field)]) from None
+            raise GraphError(
+                [
+                    Problem(
+                        f"cannot resolve {str(p)!r}: {exc} (a symbolic link loop?)", file=where, field=field
+                    )
+                ]
+            ) from None
 
-    roots = [resolved(graph_path, str(graph_path)).parent, resolved(Path.cwd(), "the current folder"), REPO_GRAPHS.resolve()]
+    roots = [
+        resolved(graph_path, str(graph_path)).parent,
+        resolved(Path.cwd(), "the current folder"),
+        REPO_GRAPHS.resolve(),
+    ]
     roots += [
         resolved(Path(p), "LANEGRAPH_GRAPH_ROOTS", p)
         for p in os.environ.get("LANEGRAPH_GRAPH_ROOTS", "").split(os.pathsep)
@@ -95,19 +105,69 @@ def main() -> None:
 
 @main.command()
 @click.argument("graph", default="paper")
-@click.option("--input", "input_path", type=click.Path(path_type=Path), help="input folder (KITTI raw drive, KITTI odometry sequence, folder of pairs); default: the built-in synthetic scene")
-@click.option("--out", "out_dir", type=click.Path(path_type=Path), default=Path("out"), show_default=True, help="output folder (one run at a time: it is locked while a run writes it)")
-@click.option("--set", "sets", multiple=True, metavar="NODE.PARAM=VALUE", help="override a param (repeatable)")
-@click.option("--frames", help="frame selection A:B, A:B:S or A (indices into the input's frames; -1 is the last)")
+@click.option(
+    "--input",
+    "input_path",
+    type=click.Path(path_type=Path),
+    help="input folder (KITTI raw drive, KITTI odometry sequence, folder of pairs); default: the built-in synthetic scene",
+)
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(path_type=Path),
+    default=Path("out"),
+    show_default=True,
+    help="output folder (one run at a time: it is locked while a run writes it)",
+)
+@click.option(
+    "--set", "sets", multiple=True, metavar="NODE.PARAM=VALUE", help="override a param (repeatable)"
+)
+@click.option(
+    "--frames", help="frame selection A:B, A:B:S or A (indices into the input's frames; -1 is the last)"
+)
 @click.option("--quiet", is_flag=True, help="no progress bar")
-@click.option("--resume", is_flag=True, help="continue an interrupted run in OUT after its last frame done (same graph, params, input and --frames)")
-@click.option("--debug-dir", type=click.Path(path_type=Path), help="save every node's output of the chosen frames as pictures, and a mosaic")
+@click.option(
+    "--resume",
+    is_flag=True,
+    help="continue an interrupted run in OUT after its last frame done (same graph, params, input and --frames)",
+)
+@click.option(
+    "--debug-dir",
+    type=click.Path(path_type=Path),
+    help="save every node's output of the chosen frames as pictures, and a mosaic",
+)
 @click.option("--debug-frames", help="frames for --debug-dir: ids or indices, comma-separated (default: all)")
-@click.option("--dataset", "dataset_path", type=click.Path(path_type=Path), help="a dataset file (YAML list of sequences) in place of --input: writes each sequence's run into OUT/<sequence>/")
-@click.option("--scheduler", metavar="SPEC", help="with --dataset: run the sequences on a Dask cluster: local, local:N (N worker processes) or a scheduler address tcp://HOST:PORT")
-@click.option("--chunk-frames", type=int, metavar="K", help="with --dataset: split sequences into chunks of K frames run as separate tasks")
-@click.option("--warmup", type=int, default=0, show_default=True, metavar="W", help="with --chunk-frames: run W frames before each chunk and discard their outputs")
-@click.option("--report", "make_report", is_flag=True, help="write OUT/report/index.html at the end (see `lanegraph report`)")
+@click.option(
+    "--dataset",
+    "dataset_path",
+    type=click.Path(path_type=Path),
+    help="a dataset file (YAML list of sequences) in place of --input: writes each sequence's run into OUT/<sequence>/",
+)
+@click.option(
+    "--scheduler",
+    metavar="SPEC",
+    help="with --dataset: run the sequences on a Dask cluster: local, local:N (N worker processes) or a scheduler address tcp://HOST:PORT",
+)
+@click.option(
+    "--chunk-frames",
+    type=int,
+    metavar="K",
+    help="with --dataset: split sequences into chunks of K frames run as separate tasks",
+)
+@click.option(
+    "--warmup",
+    type=int,
+    default=0,
+    show_default=True,
+    metavar="W",
+    help="with --chunk-frames: run W frames before each chunk and discard their outputs",
+)
+@click.option(
+    "--report",
+    "make_report",
+    is_flag=True,
+    help="write OUT/report/index.html at the end (see `lanegraph report`)",
+)
 def run(
     graph: str,
     input_path: Path | None,
@@ -128,9 +188,27 @@ def run(
     lanes, overlays), with OUT/timings.json and OUT/run.json; with --dataset, every sequence into
     OUT/<sequence>/ (in this process, or on a Dask cluster with --scheduler)."""
     if dataset_path is not None:
-        _run_dataset(graph, sets, dataset_path, out_dir, frames, quiet, scheduler, chunk_frames, warmup, input_path, resume, debug_dir, make_report)
+        _run_dataset(
+            graph,
+            sets,
+            dataset_path,
+            out_dir,
+            frames,
+            quiet,
+            scheduler,
+            chunk_frames,
+            warmup,
+            input_path,
+            resume,
+            debug_dir,
+            make_report,
+        )
         return
-    for flag, given in (("--scheduler", scheduler), ("--chunk-frames", chunk_frames), ("--warmup", warmup or None)):
+    for flag, given in (
+        ("--scheduler", scheduler),
+        ("--chunk-frames", chunk_frames),
+        ("--warmup", warmup or None),
+    ):
         if given is not None:
             click.echo(f"error: {flag} runs the sequences of a --dataset: give --dataset FILE", err=True)
             sys.exit(2)
@@ -148,7 +226,9 @@ def run(
     if debug_frames is not None:
         chosen = {item.strip() for item in debug_frames.split(",") if item.strip()}
         if not chosen:
-            _fail(UsageError(f"--debug-frames {debug_frames!r}: expected frame ids or indices, comma-separated"))
+            _fail(
+                UsageError(f"--debug-frames {debug_frames!r}: expected frame ids or indices, comma-separated")
+            )
     locks: list[OutputLock] = []
     try:
         prepare_dir(out_dir, "--out")
@@ -197,7 +277,10 @@ def _run_locked(
     if ckpt is not None:
         if ckpt.complete:
             return _nothing_to_resume(ex, ckpt, out_dir)
-        click.echo(f"resuming after frame {ckpt.last_frame} ({ckpt.position} frame(s) of the selection already done)", err=True)
+        click.echo(
+            f"resuming after frame {ckpt.last_frame} ({ckpt.position} frame(s) of the selection already done)",
+            err=True,
+        )
     recorder = None
     pm = get_plugin_manager()
     if debug_dir is not None:
@@ -215,8 +298,12 @@ def _run_locked(
     status = _report_run(ex, result, g, out_dir, input_path, recorder, debug_frames)
     if make_report and status != -1:
         try:
-            dbg = debug_dir if debug_dir is not None and debug_dir.is_dir() else None  # none if no frame was chosen
-            _write_report(out_dir, graph=g, input_path=input_path, frames=selection, debug_dir=dbg, quiet=quiet)
+            dbg = (
+                debug_dir if debug_dir is not None and debug_dir.is_dir() else None
+            )  # none if no frame was chosen
+            _write_report(
+                out_dir, graph=g, input_path=input_path, frames=selection, debug_dir=dbg, quiet=quiet
+            )
         except LanegraphError as exc:  # the run's own outputs are written: they stay
             click.echo(f"error: report: {exc}", err=True)
             status = 1
@@ -278,9 +365,18 @@ def _execute(ex: Any, g: Graph, out_dir: Path, input_path: Path | None, quiet: b
     try:
         try:
             ex.open()
-        except (InputError, UsageError) as exc:  # unusable input found before any frame ran: like a bad --input
+        except (
+            InputError,
+            UsageError,
+        ) as exc:  # unusable input found before any frame ran: like a bad --input
             _fail(exc, 2)
-        bar = tqdm(total=(len(ex) or None), unit="frame", disable=True if quiet else None, desc=g.name, file=sys.stderr)
+        bar = tqdm(
+            total=(len(ex) or None),
+            unit="frame",
+            disable=True if quiet else None,
+            desc=g.name,
+            file=sys.stderr,
+        )
 
         def tick(index: int, frame: str | None) -> None:
             bar.update(1)
@@ -308,7 +404,15 @@ def _execute(ex: Any, g: Graph, out_dir: Path, input_path: Path | None, quiet: b
             bar.close()
 
 
-def _report_run(ex: Any, result: Any, g: Graph, out_dir: Path, input_path: Path | None, recorder: Any, debug_frames: set[str] | None) -> int:
+def _report_run(
+    ex: Any,
+    result: Any,
+    g: Graph,
+    out_dir: Path,
+    input_path: Path | None,
+    recorder: Any,
+    debug_frames: set[str] | None,
+) -> int:
     """Write the run's record and say what it did: 0, 1 (frames failed) or -1 (its record could
     not be written)."""
     status = 0
@@ -316,14 +420,19 @@ def _report_run(ex: Any, result: Any, g: Graph, out_dir: Path, input_path: Path 
     if result.failures:
         click.echo(f"{len(result.failures)} frame(s) failed:", err=True)
         for f in result.failures:
-            click.echo(f"  frame {f.frame} (#{f.index}): node '{f.node_id}' ({f.node_type}): {f.error}", err=True)
+            click.echo(
+                f"  frame {f.frame} (#{f.index}): node '{f.node_id}' ({f.node_type}): {f.error}", err=True
+            )
         status = 1
     for w in result.warnings():
         click.echo(f"warning: {w}", err=True)
     if recorder is not None and debug_frames is not None:
         missed = sorted(f for f in debug_frames if f not in recorder.matched)
         if missed:
-            click.echo(f"warning: --debug-frames {', '.join(missed)} matched no frame of the run; nothing recorded for them", err=True)
+            click.echo(
+                f"warning: --debug-frames {', '.join(missed)} matched no frame of the run; nothing recorded for them",
+                err=True,
+            )
     if not written:
         return -1
     outputs = [str(p) for inst in ex.instances.values() for p in getattr(inst, "outputs", [])]
@@ -335,16 +444,38 @@ def _report_run(ex: Any, result: Any, g: Graph, out_dir: Path, input_path: Path 
     return status
 
 
-def _run_dataset(graph, sets, dataset_path, out_dir, frames, quiet, scheduler, chunk_frames, warmup, input_path, resume, debug_dir, make_report) -> None:
+def _run_dataset(
+    graph,
+    sets,
+    dataset_path,
+    out_dir,
+    frames,
+    quiet,
+    scheduler,
+    chunk_frames,
+    warmup,
+    input_path,
+    resume,
+    debug_dir,
+    make_report,
+) -> None:
     """``run GRAPH --dataset FILE``: every sequence into OUT/<sequence>/; exit 1 when a frame failed
     or a sequence stopped, 2 when no sequence could start."""
     from .batch import ResolvedGraph, describe_error, parse_scheduler, run_dataset
     from .dataset import load_dataset
     from .paths import OutputLock, prepare_dir
 
-    for flag, given in (("--input", input_path), ("--resume", resume or None), ("--debug-dir", debug_dir), ("--report", make_report or None)):
+    for flag, given in (
+        ("--input", input_path),
+        ("--resume", resume or None),
+        ("--debug-dir", debug_dir),
+        ("--report", make_report or None),
+    ):
         if given is not None:
-            click.echo(f"error: {flag} is for a run on one input; --dataset names the inputs (give one or the other)", err=True)
+            click.echo(
+                f"error: {flag} is for a run on one input; --dataset names the inputs (give one or the other)",
+                err=True,
+            )
             sys.exit(2)
     _plugins()
     try:
@@ -359,7 +490,9 @@ def _run_dataset(graph, sets, dataset_path, out_dir, frames, quiet, scheduler, c
     except LanegraphError as exc:  # a usage error
         _fail(exc, 2)
     try:
-        summary = run_dataset(resolved, dataset, out_dir, parse_frames(frames), spec, chunk_frames, warmup, progress=not quiet)
+        summary = run_dataset(
+            resolved, dataset, out_dir, parse_frames(frames), spec, chunk_frames, warmup, progress=not quiet
+        )
     except GraphError as exc:
         _fail(exc)
     except LanegraphError as exc:  # a usage error, an unusable input found before any frame ran
@@ -377,7 +510,9 @@ def _run_dataset(graph, sets, dataset_path, out_dir, frames, quiet, scheduler, c
             status = 1
         click.echo(line)
         for f in s["failures"]:
-            click.echo(f"  frame {f.frame} (#{f.index}): node '{f.node_id}' ({f.node_type}): {f.error}", err=True)
+            click.echo(
+                f"  frame {f.frame} (#{f.index}): node '{f.node_id}' ({f.node_type}): {f.error}", err=True
+            )
         if s["error"] is not None:
             click.echo(f"error: {describe_error(s['error'])}", err=True)
             status = 1
@@ -386,7 +521,9 @@ def _run_dataset(graph, sets, dataset_path, out_dir, frames, quiet, scheduler, c
     sys.exit(status)
 
 
-def _write_run_files(out_dir: Path, g: Graph, input_path: Path | None, result: Any, stopped: LanegraphError | None = None) -> bool:
+def _write_run_files(
+    out_dir: Path, g: Graph, input_path: Path | None, result: Any, stopped: LanegraphError | None = None
+) -> bool:
     """``timings.json`` and ``run.json`` (frames done, failed frames, warnings, and the error that
     stopped the run); False (and the reason on stderr) when they cannot be written (a full disk)."""
     from .paths import write_text_atomic
@@ -411,14 +548,18 @@ def _write_run_files(out_dir: Path, g: Graph, input_path: Path | None, result: A
         write_text_atomic(out_dir / "timings.json", json.dumps(result.timings_json(), indent=2) + "\n")
         write_text_atomic(out_dir / "run.json", json.dumps(record, indent=2) + "\n")
     except OSError as exc:
-        click.echo(f"error: cannot write {out_dir}/run.json and timings.json: {exc.strerror or exc}", err=True)
+        click.echo(
+            f"error: cannot write {out_dir}/run.json and timings.json: {exc.strerror or exc}", err=True
+        )
         return False
     return True
 
 
 @main.command()
 @click.argument("graph")
-@click.option("--set", "sets", multiple=True, metavar="NODE.PARAM=VALUE", help="override a param (repeatable)")
+@click.option(
+    "--set", "sets", multiple=True, metavar="NODE.PARAM=VALUE", help="override a param (repeatable)"
+)
 def validate(graph: str, sets: tuple[str, ...]) -> None:
     """Validate GRAPH (exit 2 with every problem listed when invalid)."""
     try:
@@ -482,8 +623,22 @@ def nodes_markdown(types: dict[str, NodeType], title: str = "Node reference") ->
     for fam, names in families.items():
         out.append(f"- **{fam}**: " + ", ".join(f"[`{n}`](#{n.replace('.', '')})" for n in names))
     for name, nt in types.items():
-        flags = [f for f, on in (("source", nt.source), ("sink", nt.sink), ("stateful", nt.stateful and not nt.source)) if on]
-        out += ["", f"## {name}", "", f"Plugin `{nt.plugin}`" + (f"; {', '.join(flags)}" if flags else "") + ".", ""]
+        flags = [
+            f
+            for f, on in (
+                ("source", nt.source),
+                ("sink", nt.sink),
+                ("stateful", nt.stateful and not nt.source),
+            )
+            if on
+        ]
+        out += [
+            "",
+            f"## {name}",
+            "",
+            f"Plugin `{nt.plugin}`" + (f"; {', '.join(flags)}" if flags else "") + ".",
+            "",
+        ]
         prose, sections = _split_numpydoc(nt.doc)
         if prose:
             out += [prose, ""]
@@ -496,7 +651,9 @@ def nodes_markdown(types: dict[str, NodeType], title: str = "Node reference") ->
                 continue
             out += [f"| {label.lower()[:-1]} | type | | description |", "|---|---|---|---|"]
             for pname, port in ports.items():
-                notes = ", ".join(n for n, on in (("optional", port.optional), ("constant", port.rate == "constant")) if on)
+                notes = ", ".join(
+                    n for n, on in (("optional", port.optional), ("constant", port.rate == "constant")) if on
+                )
                 out.append(f"| `{pname}` | `{port.type}` | {notes} | {_md_cell(port.doc)} |")
             out.append("")
         fields = nt.params.model_fields
@@ -525,7 +682,9 @@ def nodes_markdown(types: dict[str, NodeType], title: str = "Node reference") ->
 
 @main.command()
 @click.option("--json", "as_json", is_flag=True, help="machine-readable listing")
-@click.option("--markdown", "as_markdown", is_flag=True, help="the node reference as Markdown (docs/nodes.md)")
+@click.option(
+    "--markdown", "as_markdown", is_flag=True, help="the node reference as Markdown (docs/nodes.md)"
+)
 @click.option("--builtin", is_flag=True, help="only the node types of lanegraph's own plugins")
 def nodes(as_json: bool, as_markdown: bool, builtin: bool) -> None:
     """List the installed node types with their ports and params, the port types, and the plugins
@@ -546,16 +705,36 @@ def nodes(as_json: bool, as_markdown: bool, builtin: bool) -> None:
                     "stateful": nt.stateful,
                     "source": nt.source,
                     "sink": nt.sink,
-                    "inputs": {p: {"type": x.type, "optional": x.optional, "rate": x.rate, "doc": x.doc} for p, x in nt.inputs.items()},
-                    "outputs": {p: {"type": x.type, "rate": x.rate, "doc": x.doc} for p, x in nt.outputs.items()},
+                    "inputs": {
+                        p: {"type": x.type, "optional": x.optional, "rate": x.rate, "doc": x.doc}
+                        for p, x in nt.inputs.items()
+                    },
+                    "outputs": {
+                        p: {"type": x.type, "rate": x.rate, "doc": x.doc} for p, x in nt.outputs.items()
+                    },
                     "params": nt.params.model_json_schema(),
                 }
             )
-        ports = [{"name": t.name, "description": t.description, "parent": t.parent} for t in pm.port_types.values()]
-        click.echo(json.dumps({"node_types": out, "port_types": ports, "plugin_errors": [str(e) for e in pm.plugin_errors]}, indent=2))
+        ports = [
+            {"name": t.name, "description": t.description, "parent": t.parent} for t in pm.port_types.values()
+        ]
+        click.echo(
+            json.dumps(
+                {"node_types": out, "port_types": ports, "plugin_errors": [str(e) for e in pm.plugin_errors]},
+                indent=2,
+            )
+        )
         return
     for name, nt in types.items():
-        flags = ",".join(f for f, on in (("source", nt.source), ("sink", nt.sink), ("stateful", nt.stateful and not nt.source)) if on)
+        flags = ",".join(
+            f
+            for f, on in (
+                ("source", nt.source),
+                ("sink", nt.sink),
+                ("stateful", nt.stateful and not nt.source),
+            )
+            if on
+        )
         click.echo(f"{name}  [{nt.plugin}]{' (' + flags + ')' if flags else ''}")
         if nt.summary:
             click.echo(f"    {nt.summary}")
@@ -571,7 +750,9 @@ def nodes(as_json: bool, as_markdown: bool, builtin: bool) -> None:
     if added:
         click.echo("port types added by plugins:")
         for t in added:
-            click.echo(f"    {t.name}" + (f" (feeds {t.parent} ports)" if t.parent else "") + f": {t.description}")
+            click.echo(
+                f"    {t.name}" + (f" (feeds {t.parent} ports)" if t.parent else "") + f": {t.description}"
+            )
     if pm.plugin_errors:
         click.echo("plugins not loaded:")
         for err in pm.plugin_errors:
@@ -586,7 +767,9 @@ def schema() -> None:
 
 @main.command()
 @click.argument("graph")
-@click.option("--format", "fmt", type=click.Choice(["yaml", "dot", "mermaid"]), default="yaml", show_default=True)
+@click.option(
+    "--format", "fmt", type=click.Choice(["yaml", "dot", "mermaid"]), default="yaml", show_default=True
+)
 @click.option("--set", "sets", multiple=True, metavar="NODE.PARAM=VALUE")
 def show(graph: str, fmt: str, sets: tuple[str, ...]) -> None:
     """Print the resolved graph (after extends and overrides) as YAML, Graphviz dot or Mermaid."""
@@ -602,12 +785,18 @@ def show(graph: str, fmt: str, sets: tuple[str, ...]) -> None:
         for nid in g.order:
             lines.append(f"  {q(nid)} [label={q(nid + chr(10) + g.nodes[nid].type.name)}];")
         for e in g.edges:
-            style = f", style=dashed, constraint=false, label={q(e.src_port + ' (prev)')}" if e.previous else f", label={q(e.src_port)}"
+            style = (
+                f", style=dashed, constraint=false, label={q(e.src_port + ' (prev)')}"
+                if e.previous
+                else f", label={q(e.src_port)}"
+            )
             lines.append(f"  {q(e.src_node)} -> {q(e.dst_node)} [headlabel={q(e.dst_port)}{style}];")
         lines.append("}")
         click.echo("\n".join(lines))
     else:
-        ids = {nid: f"n_{nid.replace('-', '_')}_{k}" for k, nid in enumerate(g.order)}  # never a keyword (end, graph)
+        ids = {
+            nid: f"n_{nid.replace('-', '_')}_{k}" for k, nid in enumerate(g.order)
+        }  # never a keyword (end, graph)
         lines = ["flowchart TD"]
         for nid in g.order:
             lines.append(f'  {ids[nid]}["{_mermaid_text(nid)}<br/>{_mermaid_text(g.nodes[nid].type.name)}"]')
@@ -626,27 +815,102 @@ def _dot_quote(text: str) -> str:
 
 def _mermaid_text(text: str) -> str:
     """Text inside a Mermaid quoted label: quotes and angle brackets as entities."""
-    return str(text).replace("&", "#amp;").replace('"', "#quot;").replace("<", "#lt;").replace(">", "#gt;").replace("\n", " ")
+    return (
+        str(text)
+        .replace("&", "#amp;")
+        .replace('"', "#quot;")
+        .replace("<", "#lt;")
+        .replace(">", "#gt;")
+        .replace("\n", " ")
+    )
 
 
 @main.command()
 @click.argument("base", type=click.Path(path_type=Path))
 @click.argument("variants", nargs=-1, type=click.Path(path_type=Path))
-@click.option("--input", "input_path", type=click.Path(path_type=Path), help="input folder; default: the built-in synthetic scene")
-@click.option("--gt", "gt_path", type=click.Path(path_type=Path), help="ground truth lanes_gt.jsonl to evaluate against")
-@click.option("--dataset", "dataset_path", type=click.Path(path_type=Path), help="a dataset file (YAML list of sequences, each an input and a ground truth) in place of --input/--gt")
-@click.option("--sweep", "sweeps", multiple=True, metavar="NODE.PARAM=V1,V2,...", help="also run BASE once per value (repeatable)")
-@click.option("--out", "out_dir", type=click.Path(path_type=Path), default=Path("out/ablation"), show_default=True)
-@click.option("--frames", help="frame selection A:B or A:B:S (for every sequence that does not choose its own)")
-@click.option("--no-cache", is_flag=True, help="recompute everything (no shared results, no reuse of unchanged runs)")
-@click.option("--cache-dir", type=click.Path(path_type=Path), help="result cache folder (default: ~/.cache/lanegraph/results)")
-@click.option("--cache-max-gb", type=float, default=2.0, show_default=True, help="size bound of the result cache, GiB")
+@click.option(
+    "--input",
+    "input_path",
+    type=click.Path(path_type=Path),
+    help="input folder; default: the built-in synthetic scene",
+)
+@click.option(
+    "--gt", "gt_path", type=click.Path(path_type=Path), help="ground truth lanes_gt.jsonl to evaluate against"
+)
+@click.option(
+    "--dataset",
+    "dataset_path",
+    type=click.Path(path_type=Path),
+    help="a dataset file (YAML list of sequences, each an input and a ground truth) in place of --input/--gt",
+)
+@click.option(
+    "--sweep",
+    "sweeps",
+    multiple=True,
+    metavar="NODE.PARAM=V1,V2,...",
+    help="also run BASE once per value (repeatable)",
+)
+@click.option(
+    "--out", "out_dir", type=click.Path(path_type=Path), default=Path("out/ablation"), show_default=True
+)
+@click.option(
+    "--frames", help="frame selection A:B or A:B:S (for every sequence that does not choose its own)"
+)
+@click.option(
+    "--no-cache", is_flag=True, help="recompute everything (no shared results, no reuse of unchanged runs)"
+)
+@click.option(
+    "--cache-dir",
+    type=click.Path(path_type=Path),
+    help="result cache folder (default: ~/.cache/lanegraph/results)",
+)
+@click.option(
+    "--cache-max-gb", type=float, default=2.0, show_default=True, help="size bound of the result cache, GiB"
+)
 @click.option("--quiet", is_flag=True, help="no progress bars")
-@click.option("--scheduler", metavar="SPEC", help="run on a Dask cluster: local, local:N (N worker processes) or a scheduler address tcp://HOST:PORT")
-@click.option("--chunk-frames", type=int, metavar="K", help="split sequences into chunks of K frames run as separate tasks")
-@click.option("--warmup", type=int, default=0, show_default=True, metavar="W", help="with --chunk-frames: run W frames before each chunk and discard their outputs")
-@click.option("--report", "make_report", is_flag=True, help="write OUT/report/index.html at the end (see `lanegraph report`)")
-def ablate(base, variants, input_path, gt_path, dataset_path, sweeps, out_dir, frames, no_cache, cache_dir, cache_max_gb, quiet, scheduler, chunk_frames, warmup, make_report=False):
+@click.option(
+    "--scheduler",
+    metavar="SPEC",
+    help="run on a Dask cluster: local, local:N (N worker processes) or a scheduler address tcp://HOST:PORT",
+)
+@click.option(
+    "--chunk-frames",
+    type=int,
+    metavar="K",
+    help="split sequences into chunks of K frames run as separate tasks",
+)
+@click.option(
+    "--warmup",
+    type=int,
+    default=0,
+    show_default=True,
+    metavar="W",
+    help="with --chunk-frames: run W frames before each chunk and discard their outputs",
+)
+@click.option(
+    "--report",
+    "make_report",
+    is_flag=True,
+    help="write OUT/report/index.html at the end (see `lanegraph report`)",
+)
+def ablate(
+    base,
+    variants,
+    input_path,
+    gt_path,
+    dataset_path,
+    sweeps,
+    out_dir,
+    frames,
+    no_cache,
+    cache_dir,
+    cache_max_gb,
+    quiet,
+    scheduler,
+    chunk_frames,
+    warmup,
+    make_report=False,
+):
     """Run BASE and every VARIANT (and every --sweep point) over the same input or dataset, evaluate
     each and write OUT/results.csv (per sequence and pooled), OUT/results.md and plots; runs go to
     OUT/runs/<variant>/<sequence>/; work shared between variants is computed once. A run that
@@ -676,25 +940,44 @@ def ablate(base, variants, input_path, gt_path, dataset_path, sweeps, out_dir, f
     _ablation_end(rows, out_dir, cache, time.perf_counter() - t0)
     if make_report:
         try:  # the base variant's source reads the left images; its graph is drawn
-            _write_report(out_dir, dataset=dataset, frames=selection, graph=_load(str(runs[0].graph), tuple(runs[0].sets), pm), quiet=quiet)
+            _write_report(
+                out_dir,
+                dataset=dataset,
+                frames=selection,
+                graph=_load(str(runs[0].graph), tuple(runs[0].sets), pm),
+                quiet=quiet,
+            )
         except LanegraphError as exc:  # the ablation's own outputs are written: they stay
             _fail(exc, 1)
     _ablation_failures(rows)
 
 
-def _run_ablation(lock: Any, runs: list[Any], dataset: Any, out_dir: Path, selection: slice | None, cache: Any, options: dict[str, Any]) -> list[dict[str, Any]]:
+def _run_ablation(
+    lock: Any,
+    runs: list[Any],
+    dataset: Any,
+    out_dir: Path,
+    selection: slice | None,
+    cache: Any,
+    options: dict[str, Any],
+) -> list[dict[str, Any]]:
     """:func:`lanegraph.ablate.run_ablation` with OUT locked; its errors located, exit 2 for an
     input or usage found unusable before any run, 130 on Ctrl-C (the finished runs stay)."""
     from .ablate import run_ablation
 
     try:
         return run_ablation(runs, dataset, out_dir, selection, cache, **options)
-    except (InputError, UsageError) as exc:  # a ground truth, input or usage unusable before any run: like `run`, exit 2
+    except (
+        InputError,
+        UsageError,
+    ) as exc:  # a ground truth, input or usage unusable before any run: like `run`, exit 2
         _fail(exc, 2)
     except LanegraphError as exc:
         _fail(exc)
     except KeyboardInterrupt:
-        click.echo(f"error: interrupted (Ctrl-C); the finished runs are in {out_dir}/runs and results.md", err=True)
+        click.echo(
+            f"error: interrupted (Ctrl-C); the finished runs are in {out_dir}/runs and results.md", err=True
+        )
         sys.exit(130)
     except OSError as exc:
         _fail(LanegraphError(f"{str(exc.filename) + ': ' if exc.filename else ''}{exc.strerror or exc}"), 1)
@@ -713,7 +996,9 @@ def _ablation_end(rows: list[dict[str, Any]], out_dir: Path, cache: Any, seconds
         sys.exit(2)
     click.echo((out_dir / "results.md").read_text())
     hits = f", cache {cache.hits} hits / {cache.misses} misses" if cache is not None else ", no cache"
-    click.echo(f"{len(rows)} row(s) in {seconds:.1f} s{hits} -> {out_dir}/results.md, results.csv, accuracy.png, accuracy_vs_ms.png")
+    click.echo(
+        f"{len(rows)} row(s) in {seconds:.1f} s{hits} -> {out_dir}/results.md, results.csv, accuracy.png, accuracy_vs_ms.png"
+    )
 
 
 def _ablation_failures(rows: list[dict[str, Any]]) -> None:
@@ -725,7 +1010,9 @@ def _ablation_failures(rows: list[dict[str, Any]]) -> None:
             click.echo(f"error: run {r['variant']} / {r['sequence']} failed: {r['error']}", err=True)
         n_frames = sum(int(r.get("failed_frames") or 0) for r in runs_rows if not r.get("error"))
         if n_frames:
-            click.echo(f"{n_frames} frame(s) failed in runs that went on (on_error skip); see results.md", err=True)
+            click.echo(
+                f"{n_frames} frame(s) failed in runs that went on (on_error skip); see results.md", err=True
+            )
         sys.exit(1)
 
 
@@ -748,7 +1035,9 @@ def _ablation_variants(base: Path, variants: tuple[Path, ...], sweeps: tuple[str
     return runs
 
 
-def _ablation_out(out_dir: Path, no_cache: bool, cache_dir: Path | None, cache_max_gb: float) -> tuple[Any, Any]:
+def _ablation_out(
+    out_dir: Path, no_cache: bool, cache_dir: Path | None, cache_max_gb: float
+) -> tuple[Any, Any]:
     """OUT checked and locked, and the result cache (None with ``--no-cache``)."""
     import math
 
@@ -778,7 +1067,9 @@ def _dataset_option(dataset_path: Path | None, input_path: Path | None, gt_path:
 
     if dataset_path is not None:
         if input_path is not None or gt_path is not None:
-            raise UsageError("--dataset lists the inputs and ground truths: give it instead of --input/--gt, not with them")
+            raise UsageError(
+                "--dataset lists the inputs and ground truths: give it instead of --input/--gt, not with them"
+            )
         return load_dataset(dataset_path)
     if input_path is not None and not input_path.exists():
         raise UsageError(f"--input {input_path}: no such file or folder")
@@ -797,7 +1088,9 @@ def _scene_pose(scene: Path) -> tuple[float, float]:
         raise InputError(f"cannot read the scene description: {exc}", path=str(scene)) from None
     if not isinstance(info, dict):
         raise InputError("expected a JSON object with height and pitch_rad (or pitch_deg)", path=str(scene))
-    pitch = info.get("pitch_rad", math.radians(info["pitch_deg"]) if _is_number(info.get("pitch_deg")) else 0.0)
+    pitch = info.get(
+        "pitch_rad", math.radians(info["pitch_deg"]) if _is_number(info.get("pitch_deg")) else 0.0
+    )
     height = info.get("height")
     for key, v in (("pitch_rad", pitch), ("height", height)):
         if not _is_number(v) or not math.isfinite(v):
@@ -814,12 +1107,38 @@ def _is_number(v: object) -> bool:
 @main.command(name="eval")
 @click.argument("pred", type=click.Path(path_type=Path))
 @click.argument("gt", type=click.Path(path_type=Path), required=False)
-@click.option("--dataset", "dataset_path", type=click.Path(path_type=Path), help="a dataset file: PRED is then a folder with a run folder PRED/<sequence>/ per sequence (as `run --dataset` writes)")
+@click.option(
+    "--dataset",
+    "dataset_path",
+    type=click.Path(path_type=Path),
+    help="a dataset file: PRED is then a folder with a run folder PRED/<sequence>/ per sequence (as `run --dataset` writes)",
+)
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
-@click.option("--metrics", default="readme,culane,tusimple", show_default=True, help="readme, culane, tusimple, lateral (comma-separated)")
-@click.option("--scene", type=click.Path(path_type=Path), help="scene.json of a synthetic sequence (pitch, height) for the lateral error")
-@click.option("--calib", type=click.Path(path_type=Path), help="the calibration for the lateral error: a calibration file, or an input folder (default: the folder of --scene)")
-def eval_cmd(pred: Path, gt: Path | None, dataset_path: Path | None, as_json: bool, metrics: str, scene: Path | None, calib: Path | None) -> None:
+@click.option(
+    "--metrics",
+    default="readme,culane,tusimple",
+    show_default=True,
+    help="readme, culane, tusimple, lateral (comma-separated)",
+)
+@click.option(
+    "--scene",
+    type=click.Path(path_type=Path),
+    help="scene.json of a synthetic sequence (pitch, height) for the lateral error",
+)
+@click.option(
+    "--calib",
+    type=click.Path(path_type=Path),
+    help="the calibration for the lateral error: a calibration file, or an input folder (default: the folder of --scene)",
+)
+def eval_cmd(
+    pred: Path,
+    gt: Path | None,
+    dataset_path: Path | None,
+    as_json: bool,
+    metrics: str,
+    scene: Path | None,
+    calib: Path | None,
+) -> None:
     """Evaluate PRED (a run's lanes file, or its run folder) against GT lanes_gt.jsonl: the lane
     metric of the data README, plus
     CULane-style F1, TuSimple-style accuracy and, for synthetic scenes, the lateral error in cm.
@@ -827,18 +1146,27 @@ def eval_cmd(pred: Path, gt: Path | None, dataset_path: Path | None, as_json: bo
     wanted = {m.strip() for m in metrics.split(",") if m.strip()}
     unknown = wanted - {"readme", "culane", "tusimple", "lateral"}
     if unknown:
-        click.echo(f"error: --metrics: unknown metric(s) {sorted(unknown)}; expected readme, culane, tusimple, lateral", err=True)
+        click.echo(
+            f"error: --metrics: unknown metric(s) {sorted(unknown)}; expected readme, culane, tusimple, lateral",
+            err=True,
+        )
         sys.exit(2)
     if scene is not None:
         wanted.add("lateral")
     if dataset_path is not None:
         if gt is not None:
-            click.echo("error: --dataset names every sequence's ground truth: give PRED (a folder) and --dataset, not GT", err=True)
+            click.echo(
+                "error: --dataset names every sequence's ground truth: give PRED (a folder) and --dataset, not GT",
+                err=True,
+            )
             sys.exit(2)
         _eval_dataset(pred, dataset_path, as_json)
         return
     if gt is None:
-        click.echo("error: missing GT (a lanes_gt.jsonl), or --dataset FILE with PRED a folder of <sequence>/ run folders", err=True)
+        click.echo(
+            "error: missing GT (a lanes_gt.jsonl), or --dataset FILE with PRED a folder of <sequence>/ run folders",
+            err=True,
+        )
         sys.exit(2)
     try:
         res = _eval_one(pred, gt, wanted, scene, calib)
@@ -851,7 +1179,9 @@ def eval_cmd(pred: Path, gt: Path | None, dataset_path: Path | None, as_json: bo
     _print_eval(res)
 
 
-def _eval_one(pred: Path, gt: Path, wanted: set[str], scene: Path | None, calib: Path | None) -> dict[str, Any]:
+def _eval_one(
+    pred: Path, gt: Path, wanted: set[str], scene: Path | None, calib: Path | None
+) -> dict[str, Any]:
     from .metrics import evaluate, read_ground_truth, read_predictions
     from .metrics_extra import culane_metrics, lateral_error_cm, tusimple_metrics
 
@@ -873,7 +1203,9 @@ def _eval_one(pred: Path, gt: Path, wanted: set[str], scene: Path | None, calib:
         res["tusimple"] = tusimple_metrics(pred_recs, gt_recs)
     if "lateral" in wanted:
         if scene is None:
-            raise UsageError("--metrics lateral needs --scene scene.json (and --calib, default: the calibration of the input folder holding it)")
+            raise UsageError(
+                "--metrics lateral needs --scene scene.json (and --calib, default: the calibration of the input folder holding it)"
+            )
         from .sources import read_calibration
 
         cal = read_calibration(_plugins(), calib or Path(scene).parent)
@@ -888,7 +1220,9 @@ def _run_lanes(folder: Path, what: str = "") -> Path:
 
     lanes = find_result(folder, LANES, get_plugin_manager())
     if lanes is None:
-        raise UsageError(f"{folder}: no predictions{' for ' + what if what else ''} (expected {describe(folder, LANES)})")
+        raise UsageError(
+            f"{folder}: no predictions{' for ' + what if what else ''} (expected {describe(folder, LANES)})"
+        )
     return lanes
 
 
@@ -905,12 +1239,16 @@ def _print_eval(res: dict[str, Any]) -> None:
     click.echo(f"mean |dx|:       {'n/a' if dx is None else f'{dx:.2f} px'}")
     if "culane" in res:
         c = res["culane"]
-        click.echo(f"CULane F1:       {_pct(c['f1'])} (precision {_pct(c['precision'])}, recall {_pct(c['recall'])}; TP {c['tp']} FP {c['fp']} FN {c['fn']})")
+        click.echo(
+            f"CULane F1:       {_pct(c['f1'])} (precision {_pct(c['precision'])}, recall {_pct(c['recall'])}; TP {c['tp']} FP {c['fp']} FN {c['fn']})"
+        )
     if "tusimple" in res:
         t = res["tusimple"]
         click.echo(f"TuSimple:        accuracy {_pct(t['accuracy'])}, FP {_pct(t['fp'])}, FN {_pct(t['fn'])}")
     if "lateral_error_cm" in res:
-        lat = ", ".join(f"{k} m: {'n/a' if v is None else f'{v:.1f} cm'}" for k, v in res["lateral_error_cm"].items())
+        lat = ", ".join(
+            f"{k} m: {'n/a' if v is None else f'{v:.1f} cm'}" for k, v in res["lateral_error_cm"].items()
+        )
         click.echo(f"lateral error:   {lat}")
     if res["failed_frames"]:
         click.echo(f"failed frames ({len(res['failed_frames'])}):")
@@ -926,7 +1264,9 @@ def _eval_dataset(pred_dir: Path, dataset_path: Path, as_json: bool) -> None:
     try:
         ds = load_dataset(dataset_path)
         if not pred_dir.is_dir():
-            raise UsageError(f"{pred_dir}: expected a folder with a run folder <sequence>/ for each sequence of {dataset_path}")
+            raise UsageError(
+                f"{pred_dir}: expected a folder with a run folder <sequence>/ for each sequence of {dataset_path}"
+            )
         pairs = []
         for seq in ds:
             gt = read_gt(seq, seq.frames)
@@ -963,13 +1303,42 @@ def _eval_dataset(pred_dir: Path, dataset_path: Path, as_json: bool) -> None:
 
 @main.command()
 @click.argument("run_dir", type=click.Path(path_type=Path))
-@click.option("--gt", "gt_path", type=click.Path(path_type=Path), help="ground truth lanes_gt.jsonl (default: lanes_gt.jsonl in the input folder, when there is one)")
-@click.option("--dataset", "dataset_path", type=click.Path(path_type=Path), help="a dataset file: each sequence's input and ground truth (RUN_DIR/<sequence>/ run folders, or an ablation's runs)")
-@click.option("--input", "input_path", type=click.Path(path_type=Path), help="the input folder, where run.json names none or it moved (an ablation over one --input)")
-@click.option("--frames", help="the frame selection A:B or A:B:S the run was made with (the ground truth is cut alike)")
-@click.option("--set", "sets", multiple=True, metavar="NODE.PARAM=VALUE", help="the --set overrides the run was made with (its source node reads the left images)")
-@click.option("--debug-dir", type=click.Path(path_type=Path), help="the run's --debug-dir (default: one found inside RUN_DIR)")
-@click.option("--out", "out_dir", type=click.Path(path_type=Path), help="report folder  [default: RUN_DIR/report]")
+@click.option(
+    "--gt",
+    "gt_path",
+    type=click.Path(path_type=Path),
+    help="ground truth lanes_gt.jsonl (default: lanes_gt.jsonl in the input folder, when there is one)",
+)
+@click.option(
+    "--dataset",
+    "dataset_path",
+    type=click.Path(path_type=Path),
+    help="a dataset file: each sequence's input and ground truth (RUN_DIR/<sequence>/ run folders, or an ablation's runs)",
+)
+@click.option(
+    "--input",
+    "input_path",
+    type=click.Path(path_type=Path),
+    help="the input folder, where run.json names none or it moved (an ablation over one --input)",
+)
+@click.option(
+    "--frames", help="the frame selection A:B or A:B:S the run was made with (the ground truth is cut alike)"
+)
+@click.option(
+    "--set",
+    "sets",
+    multiple=True,
+    metavar="NODE.PARAM=VALUE",
+    help="the --set overrides the run was made with (its source node reads the left images)",
+)
+@click.option(
+    "--debug-dir",
+    type=click.Path(path_type=Path),
+    help="the run's --debug-dir (default: one found inside RUN_DIR)",
+)
+@click.option(
+    "--out", "out_dir", type=click.Path(path_type=Path), help="report folder  [default: RUN_DIR/report]"
+)
 @click.option("--open", "open_browser", is_flag=True, help="open the report in the web browser")
 @click.option("--quiet", is_flag=True, help="no progress messages")
 def report(run_dir, gt_path, dataset_path, input_path, frames, sets, debug_dir, out_dir, open_browser, quiet):
@@ -990,7 +1359,15 @@ def report(run_dir, gt_path, dataset_path, input_path, frames, sets, debug_dir, 
         webbrowser.open(summary.index.resolve().as_uri())
 
 
-def _write_report(run_dir: Path, *, dataset=None, dataset_path: Path | None = None, gt_path: Path | None = None, quiet: bool = False, **kwargs: Any):
+def _write_report(
+    run_dir: Path,
+    *,
+    dataset=None,
+    dataset_path: Path | None = None,
+    gt_path: Path | None = None,
+    quiet: bool = False,
+    **kwargs: Any,
+):
     """`lanegraph report` and the --report of run and ablate: write the report and print its
     summary line (how many frames, failed ones, its size)."""
     from .dataset import load_dataset

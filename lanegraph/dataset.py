@@ -45,10 +45,17 @@ POOLED = "all"
 class _SequenceModel(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
-    name: str = Field(description="the sequence's name: a folder name of the outputs (letters, digits, _ - .)")
-    input: str = Field(description="input folder (KITTI raw drive, KITTI odometry sequence, folder of pairs), relative to the dataset file")
+    name: str = Field(
+        description="the sequence's name: a folder name of the outputs (letters, digits, _ - .)"
+    )
+    input: str = Field(
+        description="input folder (KITTI raw drive, KITTI odometry sequence, folder of pairs), relative to the dataset file"
+    )
     gt: str | None = Field(None, description="ground truth lanes_gt.jsonl, relative to the dataset file")
-    frames: str | None = Field(None, description="frame selection A:B or A:B:S over the input's frames (the ground truth is cut alike)")
+    frames: str | None = Field(
+        None,
+        description="frame selection A:B or A:B:S over the input's frames (the ground truth is cut alike)",
+    )
 
     @field_validator("frames")
     @classmethod
@@ -60,7 +67,9 @@ class _SequenceModel(BaseModel):
     @classmethod
     def _plain_name(cls, v: str) -> str:
         if not _NAME.match(v) or v in (".", "..") or v == POOLED:
-            raise ValueError(f"expected a plain name (letters, digits, _ - .; not '.', '..' or '{POOLED}'), got {v!r}")
+            raise ValueError(
+                f"expected a plain name (letters, digits, _ - .; not '.', '..' or '{POOLED}'), got {v!r}"
+            )
         return v
 
 
@@ -113,7 +122,10 @@ def single_sequence(input_path: Path | None, gt: Path | None = None, frames: sli
     if input_path is None:
         name = "synthetic"
     else:
-        name = "".join(ch if ch.isalnum() or ch in "_-." else "_" for ch in Path(input_path).resolve().name) or "input"
+        name = (
+            "".join(ch if ch.isalnum() or ch in "_-." else "_" for ch in Path(input_path).resolve().name)
+            or "input"
+        )
         if name in (".", "..", POOLED):
             name = f"input_{name.strip('.')}"
     return Dataset(name, None, (SequenceSpec(name, input_path, gt, frames),))  # type: ignore[arg-type]
@@ -154,7 +166,9 @@ def load_dataset(path: str | Path, check_paths: bool = True) -> Dataset:
     seqs = []
     for s in model.sequences:
         if s.name in seen:
-            raise InputError(f"sequence {s.name!r}: the name is used twice (names become output folders)", path=str(path))
+            raise InputError(
+                f"sequence {s.name!r}: the name is used twice (names become output folders)", path=str(path)
+            )
         seen.add(s.name)
         inp = (base / s.input).resolve()
         gt = (base / s.gt).resolve() if s.gt else None
@@ -176,7 +190,9 @@ def read_gt(seq: SequenceSpec, frames: slice | None = None) -> list[dict[str, An
     return gt[frames] if frames is not None else gt
 
 
-def evaluate_sequences(pairs: Iterable[tuple[str, list[Mapping[str, Any]], list[Mapping[str, Any]]]]) -> dict[str, dict[str, Any]]:
+def evaluate_sequences(
+    pairs: Iterable[tuple[str, list[Mapping[str, Any]], list[Mapping[str, Any]]]],
+) -> dict[str, dict[str, Any]]:
     """Evaluate ``(name, predictions, ground truth)`` per sequence and pooled.
 
     Returns ``{name: result, ..., "all": pooled}`` with the keys of :func:`lanegraph.metrics.evaluate`

@@ -112,7 +112,11 @@ def _probe() -> dict[str, Any]:
         cpus = sorted(os.sched_getaffinity(0))
     except AttributeError:  # pragma: no cover - not Linux
         cpus = list(range(os.cpu_count() or 1))
-    return {"lanegraph": lanegraph.__version__, "plugins": sorted({nt.plugin for nt in pm.node_types.values()}), "cpus": cpus}
+    return {
+        "lanegraph": lanegraph.__version__,
+        "plugins": sorted({nt.plugin for nt in pm.node_types.values()}),
+        "cpus": cpus,
+    }
 
 
 def _host(address: str) -> str:
@@ -166,8 +170,19 @@ class _Cluster:
         if spec.local:
             n = spec.workers or _cores()
             threads = max(1, _cores() // n)
-            env = {k: str(threads) for k in ("LANEGRAPH_WORKER_THREADS", "NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
-            echo(f"starting a local Dask cluster: {n} worker process(es), 1 task and {threads} OpenCV/numba thread(s) each ...")
+            env = {
+                k: str(threads)
+                for k in (
+                    "LANEGRAPH_WORKER_THREADS",
+                    "NUMBA_NUM_THREADS",
+                    "OMP_NUM_THREADS",
+                    "OPENBLAS_NUM_THREADS",
+                    "MKL_NUM_THREADS",
+                )
+            }
+            echo(
+                f"starting a local Dask cluster: {n} worker process(es), 1 task and {threads} OpenCV/numba thread(s) each ..."
+            )
             import dask
 
             try:
@@ -175,21 +190,32 @@ class _Cluster:
                 # the tasks are long and of unequal length
                 with dask.config.set({"distributed.scheduler.worker-saturation": 1.0}):
                     self.cluster = distributed.LocalCluster(
-                        n_workers=n, threads_per_worker=1, processes=True, env=env, silence_logs=logging.ERROR, dashboard_address="127.0.0.1:8787"
+                        n_workers=n,
+                        threads_per_worker=1,
+                        processes=True,
+                        env=env,
+                        silence_logs=logging.ERROR,
+                        dashboard_address="127.0.0.1:8787",
                     )
             except Exception as exc:  # noqa: BLE001 - e.g. no free port, a worker that cannot start
-                raise UsageError(f"--scheduler {spec.text}: could not start a local Dask cluster: {type(exc).__name__}: {exc}") from None
+                raise UsageError(
+                    f"--scheduler {spec.text}: could not start a local Dask cluster: {type(exc).__name__}: {exc}"
+                ) from None
             self.client = distributed.Client(self.cluster)
             self._echo_dashboard(echo)
         else:
             echo(f"connecting to the Dask scheduler at {spec.address} ...")
             try:
-                if spec.address.endswith(".json") and "://" not in spec.address:  # dask scheduler --scheduler-file
+                if (
+                    spec.address.endswith(".json") and "://" not in spec.address
+                ):  # dask scheduler --scheduler-file
                     self.client = distributed.Client(scheduler_file=spec.address, timeout=CONNECT_TIMEOUT_S)
                 else:
                     self.client = distributed.Client(spec.address, timeout=CONNECT_TIMEOUT_S)
             except (OSError, TimeoutError, ValueError) as exc:
-                raise UsageError(f"--scheduler {spec.address}: could not reach a Dask scheduler there within {CONNECT_TIMEOUT_S:.0f} s ({exc})") from None
+                raise UsageError(
+                    f"--scheduler {spec.address}: could not reach a Dask scheduler there within {CONNECT_TIMEOUT_S:.0f} s ({exc})"
+                ) from None
             self._echo_dashboard(echo)
         try:
             self._check_workers(spec, echo)
@@ -201,7 +227,9 @@ class _Cluster:
         if "dashboard" not in self.client.scheduler_info().get("services", {}):
             return
         if self.cluster is not None and importlib.util.find_spec("bokeh") is None:
-            echo('Dask dashboard: none (pip install "lanegraph[distributed]" installs bokeh, which serves it)')
+            echo(
+                'Dask dashboard: none (pip install "lanegraph[distributed]" installs bokeh, which serves it)'
+            )
             return
         echo(f"Dask dashboard: {self.client.dashboard_link}")
 
@@ -212,7 +240,9 @@ class _Cluster:
             try:
                 client.wait_for_workers(1, timeout=CONNECT_TIMEOUT_S)
             except TimeoutError:
-                raise UsageError(f"--scheduler {spec.text}: no Dask worker joined within {CONNECT_TIMEOUT_S:.0f} s (start some with `dask worker {spec.text}`)") from None
+                raise UsageError(
+                    f"--scheduler {spec.text}: no Dask worker joined within {CONNECT_TIMEOUT_S:.0f} s (start some with `dask worker {spec.text}`)"
+                ) from None
         probes = client.run(_probe, on_error="return")
         bad = {addr: res for addr, res in probes.items() if isinstance(res, BaseException)}
         if bad:
@@ -225,7 +255,9 @@ class _Cluster:
         for addr, info in probes.items():
             missing = sorted(mine - set(info["plugins"]))
             if missing:
-                echo(f"warning: Dask worker {addr} lacks plugin(s) {', '.join(missing)}: graphs using them fail there")
+                echo(
+                    f"warning: Dask worker {addr} lacks plugin(s) {', '.join(missing)}: graphs using them fail there"
+                )
         workers = client.scheduler_info()["workers"]
         shares = thread_shares(workers, {a: info["cpus"] for a, info in probes.items()})
         per_host: dict[str, int] = {}
@@ -250,7 +282,11 @@ class _Cluster:
 
 
 def run_tasks(
-    tasks: list[RunTask], spec: SchedulerSpec, progress: bool = True, echo: Callable[[str], None] | None = None, done: dict[int, TaskOutcome] | None = None
+    tasks: list[RunTask],
+    spec: SchedulerSpec,
+    progress: bool = True,
+    echo: Callable[[str], None] | None = None,
+    done: dict[int, TaskOutcome] | None = None,
 ) -> dict[int, TaskOutcome]:
     """Run ``tasks`` on the cluster of ``spec``; returns the outcome of every task (a task Dask
     could not run -- its workers kept dying, or it could not be unpickled -- gets an outcome with
@@ -269,7 +305,9 @@ def run_tasks(
             # cache is filled first); without one the longest first, so that no long run is left last
             order = tasks if any(t.cache_dir for t in tasks) else sorted(tasks, key=lambda t: -(t.total or 0))
             for task in order:
-                fut = client.submit(_run_on_worker, task, topic, key=f"lanegraph-{topic[-12:]}-{task.index}", pure=False)
+                fut = client.submit(
+                    _run_on_worker, task, topic, key=f"lanegraph-{topic[-12:]}-{task.index}", pure=False
+                )
                 futures[fut] = task
             for fut in distributed.as_completed(list(futures)):
                 task = futures[fut]

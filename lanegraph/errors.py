@@ -12,7 +12,9 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 
-def did_you_mean(word: object, choices: Iterable[object], *, listing: str | None = None, cutoff: float = 0.6) -> str | None:
+def did_you_mean(
+    word: object, choices: Iterable[object], *, listing: str | None = None, cutoff: float = 0.6
+) -> str | None:
     """The hint for a name that is not one of ``choices``: ``did you mean 'X'?`` for the closest
     one (``difflib``, similarity at least ``cutoff``); otherwise ``LISTING: a, b, c`` (``(none)``
     when there are no choices) when a ``listing`` label is given, else None."""
@@ -112,6 +114,5 @@ class NodeError(LanegraphError):
         self.frame = frame
         self.cause = cause
         super().__init__(
-            f"node '{node_id}' ({node_type}) failed on frame {frame}: "
-            f"{type(cause).__name__}: {cause}"
+            f"node '{node_id}' ({node_type}) failed on frame {frame}: {type(cause).__name__}: {cause}"
         )

@@ -62,7 +62,13 @@ class FrameFailure:
     error: str
 
     def to_json(self) -> dict[str, Any]:
-        return {"frame": self.frame, "index": self.index, "node": self.node_id, "type": self.node_type, "error": self.error}
+        return {
+            "frame": self.frame,
+            "index": self.index,
+            "node": self.node_id,
+            "type": self.node_type,
+            "error": self.error,
+        }
 
 
 @dataclass
@@ -85,7 +91,9 @@ class RunResult:
     invalid_outputs: dict[str, list[int]] = field(default_factory=dict)
     resumed_frames: int = 0
     notes: list[str] = field(default_factory=list)
-    results: dict[str, str] = field(default_factory=dict)  # the sinks' result files by kind (lanegraph.results)
+    results: dict[str, str] = field(
+        default_factory=dict
+    )  # the sinks' result files by kind (lanegraph.results)
 
     def warnings(self) -> list[str]:
         """Things that did not fail a frame but make the result doubtful: an output invalid on every
@@ -113,7 +121,10 @@ class RunResult:
         out: dict[str, Any] = {"frames": self.frames, "nodes": nodes}
         if self.frame_ms:
             total = np.asarray(self.frame_ms)
-            out["total"] = {"median_ms": round(float(np.median(total)), 3), "p90_ms": round(float(np.percentile(total, 90)), 3)}
+            out["total"] = {
+                "median_ms": round(float(np.median(total)), 3),
+                "p90_ms": round(float(np.percentile(total, 90)), 3),
+            }
         return out
 
 
@@ -174,17 +185,25 @@ class Executor:
             where = checkpoint or Path("checkpoint")
             check_identity(resume, where, **{k: v for k, v in self.identity.items() if k != "graph"})
             if ctx0.skip != resume.position:
-                raise UsageError(f"{where}: the run context skips {ctx0.skip} frame(s), the checkpoint has done {resume.position}")
+                raise UsageError(
+                    f"{where}: the run context skips {ctx0.skip} frame(s), the checkpoint has done {resume.position}"
+                )
             sources = {(e.src_node, e.src_port) for e in graph.edges if e.previous}
             for i, fb in enumerate(resume.feedback):
                 if (fb.node, fb.port) not in sources:
-                    raise UsageError(f"{where}: feedback[{i}]: no feedback edge of the graph comes from {fb.node}.{fb.port}{_HINT}")
-            self._resumed_feedback = decode_feedback(resume, where)  # a malformed value: refused before anything opens
+                    raise UsageError(
+                        f"{where}: feedback[{i}]: no feedback edge of the graph comes from {fb.node}.{fb.port}{_HINT}"
+                    )
+            self._resumed_feedback = decode_feedback(
+                resume, where
+            )  # a malformed value: refused before anything opens
         self.unresumable: str | None = None
         self.prefetch = prefetch
         self.cache = cache
         self.cache_nodes = (
-            set(cache_nodes) if cache_nodes is not None else {nid for nid, n in graph.nodes.items() if not n.type.stateful}
+            set(cache_nodes)
+            if cache_nodes is not None
+            else {nid for nid, n in graph.nodes.items() if not n.type.stateful}
         )
         self.pm = pm or get_plugin_manager()
         self.context = context or RunContext()
@@ -198,7 +217,9 @@ class Executor:
         """A source node that stands for others (``select_source``, e.g. ``io.auto``) is replaced
         by the source type it names for the input path, with that type's default params."""
         src = self.graph.source
-        nt = select_source(self.pm, src.type, src.params, self.context.input_path, file=self.graph.file, node=src.id)
+        nt = select_source(
+            self.pm, src.type, src.params, self.context.input_path, file=self.graph.file, node=src.id
+        )
         if nt is not src.type:
             src.type = nt
             src.params = nt.params()
@@ -222,7 +243,13 @@ class Executor:
 
     # -- run -------------------------------------------------------------------
     def _call(
-        self, node: GraphNode, inputs: dict[str, Any], frame: str | None, index: int, result: RunResult, key: str | None = None
+        self,
+        node: GraphNode,
+        inputs: dict[str, Any],
+        frame: str | None,
+        index: int,
+        result: RunResult,
+        key: str | None = None,
     ) -> dict:
         hook = self.pm.hook
         hook.lanegraph_before_node(node_id=node.id, node_type=node.type.name, frame=frame, inputs=inputs)
@@ -233,7 +260,12 @@ class Executor:
                 result.timings_ms.setdefault(node.id, []).append(hit["ms"])  # the time it took to compute
                 result.cache_hits[node.id] = result.cache_hits.get(node.id, 0) + 1
                 hook.lanegraph_after_node(
-                    node_id=node.id, node_type=node.type.name, frame=frame, outputs=hit["outputs"], elapsed_ms=hit["ms"], error=None
+                    node_id=node.id,
+                    node_type=node.type.name,
+                    frame=frame,
+                    outputs=hit["outputs"],
+                    elapsed_ms=hit["ms"],
+                    error=None,
                 )
                 return hit["outputs"]
         t0 = time.perf_counter()
@@ -245,7 +277,9 @@ class Executor:
             if out is None:
                 out = {}
             if not isinstance(out, dict):
-                raise TypeError(f"node function returned {type(out).__name__}, expected a dict of output ports")
+                raise TypeError(
+                    f"node function returned {type(out).__name__}, expected a dict of output ports"
+                )
             missing = set(node.type.outputs) - set(out)
             if missing and not node.type.sink:
                 raise TypeError(f"node function did not return output port(s) {sorted(missing)}")
@@ -258,20 +292,38 @@ class Executor:
         elapsed = (time.perf_counter() - t0) * 1000.0
         result.timings_ms.setdefault(node.id, []).append(elapsed)
         if err is not None:
-            hook.lanegraph_after_node(node_id=node.id, node_type=node.type.name, frame=frame, outputs=None, elapsed_ms=elapsed, error=err)
+            hook.lanegraph_after_node(
+                node_id=node.id,
+                node_type=node.type.name,
+                frame=frame,
+                outputs=None,
+                elapsed_ms=elapsed,
+                error=err,
+            )
             if node.on_error == "fail" or (node.on_error == "skip" and index < 0):  # index -1: runs once
                 raise NodeError(node.id, node.type.name, frame, err) from err
-            result.failures.append(FrameFailure(frame, index, node.id, node.type.name, f"{type(err).__name__}: {err}"))
+            result.failures.append(
+                FrameFailure(frame, index, node.id, node.type.name, f"{type(err).__name__}: {err}")
+            )
             if node.on_error == "skip":
                 raise _SkipFrame()
             return {p: None for p in node.type.outputs}
         if use_cache:
             self.cache.put(key, {"outputs": out, "ms": elapsed})
             result.cache_misses[node.id] = result.cache_misses.get(node.id, 0) + 1
-        hook.lanegraph_after_node(node_id=node.id, node_type=node.type.name, frame=frame, outputs=out, elapsed_ms=elapsed, error=None)
+        hook.lanegraph_after_node(
+            node_id=node.id,
+            node_type=node.type.name,
+            frame=frame,
+            outputs=out,
+            elapsed_ms=elapsed,
+            error=None,
+        )
         return out
 
-    def _write_checkpoint(self, position: int, frame: str | None, previous: dict, prev_keys: dict, complete: bool = False) -> None:
+    def _write_checkpoint(
+        self, position: int, frame: str | None, previous: dict, prev_keys: dict, complete: bool = False
+    ) -> None:
         """After a frame is consumed (done -- its sinks have written -- or failed): how far the run
         got, its failures, the values of the feedback edges and the stateful nodes' states, so that
         a resumed run continues exactly where this one stopped (:mod:`lanegraph.resume`)."""
@@ -314,7 +366,10 @@ class Executor:
             save_checkpoint(self.checkpoint, data)
 
     def _key(
-        self, node: GraphNode, keys: dict[tuple[str, str], str | None], prev_keys: dict[tuple[str, str], str | None]
+        self,
+        node: GraphNode,
+        keys: dict[tuple[str, str], str | None],
+        prev_keys: dict[tuple[str, str], str | None],
     ) -> str | None:
         """The content key of ``node``'s result this frame, or None when it is not determined by its
         inputs (a stateful node, or an input without a key)."""
@@ -330,7 +385,13 @@ class Executor:
             if k is None:
                 return None
             parts.append((port, k))
-        return digest(node.type.name, node.type.plugin, node.type.code_version, node.params.model_dump(mode="json"), parts)
+        return digest(
+            node.type.name,
+            node.type.plugin,
+            node.type.code_version,
+            node.params.model_dump(mode="json"),
+            parts,
+        )
 
     def open(self) -> None:
         """Instantiate the stateful nodes (sources, sinks); done by :meth:`run` if not yet done.
@@ -350,7 +411,9 @@ class Executor:
                 except LanegraphError:
                     raise
                 except OSError as exc:  # an output folder that cannot be written, say
-                    raise InputError(f"node '{nid}' ({n.type.name}): {exc.strerror or exc}", path=exc.filename) from exc
+                    raise InputError(
+                        f"node '{nid}' ({n.type.name}): {exc.strerror or exc}", path=exc.filename
+                    ) from exc
                 except Exception as exc:  # noqa: BLE001
                     raise NodeError(nid, n.type.name, None, exc) from exc
         source = self.instances[g.source.id]
@@ -360,15 +423,21 @@ class Executor:
         except TypeError:
             self._total = None
         ident = getattr(source, "identity", None)
-        self._input_identity = str(ident()) if callable(ident) else input_identity(self.context.input_path, self.context.out_dir)
+        self._input_identity = (
+            str(ident()) if callable(ident) else input_identity(self.context.input_path, self.context.out_dir)
+        )
         ck = self.resume
         if ck is None:
             return
         where = self.checkpoint or Path("checkpoint")
         if ck.input_identity != self._input_identity:
-            raise UsageError(f"{where}: the input files changed since the checkpoint (another file, size or modification time){_HINT}")
+            raise UsageError(
+                f"{where}: the input files changed since the checkpoint (another file, size or modification time){_HINT}"
+            )
         if ck.total is not None and self._total is not None and self._total != ck.total:
-            raise UsageError(f"{where}: the frame selection now has {self._total} frame(s), the checkpoint's run had {ck.total}{_HINT}")
+            raise UsageError(
+                f"{where}: the frame selection now has {self._total} frame(s), the checkpoint's run had {ck.total}{_HINT}"
+            )
         for nid, inst in self.instances.items():
             restore = getattr(inst, "restore", None)
             if callable(restore):
@@ -378,14 +447,19 @@ class Executor:
                     raise
                 except Exception as exc:  # noqa: BLE001
                     n = g.nodes[nid]
-                    raise InputError(f"node '{nid}' ({n.type.name}): cannot restore its checkpointed state: {type(exc).__name__}: {exc}", path=str(where)) from exc
+                    raise InputError(
+                        f"node '{nid}' ({n.type.name}): cannot restore its checkpointed state: {type(exc).__name__}: {exc}",
+                        path=str(where),
+                    ) from exc
 
     def run(self, on_frame: Callable[[int, str | None], None] | None = None) -> RunResult:
         """Stream every frame of the source through the graph."""
         tune_allocator()  # once per process; see lanegraph._runtime
         g = self.graph
         # kept on the executor so that a caller still has the partial result when the run stops
-        self.result = result = RunResult(node_types={nid: n.type.name for nid, n in g.nodes.items()}, results=dict(self.result_files))
+        self.result = result = RunResult(
+            node_types={nid: n.type.name for nid, n in g.nodes.items()}, results=dict(self.result_files)
+        )
         self.open()
         at = self._start()
         self.pm.hook.lanegraph_run_start(graph=g, context=self.context)
@@ -432,9 +506,20 @@ class Executor:
         consts = source.constants() if hasattr(source, "constants") else {}
         for port, v in consts.items():
             values[(src.id, port)] = v
-            keys[(src.id, port)] = digest(src.type.name, src.type.code_version, src_params, "constant", port, repr(v)) if caching else None
+            keys[(src.id, port)] = (
+                digest(src.type.name, src.type.code_version, src_params, "constant", port, repr(v))
+                if caching
+                else None
+            )
         if consts:
-            self.pm.hook.lanegraph_after_node(node_id=src.id, node_type=src.type.name, frame=None, outputs=dict(consts), elapsed_ms=0.0, error=None)
+            self.pm.hook.lanegraph_after_node(
+                node_id=src.id,
+                node_type=src.type.name,
+                frame=None,
+                outputs=dict(consts),
+                elapsed_ms=0.0,
+                error=None,
+            )
         for nid in g.order:
             if nid in self.constant_nodes:
                 n = g.nodes[nid]
@@ -446,7 +531,9 @@ class Executor:
                     keys[(nid, port)] = None if key is None else digest(key, port)
         return values, keys
 
-    def _stream(self, values: dict, keys: dict, at: _Position, on_frame: Callable[[int, str | None], None] | None) -> None:
+    def _stream(
+        self, values: dict, keys: dict, at: _Position, on_frame: Callable[[int, str | None], None] | None
+    ) -> None:
         """Every frame of the source through the graph, from ``at`` (updated as frames are consumed)."""
         g, result = self.graph, self.result
         source = self.instances[g.source.id]
@@ -463,7 +550,9 @@ class Executor:
             frame = frame_out.get("frame")
             t_frame = time.perf_counter()
             try:
-                cur, cur_keys = self._run_frame(frame_out, values, keys, at.prev_keys, at.previous, index, warm if warming else result)
+                cur, cur_keys = self._run_frame(
+                    frame_out, values, keys, at.prev_keys, at.previous, index, warm if warming else result
+                )
             except _SkipFrame:
                 at.previous, at.prev_keys, at.last_frame = {}, {}, frame
                 self._consumed(at)
@@ -486,7 +575,14 @@ class Executor:
             self._write_checkpoint(at.position, at.last_frame, at.previous, at.prev_keys)
 
     def _run_frame(
-        self, frame_out: dict[str, Any], values: dict, keys: dict, prev_keys: dict, previous: dict, index: int, res: RunResult
+        self,
+        frame_out: dict[str, Any],
+        values: dict,
+        keys: dict,
+        prev_keys: dict,
+        previous: dict,
+        index: int,
+        res: RunResult,
     ) -> tuple[dict, dict]:
         """Run the per-frame nodes on one frame of the source; returns every output and its cache
         key. Raises :class:`_SkipFrame` when a node under ``on_error: skip`` failed."""
@@ -501,17 +597,35 @@ class Executor:
         src_params = g.source.params.model_dump(mode="json") if identity is not None else None
         for port, v in frame_out.items():
             cur[(src_id, port)] = v
-            cur_keys[(src_id, port)] = None if identity is None else digest(g.source.type.name, g.source.type.code_version, src_params, identity, port)
+            cur_keys[(src_id, port)] = (
+                None
+                if identity is None
+                else digest(g.source.type.name, g.source.type.code_version, src_params, identity, port)
+            )
         # the source is an iterator read ahead, so it fires only the after-node hook
         src_ms = (self.result.timings_ms.get(src_id) or [0.0])[-1]
-        self.pm.hook.lanegraph_after_node(node_id=src_id, node_type=g.source.type.name, frame=frame, outputs=frame_out, elapsed_ms=src_ms, error=None)
+        self.pm.hook.lanegraph_after_node(
+            node_id=src_id,
+            node_type=g.source.type.name,
+            frame=frame,
+            outputs=frame_out,
+            elapsed_ms=src_ms,
+            error=None,
+        )
         for nid in g.order:
             if nid == src_id or nid in self.constant_nodes:
                 continue
             n = g.nodes[nid]
             if warming and n.type.sink:
                 continue
-            ins = {p: (previous.get((e.src_node, e.src_port)) if e.previous else cur.get((e.src_node, e.src_port))) for p, e in n.inputs.items()}
+            ins = {
+                p: (
+                    previous.get((e.src_node, e.src_port))
+                    if e.previous
+                    else cur.get((e.src_node, e.src_port))
+                )
+                for p, e in n.inputs.items()
+            }
             for p, port in n.type.inputs.items():
                 if p not in ins and port.optional:
                     ins[p] = None
@@ -553,7 +667,14 @@ class Executor:
             if kind == "error":
                 exc = item
                 frame = getattr(exc, "frame", None)
-                self.pm.hook.lanegraph_after_node(node_id=src_id, node_type=node.type.name, frame=frame, outputs=None, elapsed_ms=0.0, error=exc)
+                self.pm.hook.lanegraph_after_node(
+                    node_id=src_id,
+                    node_type=node.type.name,
+                    frame=frame,
+                    outputs=None,
+                    elapsed_ms=0.0,
+                    error=exc,
+                )
                 if not isinstance(exc, LanegraphError):
                     raise NodeError(src_id, node.type.name, None, exc) from exc
                 if node.on_error == "fail":

@@ -48,7 +48,9 @@ def selection_text(s: slice | None) -> str:
     return text + (f":{s.step}" if s.step not in (None, 1) else "")
 
 
-def select_frames(items: Sequence[T], selections: Sequence[tuple[str, slice | None]], where: str | None = None) -> list[T]:
+def select_frames(
+    items: Sequence[T], selections: Sequence[tuple[str, slice | None]], where: str | None = None
+) -> list[T]:
     """``items`` cut by each ``(description, selection)`` in turn.
 
     ``description`` names where a selection came from (``"--frames 5:9"``, ``"the source's frames

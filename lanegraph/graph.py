@@ -58,7 +58,9 @@ class InputSpec(BaseModel):
 
     from_: str = Field(alias="from", description="the producing node's output: 'node_id.port'")
     previous: bool = Field(
-        False, strict=True, description="a feedback edge: deliver the previous frame's value (None on the first frame)"
+        False,
+        strict=True,
+        description="a feedback edge: deliver the previous frame's value (None on the first frame)",
     )
 
 
@@ -68,13 +70,17 @@ class NodeSpec(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     type: str = Field(description="node type name, 'family.name' (see `lanegraph nodes`)")
-    params: dict[str, Any] = Field(default_factory=dict, description="the node type's params (validated by its model)")
+    params: dict[str, Any] = Field(
+        default_factory=dict, description="the node type's params (validated by its model)"
+    )
     inputs: dict[str, str | InputSpec | None] = Field(
         default_factory=dict,
         description="input port -> 'node_id.port' (append '@prev' for the previous frame's value) or the long form",
     )
     doc: str = Field("", description="free text: why this node is here")
-    on_error: OnError | None = Field(None, description=f"error policy for this node: {' | '.join(ON_ERROR_CHOICES)}")
+    on_error: OnError | None = Field(
+        None, description=f"error policy for this node: {' | '.join(ON_ERROR_CHOICES)}"
+    )
 
 
 class GraphSpec(BaseModel):
@@ -95,7 +101,9 @@ class GraphSpec(BaseModel):
     def _ids(cls, v: dict[str, Any]) -> dict[str, Any]:
         for k in v:
             if not re.match(_ID, k):
-                raise ValueError(f"node id {k!r} must start with a letter or '_' and contain only letters, digits, '_', '-'")
+                raise ValueError(
+                    f"node id {k!r} must start with a letter or '_' and contain only letters, digits, '_', '-'"
+                )
         return v
 
 
@@ -154,7 +162,8 @@ class Graph:
                 spec["params"] = params
             if n.inputs:
                 spec["inputs"] = {
-                    p: f"{e.src_node}.{e.src_port}" + ("@prev" if e.previous else "") for p, e in n.inputs.items()
+                    p: f"{e.src_node}.{e.src_port}" + ("@prev" if e.previous else "")
+                    for p, e in n.inputs.items()
                 }
             if n.on_error != self.on_error:
                 spec["on_error"] = n.on_error
@@ -212,7 +221,13 @@ def _resolve(
     own_nodes = data.get("nodes") or {}
     if not isinstance(own_nodes, dict):
         raise GraphError(
-            [Problem(f"expected a mapping of node id -> node, got {type(own_nodes).__name__}", file=display, field="nodes")]
+            [
+                Problem(
+                    f"expected a mapping of node id -> node, got {type(own_nodes).__name__}",
+                    file=display,
+                    field="nodes",
+                )
+            ]
         )
     problems = _override_nodes(nodes, own_nodes, origin, display, extends=ext is not None)
     problems += _remove_nodes(nodes, data.get("remove") or [], origin, display)
@@ -222,7 +237,9 @@ def _resolve(
     return merged, origin
 
 
-def _base_file(ext: Any, path: Path, display: str, chain: tuple[Path, ...], roots: list[Path] | None) -> tuple[Path, str]:
+def _base_file(
+    ext: Any, path: Path, display: str, chain: tuple[Path, ...], roots: list[Path] | None
+) -> tuple[Path, str]:
     """The file ``extends: EXT`` of graph file ``path`` names, checked: a path, no cycle, inside
     the allowed ``roots``, present. Returns (resolved path, how messages show it)."""
 
@@ -239,7 +256,9 @@ def _base_file(ext: Any, path: Path, display: str, chain: tuple[Path, ...], root
     if base_path in chain or base_path == path.resolve():
         raise problem("extends cycle: " + " -> ".join(str(p) for p in (*chain, path.resolve(), base_path)))
     if roots is not None and not any(base_path.is_relative_to(r) for r in roots):
-        raise problem(f"{ext!r} resolves to {base_path}, outside the allowed roots ({', '.join(map(str, roots))})")
+        raise problem(
+            f"{ext!r} resolves to {base_path}, outside the allowed roots ({', '.join(map(str, roots))})"
+        )
     base_display = str(Path(display).parent / ext) if display else str(base_path)
     if not base_found:
         raise problem(f"base graph file not found: {base_display} (resolved to {base_path})")
@@ -256,7 +275,14 @@ def _override_nodes(
         if spec is None:
             if nid not in nodes:
                 hint = did_you_mean(nid, nodes, listing="nodes")
-                problems.append(Problem("cannot remove: no such node in the base graph", file=display, node=str(nid), hint=hint))
+                problems.append(
+                    Problem(
+                        "cannot remove: no such node in the base graph",
+                        file=display,
+                        node=str(nid),
+                        hint=hint,
+                    )
+                )
             nodes.pop(nid, None)
             origin.pop(nid, None)
             origin[f"{nid}@removed"] = display
@@ -289,7 +315,9 @@ def _remove_nodes(nodes: dict[str, Any], removes: Any, origin: dict[str, str], d
             continue
         if nid not in nodes:
             hint = did_you_mean(nid, nodes, listing="nodes")
-            problems.append(Problem("cannot remove: no such node", file=display, node=nid, field="remove", hint=hint))
+            problems.append(
+                Problem("cannot remove: no such node", file=display, node=nid, field="remove", hint=hint)
+            )
         nodes.pop(nid, None)
         origin.pop(nid, None)
         origin[f"{nid}@removed"] = display
@@ -306,7 +334,10 @@ def parse_set(item: str) -> tuple[str, list[str], Any]:
         raise GraphError([Problem(f"--set {item!r}: expected node.param=value", field="--set")])
     try:
         parsed = yaml.safe_load(value) if value.strip() else ""
-    except (yaml.YAMLError, ValueError):  # ValueError: a value its tag cannot hold (!!int x, a 5000-digit int)
+    except (
+        yaml.YAMLError,
+        ValueError,
+    ):  # ValueError: a value its tag cannot hold (!!int x, a 5000-digit int)
         parsed = value
     return parts[0], parts[1:], parsed
 
@@ -322,7 +353,9 @@ def _apply_sets(raw: dict[str, Any], sets: list[str], origin: dict[str, str]) ->
         spec = nodes.get(nid)
         if not isinstance(spec, dict):
             hint = did_you_mean(nid, names, listing="nodes")
-            problems.append(Problem(f"--set {item!r}: no node with this id", node=nid, field="--set", hint=hint))
+            problems.append(
+                Problem(f"--set {item!r}: no node with this id", node=nid, field="--set", hint=hint)
+            )
             continue
         if path == ["type"]:
             spec.update(_merge_node(spec, {"type": value}))
@@ -376,7 +409,9 @@ def _short(value: Any, limit: int = 120) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
-def _pydantic_problems(exc: ValidationError, file: str, node: str | None, ntype: str | None, prefix: str) -> list[Problem]:
+def _pydantic_problems(
+    exc: ValidationError, file: str, node: str | None, ntype: str | None, prefix: str
+) -> list[Problem]:
     out = []
     for err in exc.errors():
         loc = _loc_str(err["loc"])
@@ -422,7 +457,9 @@ def validate_raw(
         problems += check(state)
     if problems:
         raise GraphError(_dedupe(problems))
-    return Graph(spec.name or Path(file).stem, spec.description, file, state.nodes, state.order, raw, spec.on_error)
+    return Graph(
+        spec.name or Path(file).stem, spec.description, file, state.nodes, state.order, raw, spec.on_error
+    )
 
 
 @dataclass
@@ -477,7 +514,9 @@ def _format_problem(err: Any, raw: dict[str, Any], origin: dict[str, str], file:
     if node and not rest and isinstance(err.get("input"), str):
         hint = f"a node is a mapping: {node}: {{type: {err['input']}}}"
     if err["type"] == "extra_forbidden" and rest:
-        hint = did_you_mean(rest[-1], [f.alias or k for k, f in model.model_fields.items()], listing="known keys")
+        hint = did_you_mean(
+            rest[-1], [f.alias or k for k, f in model.model_fields.items()], listing="known keys"
+        )
     nfile = origin.get(node, file) if node else file
     return Problem(msg, file=nfile, node=node, field=_loc_str(rest) or None, hint=hint)
 
@@ -496,7 +535,9 @@ def _node_types_pass(v: _Validation) -> list[Problem]:
         try:
             params = nt.params.model_validate(ns.params, context=context)
         except ValidationError as exc:
-            problems += _param_hint(nt.params, _pydantic_problems(exc, v.file_of(nid), nid, nt.name, "params"))
+            problems += _param_hint(
+                nt.params, _pydantic_problems(exc, v.file_of(nid), nid, nt.name, "params")
+            )
             params = None
         v.nodes[nid] = GraphNode(nid, nt, params, {}, v.file_of(nid), ns.doc, ns.on_error or v.spec.on_error)  # type: ignore[arg-type]
     return problems
@@ -529,11 +570,15 @@ def _wiring_pass(v: _Validation) -> list[Problem]:
     return problems
 
 
-def _input_edge(v: _Validation, nid: str, nt: NodeType, port: str, ref: Any) -> tuple[Problem | None, Edge | None]:
+def _input_edge(
+    v: _Validation, nid: str, nt: NodeType, port: str, ref: Any
+) -> tuple[Problem | None, Edge | None]:
     """The edge that feeds input ``port`` of node ``nid`` from ``ref``, or the problem with it."""
     where = {"file": v.file_of(nid), "node": nid, "node_type": nt.name, "field": f"inputs.{port}"}
     if port not in nt.inputs:
-        return Problem(f"unknown input port {port!r}", **where, hint=did_you_mean(port, nt.inputs, listing="inputs")), None
+        return Problem(
+            f"unknown input port {port!r}", **where, hint=did_you_mean(port, nt.inputs, listing="inputs")
+        ), None
     if ref is None:
         return None, None
     text, previous = (ref.from_, ref.previous) if isinstance(ref, InputSpec) else (ref, False)
@@ -557,12 +602,20 @@ def _input_edge(v: _Validation, nid: str, nt: NodeType, port: str, ref: Any) -> 
         return Problem(f"node {src!r} ({st.name}) has no output port {sport!r}", **where, hint=hint), None
     produced, expected = st.outputs[sport].type, nt.inputs[port].type
     known = v.pm.port_types
-    for ptype, what in ((expected, f"input port {port!r} of {nt.name}"), (produced, f"output {src}.{sport} of {st.name}")):
+    for ptype, what in (
+        (expected, f"input port {port!r} of {nt.name}"),
+        (produced, f"output {src}.{sport} of {st.name}"),
+    ):
         if ptype not in known:
-            hint = did_you_mean(ptype, known) or "no installed plugin registers it (through the lanegraph_port_types hook)"
+            hint = (
+                did_you_mean(ptype, known)
+                or "no installed plugin registers it (through the lanegraph_port_types hook)"
+            )
             return Problem(f"unknown port type {ptype!r} ({what})", **where, hint=hint), None
     if not port_compatible(produced, expected, known):
-        return Problem(f"port type mismatch: expected {expected!r}, got {produced!r} from {src}.{sport}", **where), None
+        return Problem(
+            f"port type mismatch: expected {expected!r}, got {produced!r} from {src}.{sport}", **where
+        ), None
     return None, Edge(src, sport, nid, port, previous)
 
 
@@ -595,7 +648,9 @@ def _source_pass(v: _Validation) -> list[Problem]:
     if len(sources) == 1 or len(v.types) < len(v.specs):
         return []
     installed = [(name, t) for name, t in v.pm.node_types.items() if t.source]
-    families = " or ".join(sorted({f"an {t.family}.*" if t.family[0] in "aeiou" else f"a {t.family}.*" for _, t in installed}))
+    families = " or ".join(
+        sorted({f"an {t.family}.*" if t.family[0] in "aeiou" else f"a {t.family}.*" for _, t in installed})
+    )
     example = next((n for n, t in installed if t.selects_source), installed[0][0] if installed else None)
     return [
         Problem(
@@ -692,7 +747,10 @@ def _dedupe(problems: list[Problem]) -> list[Problem]:
 
 def _toposort(nodes: dict[str, GraphNode]) -> tuple[list[str], list[str] | None]:
     """Kahn's algorithm over same-frame edges; returns (order, a cycle or None)."""
-    deps = {nid: {e.src_node for e in n.inputs.values() if not e.previous and e.src_node in nodes} for nid, n in nodes.items()}
+    deps = {
+        nid: {e.src_node for e in n.inputs.values() if not e.previous and e.src_node in nodes}
+        for nid, n in nodes.items()
+    }
     order: list[str] = []
     ready = [nid for nid in nodes if not deps[nid]]
     remaining = {nid: set(d) for nid, d in deps.items()}
@@ -755,7 +813,10 @@ def graph_json_schema(pm: PluginManager | None = None) -> dict[str, Any]:
                 "params": pschema,
                 "inputs": {
                     "type": "object",
-                    "properties": {p: {"type": ["string", "object", "null"], "description": f"{port.type}: {port.doc}"} for p, port in nt.inputs.items()},
+                    "properties": {
+                        p: {"type": ["string", "object", "null"], "description": f"{port.type}: {port.doc}"}
+                        for p, port in nt.inputs.items()
+                    },
                     "additionalProperties": False,
                 },
                 "doc": {"type": "string"},

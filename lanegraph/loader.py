@@ -34,7 +34,10 @@ def _construct_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: b
             hash(key)
         except TypeError:
             raise yaml.constructor.ConstructorError(
-                None, None, f"found an unhashable key ({type(key).__name__}); keys must be plain scalars", key_node.start_mark
+                None,
+                None,
+                f"found an unhashable key ({type(key).__name__}); keys must be plain scalars",
+                key_node.start_mark,
             ) from None
         if key in seen:
             raise yaml.constructor.ConstructorError(
@@ -101,7 +104,9 @@ def parse_text(text: str, fmt: str, source: str) -> Any:
         raise GraphError([Problem(f"invalid JSON at line {exc.lineno}: {exc.msg}", file=source)]) from None
     except tomllib.TOMLDecodeError as exc:
         raise GraphError([Problem(f"invalid TOML: {exc}", file=source)]) from None
-    except ValueError as exc:  # a duplicate JSON key; a YAML value its tag cannot hold (!!int abc, 2011-13-45)
+    except (
+        ValueError
+    ) as exc:  # a duplicate JSON key; a YAML value its tag cannot hold (!!int abc, 2011-13-45)
         raise GraphError([Problem(f"invalid {fmt.upper()}: {exc}", file=source)]) from None
     except RecursionError:  # the parsers recurse per nesting level
         raise GraphError([Problem(f"nesting deeper than {MAX_DEPTH} levels", file=source)]) from None
@@ -123,13 +128,17 @@ def read_graph_file(path: Path, display: str | None = None) -> dict[str, Any]:
             try:
                 path.stat()
             except OSError as exc:
-                raise GraphError([Problem(f"a symbolic link that leads nowhere: {exc.strerror or exc}", file=shown)]) from None
+                raise GraphError(
+                    [Problem(f"a symbolic link that leads nowhere: {exc.strerror or exc}", file=shown)]
+                ) from None
         if path.is_dir():
             raise GraphError([Problem("is a folder, not a graph file", file=shown)])
         raise GraphError([Problem("graph file not found", file=shown, hint="check the path")])
     size = path.stat().st_size
     if size > MAX_FILE_BYTES:
-        raise GraphError([Problem(f"file is {size} bytes; graph files are limited to {MAX_FILE_BYTES}", file=shown)])
+        raise GraphError(
+            [Problem(f"file is {size} bytes; graph files are limited to {MAX_FILE_BYTES}", file=shown)]
+        )
     try:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError:
@@ -141,5 +150,7 @@ def read_graph_file(path: Path, display: str | None = None) -> dict[str, Any]:
     if data is None:
         data = {}
     if not isinstance(data, dict):
-        raise GraphError([Problem(f"expected a mapping at the top level, got {type(data).__name__}", file=shown)])
+        raise GraphError(
+            [Problem(f"expected a mapping at the top level, got {type(data).__name__}", file=shown)]
+        )
     return data

@@ -164,7 +164,9 @@ def evaluate_frame(pred_lanes: Sequence[Mapping[str, Any]], gt: Mapping[str, Any
     return FrameResult(frame, correct, len(pred_lanes), matched, len(m.ego), ego_matched, dx, reasons, m)
 
 
-def evaluate(pred_records: Iterable[Mapping[str, Any]], gt_records: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
+def evaluate(
+    pred_records: Iterable[Mapping[str, Any]], gt_records: Iterable[Mapping[str, Any]]
+) -> dict[str, Any]:
     """Evaluate prediction records against ground-truth records (both as parsed JSON lines).
 
     Returns a dict with the keys ``frames``, ``detection_ratio``, ``precision``, ``ego_recall``,
@@ -205,7 +207,9 @@ def _check_points(points: Any, where: str) -> None:
         raise ValueError(f"{where}: 'points' must be a list of [x, y] pairs, got {type(points).__name__}")
     for i, pt in enumerate(points):
         if not (isinstance(pt, list) and len(pt) == 2):
-            raise ValueError(f"{where}: points[{i}]: expected [x, y] (two numbers, pixels), got {str(pt)[:60]}")
+            raise ValueError(
+                f"{where}: points[{i}]: expected [x, y] (two numbers, pixels), got {str(pt)[:60]}"
+            )
         for v in pt:
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
                 raise ValueError(f"{where}: points[{i}]: expected two finite numbers, got {str(pt)[:60]}")
@@ -213,11 +217,17 @@ def _check_points(points: Any, where: str) -> None:
 
 def _check_frame(rec: dict[str, Any], where: str, seen: dict[str, int], k: int) -> str:
     frame = rec.get("frame")
-    if isinstance(frame, bool) or not isinstance(frame, (str, int)) or (isinstance(frame, str) and not frame.strip()):
+    if (
+        isinstance(frame, bool)
+        or not isinstance(frame, (str, int))
+        or (isinstance(frame, str) and not frame.strip())
+    ):
         raise ValueError(f"{where}: 'frame' must be a frame id (a non-empty string), got {frame!r}")
     key = str(frame)
     if key in seen:
-        raise ValueError(f"{where}: frame {key!r} appears twice (first at line {seen[key]}); one record per frame")
+        raise ValueError(
+            f"{where}: frame {key!r} appears twice (first at line {seen[key]}); one record per frame"
+        )
     seen[key] = k
     return key
 
@@ -231,14 +241,20 @@ def validate_predictions(records: list[dict[str, Any]], lines: list[int]) -> Non
         where = _where(k)
         _check_frame(rec, where, seen, k)
         if "lanes" not in rec:
-            hint = " (it has 'markings' like a ground-truth file: PRED and GT swapped?)" if "markings" in rec else ""
+            hint = (
+                " (it has 'markings' like a ground-truth file: PRED and GT swapped?)"
+                if "markings" in rec
+                else ""
+            )
             raise ValueError(f"{where}: expected a predictions record {{frame, lanes}}, no 'lanes' key{hint}")
         lanes = rec["lanes"]
         if not isinstance(lanes, list):
             raise ValueError(f"{where}: 'lanes' must be a list of lanes, got {str(lanes)[:60]}")
         for j, lane in enumerate(lanes):
             if not isinstance(lane, dict) or "points" not in lane:
-                raise ValueError(f"{where}: lanes[{j}]: expected an object with 'points', got {str(lane)[:60]}")
+                raise ValueError(
+                    f"{where}: lanes[{j}]: expected an object with 'points', got {str(lane)[:60]}"
+                )
             _check_points(lane["points"], f"{where}: lanes[{j}]")
 
 
@@ -253,14 +269,18 @@ def validate_ground_truth(records: list[dict[str, Any]], lines: list[int]) -> No
         _check_frame(rec, where, seen, k)
         if "markings" not in rec:
             hint = " (it has 'lanes' like a predictions file: PRED and GT swapped?)" if "lanes" in rec else ""
-            raise ValueError(f"{where}: expected a ground-truth record {{frame, markings, ego}}, no 'markings' key{hint}")
+            raise ValueError(
+                f"{where}: expected a ground-truth record {{frame, markings, ego}}, no 'markings' key{hint}"
+            )
         markings = rec["markings"]
         if not isinstance(markings, list):
             raise ValueError(f"{where}: 'markings' must be a list of markings, got {str(markings)[:60]}")
         ids = set()
         for j, m in enumerate(markings):
             if not isinstance(m, dict) or "points" not in m:
-                raise ValueError(f"{where}: markings[{j}]: expected an object with 'id' and 'points', got {str(m)[:60]}")
+                raise ValueError(
+                    f"{where}: markings[{j}]: expected an object with 'id' and 'points', got {str(m)[:60]}"
+                )
             mid = m.get("id")
             if isinstance(mid, (dict, list, float)):
                 raise ValueError(f"{where}: markings[{j}]: 'id' must be an integer or a string, got {mid!r}")
@@ -276,7 +296,9 @@ def validate_ground_truth(records: list[dict[str, Any]], lines: list[int]) -> No
         for side in ("left", "right"):
             mid = ego.get(side)
             if mid is not None and mid not in ids:
-                raise ValueError(f"{where}: ego.{side}: {mid!r} is not the id of a marking of the frame (ids: {sorted(map(str, ids))})")
+                raise ValueError(
+                    f"{where}: ego.{side}: {mid!r} is not the id of a marking of the frame (ids: {sorted(map(str, ids))})"
+                )
         extra = set(ego) - {"left", "right"}
         if extra:
             raise ValueError(f"{where}: ego: unknown key(s) {sorted(extra)}; expected left and right")

@@ -82,18 +82,28 @@ def culane_metrics(
         fn += len(gts) - matched
     precision = tp / (tp + fp) if tp + fp else None
     recall = tp / (tp + fn) if tp + fn else None
-    f1 = 2 * precision * recall / (precision + recall) if precision and recall else (0.0 if tp + fp + fn else None)
+    f1 = (
+        2 * precision * recall / (precision + recall)
+        if precision and recall
+        else (0.0 if tp + fp + fn else None)
+    )
     return {"precision": precision, "recall": recall, "f1": f1, "tp": tp, "fp": fp, "fn": fn}
 
 
 def tusimple_metrics(
-    pred_records: Iterable[Mapping[str, Any]], gt_records: Iterable[Mapping[str, Any]], threshold: float = 20.0, match: float = 0.85
+    pred_records: Iterable[Mapping[str, Any]],
+    gt_records: Iterable[Mapping[str, Any]],
+    threshold: float = 20.0,
+    match: float = 0.85,
 ) -> dict[str, Any]:
     """TuSimple-style accuracy, FP and FN rates averaged over frames (see the module docstring)."""
     preds = _index(pred_records)
     accs, fps, fns = [], [], []
     for g in gt_records:
-        markings = [np.asarray(m.get("points") or [], dtype=np.float64).reshape(-1, 2) for m in g.get("markings") or []]
+        markings = [
+            np.asarray(m.get("points") or [], dtype=np.float64).reshape(-1, 2)
+            for m in g.get("markings") or []
+        ]
         ps = preds.get(str(g.get("frame")), [])
         if not markings:
             accs.append(1.0)
@@ -181,6 +191,8 @@ def lateral_error_cm(
                 xg = polyline_x_at(markings[j].get("points") or [], np.array([y]))[0]
                 if np.isnan(xp) or np.isnan(xg):
                     continue
-                dx = image_to_road_x(xp, y, calib, pitch, height) - image_to_road_x(xg, y, calib, pitch, height)
+                dx = image_to_road_x(xp, y, calib, pitch, height) - image_to_road_x(
+                    xg, y, calib, pitch, height
+                )
                 errors[z].append(abs(dx) * 100.0)
     return {f"{z:g}": (float(np.mean(v)) if v else None) for z, v in errors.items()}

@@ -102,7 +102,9 @@ class Port:
         # any name: port types are an open registry (lanegraph_port_types); a graph that wires a
         # port whose type no installed plugin registers gets a located problem (lanegraph.graph)
         if not (isinstance(self.type, str) and _PORT_TYPE_NAME.match(self.type)):
-            raise ValueError(f"port type must be a lower-case identifier such as 'image' or 'point_cloud', got {self.type!r}")
+            raise ValueError(
+                f"port type must be a lower-case identifier such as 'image' or 'point_cloud', got {self.type!r}"
+            )
         if self.rate not in ("frame", "constant"):
             raise ValueError(f"port rate must be 'frame' or 'constant', got {self.rate!r}")
 
@@ -149,7 +151,9 @@ class NodeType:
     def __post_init__(self) -> None:
         parts = self.name.split(".")
         if len(parts) != 2 or not all(p and p.replace("_", "").isalnum() and p[0].isalpha() for p in parts):
-            raise ValueError(f"node type name must be 'family.name' (lower-case identifiers), got {self.name!r}")
+            raise ValueError(
+                f"node type name must be 'family.name' (lower-case identifiers), got {self.name!r}"
+            )
         self.inputs = _as_ports(self.inputs)
         self.outputs = _as_ports(self.outputs)
         if not (isinstance(self.params, type) and issubclass(self.params, BaseModel)):

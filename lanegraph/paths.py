@@ -92,7 +92,13 @@ def output_problems(sinks: list[tuple[str, str, dict[str, tuple[str, str]]]]) ->
         for fname, (kind, path) in fields.items():
             first = path.split("/")[0]
             if path in RUN_FILES or (kind == "dir" and first in RUN_FILES):
-                problems.append((nid, fname, f"{path!r} is a file of the run itself ({', '.join(RUN_FILES[:3])}); choose another name"))
+                problems.append(
+                    (
+                        nid,
+                        fname,
+                        f"{path!r} is a file of the run itself ({', '.join(RUN_FILES[:3])}); choose another name",
+                    )
+                )
                 continue
             for onid, ontype, ofield, okind, opath in seen:
                 same = path == opath
@@ -118,7 +124,9 @@ def inside(base: Path, relative: str, what: str) -> Path:
     target = base / relative
     target_r = _resolve(target, what)
     if target_r != base_r and not target_r.is_relative_to(base_r):
-        raise UsageError(f"{what}: {target} resolves to {target_r}, outside {base}; outputs stay inside the output folder")
+        raise UsageError(
+            f"{what}: {target} resolves to {target_r}, outside {base}; outputs stay inside the output folder"
+        )
     return target
 
 
@@ -148,7 +156,9 @@ def prepare_dir(path: Path, what: str) -> Path:
     :class:`UsageError` naming the option."""
     try:
         if path.is_symlink() and not path.exists():
-            raise UsageError(f"{what} {path}: a symbolic link that leads nowhere (a loop, or its target is gone)")
+            raise UsageError(
+                f"{what} {path}: a symbolic link that leads nowhere (a loop, or its target is gone)"
+            )
         if path.exists() and not path.is_dir():
             raise UsageError(f"{what} {path}: exists and is not a folder")
         for parent in path.parents:
@@ -193,7 +203,9 @@ class OutputLock:
         except OSError as exc:
             if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
                 fh.close()
-                raise UsageError(f"{self.path}: cannot lock the output folder: {exc.strerror or exc}") from None
+                raise UsageError(
+                    f"{self.path}: cannot lock the output folder: {exc.strerror or exc}"
+                ) from None
             fh.seek(0)
             holder = _holder(fh.read(4096))
             fh.close()
@@ -203,7 +215,12 @@ class OutputLock:
             ) from None
         fh.seek(0)
         fh.truncate()
-        fh.write(json.dumps({"pid": os.getpid(), "command": self.command, "started": time.strftime("%Y-%m-%d %H:%M:%S")}) + "\n")
+        fh.write(
+            json.dumps(
+                {"pid": os.getpid(), "command": self.command, "started": time.strftime("%Y-%m-%d %H:%M:%S")}
+            )
+            + "\n"
+        )
         fh.flush()
         self._fh = fh
         return self

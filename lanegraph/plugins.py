@@ -107,7 +107,12 @@ class PluginManager(pluggy.PluginManager):
         problem = self._hook_problem(plugin)
         if problem is not None:
             super().unregister(plugin)
-            self._reject(pname, problem, hint="the hooks are the functions of lanegraph.hookspecs", node_types=_declared_node_types(plugin))
+            self._reject(
+                pname,
+                problem,
+                hint="the hooks are the functions of lanegraph.hookspecs",
+                node_types=_declared_node_types(plugin),
+            )
             return None
         return pname
 
@@ -194,7 +199,9 @@ class PluginManager(pluggy.PluginManager):
             for plugin, (error, node_types) in bad.items():
                 name = self.get_name(plugin) or "?"
                 super().unregister(plugin)
-                self._reject(name, f"is not loaded: {error}", node_types=node_types or _declared_node_types(plugin))
+                self._reject(
+                    name, f"is not loaded: {error}", node_types=node_types or _declared_node_types(plugin)
+                )
         self._port_types = ports
         self._node_types = dict(sorted(nodes.items()))
 
@@ -219,9 +226,14 @@ class PluginManager(pluggy.PluginManager):
                 bad[impl.plugin] = (f"its lanegraph_port_types hook raised {type(exc).__name__}: {exc}", ())
                 continue
             for pt in provided:
-                if not isinstance(pt, PortType) or not (isinstance(pt.name, str) and _PORT_NAME.match(pt.name)):
+                if not isinstance(pt, PortType) or not (
+                    isinstance(pt.name, str) and _PORT_NAME.match(pt.name)
+                ):
                     what = f"port type name {pt.name!r}" if isinstance(pt, PortType) else repr(pt)[:80]
-                    bad[impl.plugin] = (f"lanegraph_port_types returned {what}, expected a PortType named by a lower-case identifier", ())
+                    bad[impl.plugin] = (
+                        f"lanegraph_port_types returned {what}, expected a PortType named by a lower-case identifier",
+                        (),
+                    )
                     break
                 if pt.name in ports and ports[pt.name] != pt:
                     by = repr(self.get_name(owner[pt.name])) if pt.name in owner else "lanegraph"
@@ -235,11 +247,17 @@ class PluginManager(pluggy.PluginManager):
                 chain.append(parent)
                 parent = ports[parent].parent
             if parent is not None and plugin not in bad:
-                why = "is not a registered port type" if parent not in ports else f"closes a cycle ({' -> '.join([*chain, parent])})"
+                why = (
+                    "is not a registered port type"
+                    if parent not in ports
+                    else f"closes a cycle ({' -> '.join([*chain, parent])})"
+                )
                 bad[plugin] = (f"port type {name!r}: its parent {parent!r} {why}", ())
         return ports, bad
 
-    def _collect_node_types(self, skip: dict[Any, Any]) -> tuple[dict[str, NodeType], dict[Any, tuple[str, tuple[str, ...]]]]:
+    def _collect_node_types(
+        self, skip: dict[Any, Any]
+    ) -> tuple[dict[str, NodeType], dict[Any, tuple[str, tuple[str, ...]]]]:
         types: dict[str, NodeType] = {}
         bad: dict[Any, tuple[str, tuple[str, ...]]] = {}
         for impl in self.hook.lanegraph_node_types.get_hookimpls():
@@ -254,13 +272,18 @@ class PluginManager(pluggy.PluginManager):
             records = [node_type_of(item) for item in provided]
             wrong = next((item for item, nt in zip(provided, records) if nt is None), None)
             if wrong is not None:
-                bad[impl.plugin] = (f"lanegraph_node_types returned {wrong!r:.80}, expected a function or class decorated with @lanegraph.node_type", ())
+                bad[impl.plugin] = (
+                    f"lanegraph_node_types returned {wrong!r:.80}, expected a function or class decorated with @lanegraph.node_type",
+                    (),
+                )
                 continue
             names = tuple(nt.name for nt in records if nt is not None)
             clash = next((n for n in names if n in types), None)
             if clash is not None:
                 first = types[clash].plugin
-                error = f"node type {clash!r} is provided by both {first!r} and {pname!r}; keeping {first!r}'s"
+                error = (
+                    f"node type {clash!r} is provided by both {first!r} and {pname!r}; keeping {first!r}'s"
+                )
                 bad[impl.plugin] = (error, names)
                 continue
             for nt in records:

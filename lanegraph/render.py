@@ -67,7 +67,9 @@ def text_card(lines: Iterable[str], width: int = 360, title: str = "") -> np.nda
     rows = rows[:14] or ["(empty)"]
     img = np.full((24 + 22 * len(rows), width, 3), 32, np.uint8)
     for i, s in enumerate(rows):
-        cv2.putText(img, s[:48], (8, 22 + 22 * i), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (230, 230, 230), 1, cv2.LINE_AA)
+        cv2.putText(
+            img, s[:48], (8, 22 + 22 * i), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (230, 230, 230), 1, cv2.LINE_AA
+        )
     return img
 
 
@@ -75,7 +77,11 @@ def render_disparity(disp: np.ndarray, max_disparity: float | None = None) -> np
     """Disparity as a TURBO colour map (near = red); invalid pixels (<= 0 or not finite) black."""
     d = np.asarray(disp, np.float32)
     valid = np.isfinite(d) & (d > 0)
-    top = float(max_disparity) if max_disparity else (float(np.percentile(d[valid], 99.5)) if valid.any() else 1.0)
+    top = (
+        float(max_disparity)
+        if max_disparity
+        else (float(np.percentile(d[valid], 99.5)) if valid.any() else 1.0)
+    )
     u8 = np.zeros(d.shape, np.uint8)
     u8[valid] = np.clip(d[valid] * (255.0 / max(top, 1e-6)), 0, 255).astype(np.uint8)
     out = cv2.applyColorMap(u8, cv2.COLORMAP_TURBO)
@@ -83,7 +89,9 @@ def render_disparity(disp: np.ndarray, max_disparity: float | None = None) -> np
     return out
 
 
-def render_mask(mask: np.ndarray, under: np.ndarray | None = None, colour: tuple[int, int, int] = (0, 200, 0)) -> np.ndarray:
+def render_mask(
+    mask: np.ndarray, under: np.ndarray | None = None, colour: tuple[int, int, int] = (0, 200, 0)
+) -> np.ndarray:
     """A mask blended in ``colour`` over ``under`` (an image of the same size) or white on black."""
     m = np.asarray(mask, bool)
     if under is None or np.asarray(under).shape[:2] != m.shape:
@@ -135,7 +143,9 @@ def render_road_model(road: RoadModel, vdisp: np.ndarray | None = None) -> np.nd
     if out.shape[1] < 200:  # v-disparity is narrow: widen it so the caption fits
         pad = np.zeros((out.shape[0], 200 - out.shape[1], 3), np.uint8)
         out = np.hstack([out, pad])
-    caption = f"pitch {math.degrees(road.pitch):+.2f} roll {math.degrees(road.roll):+.2f} h {road.height:.2f} m"
+    caption = (
+        f"pitch {math.degrees(road.pitch):+.2f} roll {math.degrees(road.roll):+.2f} h {road.height:.2f} m"
+    )
     if not road.valid:
         caption = "road model: invalid"
     cv2.putText(out, caption, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
@@ -177,7 +187,9 @@ def hough_1d(features: FeatureMap, theta: float) -> np.ndarray:
     return np.bincount(b, minlength=5 * cols).astype(np.float64)
 
 
-def render_hough_1d(acc: np.ndarray, offset: int, width: int, peaks: Iterable[Line] = (), height: int = 120) -> np.ndarray:
+def render_hough_1d(
+    acc: np.ndarray, offset: int, width: int, peaks: Iterable[Line] = (), height: int = 120
+) -> np.ndarray:
     """A bar plot of the 1D accumulator over the BEV's columns (rho in [0, width)), peaks marked."""
     acc = np.asarray(acc, np.float64)
     seg = acc[offset : offset + width] if offset + width <= acc.size else np.zeros(width)
@@ -185,16 +197,35 @@ def render_hough_1d(acc: np.ndarray, offset: int, width: int, peaks: Iterable[Li
     top = max(float(seg.max()), 1.0)
     for x, v in enumerate(seg):
         if v > 0:
-            cv2.line(out, (x, height - 1), (x, height - 1 - int(round((height - 14) * v / top))), (200, 200, 200), 1)
+            cv2.line(
+                out,
+                (x, height - 1),
+                (x, height - 1 - int(round((height - 14) * v / top))),
+                (200, 200, 200),
+                1,
+            )
     for line in peaks:
         x = int(round(line.rho))
         if 0 <= x < width:
             cv2.line(out, (x, 0), (x, height - 1), _colour(line.side), 1)
-            cv2.putText(out, f"{line.votes:.0f}", (min(x + 2, width - 30), 11), cv2.FONT_HERSHEY_SIMPLEX, 0.35, _colour(line.side), 1)
+            cv2.putText(
+                out,
+                f"{line.votes:.0f}",
+                (min(x + 2, width - 30), 11),
+                cv2.FONT_HERSHEY_SIMPLEX,
+                0.35,
+                _colour(line.side),
+                1,
+            )
     return out
 
 
-def render_lines(lines: list[Line], bev: np.ndarray | None, features: FeatureMap | None, shape: tuple[int, int] | None = None) -> np.ndarray:
+def render_lines(
+    lines: list[Line],
+    bev: np.ndarray | None,
+    features: FeatureMap | None,
+    shape: tuple[int, int] | None = None,
+) -> np.ndarray:
     """The Hough lines over the BEV image, with the 1D accumulator and its peaks underneath."""
     if bev is not None:
         base = to_bgr(bev).copy()
@@ -207,7 +238,9 @@ def render_lines(lines: list[Line], bev: np.ndarray | None, features: FeatureMap
     y = np.array([0.0, rows - 1.0])
     for line in lines:
         x = line_columns(line, rows, y)
-        cv2.line(base, (int(round(x[0])), 0), (int(round(x[1])), rows - 1), _colour(line.side), 2, cv2.LINE_AA)
+        cv2.line(
+            base, (int(round(x[0])), 0), (int(round(x[1])), rows - 1), _colour(line.side), 2, cv2.LINE_AA
+        )
     if features is None or features.mask.shape != (rows, cols):
         return base
     theta = lines[0].theta if lines else math.pi / 2
@@ -222,7 +255,9 @@ def lane_columns(lane: Lane, rows: int, y: np.ndarray) -> np.ndarray:
     return c0 + c1 * t + c2 * t * t
 
 
-def render_lanes_bev(lanes: list[Lane], bev: np.ndarray | None, roi_width: float = 40.0, shape: tuple[int, int] | None = None) -> np.ndarray:
+def render_lanes_bev(
+    lanes: list[Lane], bev: np.ndarray | None, roi_width: float = 40.0, shape: tuple[int, int] | None = None
+) -> np.ndarray:
     """ROIs (``roi_width`` BEV pixels) and fitted parabolas over the BEV image."""
     if bev is not None:
         out = to_bgr(bev).copy()
@@ -238,7 +273,9 @@ def render_lanes_bev(lanes: list[Lane], bev: np.ndarray | None, roi_width: float
             continue
         x = lane_columns(lane, rows, y)
         band = out.copy()
-        poly = np.concatenate([np.stack([x - roi_width / 2, y], 1), np.stack([x + roi_width / 2, y], 1)[::-1]])
+        poly = np.concatenate(
+            [np.stack([x - roi_width / 2, y], 1), np.stack([x + roi_width / 2, y], 1)[::-1]]
+        )
         cv2.fillPoly(band, [poly.round().astype(np.int32)], _colour(lane.side))
         out = cv2.addWeighted(band, 0.25, out, 0.75, 0)
         pts = np.stack([x, y], 1).round().astype(np.int32).reshape(-1, 1, 2)
@@ -259,12 +296,23 @@ def draw_lane_points(
     for lane in lanes:
         if lane.points is None or len(lane.points) < 2:
             continue
-        colour = _colour(lane.side) if colours is None else colours.get(lane.side, colours.get("", OTHER_COLOUR))
+        colour = (
+            _colour(lane.side) if colours is None else colours.get(lane.side, colours.get("", OTHER_COLOUR))
+        )
         pts = np.asarray(lane.points, np.float64).round().astype(np.int32).reshape(-1, 1, 2)
         cv2.polylines(img, [pts], False, colour, thickness, cv2.LINE_AA)
         if captions:
             x, y = pts[-1, 0]
-            cv2.putText(img, f"{lane.side} {lane.score:.2f}", (int(x) + 4, int(y)), cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour, 1, cv2.LINE_AA)
+            cv2.putText(
+                img,
+                f"{lane.side} {lane.score:.2f}",
+                (int(x) + 4, int(y)),
+                cv2.FONT_HERSHEY_SIMPLEX,
+                0.5,
+                colour,
+                1,
+                cv2.LINE_AA,
+            )
 
 
 def render_lanes_image(lanes: list[Lane], image: np.ndarray) -> np.ndarray:
@@ -308,9 +356,21 @@ def render_value(port_type: str, value: Any, context: Mapping[str, Any] | None =
         return render_features(value)
     if port_type == "orientation":
         shape = ctx["features"].mask.shape if isinstance(ctx.get("features"), FeatureMap) else (200, 200)
-        line = Line(rho=shape[1] / 2 + (shape[0] / 2) * math.cos(value) / max(math.sin(value), 1e-6), theta=float(value))
+        line = Line(
+            rho=shape[1] / 2 + (shape[0] / 2) * math.cos(value) / max(math.sin(value), 1e-6),
+            theta=float(value),
+        )
         img = render_lines([line], ctx.get("bev_image"), None, shape)
-        cv2.putText(img, f"theta {math.degrees(value):.1f} deg", (4, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, OTHER_COLOUR, 1, cv2.LINE_AA)
+        cv2.putText(
+            img,
+            f"theta {math.degrees(value):.1f} deg",
+            (4, 16),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.5,
+            OTHER_COLOUR,
+            1,
+            cv2.LINE_AA,
+        )
         return img
     if port_type == "lines" and isinstance(value, list):
         feats = ctx.get("features")
@@ -333,11 +393,25 @@ def render_value(port_type: str, value: Any, context: Mapping[str, Any] | None =
 def caption(img: np.ndarray, text: str) -> np.ndarray:
     """``img`` with a caption bar on top."""
     bar = np.full((20, img.shape[1], 3), 48, np.uint8)
-    cv2.putText(bar, text[: max(img.shape[1] // 7, 8)], (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
+    cv2.putText(
+        bar,
+        text[: max(img.shape[1] // 7, 8)],
+        (4, 14),
+        cv2.FONT_HERSHEY_SIMPLEX,
+        0.45,
+        (255, 255, 255),
+        1,
+        cv2.LINE_AA,
+    )
     return np.vstack([bar, img])
 
 
-def mosaic(tiles: Iterable[tuple[str, np.ndarray]], tile_height: int = 240, max_row_width: int = 1920, max_tile_width: int = 640) -> np.ndarray:
+def mosaic(
+    tiles: Iterable[tuple[str, np.ndarray]],
+    tile_height: int = 240,
+    max_row_width: int = 1920,
+    max_tile_width: int = 640,
+) -> np.ndarray:
     """Captioned tiles scaled to ``tile_height`` (at most ``max_tile_width`` wide), packed in rows
     of at most ``max_row_width`` pixels, in the order given."""
     scaled = []
@@ -393,7 +467,9 @@ class DebugRecorder:
         """Whether ``frame`` is chosen: by its id, or by its number (``7`` matches ``0000000007``)."""
         if self.frames is None:
             return True
-        hits = {f for f in self.frames if f == frame or (frame.isdigit() and f.isdigit() and int(f) == int(frame))}
+        hits = {
+            f for f in self.frames if f == frame or (frame.isdigit() and f.isdigit() and int(f) == int(frame))
+        }
         self.matched |= hits
         return bool(hits)
 
@@ -445,7 +521,9 @@ class DebugRecorder:
         self._constants = {}
 
     @hookimpl
-    def lanegraph_after_node(self, node_id: str, node_type: str, frame: str | None, outputs: dict[str, Any] | None) -> None:
+    def lanegraph_after_node(
+        self, node_id: str, node_type: str, frame: str | None, outputs: dict[str, Any] | None
+    ) -> None:
         if not outputs:
             return
         if frame is None:  # constant outputs (calibration, BEV grid): context for every frame
@@ -465,7 +543,9 @@ class DebugRecorder:
                 port_type = "image"
             typed.append((port, port_type, value))
             if port_type in ("image", "gray"):
-                self._context.setdefault("image", value)  # the first image of a frame (the left one) is the base
+                self._context.setdefault(
+                    "image", value
+                )  # the first image of a frame (the left one) is the base
             else:
                 self._context[port_type] = value
         for port, port_type, value in typed:

@@ -67,11 +67,20 @@ def encode_value(value: Any, where: str = "value") -> Any:
         if value.dtype.kind not in "biufc" or value.dtype.hasobject:
             raise CheckpointValueError(f"{where}: an array of dtype {value.dtype} cannot be stored")
         arr = np.ascontiguousarray(value)
-        return {"$t": "ndarray", "dtype": arr.dtype.str, "shape": list(arr.shape), "data": base64.b64encode(arr.tobytes()).decode("ascii")}
+        return {
+            "$t": "ndarray",
+            "dtype": arr.dtype.str,
+            "shape": list(arr.shape),
+            "data": base64.b64encode(arr.tobytes()).decode("ascii"),
+        }
     if isinstance(value, np.generic):
         if value.dtype.kind not in "biufc":
             raise CheckpointValueError(f"{where}: a numpy scalar of dtype {value.dtype} cannot be stored")
-        return {"$t": "scalar", "dtype": value.dtype.str, "data": base64.b64encode(value.tobytes()).decode("ascii")}
+        return {
+            "$t": "scalar",
+            "dtype": value.dtype.str,
+            "data": base64.b64encode(value.tobytes()).decode("ascii"),
+        }
     if isinstance(value, int):
         return value
     if isinstance(value, float):
@@ -81,7 +90,13 @@ def encode_value(value: Any, where: str = "value") -> Any:
     if isinstance(value, tuple):
         return {"$t": "tuple", "v": [encode_value(v, f"{where}[{i}]") for i, v in enumerate(value)]}
     if isinstance(value, dict):
-        return {"$t": "dict", "v": [[encode_value(k, f"{where} key"), encode_value(v, f"{where}[{k!r}]")] for k, v in value.items()]}
+        return {
+            "$t": "dict",
+            "v": [
+                [encode_value(k, f"{where} key"), encode_value(v, f"{where}[{k!r}]")]
+                for k, v in value.items()
+            ],
+        }
     if isinstance(value, FeatureMap):
         rows, cols = value.points()
         return {
@@ -93,9 +108,15 @@ def encode_value(value: Any, where: str = "value") -> Any:
         }
     name = type(value).__name__
     if VALUE_TYPES.get(name) is type(value):
-        fields = {f.name: encode_value(getattr(value, f.name), f"{where}.{f.name}") for f in dataclasses.fields(value) if f.init}
+        fields = {
+            f.name: encode_value(getattr(value, f.name), f"{where}.{f.name}")
+            for f in dataclasses.fields(value)
+            if f.init
+        }
         return {"$t": name, "v": fields}
-    raise CheckpointValueError(f"{where}: a {type(value).__module__}.{type(value).__qualname__} cannot be stored in a checkpoint")
+    raise CheckpointValueError(
+        f"{where}: a {type(value).__module__}.{type(value).__qualname__} cannot be stored in a checkpoint"
+    )
 
 
 def decode_value(data: Any, where: str = "value") -> Any:
@@ -108,7 +129,9 @@ def decode_value(data: Any, where: str = "value") -> Any:
     if isinstance(data, list):
         return [decode_value(v, f"{where}[{i}]") for i, v in enumerate(data)]
     if not isinstance(data, dict) or not isinstance(data.get("$t"), str):
-        raise CheckpointValueError(f"{where}: expected a JSON scalar, a list or a tagged object {{'$t': ...}}, got {str(data)[:80]}")
+        raise CheckpointValueError(
+            f"{where}: expected a JSON scalar, a list or a tagged object {{'$t': ...}}, got {str(data)[:80]}"
+        )
     tag = data["$t"]
     try:
         decode = _DECODERS.get(tag, _decode_dataclass)
@@ -116,7 +139,9 @@ def decode_value(data: Any, where: str = "value") -> Any:
     except CheckpointValueError:
         raise
     except (KeyError, TypeError, ValueError) as exc:
-        raise CheckpointValueError(f"{where}: malformed {tag!r} value ({type(exc).__name__}: {exc})") from None
+        raise CheckpointValueError(
+            f"{where}: malformed {tag!r} value ({type(exc).__name__}: {exc})"
+        ) from None
 
 
 def _decode_float(data: dict[str, Any], where: str) -> float:
@@ -146,11 +171,16 @@ def _decode_dict(data: dict[str, Any], where: str) -> dict:
 def _decode_ndarray(data: dict[str, Any], where: str) -> np.ndarray:
     dtype = _dtype(data["dtype"], where)
     shape = data["shape"]
-    if not (isinstance(shape, list) and all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in shape)):
+    if not (
+        isinstance(shape, list)
+        and all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in shape)
+    ):
         raise CheckpointValueError(f"{where}: shape: expected a list of integers >= 0, got {str(shape)[:60]}")
     raw = base64.b64decode(data["data"], validate=True)
     if len(raw) != int(np.prod(shape, dtype=np.int64)) * dtype.itemsize:
-        raise CheckpointValueError(f"{where}: {len(raw)} bytes of data do not make an array of shape {shape} and dtype {dtype}")
+        raise CheckpointValueError(
+            f"{where}: {len(raw)} bytes of data do not make an array of shape {shape} and dtype {dtype}"
+        )
     return np.frombuffer(raw, dtype=dtype).reshape(shape).copy()
 
 
@@ -164,11 +194,18 @@ def _decode_scalar(data: dict[str, Any], where: str) -> np.generic:
 
 def _decode_feature_map(data: dict[str, Any], where: str) -> FeatureMap:
     shape = data["shape"]
-    if not (isinstance(shape, list) and len(shape) == 2 and all(isinstance(n, int) and n >= 0 for n in shape)):
+    if not (
+        isinstance(shape, list) and len(shape) == 2 and all(isinstance(n, int) and n >= 0 for n in shape)
+    ):
         raise CheckpointValueError(f"{where}: shape: expected [rows, cols], got {str(shape)[:60]}")
     rows, cols = decode_value(data["rows"], f"{where}.rows"), decode_value(data["cols"], f"{where}.cols")
     values = decode_value(data["values"], f"{where}.values")
-    if not (isinstance(rows, np.ndarray) and isinstance(cols, np.ndarray) and rows.shape == cols.shape and rows.ndim == 1):
+    if not (
+        isinstance(rows, np.ndarray)
+        and isinstance(cols, np.ndarray)
+        and rows.shape == cols.shape
+        and rows.ndim == 1
+    ):
         raise CheckpointValueError(f"{where}: rows, cols: expected two 1-D arrays of one length")
     if rows.size and (rows.min() < 0 or cols.min() < 0 or rows.max() >= shape[0] or cols.max() >= shape[1]):
         raise CheckpointValueError(f"{where}: feature points outside the {shape[0]}x{shape[1]} map")
@@ -180,7 +217,9 @@ def _decode_dataclass(data: dict[str, Any], where: str) -> Any:
     tag = data["$t"]
     cls = VALUE_TYPES.get(tag)
     if cls is None:
-        raise CheckpointValueError(f"{where}: unknown value type {tag!r} (known: {', '.join(['ndarray', 'FeatureMap', *VALUE_TYPES])})")
+        raise CheckpointValueError(
+            f"{where}: unknown value type {tag!r} (known: {', '.join(['ndarray', 'FeatureMap', *VALUE_TYPES])})"
+        )
     fields = data["v"]
     if not isinstance(fields, dict):
         raise CheckpointValueError(f"{where}: expected the fields of a {tag}")
@@ -209,7 +248,9 @@ def _list(v: Any, where: str) -> list:
 
 def _dtype(text: Any, where: str) -> np.dtype:
     if not isinstance(text, str) or len(text) > 8:
-        raise CheckpointValueError(f"{where}: dtype: expected a numpy type string such as '<f4', got {str(text)[:40]}")
+        raise CheckpointValueError(
+            f"{where}: dtype: expected a numpy type string such as '<f4', got {str(text)[:40]}"
+        )
     try:
         dt = np.dtype(text)
     except TypeError:
@@ -280,7 +321,9 @@ def input_identity(input_path: Path | None, exclude: Path | None = None) -> str:
         return "synthetic"
     root = Path(input_path)
     ex = exclude.resolve() if exclude is not None else None
-    files = sorted(p for p in root.rglob("*") if p.is_file() and not (ex is not None and p.resolve().is_relative_to(ex)))
+    files = sorted(
+        p for p in root.rglob("*") if p.is_file() and not (ex is not None and p.resolve().is_relative_to(ex))
+    )
     return digest([(str(p), p.stat().st_size, p.stat().st_mtime_ns) for p in files])
 
 
@@ -299,7 +342,9 @@ def load_checkpoint(path: Path) -> Checkpoint:
     try:
         size = path.stat().st_size
         if size > MAX_CHECKPOINT_BYTES:
-            raise UsageError(f"{path}: {size} bytes, more than a checkpoint may hold ({MAX_CHECKPOINT_BYTES}){_HINT}")
+            raise UsageError(
+                f"{path}: {size} bytes, more than a checkpoint may hold ({MAX_CHECKPOINT_BYTES}){_HINT}"
+            )
         text = path.read_text(encoding="utf-8")
     except UsageError:
         raise
@@ -311,24 +356,36 @@ def load_checkpoint(path: Path) -> Checkpoint:
         where = f" at line {exc.lineno}" if isinstance(exc, json.JSONDecodeError) else ""
         raise UsageError(f"{path}: not a valid JSON checkpoint{where} ({exc}){_HINT}") from None
     if not isinstance(data, dict):
-        raise UsageError(f"{path}: expected a JSON object (a lanegraph checkpoint), got {type(data).__name__}{_HINT}")
+        raise UsageError(
+            f"{path}: expected a JSON object (a lanegraph checkpoint), got {type(data).__name__}{_HINT}"
+        )
     if data.get("format") != FORMAT:
-        raise UsageError(f"{path}: format: expected {FORMAT!r}, got {str(data.get('format'))[:60]!r}: not a lanegraph checkpoint{_HINT}")
+        raise UsageError(
+            f"{path}: format: expected {FORMAT!r}, got {str(data.get('format'))[:60]!r}: not a lanegraph checkpoint{_HINT}"
+        )
     if data.get("version") != VERSION:
-        raise UsageError(f"{path}: version: expected {VERSION}, got {str(data.get('version'))[:20]} (written by another lanegraph version){_HINT}")
+        raise UsageError(
+            f"{path}: version: expected {VERSION}, got {str(data.get('version'))[:20]} (written by another lanegraph version){_HINT}"
+        )
     try:
         ckpt = Checkpoint.model_validate(data)
     except ValidationError as exc:
         err = exc.errors()[0]
         loc = ".".join(str(x) for x in err["loc"]) or "(top level)"
         more = f" (and {exc.error_count() - 1} more problem(s))" if exc.error_count() > 1 else ""
-        raise UsageError(f"{path}: {loc}: {err['msg']}, got {str(err.get('input'))[:80]}{more}{_HINT}") from None
+        raise UsageError(
+            f"{path}: {loc}: {err['msg']}, got {str(err.get('input'))[:80]}{more}{_HINT}"
+        ) from None
     if ckpt.frames_ok > ckpt.position or (ckpt.total is not None and ckpt.position > ckpt.total):
-        raise UsageError(f"{path}: position {ckpt.position}, frames_ok {ckpt.frames_ok} and total {ckpt.total} do not fit together{_HINT}")
+        raise UsageError(
+            f"{path}: position {ckpt.position}, frames_ok {ckpt.frames_ok} and total {ckpt.total} do not fit together{_HINT}"
+        )
     return ckpt
 
 
-def decode_feedback(ckpt: Checkpoint, path: Path) -> tuple[dict[tuple[str, str], Any], dict[tuple[str, str], str | None]]:
+def decode_feedback(
+    ckpt: Checkpoint, path: Path
+) -> tuple[dict[tuple[str, str], Any], dict[tuple[str, str], str | None]]:
     """The feedback values and their cache keys of a checkpoint, decoded (errors name the entry)."""
     values, keys = {}, {}
     for i, fb in enumerate(ckpt.feedback):
@@ -337,26 +394,40 @@ def decode_feedback(ckpt: Checkpoint, path: Path) -> tuple[dict[tuple[str, str],
         except CheckpointValueError as exc:
             raise UsageError(f"{path}: {exc}{_HINT}") from None
         except RecursionError:
-            raise UsageError(f"{path}: feedback[{i}] ({fb.node}.{fb.port}): nested too deeply{_HINT}") from None
+            raise UsageError(
+                f"{path}: feedback[{i}] ({fb.node}.{fb.port}): nested too deeply{_HINT}"
+            ) from None
         keys[(fb.node, fb.port)] = fb.key
     return values, keys
 
 
-def check_identity(ckpt: Checkpoint, path: Path, *, graph_digest: str, resolved: dict[str, Any], input: str | None, frames: str) -> None:  # noqa: A002
+def check_identity(
+    ckpt: Checkpoint,
+    path: Path,
+    *,
+    graph_digest: str,
+    resolved: dict[str, Any],
+    input: str | None,
+    frames: str,
+) -> None:  # noqa: A002
     """Refuse (:class:`UsageError`) a resume whose graph, params, ``--input`` or ``--frames`` are not
     the checkpoint's, naming the first difference."""
     if ckpt.unresumable:
         raise UsageError(f"{path}: the run in this folder cannot be resumed: {ckpt.unresumable}{_HINT}")
     if ckpt.graph_digest != graph_digest:
         what = _first_difference(ckpt.resolved, resolved) or "the resolved graphs differ"
-        raise UsageError(f"{path}: the checkpoint's run used another graph or params ({what}; graph {ckpt.graph!r}){_HINT}")
+        raise UsageError(
+            f"{path}: the checkpoint's run used another graph or params ({what}; graph {ckpt.graph!r}){_HINT}"
+        )
     if ckpt.input != input:
         raise UsageError(
             f"{path}: --input differs: the checkpoint's run read {ckpt.input or '(none: the synthetic scene)'}, "
             f"this one {input or '(none: the synthetic scene)'}{_HINT}"
         )
     if ckpt.frames != frames:
-        raise UsageError(f"{path}: --frames differs: the checkpoint's run selected {ckpt.frames or '(all)'!s}, this one {frames or '(all)'}{_HINT}")
+        raise UsageError(
+            f"{path}: --frames differs: the checkpoint's run selected {ckpt.frames or '(all)'!s}, this one {frames or '(all)'}{_HINT}"
+        )
 
 
 def _first_difference(a: Any, b: Any, where: str = "") -> str | None:
@@ -382,7 +453,9 @@ def save_checkpoint(path: Path, data: dict[str, Any]) -> None:
     write_bytes_atomic(path, json.dumps(data, separators=(",", ":"), allow_nan=False).encode("utf-8"))
 
 
-def feedback_entries(values: dict[tuple[str, str], Any], keys: dict[tuple[str, str], str | None]) -> list[dict[str, Any]]:
+def feedback_entries(
+    values: dict[tuple[str, str], Any], keys: dict[tuple[str, str], str | None]
+) -> list[dict[str, Any]]:
     """The ``feedback`` list of a checkpoint (raises :class:`CheckpointValueError` for a value it cannot hold)."""
     return [
         {"node": n, "port": p, "value": encode_value(values[(n, p)], f"{n}.{p}"), "key": keys.get((n, p))}

@@ -67,7 +67,13 @@ def detect_source(pm: PluginManager, input_path: Path | None) -> NodeType | None
         return None
 
 
-def open_source(node_type: NodeType, params: NodeParams, input_path: Path | None, frames: slice | None = None, node_id: str = "src") -> Any:
+def open_source(
+    node_type: NodeType,
+    params: NodeParams,
+    input_path: Path | None,
+    frames: slice | None = None,
+    node_id: str = "src",
+) -> Any:
     """An instance of source ``node_type`` on ``input_path`` (``frames`` selected); close it when
     done. Raises what opening raises (a :class:`LanegraphError` such as an unusable input), any
     other exception as a :class:`NodeError`."""
@@ -99,10 +105,18 @@ def read_calibration(pm: PluginManager, path: Path) -> Any:
             raise InputError("calibration file not found", path=str(path))
         calib = pm.hook.lanegraph_read_calibration(path=path)
         if calib is None:
-            raise InputError("no installed plugin reads this calibration file (by its format)", path=str(path))
+            raise InputError(
+                "no installed plugin reads this calibration file (by its format)", path=str(path)
+            )
         return calib
     nt = detect_source(pm, path)
-    port = next((name for name, p in nt.outputs.items() if p.type == "calibration" and p.rate == "constant"), None) if nt else None
+    port = (
+        next(
+            (name for name, p in nt.outputs.items() if p.type == "calibration" and p.rate == "constant"), None
+        )
+        if nt
+        else None
+    )
     if nt is None or port is None:
         raise InputError("no installed source reads a calibration from this folder", path=str(path))
     source = open_source(nt, nt.params(), path)

@@ -48,7 +48,9 @@ def _resolve(node: Any, pm: PluginManager | None) -> NodeType:
     if not isinstance(node, str):
         nt = node_type_of(node)
         if nt is None:
-            raise TypeError(f"{node!r} is not a node type (a function or class decorated with @lanegraph.node_type)")
+            raise TypeError(
+                f"{node!r} is not a node type (a function or class decorated with @lanegraph.node_type)"
+            )
         return nt
     from .plugins import get_plugin_manager
 
@@ -116,7 +118,12 @@ def make_stereo_pair(
 
 
 def make_disparity(
-    height: int = 80, width: int = 120, pitch_deg: float = 1.0, cam_height: float = 1.6, f: float | None = None, baseline: float = 0.5
+    height: int = 80,
+    width: int = 120,
+    pitch_deg: float = 1.0,
+    cam_height: float = 1.6,
+    f: float | None = None,
+    baseline: float = 0.5,
 ) -> tuple[np.ndarray, Calibration]:
     """The exact disparity of a flat road (0 above the horizon) for a camera looking down by
     ``pitch_deg`` from ``cam_height`` metres, and its calibration."""
@@ -130,8 +137,15 @@ def make_disparity(
 
 
 def make_bev_image(
-    rows: int = 200, cols: int = 160, lane_cols: tuple[float, ...] = (50.0, 110.0), width_px: float = 3.0,
-    slope: float = 0.0, background: int = 80, paint: int = 200, noise: float = 4.0, seed: int = 0,
+    rows: int = 200,
+    cols: int = 160,
+    lane_cols: tuple[float, ...] = (50.0, 110.0),
+    width_px: float = 3.0,
+    slope: float = 0.0,
+    background: int = 80,
+    paint: int = 200,
+    noise: float = 4.0,
+    seed: int = 0,
 ) -> np.ndarray:
     """A BEV image (uint8) with bright vertical (``slope`` = column shift per row up) stripes at
     ``lane_cols`` on the bottom row."""
@@ -175,8 +189,11 @@ def _feed_source(sample: Mapping[str, Any], types: Mapping[str, str]) -> type:
 
 def _equal(a: Any, b: Any) -> bool:
     if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
-        return isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape == b.shape and bool(
-            np.array_equal(a, b, equal_nan=a.dtype.kind == "f")
+        return (
+            isinstance(a, np.ndarray)
+            and isinstance(b, np.ndarray)
+            and a.shape == b.shape
+            and bool(np.array_equal(a, b, equal_nan=a.dtype.kind == "f"))
         )
     if isinstance(a, dict) and isinstance(b, dict):
         return a.keys() == b.keys() and all(_equal(a[k], b[k]) for k in a)
@@ -191,7 +208,10 @@ def _equal(a: Any, b: Any) -> bool:
 
 
 def check_node_type(
-    node: Any, sample_inputs: Mapping[str, Any], params: Mapping[str, Any] | None = None, pm: PluginManager | None = None
+    node: Any,
+    sample_inputs: Mapping[str, Any],
+    params: Mapping[str, Any] | None = None,
+    pm: PluginManager | None = None,
 ) -> None:
     """Assert that ``node`` (its function or class, or its :class:`NodeType`) follows the lanegraph
     node contract; raises AssertionError naming the rule.
@@ -212,7 +232,9 @@ def check_node_type(
     assert node.doc.strip(), f"{node.name}: no docstring"
     for where, ports in (("input", node.inputs), ("output", node.outputs)):
         for name, port in ports.items():
-            assert port.type in port_types, f"{node.name}: {where} port {name!r} has unknown type {port.type!r} (not registered by any plugin)"
+            assert port.type in port_types, (
+                f"{node.name}: {where} port {name!r} has unknown type {port.type!r} (not registered by any plugin)"
+            )
     for name, f in node.params.model_fields.items():
         assert f.description, f"{node.name}: param {name!r} has no description"
         ann = f.annotation
@@ -220,7 +242,9 @@ def check_node_type(
             meta = [m for m in f.metadata if any(hasattr(m, a) for a in ("ge", "gt", "le", "lt"))]
             lower = any(hasattr(m, "ge") or hasattr(m, "gt") for m in meta)
             upper = any(hasattr(m, "le") or hasattr(m, "lt") for m in meta)
-            assert lower and upper, f"{node.name}: numeric param {name!r} needs lower and upper bounds (ge/le)"
+            assert lower and upper, (
+                f"{node.name}: numeric param {name!r} needs lower and upper bounds (ge/le)"
+            )
     if node.source:
         return
     params = dict(params or {})
@@ -230,12 +254,19 @@ def check_node_type(
     again = run_node(node, given, **params)
     assert _equal(first, again), f"{node.name}: not deterministic (two calls on the same inputs differ)"
     assert _equal(given, frozen), f"{node.name}: mutated its inputs"
-    assert set(first) >= set(node.outputs) or node.sink, f"{node.name}: missing outputs {set(node.outputs) - set(first)}"
+    assert set(first) >= set(node.outputs) or node.sink, (
+        f"{node.name}: missing outputs {set(node.outputs) - set(first)}"
+    )
 
     _round_trip(node, sample_inputs, params, pm.port_types)
 
 
-def _round_trip(node: NodeType, sample_inputs: Mapping[str, Any], params: Mapping[str, Any], port_types: Mapping[str, PortType]) -> None:
+def _round_trip(
+    node: NodeType,
+    sample_inputs: Mapping[str, Any],
+    params: Mapping[str, Any],
+    port_types: Mapping[str, PortType],
+) -> None:
     """The conformance check's last rule: a graph feeding ``sample_inputs`` to ``node`` validates,
     round-trips through a graph file and runs."""
     from .executor import Executor
@@ -262,7 +293,11 @@ def _round_trip(node: NodeType, sample_inputs: Mapping[str, Any], params: Mappin
         "name": "conformance",
         "nodes": {
             "src": {"type": "testing.feed"},
-            "node": {"type": node.name, "params": dict(params), "inputs": {k: f"src.{k}" for k in sample_inputs}},
+            "node": {
+                "type": node.name,
+                "params": dict(params),
+                "inputs": {k: f"src.{k}" for k in sample_inputs},
+            },
         },
     }
     with tempfile.TemporaryDirectory() as tmp:

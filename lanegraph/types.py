@@ -126,7 +126,9 @@ class Calibration:
 BASELINE_RANGE_M = (0.05, 2.0)
 
 
-def calibration_problems(calib: Calibration, baseline_range_m: tuple[float, float] = BASELINE_RANGE_M) -> list[tuple[str, str]]:
+def calibration_problems(
+    calib: Calibration, baseline_range_m: tuple[float, float] = BASELINE_RANGE_M
+) -> list[tuple[str, str]]:
     """What is implausible in a rectified calibration: ``[(field, message), ...]``, empty when none.
 
     Checked: every value finite; ``f`` (and ``fy``) > 0, ``fy`` within 4x of ``f``; the baseline
@@ -159,11 +161,20 @@ def calibration_problems(calib: Calibration, baseline_range_m: tuple[float, floa
         out.append(("width", f"image size must not be negative, got {calib.width}x{calib.height}"))
     elif calib.width and calib.height and not bad:
         if not (0 <= calib.cx < calib.width):
-            out.append(("cx", f"principal point x {calib.cx} lies outside the {calib.width}x{calib.height} image"))
+            out.append(
+                ("cx", f"principal point x {calib.cx} lies outside the {calib.width}x{calib.height} image")
+            )
         if not (0 <= calib.cy < calib.height):
-            out.append(("cy", f"principal point y {calib.cy} lies outside the {calib.width}x{calib.height} image"))
+            out.append(
+                ("cy", f"principal point y {calib.cy} lies outside the {calib.width}x{calib.height} image")
+            )
         if calib.f > 0 and not (0.05 * calib.width <= calib.f <= 50 * calib.width):
-            out.append(("f", f"focal length {calib.f} px is implausible for a {calib.width} px wide image (expected 0.05 to 50 widths)"))
+            out.append(
+                (
+                    "f",
+                    f"focal length {calib.f} px is implausible for a {calib.width} px wide image (expected 0.05 to 50 widths)",
+                )
+            )
     return out
 
 
@@ -297,12 +308,16 @@ class FeatureMap:
         cols = np.asarray(cols).astype(np.int64, copy=False)
         shape = (int(shape[0]), int(shape[1]))
         if rows.ndim != 1 or rows.shape != cols.shape:
-            raise ValueError(f"FeatureMap.from_points: rows and cols: expected two 1-D arrays of one length, got shapes {rows.shape} and {cols.shape}")
+            raise ValueError(
+                f"FeatureMap.from_points: rows and cols: expected two 1-D arrays of one length, got shapes {rows.shape} and {cols.shape}"
+            )
         values = None
         if orientation_values is not None:
             values = np.asarray(orientation_values)
             if values.shape != rows.shape:
-                raise ValueError(f"FeatureMap.from_points: orientation_values: expected shape {rows.shape} (one per point), got {values.shape}")
+                raise ValueError(
+                    f"FeatureMap.from_points: orientation_values: expected shape {rows.shape} (one per point), got {values.shape}"
+                )
         fm = cls.__new__(cls)
         # mask and orientation stay unset until read (__getattr__ builds them) unless given
         fm.__dict__.update(_shape=shape, _points=(rows, cols), _values=values)
@@ -406,7 +421,11 @@ class Lane:
 
     def to_json(self) -> dict[str, Any]:
         # tolist(): Python floats straight away (rounded exactly as before, 40 % faster)
-        pts = [] if self.points is None else [[round(x, 1), round(y, 1)] for x, y in np.asarray(self.points, dtype=np.float64).tolist()]
+        pts = (
+            []
+            if self.points is None
+            else [[round(x, 1), round(y, 1)] for x, y in np.asarray(self.points, dtype=np.float64).tolist()]
+        )
         out: dict[str, Any] = {"points": pts, "side": self.side, "score": round(float(self.score), 4)}
         out["bev_coeffs"] = [float(c) for c in self.coeffs]
         out.update(self.extra)

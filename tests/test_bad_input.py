@@ -50,7 +50,11 @@ def kitti_raw(root: Path, n: int = 3, calib_rows: list[str] | None = None) -> Pa
         (drive / cam / "data").mkdir(parents=True)
         for i in range(n):
             cv2.imwrite(str(drive / cam / "data" / f"{i:010d}.png"), texture(i))
-    rows = calib_rows if calib_rows is not None else [f"S_rect_02: {W} {H}", f"P_rect_02: {P2}", f"P_rect_03: {P3}"]
+    rows = (
+        calib_rows
+        if calib_rows is not None
+        else [f"S_rect_02: {W} {H}", f"P_rect_02: {P2}", f"P_rect_03: {P3}"]
+    )
     (date / "calib_cam_to_cam.txt").write_text("calib_time: 09-Jan-2012 13:57:47\n" + "\n".join(rows) + "\n")
     return drive
 
@@ -73,7 +77,9 @@ def run(installed_pm, monkeypatch, tmp_path):
 
     def invoke(graph: Path, input_dir: Path, *args: str):
         out = tmp_path / "out"
-        r = CliRunner().invoke(main, ["run", str(graph), "--input", str(input_dir), "--out", str(out), "--quiet", *args])
+        r = CliRunner().invoke(
+            main, ["run", str(graph), "--input", str(input_dir), "--out", str(out), "--quiet", *args]
+        )
         assert r.exception is None or isinstance(r.exception, SystemExit), repr(r.exception)
         assert "Traceback" not in r.output, r.output
         return r.exit_code, r.output, out
@@ -130,13 +136,31 @@ def _empty(d: Path) -> None:
 @pytest.mark.parametrize(
     "name, breaker, where, words",
     [
-        ("missing right image", _drop_right, "left/000001.png", ["frame 000001", "has no right partner", "right"]),
+        (
+            "missing right image",
+            _drop_right,
+            "left/000001.png",
+            ["frame 000001", "has no right partner", "right"],
+        ),
         ("empty folder", _empty, "left", ["no images in the folder", "expected .png"]),
-        ("no calibration", lambda d: (d / "calib.yaml").unlink(), "calib.yaml", ["calibration file not found", "f, cx, cy, baseline"]),
-        ("calibration without baseline", lambda d: (d / "calib.yaml").write_text("f: 60\ncx: 32\ncy: 24\n"),
-         "calib.yaml", ["missing key(s) ['baseline']", "baseline in metres"]),
-        ("calibration not numbers", lambda d: (d / "calib.yaml").write_text("f: sixty\ncx: 32\ncy: 24\nbaseline: 0.5\n"),
-         "calib.yaml", ["must be numbers", "sixty"]),
+        (
+            "no calibration",
+            lambda d: (d / "calib.yaml").unlink(),
+            "calib.yaml",
+            ["calibration file not found", "f, cx, cy, baseline"],
+        ),
+        (
+            "calibration without baseline",
+            lambda d: (d / "calib.yaml").write_text("f: 60\ncx: 32\ncy: 24\n"),
+            "calib.yaml",
+            ["missing key(s) ['baseline']", "baseline in metres"],
+        ),
+        (
+            "calibration not numbers",
+            lambda d: (d / "calib.yaml").write_text("f: sixty\ncx: 32\ncy: 24\nbaseline: 0.5\n"),
+            "calib.yaml",
+            ["must be numbers", "sixty"],
+        ),
     ],
 )
 def test_unusable_pair_folder_exit_2(run, tmp_path, name, breaker, where, words):
@@ -153,11 +177,21 @@ def test_unusable_pair_folder_exit_2(run, tmp_path, name, breaker, where, words)
 @pytest.mark.parametrize(
     "name, rows, words",
     [
-        ("row missing", [f"P_rect_02: {P2}"], ["row 'P_rect_03' missing", "3x4 projection matrix, 12 numbers"]),
-        ("row not numbers", [f"P_rect_02: {P2}", "P_rect_03: 60 0 32 minus30 0 60 24 0 0 0 1 0"],
-         ["line 3", "row 'P_rect_03'", "non-numeric values", "minus30", "expected 12 numbers"]),
-        ("row too short", [f"P_rect_02: {P2}", "P_rect_03: 60 0 32 -30 0 60 24 0 0 0 1"],
-         ["line 3", "row 'P_rect_03' has 11 numbers", "expected 12 numbers"]),
+        (
+            "row missing",
+            [f"P_rect_02: {P2}"],
+            ["row 'P_rect_03' missing", "3x4 projection matrix, 12 numbers"],
+        ),
+        (
+            "row not numbers",
+            [f"P_rect_02: {P2}", "P_rect_03: 60 0 32 minus30 0 60 24 0 0 0 1 0"],
+            ["line 3", "row 'P_rect_03'", "non-numeric values", "minus30", "expected 12 numbers"],
+        ),
+        (
+            "row too short",
+            [f"P_rect_02: {P2}", "P_rect_03: 60 0 32 -30 0 60 24 0 0 0 1"],
+            ["line 3", "row 'P_rect_03' has 11 numbers", "expected 12 numbers"],
+        ),
         ("not KEY: values", [f"P_rect_02: {P2}", "P_rect_03 60 0 32"], ["line 3", "expected 'KEY: values'"]),
     ],
 )
@@ -192,7 +226,11 @@ def test_frame_selection_out_of_range(run, tmp_path, frames):
     d = pair_folder(tmp_path / "in")
     code, output, _ = run(DEMO, d, *SMALL, "--frames", frames)
     assert code == 2, output
-    assert str(d) in output and "select(s) no frame" in output and "the input has 3 frame(s), indices 0..2" in output, output
+    assert (
+        str(d) in output
+        and "select(s) no frame" in output
+        and "the input has 3 frame(s), indices 0..2" in output
+    ), output
 
 
 def test_frame_selection_with_step_0_is_a_usage_error(run, tmp_path):
@@ -220,14 +258,30 @@ def _wider_than_calibration(d: Path) -> None:
 @pytest.mark.parametrize(
     "name, breaker, where, words",
     [
-        ("size mismatch", lambda d: cv2.imwrite(str(d / "right" / "000001.png"), texture(9, h=40)),
-         "right/000001.png", ["left/right size mismatch", "left 64x48, right 64x40"]),
-        ("truncated png", lambda d: _truncate(d / "left" / "000001.png"),
-         "left/000001.png", ["cannot decode image", "truncated"]),
-        ("not an image", lambda d: (d / "right" / "000001.png").write_text("not a picture\n"),
-         "right/000001.png", ["cannot decode image", "not an image file"]),
-        ("image size not the calibration's", _wider_than_calibration,
-         "left/000001.png", ["image is 80x48", "the calibration expects 64x48"]),
+        (
+            "size mismatch",
+            lambda d: cv2.imwrite(str(d / "right" / "000001.png"), texture(9, h=40)),
+            "right/000001.png",
+            ["left/right size mismatch", "left 64x48, right 64x40"],
+        ),
+        (
+            "truncated png",
+            lambda d: _truncate(d / "left" / "000001.png"),
+            "left/000001.png",
+            ["cannot decode image", "truncated"],
+        ),
+        (
+            "not an image",
+            lambda d: (d / "right" / "000001.png").write_text("not a picture\n"),
+            "right/000001.png",
+            ["cannot decode image", "not an image file"],
+        ),
+        (
+            "image size not the calibration's",
+            _wider_than_calibration,
+            "left/000001.png",
+            ["image is 80x48", "the calibration expects 64x48"],
+        ),
     ],
 )
 def test_bad_frame(run, tmp_path, name, breaker, where, words):
@@ -259,8 +313,16 @@ def _disp_png(path: Path, shape: tuple[int, int] = (H, W), dtype=np.uint16) -> N
 @pytest.mark.parametrize(
     "name, bad, words",
     [
-        ("wrong size", lambda p: _disp_png(p, (40, W)), ["disparity map is 40x64", "the left image is 48x64", "the same size"]),
-        ("8-bit", lambda p: _disp_png(p, dtype=np.uint8), ["expected a 16-bit KITTI disparity PNG", "got dtype uint8"]),
+        (
+            "wrong size",
+            lambda p: _disp_png(p, (40, W)),
+            ["disparity map is 40x64", "the left image is 48x64", "the same size"],
+        ),
+        (
+            "8-bit",
+            lambda p: _disp_png(p, dtype=np.uint8),
+            ["expected a 16-bit KITTI disparity PNG", "got dtype uint8"],
+        ),
         ("missing", lambda p: p.unlink(), ["no precomputed disparity", "no such file"]),
     ],
 )

@@ -101,7 +101,9 @@ def test_python_tag_never_runs(cli, tmp_path):
 
 def _commands() -> list[list[str]]:
     cmds = [[sys.executable, "-m", "lanegraph.cli"]]
-    script = shutil.which("lanegraph", path=str(Path(sys.executable).parent) + os.pathsep + os.environ.get("PATH", ""))
+    script = shutil.which(
+        "lanegraph", path=str(Path(sys.executable).parent) + os.pathsep + os.environ.get("PATH", "")
+    )
     if script:
         cmds.append([script])
     return cmds
@@ -115,7 +117,12 @@ def test_broken_graph_in_a_real_process(name, tmp_path):
     env.pop("LANEGRAPH_GRAPH_ROOTS", None)
     for cmd in _commands()[: 1 if name != "python_tag.yaml" else None]:
         p = subprocess.run(
-            [*cmd, "validate", str(graph), *args], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=60
+            [*cmd, "validate", str(graph), *args],
+            cwd=tmp_path,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=60,
         )
         assert p.stdout == "", p.stdout  # errors go to stderr
         _check(p.stderr, p.returncode, shown, expect)

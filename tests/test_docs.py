@@ -39,8 +39,7 @@ DOC_FILES = sorted({*ROOT.glob("docs/*.md"), *ROOT.glob("docs/examples/*/README.
 
 #: doc blocks known to be wrong, keyed by (doc file, text in the block): a strict xfail giving the
 #: reason. Fix the doc, then delete the entry (it is inert once the text no longer matches).
-KNOWN_BROKEN = {
-}
+KNOWN_BROKEN = {}
 
 _FENCE = re.compile(r"^```\s*([\w+-]*)\s*$")
 _MARKER = re.compile(r"^<!--\s*(notest|from:\s*(?P<path>\S+))\s*-->$")

@@ -136,7 +136,12 @@ def _mutate(ckpt: dict, how: str) -> dict:
     elif how == "object array":
         ckpt["feedback"][0]["value"] = {"$t": "ndarray", "dtype": "|O", "shape": [1], "data": "AA=="}
     elif how == "array of the wrong size":
-        ckpt["feedback"][0]["value"] = {"$t": "ndarray", "dtype": "<f4", "shape": [10**6, 10**6], "data": "AAAAAA=="}
+        ckpt["feedback"][0]["value"] = {
+            "$t": "ndarray",
+            "dtype": "<f4",
+            "shape": [10**6, 10**6],
+            "data": "AAAAAA==",
+        }
     elif how == "a lane with another field":
         ckpt["feedback"][0]["value"] = [{"$t": "Lane", "v": {"coeffs": [1, 2, 3], "__class__": "x"}}]
     elif how == "feedback from another node":
@@ -158,7 +163,10 @@ def _mutate(ckpt: dict, how: str) -> dict:
         ("object array", ["feedback[0] (verify.lanes)", "dtype '|O'", "only numbers and booleans"]),
         ("array of the wrong size", ["feedback[0] (verify.lanes)", "do not make an array of shape"]),
         ("a lane with another field", ["feedback[0] (verify.lanes)[0]", "a Lane has the fields"]),
-        ("feedback from another node", ["feedback[0]", "no feedback edge of the graph comes from disp.lanes"]),
+        (
+            "feedback from another node",
+            ["feedback[0]", "no feedback edge of the graph comes from disp.lanes"],
+        ),
         ("failures not a list", ["failures:", "valid list"]),
         ("position beyond total", ["do not fit together"]),
     ],
@@ -171,7 +179,9 @@ def test_a_tampered_checkpoint_is_refused(cli, tmp_path, installed_pm, how, word
     ckpt = json.loads(path.read_text())
     assert [(f["node"], f["port"]) for f in ckpt["feedback"]] == [("verify", "lanes")]
     path.write_text(json.dumps(_mutate(ckpt, how)))
-    code, output = cli("run", PAPER, "--out", out, "--quiet", *SYNTH, "--set", "disp.num_disparities=32", "--resume")
+    code, output = cli(
+        "run", PAPER, "--out", out, "--quiet", *SYNTH, "--set", "disp.num_disparities=32", "--resume"
+    )
     assert code == 2, output
     assert str(path) in output, output
     for w in words:
@@ -205,7 +215,14 @@ def test_checkpoint_values_round_trip_exactly():
     from lanegraph.resume import CheckpointValueError, decode_value, encode_value
     from lanegraph.types import BevGeometry, FeatureMap, Lane, Line, RoadModel
 
-    lane = Lane((np.float64(1.5), 2.0, -3e-7), (3, 90), "left", np.float32(0.25), np.arange(8, dtype=np.float32).reshape(4, 2), {"k": [1, None]})
+    lane = Lane(
+        (np.float64(1.5), 2.0, -3e-7),
+        (3, 90),
+        "left",
+        np.float32(0.25),
+        np.arange(8, dtype=np.float32).reshape(4, 2),
+        {"k": [1, None]},
+    )
     values = [
         [lane, Line(1.0, 2.0, 3.0, "right")],
         RoadModel(1.0, 2.0, 0.5, valid=False, profile=np.array([-1, 3], np.int16)),
@@ -217,7 +234,11 @@ def test_checkpoint_values_round_trip_exactly():
         back = decode_value(json.loads(json.dumps(encode_value(v))))
         assert repr(back) == repr(v)
     back = decode_value(encode_value([lane]))[0]
-    assert type(back.coeffs[0]) is np.float64 and back.points.dtype == np.float32 and type(back.score) is np.float32
+    assert (
+        type(back.coeffs[0]) is np.float64
+        and back.points.dtype == np.float32
+        and type(back.score) is np.float32
+    )
     fm = FeatureMap.from_points((4, 5), np.array([0, 3]), np.array([1, 4]), np.array([0.5, 1.0], np.float32))
     fm2 = decode_value(encode_value(fm))
     assert np.array_equal(fm2.mask, fm.mask) and np.array_equal(fm2.orientation, fm.orientation)
@@ -234,7 +255,13 @@ def test_path_helpers():
             relative_output(bad)
     assert relative_output("./a//b/./c.jsonl") == "a/b/c.jsonl"
     assert [safe_name(x) for x in ("..", ".", "", "a/b", ".hidden", "0000000001", "x" * 300)] == [
-        "_..", "_.", "_", "a_b", "_.hidden", "0000000001", "x" * 200
+        "_..",
+        "_.",
+        "_",
+        "a_b",
+        "_.hidden",
+        "0000000001",
+        "x" * 200,
     ]
 
 
@@ -267,11 +294,17 @@ def test_links_planted_in_out_are_never_written_through(cli, tmp_path):
     (dbg / "0000000001" / "mosaic.png").symlink_to(victim)
     os.link(hard, out / "lanes.jsonl")  # a hard link: truncating the file would change hard.txt
     graph = tmp_path / "overlay.yaml"
-    graph.write_text(f"extends: {DEMO}\nnodes:\n  overlay: {{type: io.write_overlay, inputs: {{frame: src.frame, image: src.left}}}}\n")
-    code, output = cli("run", graph, "--out", out, "--debug-dir", dbg, "--debug-frames", "1", "--quiet", *SYNTH)
+    graph.write_text(
+        f"extends: {DEMO}\nnodes:\n  overlay: {{type: io.write_overlay, inputs: {{frame: src.frame, image: src.left}}}}\n"
+    )
+    code, output = cli(
+        "run", graph, "--out", out, "--debug-dir", dbg, "--debug-frames", "1", "--quiet", *SYNTH
+    )
     assert code == 0, output
     assert victim.read_text() == "precious\n" and hard.read_text() == "precious too\n"
-    assert not (out / "run.json").is_symlink() and json.loads((out / "run.json").read_text())["frames_ok"] == 4
+    assert (
+        not (out / "run.json").is_symlink() and json.loads((out / "run.json").read_text())["frames_ok"] == 4
+    )
     assert cv2.imread(str(out / "overlay" / "0000000000.png")) is not None
     assert len(lines(out / "lanes.jsonl")) == 4
     # a link at the lock's name: refused, not truncated
@@ -292,27 +325,40 @@ def test_frame_ids_never_climb_out_of_the_debug_dir_or_the_overlay_folder(cli, t
         f"extends: {DEMO}\nnodes:\n  overlay: {{type: io.write_overlay, inputs: {{frame: src.frame, image: src.left}}}}\n"
     )
     dbg = tmp_path / "nest" / "dbg"
-    code, output = cli("run", graph, "--input", d, "--out", tmp_path / "nest" / "out", "--debug-dir", dbg, "--quiet", *SMALL)
+    code, output = cli(
+        "run", graph, "--input", d, "--out", tmp_path / "nest" / "out", "--debug-dir", dbg, "--quiet", *SMALL
+    )
     assert code == 0, output
     assert sorted(p.name for p in (tmp_path / "nest").iterdir()) == ["dbg", "out"]
     assert (dbg / "_.." / "mosaic.png").is_file() and (dbg / "000000" / "mosaic.png").is_file()
-    assert sorted(p.name for p in (tmp_path / "nest" / "out" / "overlay").iterdir()) == ["000000.png", "_...png"]
+    assert sorted(p.name for p in (tmp_path / "nest" / "out" / "overlay").iterdir()) == [
+        "000000.png",
+        "_...png",
+    ]
 
 
 # ============================================================================ 3. resumes that are refused
 @pytest.mark.parametrize(
     "change, words",
     [
-        (["--set", "disp.block_size=7"], ["another graph or params", "disp.params.block_size: 5 in the checkpoint, 7 now"]),
+        (
+            ["--set", "disp.block_size=7"],
+            ["another graph or params", "disp.params.block_size: 5 in the checkpoint, 7 now"],
+        ),
         (["--frames", "0:3"], ["--frames differs", "(all)", "0:3"]),
-        (["--set", "src.frames=5"], ["another graph or params", "src.params.frames: 4 in the checkpoint, 5 now"]),
+        (
+            ["--set", "src.frames=5"],
+            ["another graph or params", "src.params.frames: 4 in the checkpoint, 5 now"],
+        ),
     ],
 )
 def test_resume_with_other_params_or_frames_is_refused(cli, tmp_path, installed_pm, change, words):
     out = tmp_path / "out"
     _interrupted_run(cli, out, installed_pm)
     before = (out / "lanes.jsonl").read_bytes()
-    code, output = cli("run", DEMO, "--out", out, "--quiet", *SYNTH, "--set", "disp.num_disparities=32", *change, "--resume")
+    code, output = cli(
+        "run", DEMO, "--out", out, "--quiet", *SYNTH, "--set", "disp.num_disparities=32", *change, "--resume"
+    )
     assert code == 2, output
     for w in [str(out / "checkpoint.json"), "cannot resume", *words]:
         assert w in output, output
@@ -353,7 +399,9 @@ def test_a_deleted_lanes_file_is_refused(cli, tmp_path, installed_pm):
     out = tmp_path / "out"
     _interrupted_run(cli, out, installed_pm)
     (out / "lanes.jsonl").unlink()
-    code, output = cli("run", DEMO, "--out", out, "--quiet", *SYNTH, "--set", "disp.num_disparities=32", "--resume")
+    code, output = cli(
+        "run", DEMO, "--out", out, "--quiet", *SYNTH, "--set", "disp.num_disparities=32", "--resume"
+    )
     assert code == 2, output
     assert str(out / "lanes.jsonl") in output and "missing: the checkpoint recorded" in output, output
     assert not (out / "lanes.jsonl").exists()
@@ -430,7 +478,19 @@ def test_two_processes_into_one_out(cli, tmp_path):
     import time
 
     out = tmp_path / "out"
-    cmd = [sys.executable, "-m", "lanegraph.cli", "run", DEMO, "--out", str(out), "--quiet", *SYNTH[:4], "--set", "src.frames=40"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "lanegraph.cli",
+        "run",
+        DEMO,
+        "--out",
+        str(out),
+        "--quiet",
+        *SYNTH[:4],
+        "--set",
+        "src.frames=40",
+    ]
     first = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.time() + 120
@@ -445,10 +505,17 @@ def test_two_processes_into_one_out(cli, tmp_path):
 
 
 def test_the_summary_names_the_files_the_sinks_wrote(cli, tmp_path):
-    code, output = cli("run", DEMO, "--out", tmp_path / "out", "--quiet", *SYNTH, "--set", "write.filename=sub/my.jsonl")
+    code, output = cli(
+        "run", DEMO, "--out", tmp_path / "out", "--quiet", *SYNTH, "--set", "write.filename=sub/my.jsonl"
+    )
     assert code == 0, output
-    assert f"-> {tmp_path / 'out' / 'sub' / 'my.jsonl'}, {tmp_path / 'out' / 'timings.json'}" in output, output
-    assert not (tmp_path / "out" / "lanes.jsonl").exists() and len(lines(tmp_path / "out" / "sub" / "my.jsonl")) == 4
+    assert f"-> {tmp_path / 'out' / 'sub' / 'my.jsonl'}, {tmp_path / 'out' / 'timings.json'}" in output, (
+        output
+    )
+    assert (
+        not (tmp_path / "out" / "lanes.jsonl").exists()
+        and len(lines(tmp_path / "out" / "sub" / "my.jsonl")) == 4
+    )
 
 
 # ============================================================================ 5. calibrations
@@ -458,16 +525,44 @@ NAN_P2 = P2.replace("60 0 32", "nan 0 32", 1)
 @pytest.mark.parametrize(
     "rows, words",
     [
-        ([f"P_rect_02: {NAN_P2}", f"P_rect_03: {P3}"], ["line 2", "row 'P_rect_02'", "non-finite value (nan)"]),
-        ([f"P_rect_02: {P2}", "P_rect_03: 60 0 32 -inf 0 60 24 0 0 0 1 0"], ["row 'P_rect_03'", "non-finite value (-inf)"]),
-        ([f"P_rect_02: {P2}", "P_rect_03: 60 0 32 -31962 0 60 24 0 0 0 1 0"], ["baseline 532.7 m", "millimetres", "0.5327"]),
-        ([f"P_rect_02: {P2}", "P_rect_03: 61 0 32 -30 0 61 24 0 0 0 1 0"], ["rows 'P_rect_02' and 'P_rect_03' are not a rectified pair", "fx"]),
-        (["P_rect_02: 60 0 3200 0 0 60 24 0 0 0 1 0", "P_rect_03: 60 0 3200 -30 0 60 24 0 0 0 1 0"],
-         ["row 'P_rect_02' (cx, P[0,2])", "principal point x 3200", "outside the 64x48 image"]),
-        ([f"P_rect_02: {P2}", f"P_rect_03: {P3}", f"P_rect_02: {P2}"], ["line 4", "row 'P_rect_02' appears twice", "first at line 2"]),
-        ([f"P_rect_02: {P2}", "P_rect_03: 60 0 32 -0.6 0 60 24 0 0 0 1 0"], ["baseline 0.01 m is outside the plausible 0.05-2.0 m"]),
+        (
+            [f"P_rect_02: {NAN_P2}", f"P_rect_03: {P3}"],
+            ["line 2", "row 'P_rect_02'", "non-finite value (nan)"],
+        ),
+        (
+            [f"P_rect_02: {P2}", "P_rect_03: 60 0 32 -inf 0 60 24 0 0 0 1 0"],
+            ["row 'P_rect_03'", "non-finite value (-inf)"],
+        ),
+        (
+            [f"P_rect_02: {P2}", "P_rect_03: 60 0 32 -31962 0 60 24 0 0 0 1 0"],
+            ["baseline 532.7 m", "millimetres", "0.5327"],
+        ),
+        (
+            [f"P_rect_02: {P2}", "P_rect_03: 61 0 32 -30 0 61 24 0 0 0 1 0"],
+            ["rows 'P_rect_02' and 'P_rect_03' are not a rectified pair", "fx"],
+        ),
+        (
+            ["P_rect_02: 60 0 3200 0 0 60 24 0 0 0 1 0", "P_rect_03: 60 0 3200 -30 0 60 24 0 0 0 1 0"],
+            ["row 'P_rect_02' (cx, P[0,2])", "principal point x 3200", "outside the 64x48 image"],
+        ),
+        (
+            [f"P_rect_02: {P2}", f"P_rect_03: {P3}", f"P_rect_02: {P2}"],
+            ["line 4", "row 'P_rect_02' appears twice", "first at line 2"],
+        ),
+        (
+            [f"P_rect_02: {P2}", "P_rect_03: 60 0 32 -0.6 0 60 24 0 0 0 1 0"],
+            ["baseline 0.01 m is outside the plausible 0.05-2.0 m"],
+        ),
     ],
-    ids=["nan f", "inf baseline", "baseline in mm", "not rectified", "principal point outside", "duplicate row", "baseline tiny"],
+    ids=[
+        "nan f",
+        "inf baseline",
+        "baseline in mm",
+        "not rectified",
+        "principal point outside",
+        "duplicate row",
+        "baseline tiny",
+    ],
 )
 def test_implausible_kitti_raw_calibration(cli, tmp_path, rows, words):
     drive = kitti_raw(tmp_path, calib_rows=rows)
@@ -482,11 +577,18 @@ def test_implausible_kitti_raw_calibration(cli, tmp_path, rows, words):
 @pytest.mark.parametrize(
     "rows, words",
     [
-        (["S_rect_02: 640 480", f"P_rect_02: {P2}", f"P_rect_03: {P3}"],
-         ["row 'S_rect_02'", "the calibration is for 640x480 images, the frames are 64x48"]),
-        (["P_rect_02: 60 3 32 0 0 60 24 0 0 0 1 0", "P_rect_03: 60 3 32 -30 0 60 24 0 0 0 1 0"],
-         ["row 'P_rect_02' is not a rectified projection matrix"]),
-        ([f"P_rect_02: {P2}", "P_rect_03: 120 0 64 -60 0 120 48 0 0 0 2 0"], ["row 'P_rect_03' is not a rectified projection matrix"]),
+        (
+            ["S_rect_02: 640 480", f"P_rect_02: {P2}", f"P_rect_03: {P3}"],
+            ["row 'S_rect_02'", "the calibration is for 640x480 images, the frames are 64x48"],
+        ),
+        (
+            ["P_rect_02: 60 3 32 0 0 60 24 0 0 0 1 0", "P_rect_03: 60 3 32 -30 0 60 24 0 0 0 1 0"],
+            ["row 'P_rect_02' is not a rectified projection matrix"],
+        ),
+        (
+            [f"P_rect_02: {P2}", "P_rect_03: 120 0 64 -60 0 120 48 0 0 0 2 0"],
+            ["row 'P_rect_03' is not a rectified projection matrix"],
+        ),
         (["S_rect_02: 64.5 48", f"P_rect_02: {P2}", f"P_rect_03: {P3}"], ["row 'S_rect_02'", "two integers"]),
     ],
     ids=["size not the frames'", "skew", "scaled matrix", "fractional size"],
@@ -508,7 +610,9 @@ def test_a_huge_calibration_file_is_not_read(cli, tmp_path):
 
 
 def test_the_user_widens_the_baseline_range(cli, tmp_path):
-    drive = kitti_raw(tmp_path, calib_rows=[f"P_rect_02: {P2}", "P_rect_03: 60 0 32 -31962 0 60 24 0 0 0 1 0"])
+    drive = kitti_raw(
+        tmp_path, calib_rows=[f"P_rect_02: {P2}", "P_rect_03: 60 0 32 -31962 0 60 24 0 0 0 1 0"]
+    )
     widen = ["--set", "src.type=io.kitti_raw", "--set", "src.max_baseline_m=1000"]
     code, output = cli("run", DEMO, "--input", drive, "--out", tmp_path / "out", "--quiet", *SMALL, *widen)
     assert code == 0, output
@@ -540,31 +644,56 @@ def test_odometry_nan_row(cli, tmp_path):
     seq = kitti_odometry(tmp_path)
     (seq / "calib.txt").write_text(f"P0: {P2}\nP1: 60 0 32 nan 0 60 24 0 0 0 1 0\n")
     code, output = cli("run", DEMO, "--input", seq, "--out", tmp_path / "out", "--quiet", *SMALL)
-    assert code == 2 and str(seq / "calib.txt") in output and "row 'P1'" in output and "non-finite" in output, output
+    assert (
+        code == 2 and str(seq / "calib.txt") in output and "row 'P1'" in output and "non-finite" in output
+    ), output
 
 
 def test_left_and_right_swapped(cli, tmp_path):
     from lanegraph_synthetic import KITTI_CALIB, preset, write_sequence
 
     seq = write_sequence(preset("straight", calib=KITTI_CALIB.scaled(0.4)), tmp_path / "seq", 2)
-    code, output = cli("run", DEMO, "--input", seq, "--out", tmp_path / "ok", "--quiet", "--set", "disp.num_disparities=48")
+    code, output = cli(
+        "run", DEMO, "--input", seq, "--out", tmp_path / "ok", "--quiet", "--set", "disp.num_disparities=48"
+    )
     assert code == 0, output
     (seq / "left").rename(seq / "tmp")
     (seq / "right").rename(seq / "left")
     (seq / "tmp").rename(seq / "right")
-    code, output = cli("run", DEMO, "--input", seq, "--out", tmp_path / "out", "--quiet", "--set", "disp.num_disparities=48")
+    code, output = cli(
+        "run", DEMO, "--input", seq, "--out", tmp_path / "out", "--quiet", "--set", "disp.num_disparities=48"
+    )
     assert code == 2, output
-    assert str(seq / "left") in output and "left and right images look swapped" in output and "frame 0000000000" in output, output
+    assert (
+        str(seq / "left") in output
+        and "left and right images look swapped" in output
+        and "frame 0000000000" in output
+    ), output
     off = ["--set", "src.type=io.folder", "--set", "src.check_order=false"]
-    code, output = cli("run", DEMO, "--input", seq, "--out", tmp_path / "out", "--quiet", "--set", "disp.num_disparities=48", *off)
+    code, output = cli(
+        "run",
+        DEMO,
+        "--input",
+        seq,
+        "--out",
+        tmp_path / "out",
+        "--quiet",
+        "--set",
+        "disp.num_disparities=48",
+        *off,
+    )
     assert code == 0, output
 
 
 def test_a_road_profile_invalid_on_every_frame_is_a_warning(cli, tmp_path):
     d = pair_folder(tmp_path / "in")  # identical left and right textures: disparity 0, no road
-    code, output = cli("run", PAPER, "--input", d, "--out", tmp_path / "out", "--quiet", "--set", "disp.num_disparities=16")
+    code, output = cli(
+        "run", PAPER, "--input", d, "--out", tmp_path / "out", "--quiet", "--set", "disp.num_disparities=16"
+    )
     assert code == 0, output
-    assert "warning: node 'road' (road.profile): output 'road' was invalid on every frame (3 of 3)" in output, output
+    assert (
+        "warning: node 'road' (road.profile): output 'road' was invalid on every frame (3 of 3)" in output
+    ), output
     rec = json.loads((tmp_path / "out" / "run.json").read_text())
     assert any("invalid on every frame" in w for w in rec["warnings"])
 
@@ -596,16 +725,28 @@ def test_lanes_stay_inside_an_image_whose_size_the_calibration_does_not_give(cli
     (seq / "calib.yaml").write_text(yaml.safe_dump(cal))
     code, output = cli("run", PAPER, "--input", seq, "--out", tmp_path / "out", "--quiet")
     assert code == 0, output
-    pts = [p for line in lines(tmp_path / "out" / "lanes.jsonl") for ln in json.loads(line)["lanes"] for p in ln["points"]]
+    pts = [
+        p
+        for line in lines(tmp_path / "out" / "lanes.jsonl")
+        for ln in json.loads(line)["lanes"]
+        for p in ln["points"]
+    ]
     assert pts, "the scene has lanes"
     assert all(0 <= x <= w - 1 and 0 <= y <= h - 1 for x, y in pts), max(y for _, y in pts)
 
 
 def test_real_odometry_lanes_inside_the_image(cli, kitti_odometry_seq2):
-    code, output = cli("run", PAPER, "--input", kitti_odometry_seq2, "--out", "out", "--quiet", "--frames", "0:4")
+    code, output = cli(
+        "run", PAPER, "--input", kitti_odometry_seq2, "--out", "out", "--quiet", "--frames", "0:4"
+    )
     assert code == 0, output
     img = cv2.imread(str(sorted((kitti_odometry_seq2 / "image_0").iterdir())[0]), cv2.IMREAD_GRAYSCALE)
-    pts = [p for line in lines(Path("out") / "lanes.jsonl") for ln in json.loads(line)["lanes"] for p in ln["points"]]
+    pts = [
+        p
+        for line in lines(Path("out") / "lanes.jsonl")
+        for ln in json.loads(line)["lanes"]
+        for p in ln["points"]
+    ]
     assert pts and max(y for _, y in pts) <= img.shape[0] - 1 and max(x for x, _ in pts) <= img.shape[1] - 1
 
 
@@ -640,7 +781,9 @@ def test_a_read_only_out(cli, tmp_path, monkeypatch):
 
     monkeypatch.setattr(Path, "mkdir", refuse)
     code, output = cli("run", DEMO, "--out", tmp_path / "ro", "--quiet", *SYNTH)
-    assert code == 2 and f"--out {tmp_path / 'ro'}: cannot write there: Read-only file system" in output, output
+    assert code == 2 and f"--out {tmp_path / 'ro'}: cannot write there: Read-only file system" in output, (
+        output
+    )
 
 
 def test_a_full_disk_during_the_run(cli, tmp_path, monkeypatch):
@@ -660,7 +803,10 @@ def test_a_full_disk_during_the_run(cli, tmp_path, monkeypatch):
     out = tmp_path / "out"
     code, output = cli("run", DEMO, "--out", out, "--quiet", *SYNTH)
     assert code == 1, output
-    assert "node 'write' (io.write_lanes) failed on frame 0000000002" in output and "No space left on device" in output, output
+    assert (
+        "node 'write' (io.write_lanes) failed on frame 0000000002" in output
+        and "No space left on device" in output
+    ), output
     assert len(lines(out / "lanes.jsonl")) == 2
     rec = json.loads((out / "run.json").read_text())
     assert rec["status"] == "stopped" and rec["stopped"]["frame"] == "0000000002"
@@ -673,7 +819,9 @@ def test_a_full_disk_during_the_run(cli, tmp_path, monkeypatch):
     monkeypatch.setattr(paths, "write_text_atomic", no_space)
     calls["n"] = 0
     code, output = cli("run", DEMO, "--out", out, "--quiet", *SYNTH)
-    assert code == 1 and f"cannot write {out}/run.json and timings.json: No space left on device" in output, output
+    assert code == 1 and f"cannot write {out}/run.json and timings.json: No space left on device" in output, (
+        output
+    )
     assert len(lines(out / "lanes.jsonl")) == 2
 
 
@@ -748,7 +896,10 @@ def test_an_image_above_max_megapixels_fails_its_frame_before_it_is_decoded(cli,
     graph.write_text(f"extends: {DEMO}\non_error: skip\n")
     code, output = cli("run", graph, "--input", d, "--out", tmp_path / "out", "--quiet", *SMALL)
     assert code == 1, output
-    assert "frame 000001 (#1): node 'src' (io.folder)" in output and "100000x100000 (10000.0 Mpx), above the source's max_megapixels 8" in output, output
+    assert (
+        "frame 000001 (#1): node 'src' (io.folder)" in output
+        and "100000x100000 (10000.0 Mpx), above the source's max_megapixels 8" in output
+    ), output
     assert [json.loads(x)["frame"] for x in lines(tmp_path / "out" / "lanes.jsonl")] == ["000000", "000002"]
 
 
@@ -758,10 +909,17 @@ def test_ablate_a_failing_variant_gets_its_row(cli, tmp_path):
 
     d = pair_folder(tmp_path / "in", n=3)
     gt = tmp_path / "gt.jsonl"
-    gt.write_text("".join(json.dumps({"frame": f"{i:06d}", "markings": [], "ego": {"left": None, "right": None}}) + "\n" for i in range(3)))
+    gt.write_text(
+        "".join(
+            json.dumps({"frame": f"{i:06d}", "markings": [], "ego": {"left": None, "right": None}}) + "\n"
+            for i in range(3)
+        )
+    )
     disp = tmp_path / "disp"
     disp.mkdir()
-    cv2.imwrite(str(disp / "000000.png"), np.full((48, 64), 8 * 256, np.uint16))  # 000001 missing: that frame fails
+    cv2.imwrite(
+        str(disp / "000000.png"), np.full((48, 64), 8 * 256, np.uint16)
+    )  # 000001 missing: that frame fails
     failing = tmp_path / "failing.yaml"
     failing.write_text(
         f"extends: {DEMO}\nnodes:\n  disp: {{type: disparity.file, params: {{dir: '{disp}'}}, inputs: {{left: blur.image, frame: src.frame}}}}\n"
@@ -769,16 +927,28 @@ def test_ablate_a_failing_variant_gets_its_row(cli, tmp_path):
     small = tmp_path / "small.yaml"
     small.write_text(f"extends: {DEMO}\nnodes:\n  disp: {{params: {{num_disparities: 16}}}}\n")
     out = tmp_path / "abl"
-    code, output = cli("ablate", small, failing, "--input", d, "--gt", gt, "--out", out, "--quiet", "--no-cache")
+    code, output = cli(
+        "ablate", small, failing, "--input", d, "--gt", gt, "--out", out, "--quiet", "--no-cache"
+    )
     assert code == 1, output
-    assert "error: run failing / in failed: node 'disp' (disparity.file) failed on frame 000001" in output, output
+    assert "error: run failing / in failed: node 'disp' (disparity.file) failed on frame 000001" in output, (
+        output
+    )
     rows = {(r["variant"], r["sequence"]): r for r in csv.DictReader((out / "results.csv").open())}
     assert rows[("small", "in")]["detection_ratio"] == "1.0" and rows[("small", "in")]["error"] == ""
-    assert rows[("failing", "in")]["detection_ratio"] == "" and "frame 000001" in rows[("failing", "in")]["error"]
+    assert (
+        rows[("failing", "in")]["detection_ratio"] == ""
+        and "frame 000001" in rows[("failing", "in")]["error"]
+    )
     assert rows[("failing", "all")]["error"] == "failed on sequence(s) in"
-    assert "- failing / in: node 'disp' (disparity.file) failed on frame 000001" in (out / "results.md").read_text()
+    assert (
+        "- failing / in: node 'disp' (disparity.file) failed on frame 000001"
+        in (out / "results.md").read_text()
+    )
     assert json.loads((out / "runs" / "failing" / "in" / "run.json").read_text())["status"] == "stopped"
-    assert [json.loads(x)["frame"] for x in lines(out / "runs" / "failing" / "in" / "lanes.jsonl")] == ["000000"]
+    assert [json.loads(x)["frame"] for x in lines(out / "runs" / "failing" / "in" / "lanes.jsonl")] == [
+        "000000"
+    ]
 
 
 def test_ablate_interrupted_keeps_the_finished_variants(cli, tmp_path, installed_pm):
@@ -806,7 +976,9 @@ def test_ablate_interrupted_keeps_the_finished_variants(cli, tmp_path, installed
     installed_pm.register(CtrlC(), name="ctrl-c")
     installed_pm.register(Arm(), name="arm")
     try:
-        code, output = cli("ablate", first, second, "--input", d, "--out", tmp_path / "abl", "--quiet", "--no-cache")
+        code, output = cli(
+            "ablate", first, second, "--input", d, "--out", tmp_path / "abl", "--quiet", "--no-cache"
+        )
     finally:
         installed_pm.unregister(name="ctrl-c")
         installed_pm.unregister(name="arm")
@@ -820,13 +992,19 @@ def test_ablate_a_malformed_gt_is_found_before_any_run(cli, tmp_path):
     d = pair_folder(tmp_path / "in", n=2)
     gt = tmp_path / "gt.jsonl"
     gt.write_text('{"frame": "000000", "markings": "x"}\n')
-    code, output = cli("ablate", DEMO, "--input", d, "--gt", gt, "--out", tmp_path / "abl", "--quiet", "--no-cache")
+    code, output = cli(
+        "ablate", DEMO, "--input", d, "--gt", gt, "--out", tmp_path / "abl", "--quiet", "--no-cache"
+    )
     assert code == 2 and f"{gt}: line 1: 'markings' must be a list" in output, output
     assert not (tmp_path / "abl" / "runs").exists()
 
 
 # ============================================================================ 10. eval checks its input
-GT_LINE = {"frame": "f0", "markings": [{"id": 1, "points": [[100, 300], [110, 290], [120, 280]]}], "ego": {"left": 1, "right": None}}
+GT_LINE = {
+    "frame": "f0",
+    "markings": [{"id": 1, "points": [[100, 300], [110, 290], [120, 280]]}],
+    "ego": {"left": 1, "right": None},
+}
 PRED_LINE = {"frame": "f0", "lanes": [{"points": [[101, 300], [121, 280]]}]}
 
 
@@ -834,20 +1012,44 @@ PRED_LINE = {"frame": "f0", "lanes": [{"points": [[101, 300], [121, 280]]}]}
     "pred, gt, where, words",
     [
         ([GT_LINE], [PRED_LINE], "PRED", ["line 1", "no 'lanes' key", "PRED and GT swapped?"]),
-        ([{"frame": "f0", "lanes": [{"points": [[1, 2, 3], [4, 5, 6]]}]}], [GT_LINE], "PRED", ["line 1", "lanes[0]: points[0]", "[x, y]"]),
+        (
+            [{"frame": "f0", "lanes": [{"points": [[1, 2, 3], [4, 5, 6]]}]}],
+            [GT_LINE],
+            "PRED",
+            ["line 1", "lanes[0]: points[0]", "[x, y]"],
+        ),
         ([PRED_LINE, PRED_LINE], [GT_LINE], "PRED", ["line 2", "frame 'f0' appears twice (first at line 1)"]),
         ([{"frame": "f0", "lanes": "none"}], [GT_LINE], "PRED", ["line 1", "'lanes' must be a list"]),
         ([PRED_LINE], [{**GT_LINE, "ego": "left"}], "GT", ["line 1", "'ego' must be an object"]),
         ([PRED_LINE], [{**GT_LINE, "markings": "x"}], "GT", ["line 1", "'markings' must be a list"]),
-        ([PRED_LINE], [{**GT_LINE, "ego": {"left": 7, "right": None}}], "GT", ["line 1", "ego.left: 7 is not the id of a marking"]),
+        (
+            [PRED_LINE],
+            [{**GT_LINE, "ego": {"left": 7, "right": None}}],
+            "GT",
+            ["line 1", "ego.left: 7 is not the id of a marking"],
+        ),
         ([PRED_LINE], [GT_LINE, GT_LINE], "GT", ["line 2", "appears twice"]),
-        ([{"frame": "f0", "lanes": [{"points": [[float("nan"), 1]]}]}], [GT_LINE], "PRED", ["line 1", "two finite numbers"]),
+        (
+            [{"frame": "f0", "lanes": [{"points": [[float("nan"), 1]]}]}],
+            [GT_LINE],
+            "PRED",
+            ["line 1", "two finite numbers"],
+        ),
         ([{"frame": True, "lanes": []}], [GT_LINE], "PRED", ["line 1", "'frame' must be a frame id"]),
         ([{**PRED_LINE, "frame": "0000000007"}], [GT_LINE], "PRED", ["no frame of", "different sequences?"]),
     ],
     ids=[
-        "swapped", "three coordinates", "duplicate frame", "lanes none", "ego left", "markings x", "ego unknown id",
-        "gt duplicate", "nan point", "frame bool", "no common frame",
+        "swapped",
+        "three coordinates",
+        "duplicate frame",
+        "lanes none",
+        "ego left",
+        "markings x",
+        "ego unknown id",
+        "gt duplicate",
+        "nan point",
+        "frame bool",
+        "no common frame",
     ],
 )
 def test_eval_checks_both_files(cli, tmp_path, pred, gt, where, words):
@@ -865,7 +1067,9 @@ def test_eval_checks_both_files(cli, tmp_path, pred, gt, where, words):
 def test_frames_minus_one_is_the_last_frame(cli, tmp_path):
     d = pair_folder(tmp_path / "in", n=4)
     for sel, expect in (("-1", ["000003"]), ("-2", ["000002"]), ("-2:", ["000002", "000003"])):
-        code, output = cli("run", DEMO, "--input", d, "--out", tmp_path / "out", "--quiet", *SMALL, "--frames", sel)
+        code, output = cli(
+            "run", DEMO, "--input", d, "--out", tmp_path / "out", "--quiet", *SMALL, "--frames", sel
+        )
         assert code == 0, output
         assert [json.loads(x)["frame"] for x in lines(tmp_path / "out" / "lanes.jsonl")] == expect
 
@@ -877,7 +1081,18 @@ def test_an_empty_selection_of_the_synthetic_source(cli, tmp_path, sel):
 
 
 def test_debug_frames_that_match_nothing_are_named(cli, tmp_path):
-    code, output = cli("run", DEMO, "--out", tmp_path / "out", "--debug-dir", tmp_path / "dbg", "--debug-frames", "1,77,x", "--quiet", *SYNTH)
+    code, output = cli(
+        "run",
+        DEMO,
+        "--out",
+        tmp_path / "out",
+        "--debug-dir",
+        tmp_path / "dbg",
+        "--debug-frames",
+        "1,77,x",
+        "--quiet",
+        *SYNTH,
+    )
     assert code == 0, output
     assert "warning: --debug-frames 77, x matched no frame of the run" in output, output
     assert (tmp_path / "dbg" / "0000000001" / "mosaic.png").is_file()
@@ -890,12 +1105,16 @@ def test_a_source_path_and_another_input(cli, tmp_path):
     code, output = cli("run", graph, "--input", b, "--out", tmp_path / "out", "--quiet", *SMALL)
     assert code == 2, output
     assert f"node 'src' params.path '{a}' and --input '{b}' both name the input" in output, output
-    assert cli("run", graph, "--input", a, "--out", tmp_path / "out", "--quiet", *SMALL)[0] == 0  # the same folder: fine
+    assert (
+        cli("run", graph, "--input", a, "--out", tmp_path / "out", "--quiet", *SMALL)[0] == 0
+    )  # the same folder: fine
 
 
 def test_show_dot_escapes_names(cli, tmp_path):
     g = tmp_path / "q.yaml"
-    g.write_text('name: "say \\"hi\\" \\\\ there\\nnext"\nnodes:\n  src: {type: io.auto}\n  end: {type: io.write_lanes, inputs: {frame: src.frame}}\n')
+    g.write_text(
+        'name: "say \\"hi\\" \\\\ there\\nnext"\nnodes:\n  src: {type: io.auto}\n  end: {type: io.write_lanes, inputs: {frame: src.frame}}\n'
+    )
     code, output = cli("show", g, "--format", "dot")
     assert code == 0, output
     assert output.splitlines()[0] == 'digraph "say \\"hi\\" \\\\ there\\nnext" {', output
@@ -907,5 +1126,9 @@ def test_ctrl_c_leaves_a_run_json(cli, tmp_path, installed_pm):
     out = tmp_path / "out"
     _interrupted_run(cli, out, installed_pm)  # Ctrl-C right before frame 2 is written
     rec = json.loads((out / "run.json").read_text())
-    assert rec["status"] == "stopped" and "interrupted (Ctrl-C)" in rec["stopped"]["error"] and rec["frames_ok"] == 2
+    assert (
+        rec["status"] == "stopped"
+        and "interrupted (Ctrl-C)" in rec["stopped"]["error"]
+        and rec["frames_ok"] == 2
+    )
     assert len(lines(out / "lanes.jsonl")) == 2

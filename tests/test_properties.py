@@ -290,7 +290,9 @@ LOADER_EDGE_CASES = {
     "huge int in --set": lambda tmp: _child(
         tmp, {"extends": "paper.yaml"}, ("fit.iterations=" + "9" * 5000,)
     ),
-    "--set value its YAML tag cannot hold": lambda tmp: _child(tmp, {"extends": "paper.yaml"}, ("fit.iterations=!!int x",)),
+    "--set value its YAML tag cannot hold": lambda tmp: _child(
+        tmp, {"extends": "paper.yaml"}, ("fit.iterations=!!int x",)
+    ),
     "extends with a NUL byte": lambda tmp: _child(tmp, {"extends": "paper.yaml\x00"}),
     "extends longer than a file name may be": lambda tmp: _child(tmp, {"extends": "p" * 400}),
 }

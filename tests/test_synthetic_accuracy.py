@@ -124,8 +124,13 @@ def test_paper_graph_reports_no_lane_at_a_pedestrian_crossing(tmp_path):
     """A street without lines but with a pedestrian crossing 22-26 m ahead (seven bars 0.5 m wide,
     1 m apart, 4 m long): a bar, with the road's noise features below it, fitted like a lane on
     every frame before lanes.verify's crossing check; now none is reported."""
-    bars = [synthetic.Marking(offset=-3.0 + i, kind="dashed", width=0.5, dash=4.0, gap=296.0, phase=22.0) for i in range(7)]
-    seq = synthetic.write_sequence(synthetic.preset("no_markings", seed=81, markings=bars, speed=8.0), tmp_path / "seq", 8)
+    bars = [
+        synthetic.Marking(offset=-3.0 + i, kind="dashed", width=0.5, dash=4.0, gap=296.0, phase=22.0)
+        for i in range(7)
+    ]
+    seq = synthetic.write_sequence(
+        synthetic.preset("no_markings", seed=81, markings=bars, speed=8.0), tmp_path / "seq", 8
+    )
     out = tmp_path / "out"
     r = CliRunner().invoke(main, ["run", PAPER, "--input", str(seq), "--out", str(out), "--quiet"])
     assert r.exit_code == 0, r.output

@@ -104,7 +104,10 @@ def write_report(
     pm = pm or get_plugin_manager()
     run_dir = Path(run_dir)
     out = Path(out_dir) if out_dir is not None else run_dir / "report"
-    opt = {"gt": Path(gt) if gt is not None else None, "input_path": Path(input_path) if input_path is not None else None}
+    opt = {
+        "gt": Path(gt) if gt is not None else None,
+        "input_path": Path(input_path) if input_path is not None else None,
+    }
     data = collect(run_dir, dataset=dataset, frames=frames, sets=list(sets), graph=graph, pm=pm, **opt)
     debug = Path(debug_dir) if debug_dir is not None else None
     if debug is not None and not debug.is_dir():
@@ -116,10 +119,23 @@ def write_report(
         log(f"note: {note}")
     size = sum(p.stat().st_size for p in files)
     elapsed = time.perf_counter() - t0
-    return ReportSummary(out / "index.html", data.kind, len(frames_json), failed, debug_frames, len(files), size, elapsed, data.notes, data.variants[0])
+    return ReportSummary(
+        out / "index.html",
+        data.kind,
+        len(frames_json),
+        failed,
+        debug_frames,
+        len(files),
+        size,
+        elapsed,
+        data.notes,
+        data.variants[0],
+    )
 
 
-def _assemble(data: Collected, out: Path, pm: PluginManager, debug: Path | None, image_width: int, log: _Log) -> tuple[list[dict[str, Any]], int, int]:
+def _assemble(
+    data: Collected, out: Path, pm: PluginManager, debug: Path | None, image_width: int, log: _Log
+) -> tuple[list[dict[str, Any]], int, int]:
     """Evaluate the frames, write the pictures and the page into ``out``; returns the frames, how
     many the first variant fails, and how many have node pictures."""
     frames_json, failed = _frames(data)
@@ -281,7 +297,9 @@ def _add_ground_truth(entry: dict[str, Any], g: dict[str, Any], where: str) -> N
     ego = g.get("ego") or {}
 
     def side(m: dict[str, Any]) -> str | None:
-        return next((s for s in ("left", "right") if ego.get(s) is not None and ego.get(s) == m.get("id")), None)
+        return next(
+            (s for s in ("left", "right") if ego.get(s) is not None and ego.get(s) == m.get("id")), None
+        )
 
     entry["gt"] = [
         {"id": m.get("id"), "kind": str(m.get("kind", "")), "ego": side(m), "pts": _points(m, where)}
@@ -313,7 +331,9 @@ def _variant_frame(v: dict[str, Any], fid: str) -> dict[str, Any]:
         "ok": None if res is None else res.correct,
         "missing": missing,
         "fail": (not res.correct) if res is not None else error is not None,
-        "line": _metric_line(res, len(lanes), v["name"] if missing and (res is not None or error is None) else None, error),
+        "line": _metric_line(
+            res, len(lanes), v["name"] if missing and (res is not None or error is None) else None, error
+        ),
     }
 
 
@@ -329,12 +349,16 @@ def _left_images(
                 continue
             choice = choose_source(pm, data.graph, seq.input, allow_default=seq.default_source)
             if choice is None:
-                data.notes.append(f"sequence {seq.name}: no installed source reads {seq.input}: no left images")
+                data.notes.append(
+                    f"sequence {seq.name}: no installed source reads {seq.input}: no left images"
+                )
                 continue
             order = _sequence_images(data, si, seq, choice, entries, assets, writer, width, log)
             if order is not None and seq.gt is None:  # without ground truth: the source's order
                 rank = {fid: k for k, fid in enumerate(order)}
-                block = sorted((f for f in frames if f["s"] == si), key=lambda f: rank.get(f["id"], len(rank)))
+                block = sorted(
+                    (f for f in frames if f["s"] == si), key=lambda f: rank.get(f["id"], len(rank))
+                )
                 idx = [k for k, f in enumerate(frames) if f["s"] == si]
                 for k, f in zip(idx, block):
                     frames[k] = f
@@ -344,13 +368,23 @@ def _left_images(
         raise LanegraphError(f"writing the report's images failed: {errors[0]}")
     for f in frames:  # a size for frames without image or ground-truth size: from what is drawn
         if f["w"] is None:
-            pts = [p for r in f["r"] if r for ln in r["lanes"] for p in ln["pts"]] + [p for m in f.get("gt") or [] for p in m["pts"]]
+            pts = [p for r in f["r"] if r for ln in r["lanes"] for p in ln["pts"]] + [
+                p for m in f.get("gt") or [] for p in m["pts"]
+            ]
             f["w"] = int(max((p[0] for p in pts), default=1242) * 1.05)
             f["h"] = int(max((p[1] for p in pts), default=375) * 1.05)
 
 
 def _sequence_images(
-    data: Collected, si: int, seq: Any, choice: Any, entries: dict[str, Any], assets: Path, writer: JpegWriter, width: int, log: _Log
+    data: Collected,
+    si: int,
+    seq: Any,
+    choice: Any,
+    entries: dict[str, Any],
+    assets: Path,
+    writer: JpegWriter,
+    width: int,
+    log: _Log,
 ) -> list[str] | None:
     """The left images of one sequence's frames in ``entries`` as JPEG files (their paths and
     sizes set in the entries); returns the source's frame order (None when it could not be read)."""
@@ -368,9 +402,18 @@ def _sequence_images(
         e["img"] = f"assets/frames/{folder.name}/{name}"
         e["h"], e["w"] = int(left.shape[0]), int(left.shape[1])
 
-    bar = tqdm(total=len(entries), desc=f"report: {seq.name}", unit="frame", disable=not log.on or None, file=sys.stderr, leave=False)
+    bar = tqdm(
+        total=len(entries),
+        desc=f"report: {seq.name}",
+        unit="frame",
+        disable=not log.on or None,
+        file=sys.stderr,
+        leave=False,
+    )
     try:
-        order = read_left_images(choice, seq.input, seq.frames, set(entries), on_image, on_frame=lambda: bar.update(1))
+        order = read_left_images(
+            choice, seq.input, seq.frames, set(entries), on_image, on_frame=lambda: bar.update(1)
+        )
     except LanegraphError as exc:
         data.notes.append(f"sequence {seq.name}: the left images could not be read: {exc}")
         return None
@@ -378,7 +421,9 @@ def _sequence_images(
         bar.close()
     missing = [fid for fid, e in entries.items() if e["img"] is None]
     if missing:
-        data.notes.append(f"sequence {seq.name}: {len(missing)} frame(s) not read by the source (e.g. {missing[0]}): shown without image")
+        data.notes.append(
+            f"sequence {seq.name}: {len(missing)} frame(s) not read by the source (e.g. {missing[0]}): shown without image"
+        )
     return order
 
 

@@ -43,7 +43,9 @@ class Sequence:
     frames: slice | None = None
     gt: list[dict[str, Any]] | None = None
     gt_path: Path | None = None
-    default_source: bool = False  # no input: the source the graph (or a selecting source) chooses without one reads it
+    default_source: bool = (
+        False  # no input: the source the graph (or a selecting source) chooses without one reads it
+    )
 
 
 @dataclass
@@ -253,7 +255,12 @@ def _collect_ablation(run_dir, gt, dataset, input_path, frames, graph, pm) -> Co
         vfolders.append(f)
     if not variants:
         raise UsageError(f"{run_dir}: an ablation folder without runs (runs/ is empty)")
-    lanes = {(f, p.name): path for f in vfolders for p in sorted(f.iterdir()) if p.is_dir() and (path := find_result(p, LANES, pm))}
+    lanes = {
+        (f, p.name): path
+        for f in vfolders
+        for p in sorted(f.iterdir())
+        if p.is_dir() and (path := find_result(p, LANES, pm))
+    }
     seq_names = list(dict.fromkeys(name for _, name in lanes))
     if dataset is not None:
         seqs = [s for s in _from_dataset(dataset, frames) if s.name in seq_names]

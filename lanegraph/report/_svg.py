@@ -62,7 +62,10 @@ def graph_svg(
         f'<g transform="translate({_MARGIN},{_MARGIN})">',
     ]
     out += [_edge_svg(lay, e) for e in edges if e[0] in lay.x and e[2] in lay.x]
-    out += [_node_svg(lay, nid, types.get(nid, "?"), timings.get(nid) or {}, medians[nid] / total) for nid in order]
+    out += [
+        _node_svg(lay, nid, types.get(nid, "?"), timings.get(nid) or {}, medians[nid] / total)
+        for nid in order
+    ]
     out.append("</g></svg>")
     return "".join(out)
 
@@ -87,7 +90,12 @@ class _Layout:
         x: dict[str, float] = {}
         for li, ids in enumerate(layers):
             if li:
-                ids.sort(key=lambda n: (sum(x[p] for p in parents[n]) / len(parents[n]) if parents[n] else 0.0, index[n]))
+                ids.sort(
+                    key=lambda n: (
+                        sum(x[p] for p in parents[n]) / len(parents[n]) if parents[n] else 0.0,
+                        index[n],
+                    )
+                )
             for k, nid in enumerate(ids):
                 x[nid] = k * (_BW + _HGAP)
         self.width = max((len(ids) * (_BW + _HGAP) - _HGAP for ids in layers), default=_BW)
@@ -105,7 +113,11 @@ class _Layout:
                 self.outs[e[0]].append(e[1])
         # an edge that skips layers bows out to the left, past the nodes it skips
         longest = max((layer[e[2]] - layer[e[0]] for e in self.forward), default=1)
-        self.left = 0.0 if longest <= 1 else max(0.0, 0.75 * (150 + 10 * longest) - _BW / 2 - min(x.values(), default=0.0))
+        self.left = (
+            0.0
+            if longest <= 1
+            else max(0.0, 0.75 * (150 + 10 * longest) - _BW / 2 - min(x.values(), default=0.0))
+        )
         self.x = {nid: v + self.left for nid, v in x.items()}
         self.y = {nid: layer[nid] * (_BH + _VGAP) for nid in order}
         self.layer = layer

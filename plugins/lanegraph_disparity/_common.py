@@ -67,7 +67,10 @@ class DisparityParams(NodeParams):
         description="split the rows into this many horizontal strips computed in parallel threads",
     )
     strip_overlap: int = Field(
-        24, ge=0, le=256, description="rows each strip extends into its neighbours, pixels of the computing resolution"
+        24,
+        ge=0,
+        le=256,
+        description="rows each strip extends into its neighbours, pixels of the computing resolution",
     )
 
 
@@ -93,7 +96,9 @@ def to_gray(image: np.ndarray, port: str) -> np.ndarray:
     if img.ndim == 3 and img.shape[2] in (3, 4):
         if img.dtype != np.uint8:
             if img.dtype.kind not in "biuf":
-                raise InputError(f"input '{port}': expected a uint8 (or 0-255 float) image, got dtype {img.dtype}")
+                raise InputError(
+                    f"input '{port}': expected a uint8 (or 0-255 float) image, got dtype {img.dtype}"
+                )
             img = np.clip(np.rint(np.nan_to_num(img.astype(np.float64))), 0, 255).astype(np.uint8)
         code = cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
         img = cv2.cvtColor(np.ascontiguousarray(img), code)
@@ -206,7 +211,17 @@ def _compute_strips(
     bounds = np.linspace(0, h, strips + 1).round().astype(int)
     jobs = [(max(0, a - overlap), min(h, b + overlap), a, b) for a, b in zip(bounds[:-1], bounds[1:])]
     with ThreadPoolExecutor(max_workers=strips) as pool:
-        results = list(pool.map(lambda j: compute(np.ascontiguousarray(gl[j[0] : j[1]]), np.ascontiguousarray(gr[j[0] : j[1]]), s, need_right), jobs))
+        results = list(
+            pool.map(
+                lambda j: compute(
+                    np.ascontiguousarray(gl[j[0] : j[1]]),
+                    np.ascontiguousarray(gr[j[0] : j[1]]),
+                    s,
+                    need_right,
+                ),
+                jobs,
+            )
+        )
     dl = np.zeros(gl.shape, np.float32)
     dr = np.zeros(gl.shape, np.float32) if need_right else None
     for (lo, _hi, a, b), (sl, sr) in zip(jobs, results):
@@ -243,7 +258,9 @@ def run_backend(left: np.ndarray, right: np.ndarray, params: DisparityParams, co
         s = size[0] / w  # the horizontal factor actually applied: disparities are horizontal
     # at least one row is computed: an empty strip would reach the kernels as a 0-row volume
     top = min(int(round(params.top_fraction * gl.shape[0])), gl.shape[0] - 1)
-    dl, dr = _compute_strips(compute, gl[top:], gr[top:], s, params.lr_check, params.strips, params.strip_overlap)
+    dl, dr = _compute_strips(
+        compute, gl[top:], gr[top:], s, params.lr_check, params.strips, params.strip_overlap
+    )
     if top:
         pad = np.zeros((top, gl.shape[1]), np.float32)
         dl = np.vstack([pad, dl])

@@ -82,7 +82,9 @@ def _check_png_size(path: Path, frame: str, shape: tuple[int, int]) -> None:
         with open(path, "rb") as fh:
             head = fh.read(24)
     except OSError as exc:
-        raise InputError(f"cannot read the file: {exc.strerror or exc}", path=str(path), frame=frame) from None
+        raise InputError(
+            f"cannot read the file: {exc.strerror or exc}", path=str(path), frame=frame
+        ) from None
     if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
         w, h = struct.unpack(">II", head[16:24])
         if (h, w) != shape:

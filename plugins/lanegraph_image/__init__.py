@@ -12,7 +12,9 @@ from lanegraph import NodeParams, hookimpl, node_type
 class GrayParams(NodeParams):
     """Params of ``image.gray``."""
 
-    dtype: str = Field("uint8", pattern="^(uint8|float32)$", description="output dtype: uint8 or float32 (0-255)")
+    dtype: str = Field(
+        "uint8", pattern="^(uint8|float32)$", description="output dtype: uint8 or float32 (0-255)"
+    )
 
 
 @node_type("image.gray", inputs={"image": "image"}, outputs={"image": "gray"})
@@ -28,7 +30,9 @@ class BlurParams(NodeParams):
     """Params of ``image.blur``."""
 
     ksize: int = Field(5, ge=1, le=99, description="Gaussian kernel size in pixels (odd)")
-    sigma: float = Field(0.0, ge=0.0, le=50.0, description="Gaussian sigma in pixels; 0 derives it from ksize")
+    sigma: float = Field(
+        0.0, ge=0.0, le=50.0, description="Gaussian sigma in pixels; 0 derives it from ksize"
+    )
 
 
 @node_type("image.blur", inputs={"image": "image"}, outputs={"image": "image"})

@@ -23,7 +23,10 @@ def read_key_rows(path: Path) -> dict[str, tuple[int, list[float]]]:
     rows: dict[str, tuple[int, list[float]]] = {}
     try:
         if path.stat().st_size > MAX_CALIB_BYTES:
-            raise InputError(f"{path.stat().st_size} bytes: not a calibration file (at most {MAX_CALIB_BYTES})", path=str(path))
+            raise InputError(
+                f"{path.stat().st_size} bytes: not a calibration file (at most {MAX_CALIB_BYTES})",
+                path=str(path),
+            )
         text = path.read_text(errors="replace")
     except OSError as exc:
         raise InputError(f"cannot read the calibration file: {exc.strerror or exc}", path=str(path)) from None
@@ -35,7 +38,10 @@ def read_key_rows(path: Path) -> dict[str, tuple[int, list[float]]]:
         key, _, rest = line.partition(":")
         key = key.strip()
         if key in rows:
-            raise InputError(f"line {k}: row {key!r} appears twice (first at line {rows[key][0]}); which one holds?", path=str(path))
+            raise InputError(
+                f"line {k}: row {key!r} appears twice (first at line {rows[key][0]}); which one holds?",
+                path=str(path),
+            )
         try:
             vals = [float(x) for x in rest.split()]
         except ValueError:
@@ -47,16 +53,23 @@ def read_key_rows(path: Path) -> dict[str, tuple[int, list[float]]]:
 def projection(rows: dict[str, tuple[int, list[float]]], key: str, path: Path) -> np.ndarray:
     """The 3x4 projection matrix of row ``key``; errors name the row and the line."""
     if key not in rows:
-        raise InputError(f"row {key!r} missing (expected a 3x4 projection matrix, 12 numbers)", path=str(path))
+        raise InputError(
+            f"row {key!r} missing (expected a 3x4 projection matrix, 12 numbers)", path=str(path)
+        )
     line, vals = rows[key]
     if len(vals) != 12:
         text = path.read_text(errors="replace").splitlines()[line - 1].partition(":")[2].strip()
         what = f"{len(vals)} numbers" if vals or not text else f"non-numeric values {text[:60]!r}"
-        raise InputError(f"line {line}: row {key!r} has {what}, expected 12 numbers (a 3x4 matrix)", path=str(path))
+        raise InputError(
+            f"line {line}: row {key!r} has {what}, expected 12 numbers (a 3x4 matrix)", path=str(path)
+        )
     m = np.asarray(vals, dtype=np.float64).reshape(3, 4)
     if not np.isfinite(m).all():
         bad = next(v for v in vals if not np.isfinite(v))
-        raise InputError(f"line {line}: row {key!r} holds a non-finite value ({bad}); expected 12 finite numbers", path=str(path))
+        raise InputError(
+            f"line {line}: row {key!r} holds a non-finite value ({bad}); expected 12 finite numbers",
+            path=str(path),
+        )
     return m
 
 
@@ -77,7 +90,10 @@ def calibration_from_projections(
     kl, kr = keys
     for key, p in ((kl, p_left), (kr, p_right)):  # P = K [I | t]: no skew, last row (0, 0, 1, tz)
         form = [(0, 1), (1, 0), (2, 0), (2, 1)]
-        if any(abs(float(p[i, j])) > 1e-6 * max(abs(float(p[0, 0])), 1.0) for i, j in form) or abs(float(p[2, 2]) - 1.0) > 1e-6:
+        if (
+            any(abs(float(p[i, j])) > 1e-6 * max(abs(float(p[0, 0])), 1.0) for i, j in form)
+            or abs(float(p[2, 2]) - 1.0) > 1e-6
+        ):
             raise InputError(
                 f"row {key!r} is not a rectified projection matrix [[f, 0, cx, tx], [0, fy, cy, ty], [0, 0, 1, tz]]: "
                 f"got {' '.join(f'{v:g}' for v in p.reshape(-1))}",
@@ -102,12 +118,22 @@ def calibration_from_projections(
             path=str(path),
         )
     fy = float(p_left[1, 1])
-    return Calibration(f=f, cx=float(p_left[0, 2]), cy=float(p_left[1, 2]), baseline=baseline, width=width, height=height,
-                       fy=None if abs(fy - f) < 1e-9 else fy)
+    return Calibration(
+        f=f,
+        cx=float(p_left[0, 2]),
+        cy=float(p_left[1, 2]),
+        baseline=baseline,
+        width=width,
+        height=height,
+        fy=None if abs(fy - f) < 1e-9 else fy,
+    )
 
 
 def check_calibration(
-    calib: Calibration, path: Path | str, names: dict[str, str], baseline_range_m: tuple[float, float] = BASELINE_RANGE_M
+    calib: Calibration,
+    path: Path | str,
+    names: dict[str, str],
+    baseline_range_m: tuple[float, float] = BASELINE_RANGE_M,
 ) -> None:
     """Refuse an implausible calibration (:func:`lanegraph.types.calibration_problems`) with an
     :class:`InputError` naming the file and, through ``names`` (field -> key in the file), the key."""
@@ -130,9 +156,13 @@ def read_calibration_yaml(path: str | Path) -> Calibration:
     ``width``, ``height``."""
     path = Path(path)
     if not path.is_file():
-        raise InputError("calibration file not found (expected calib.yaml with f, cx, cy, baseline)", path=str(path))
+        raise InputError(
+            "calibration file not found (expected calib.yaml with f, cx, cy, baseline)", path=str(path)
+        )
     if path.stat().st_size > MAX_CALIB_BYTES:
-        raise InputError(f"{path.stat().st_size} bytes: not a calibration file (at most {MAX_CALIB_BYTES})", path=str(path))
+        raise InputError(
+            f"{path.stat().st_size} bytes: not a calibration file (at most {MAX_CALIB_BYTES})", path=str(path)
+        )
     try:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
@@ -143,7 +173,9 @@ def read_calibration_yaml(path: str | Path) -> Calibration:
         raise InputError("expected a mapping with f, cx, cy, baseline", path=str(path))
     missing = [k for k in ("f", "cx", "cy", "baseline") if k not in data]
     if missing:
-        raise InputError(f"missing key(s) {missing} (expected f, cx, cy in pixels and baseline in metres)", path=str(path))
+        raise InputError(
+            f"missing key(s) {missing} (expected f, cx, cy in pixels and baseline in metres)", path=str(path)
+        )
     vals: dict[str, float] = {}
     for k in ("f", "cx", "cy", "baseline", "fy"):
         v = data.get(k)
@@ -154,7 +186,9 @@ def read_calibration_yaml(path: str | Path) -> Calibration:
         try:
             vals[k] = float(v)
         except ValueError:
-            raise InputError(f"key {k!r}: calibration values must be numbers, got {v!r}", path=str(path)) from None
+            raise InputError(
+                f"key {k!r}: calibration values must be numbers, got {v!r}", path=str(path)
+            ) from None
         if not np.isfinite(vals[k]):
             raise InputError(f"key {k!r}: must be a finite number, got {v!r}", path=str(path))
     size = {}
@@ -163,7 +197,10 @@ def read_calibration_yaml(path: str | Path) -> Calibration:
         if isinstance(v, float) and v.is_integer():
             v = int(v)
         if isinstance(v, bool) or not isinstance(v, int) or v < 0 or v > 100000:
-            raise InputError(f"key {k!r}: expected the image {k} in pixels (an integer 0..100000), got {v!r}", path=str(path))
+            raise InputError(
+                f"key {k!r}: expected the image {k} in pixels (an integer 0..100000), got {v!r}",
+                path=str(path),
+            )
         size[k] = v
     if bool(size["width"]) != bool(size["height"]):
         raise InputError("keys 'width', 'height': give both or neither", path=str(path))
@@ -171,8 +208,17 @@ def read_calibration_yaml(path: str | Path) -> Calibration:
         raise InputError(f"key 'f': focal length must be > 0 pixels, got f={vals['f']}", path=str(path))
     if vals["baseline"] <= 0:
         raise InputError(f"key 'baseline': must be > 0 m, got baseline={vals['baseline']}", path=str(path))
-    return Calibration(f=vals["f"], cx=vals["cx"], cy=vals["cy"], baseline=vals["baseline"], fy=vals.get("fy"), **size)
+    return Calibration(
+        f=vals["f"], cx=vals["cx"], cy=vals["cy"], baseline=vals["baseline"], fy=vals.get("fy"), **size
+    )
 
 
-YAML_NAMES = {"f": "key 'f'", "fy": "key 'fy'", "cx": "key 'cx'", "cy": "key 'cy'", "baseline": "key 'baseline'",
-              "width": "keys 'width'/'height'", "height": "keys 'width'/'height'"}
+YAML_NAMES = {
+    "f": "key 'f'",
+    "fy": "key 'fy'",
+    "cx": "key 'cx'",
+    "cy": "key 'cy'",
+    "baseline": "key 'baseline'",
+    "width": "keys 'width'/'height'",
+    "height": "keys 'width'/'height'",
+}

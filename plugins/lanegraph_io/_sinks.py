@@ -43,7 +43,9 @@ def lane_record(frame: str, lanes: list[Lane] | None) -> dict:
 class WriteLanesParams(NodeParams):
     """Params of ``io.write_lanes``."""
 
-    filename: OutputFile = Field("lanes.jsonl", description="output file, relative to --out (inside it: no absolute path, no '..')")
+    filename: OutputFile = Field(
+        "lanes.jsonl", description="output file, relative to --out (inside it: no absolute path, no '..')"
+    )
     append: bool = Field(False, description="append to an existing file instead of starting a new one")
     fsync: bool = Field(False, description="fsync after every frame (slower, survives power loss)")
 
@@ -99,18 +101,31 @@ class WriteLanes:
         """Continue the file of a checkpoint's ``state``: refused (InputError) when the file is gone,
         shorter than recorded or changed; bytes after the recorded length (a frame written after the
         checkpoint, half a line of a killed run) are cut."""
-        if not (isinstance(state, dict) and isinstance(state.get("bytes"), int) and not isinstance(state.get("bytes"), bool)
-                and state["bytes"] >= 0 and isinstance(state.get("sha256"), str)):
-            raise InputError(f"the checkpoint holds no valid state of this writer (expected {{bytes, sha256}}, got {str(state)[:80]})", path=str(self.path))
+        if not (
+            isinstance(state, dict)
+            and isinstance(state.get("bytes"), int)
+            and not isinstance(state.get("bytes"), bool)
+            and state["bytes"] >= 0
+            and isinstance(state.get("sha256"), str)
+        ):
+            raise InputError(
+                f"the checkpoint holds no valid state of this writer (expected {{bytes, sha256}}, got {str(state)[:80]})",
+                path=str(self.path),
+            )
         n = state["bytes"]
         hint = "; cannot resume (run without --resume to start over)"
         if not self.path.is_file():
             if n:
-                raise InputError(f"missing: the checkpoint recorded {n} bytes of frames done here (deleted or moved since?){hint}", path=str(self.path))
+                raise InputError(
+                    f"missing: the checkpoint recorded {n} bytes of frames done here (deleted or moved since?){hint}",
+                    path=str(self.path),
+                )
             self.path.write_bytes(b"")
         size = self.path.stat().st_size
         if size < n:
-            raise InputError(f"has {size} bytes, the checkpoint recorded {n} (shortened since?){hint}", path=str(self.path))
+            raise InputError(
+                f"has {size} bytes, the checkpoint recorded {n} (shortened since?){hint}", path=str(self.path)
+            )
         h = hashlib.sha256()
         with open(self.path, "rb") as fh:
             left = n
@@ -121,7 +136,10 @@ class WriteLanes:
                 h.update(chunk)
                 left -= len(chunk)
         if h.hexdigest() != state["sha256"]:
-            raise InputError(f"its first {n} bytes are not those the checkpoint recorded (changed since?){hint}", path=str(self.path))
+            raise InputError(
+                f"its first {n} bytes are not those the checkpoint recorded (changed since?){hint}",
+                path=str(self.path),
+            )
         self.fh = open(self.path, "r+b", buffering=0)  # noqa: SIM115 - closed by close()
         self.fh.truncate(n)
         self.fh.seek(n)
@@ -135,7 +153,9 @@ class WriteLanes:
 class OverlayParams(NodeParams):
     """Params of ``io.write_overlay``."""
 
-    subdir: OutputDir = Field("overlay", description="output folder, relative to --out (inside it: no absolute path, no '..')")
+    subdir: OutputDir = Field(
+        "overlay", description="output folder, relative to --out (inside it: no absolute path, no '..')"
+    )
     every: int = Field(1, ge=1, le=100000, description="write every N-th frame")
     thickness: int = Field(3, ge=1, le=20, description="lane line thickness, pixels")
 
@@ -143,7 +163,13 @@ class OverlayParams(NodeParams):
 SIDE_COLOURS = {"left": (60, 220, 60), "right": (255, 140, 40), "": (0, 220, 255)}
 
 
-def draw_overlay(image: np.ndarray, lanes: list[Lane] | None, mask: np.ndarray | None = None, label: str = "", thickness: int = 3) -> np.ndarray:
+def draw_overlay(
+    image: np.ndarray,
+    lanes: list[Lane] | None,
+    mask: np.ndarray | None = None,
+    label: str = "",
+    thickness: int = 3,
+) -> np.ndarray:
     """The left image with the road mask tinted and the lanes drawn (BGR uint8)."""
     img = image if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
     img = img.copy()
@@ -177,7 +203,9 @@ class WriteOverlay:
         self.p = params
         self.count = 0
 
-    def __call__(self, frame: str, image: np.ndarray, lanes: list[Lane] | None = None, mask: np.ndarray | None = None) -> dict:
+    def __call__(
+        self, frame: str, image: np.ndarray, lanes: list[Lane] | None = None, mask: np.ndarray | None = None
+    ) -> dict:
         if self.count % self.p.every == 0:
             out = draw_overlay(image, lanes, mask, f"{frame}  lanes: {len(lanes or [])}", self.p.thickness)
             name = safe_name(frame)  # a frame id is free text: never '..' or a separator in a file name
@@ -195,5 +223,8 @@ class WriteOverlay:
     def restore(self, state: Any) -> None:
         count = state.get("count") if isinstance(state, dict) else None
         if not isinstance(count, int) or isinstance(count, bool) or count < 0:
-            raise InputError(f"the checkpoint holds no valid state of this writer (expected {{count}}, got {str(state)[:80]})", path=str(self.dir))
+            raise InputError(
+                f"the checkpoint holds no valid state of this writer (expected {{count}}, got {str(state)[:80]})",
+                path=str(self.dir),
+            )
         self.count = count

@@ -127,13 +127,17 @@ def pair_files(left_dir: Path, right_dir: Path) -> list[tuple[str, Path, Path]]:
         raise InputError("image folder of the right camera not found", path=str(right_dir))
     lefts = list_images(left_dir)
     if not lefts:
-        raise InputError(f"no images in the folder (expected {', '.join(IMAGE_EXT[:3])} files)", path=str(left_dir))
+        raise InputError(
+            f"no images in the folder (expected {', '.join(IMAGE_EXT[:3])} files)", path=str(left_dir)
+        )
     rights = {p.stem: p for p in list_images(right_dir)}
     out = []
     for lp in lefts:
         rp = rights.get(lp.stem)
         if rp is None:
-            raise InputError(f"left image {lp.name} has no right partner in {right_dir}", path=str(lp), frame=lp.stem)
+            raise InputError(
+                f"left image {lp.name} has no right partner in {right_dir}", path=str(lp), frame=lp.stem
+            )
         out.append((lp.stem, lp, rp))
     return out
 
@@ -146,7 +150,11 @@ def check_monotonic(pairs: list[tuple[str, Path, Path]], folder: Path) -> None:
             raise InputError(f"frame file name {stem!r} is not a frame number", path=str(folder), frame=stem)
         n = int(stem)
         if prev is not None and n <= prev:
-            raise InputError(f"frame numbers not increasing: {n} after {prev} (duplicate frame?)", path=str(folder), frame=stem)
+            raise InputError(
+                f"frame numbers not increasing: {n} after {prev} (duplicate frame?)",
+                path=str(folder),
+                frame=stem,
+            )
         prev = n
 
 
@@ -158,6 +166,7 @@ def disparity_votes(left: np.ndarray, right: np.ndarray) -> tuple[int, int]:
     best shift, at least 2 px from 0, is clearly better than the best one of the other sign. A
     rectified pair in the right order has (nearly) only positive ones; swapped images, negative ones.
     """
+
     def grey(img: np.ndarray) -> np.ndarray:
         g = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
         g = g[int(0.4 * g.shape[0]) :]
@@ -188,17 +197,40 @@ def disparity_votes(left: np.ndarray, right: np.ndarray) -> tuple[int, int]:
 class StereoSourceParams(NodeParams):
     """Params shared by the file-based stereo sources."""
 
-    path: str = Field("", description="input folder; empty: the --input path of the command line (give one, not both)")
-    frames: str = Field("", pattern=r"^(-?\d*(:-?\d*){0,2})?$", description="frame selection 'A:B' or 'A:B:S' (indices); empty: all")
-    max_megapixels: float = Field(8.0, gt=0.0, le=150.0, description="an image larger than this, megapixels, is refused (that frame fails) before it is decoded")
-    min_baseline_m: float = Field(0.05, gt=0.0, le=1000.0, description="smallest plausible stereo baseline, metres; a calibration outside the range is refused")
-    max_baseline_m: float = Field(2.0, gt=0.0, le=1000.0, description="largest plausible stereo baseline, metres")
-    check_order: bool = Field(True, description="refuse an input whose first readable pair matches at negative disparities (left and right swapped)")
+    path: str = Field(
+        "", description="input folder; empty: the --input path of the command line (give one, not both)"
+    )
+    frames: str = Field(
+        "",
+        pattern=r"^(-?\d*(:-?\d*){0,2})?$",
+        description="frame selection 'A:B' or 'A:B:S' (indices); empty: all",
+    )
+    max_megapixels: float = Field(
+        8.0,
+        gt=0.0,
+        le=150.0,
+        description="an image larger than this, megapixels, is refused (that frame fails) before it is decoded",
+    )
+    min_baseline_m: float = Field(
+        0.05,
+        gt=0.0,
+        le=1000.0,
+        description="smallest plausible stereo baseline, metres; a calibration outside the range is refused",
+    )
+    max_baseline_m: float = Field(
+        2.0, gt=0.0, le=1000.0, description="largest plausible stereo baseline, metres"
+    )
+    check_order: bool = Field(
+        True,
+        description="refuse an input whose first readable pair matches at negative disparities (left and right swapped)",
+    )
 
     @model_validator(mode="after")
     def _baseline_range(self):
         if self.min_baseline_m >= self.max_baseline_m:
-            raise ValueError(f"min_baseline_m ({self.min_baseline_m}) must be less than max_baseline_m ({self.max_baseline_m})")
+            raise ValueError(
+                f"min_baseline_m ({self.min_baseline_m}) must be less than max_baseline_m ({self.max_baseline_m})"
+            )
         return self
 
 
@@ -248,7 +280,10 @@ class _PairSource:
     def _checked_calibration(self, calib: Calibration) -> Calibration:
         """The calibration with the image size of the frames when it has none, checked for
         plausibility (refused before any frame, naming the file and key)."""
-        first = next((s for s in (image_size(lp) for _, lp, _ in self.all_pairs[:5]) if s not in (None, TOO_LARGE)), None)
+        first = next(
+            (s for s in (image_size(lp) for _, lp, _ in self.all_pairs[:5]) if s not in (None, TOO_LARGE)),
+            None,
+        )
         if not (calib.width and calib.height):
             if first is not None:
                 calib = replace(calib, width=first[0], height=first[1])
@@ -289,7 +324,9 @@ class _PairSource:
         """Digest of every input file the source reads (resolved path, size, mtime), its calibration
         included: a resumed run must read the same input."""
         parts = []
-        for path in [p for pair in self.all_pairs for p in pair[1:]] + ([self.calib_path] if self.calib_path else []):
+        for path in [p for pair in self.all_pairs for p in pair[1:]] + (
+            [self.calib_path] if self.calib_path else []
+        ):
             try:
                 st = path.stat()
                 parts.append((str(path.resolve()), st.st_size, st.st_mtime_ns))
@@ -326,7 +363,10 @@ class _PairSource:
                         path=str(rp),
                         frame=stem,
                     )
-                if self.calib.width and (left.shape[1], left.shape[0]) != (self.calib.width, self.calib.height):
+                if self.calib.width and (left.shape[1], left.shape[0]) != (
+                    self.calib.width,
+                    self.calib.height,
+                ):
                     raise InputError(
                         f"image is {left.shape[1]}x{left.shape[0]}, the calibration expects {self.calib.width}x{self.calib.height}",
                         path=str(lp),
@@ -348,7 +388,11 @@ def _resolved(p: str) -> str:
 class KittiRawParams(StereoSourceParams):
     """Params of ``io.kitti_raw``."""
 
-    camera: str = Field("auto", pattern="^(auto|color|gray)$", description="colour pair image_02/03, grey pair image_00/01, or auto (colour first)")
+    camera: str = Field(
+        "auto",
+        pattern="^(auto|color|gray)$",
+        description="colour pair image_02/03, grey pair image_00/01, or auto (colour first)",
+    )
 
 
 @node_type("io.kitti_raw", source=True, outputs=STEREO_OUTPUTS)
@@ -360,7 +404,10 @@ class KittiRawSource(_PairSource):
         super().__init__(params, context)
 
     def discover(self):
-        cams = {"color": ("image_02", "image_03", "P_rect_02", "P_rect_03"), "gray": ("image_00", "image_01", "P_rect_00", "P_rect_01")}
+        cams = {
+            "color": ("image_02", "image_03", "P_rect_02", "P_rect_03"),
+            "gray": ("image_00", "image_01", "P_rect_00", "P_rect_01"),
+        }
         order = ["color", "gray"] if self.camera == "auto" else [self.camera]
         chosen = next((c for c in order if (self.root / cams[c][0]).is_dir()), None)
         if chosen is None:
@@ -373,22 +420,37 @@ class KittiRawSource(_PairSource):
         rows = read_key_rows(calib_path)
         pairs = pair_files(self.root / ld / "data", self.root / rd / "data")
         check_monotonic(pairs, self.root / ld / "data")
-        calib = calibration_from_projections(projection(rows, pl, calib_path), projection(rows, pr, calib_path), calib_path, keys=(pl, pr))
+        calib = calibration_from_projections(
+            projection(rows, pl, calib_path), projection(rows, pr, calib_path), calib_path, keys=(pl, pr)
+        )
         size_key = "S_rect_" + pl[-2:]
         w, h = 0, 0
         if size_key in rows and rows[size_key][1]:
             line, vals = rows[size_key]
-            if len(vals) != 2 or not all(np.isfinite(v) and v >= 1 and v == int(v) and v <= 100000 for v in vals):
-                raise InputError(f"line {line}: row {size_key!r}: expected the image width and height in pixels (two integers >= 1), got {vals}", path=str(calib_path))
+            if len(vals) != 2 or not all(
+                np.isfinite(v) and v >= 1 and v == int(v) and v <= 100000 for v in vals
+            ):
+                raise InputError(
+                    f"line {line}: row {size_key!r}: expected the image width and height in pixels (two integers >= 1), got {vals}",
+                    path=str(calib_path),
+                )
             w, h = (int(x) for x in vals)
-            self.calib_names = {**self.calib_names, "width": f"row {size_key!r}", "height": f"row {size_key!r}"}
+            self.calib_names = {
+                **self.calib_names,
+                "width": f"row {size_key!r}",
+                "height": f"row {size_key!r}",
+            }
         return pairs, replace(calib, width=w, height=h)
 
 
 class KittiOdometryParams(StereoSourceParams):
     """Params of ``io.kitti_odometry``."""
 
-    camera: str = Field("auto", pattern="^(auto|color|gray)$", description="grey pair image_0/1 (P0, P1), colour pair image_2/3 (P2, P3), or auto (colour first)")
+    camera: str = Field(
+        "auto",
+        pattern="^(auto|color|gray)$",
+        description="grey pair image_0/1 (P0, P1), colour pair image_2/3 (P2, P3), or auto (colour first)",
+    )
 
 
 @node_type("io.kitti_odometry", source=True, outputs=STEREO_OUTPUTS)
@@ -404,7 +466,10 @@ class KittiOdometrySource(_PairSource):
         order = ["color", "gray"] if self.camera == "auto" else [self.camera]
         chosen = next((c for c in order if (self.root / cams[c][0]).is_dir()), None)
         if chosen is None:
-            raise InputError("not a KITTI odometry sequence: expected image_0/image_1 or image_2/image_3", path=str(self.root))
+            raise InputError(
+                "not a KITTI odometry sequence: expected image_0/image_1 or image_2/image_3",
+                path=str(self.root),
+            )
         self.gray = chosen == "gray"
         ld, rd, pl, pr = cams[chosen]
         calib_path = self.root / "calib.txt"
@@ -412,13 +477,19 @@ class KittiOdometrySource(_PairSource):
         rows = read_key_rows(calib_path)
         pairs = pair_files(self.root / ld, self.root / rd)
         check_monotonic(pairs, self.root / ld)
-        return pairs, calibration_from_projections(projection(rows, pl, calib_path), projection(rows, pr, calib_path), calib_path, keys=(pl, pr))
+        return pairs, calibration_from_projections(
+            projection(rows, pl, calib_path), projection(rows, pr, calib_path), calib_path, keys=(pl, pr)
+        )
 
 
 class FolderParams(StereoSourceParams):
     """Params of ``io.folder``."""
 
-    calib: str = Field("calib.yaml", min_length=1, description="calibration YAML (f, cx, cy, baseline), relative to the folder")
+    calib: str = Field(
+        "calib.yaml",
+        min_length=1,
+        description="calibration YAML (f, cx, cy, baseline), relative to the folder",
+    )
 
 
 @node_type("io.folder", source=True, outputs=STEREO_OUTPUTS)
@@ -440,7 +511,9 @@ def detect_source(path: Path) -> str | None:
     p = Path(path)
     if not p.is_dir():
         return None
-    if ((p / "image_02").is_dir() or (p / "image_00").is_dir()) and (p.resolve().parent / "calib_cam_to_cam.txt").is_file():
+    if ((p / "image_02").is_dir() or (p / "image_00").is_dir()) and (
+        p.resolve().parent / "calib_cam_to_cam.txt"
+    ).is_file():
         return "io.kitti_raw"
     if (p / "calib.txt").is_file() and ((p / "image_0").is_dir() or (p / "image_2").is_dir()):
         return "io.kitti_odometry"
@@ -452,7 +525,10 @@ def detect_source(path: Path) -> str | None:
 class AutoParams(NodeParams):
     """Params of ``io.auto``."""
 
-    default: str = Field("io.synthetic", description="source node type used when no --input is given (an installed source type)")
+    default: str = Field(
+        "io.synthetic",
+        description="source node type used when no --input is given (an installed source type)",
+    )
 
     @field_validator("default")
     @classmethod
@@ -489,4 +565,6 @@ class AutoSource:
         return name
 
     def __init__(self, params: AutoParams, context: RunContext):  # pragma: no cover - replaced before a run
-        raise RuntimeError("io.auto stands for the source it selects (select_source) and is never instantiated")
+        raise RuntimeError(
+            "io.auto stands for the source it selects (select_source) and is never instantiated"
+        )

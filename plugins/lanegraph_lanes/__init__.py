@@ -16,4 +16,16 @@ __all__ = ["irls_fit", "ransac_fit"]
 
 @hookimpl
 def lanegraph_node_types():
-    return [slt, eslt, mask_features, orientation, line1d, line2d, fit_irls, fit_ransac, temporal_mask, verify, to_image]
+    return [
+        slt,
+        eslt,
+        mask_features,
+        orientation,
+        line1d,
+        line2d,
+        fit_irls,
+        fit_ransac,
+        temporal_mask,
+        verify,
+        to_image,
+    ]

@@ -39,7 +39,17 @@ def _row_span(where, r, cols):
 
 
 #: odd minimax polynomial of atan on [-1, 1] (Abramowitz & Stegun 4.4.49, |error| <= 2e-8 rad)
-_ATAN_COEFFS = (1.0, -0.3333314528, 0.1999355085, -0.1420889944, 0.1065626393, -0.0752896400, 0.0429096138, -0.0161657367, 0.0028662257)
+_ATAN_COEFFS = (
+    1.0,
+    -0.3333314528,
+    0.1999355085,
+    -0.1420889944,
+    0.1065626393,
+    -0.0752896400,
+    0.0429096138,
+    -0.0161657367,
+    0.0028662257,
+)
 
 
 @jit(inline="always")
@@ -243,7 +253,18 @@ def _eslt(img, gx, gy, window, threshold, max_angle, where, out_mask, out_theta,
                 for c in range(max(8 * q, c0), min(8 * q + 8, c1)):
                     if slt[c]:
                         slt[c] = 0
-                        _eslt_borders(gx, gy, mag2, r, c, max(c - window, 0), min(c + 1 + window, cols), cos2_max, out_mask, out_theta)
+                        _eslt_borders(
+                            gx,
+                            gy,
+                            mag2,
+                            r,
+                            c,
+                            max(c - window, 0),
+                            min(c + 1 + window, cols),
+                            cos2_max,
+                            out_mask,
+                            out_theta,
+                        )
 
 
 def _feature_map(mask: np.ndarray, theta: np.ndarray | None, dense_theta: bool = True) -> FeatureMap:
@@ -320,7 +341,9 @@ def _where_map(where, shape: tuple[int, ...], node: str) -> np.ndarray:
     if where is None:
         return _EVERYWHERE
     if np.shape(where) != tuple(shape):
-        raise InputError(f"{node}: where: expected a BEV mask of the image's shape {tuple(shape)}, got {np.shape(where)}")
+        raise InputError(
+            f"{node}: where: expected a BEV mask of the image's shape {tuple(shape)}, got {np.shape(where)}"
+        )
     return np.ascontiguousarray(where, dtype=bool).view(np.uint8)  # no copy for the usual bool mask
 
 
@@ -340,7 +363,9 @@ def slt(params: SltParams, image: np.ndarray, where: np.ndarray | None = None) -
 class EsltParams(SltParams):
     """Params of ``features.eslt``."""
 
-    max_angle_deg: float = Field(15.0, gt=0.0, le=90.0, description="largest angle between the two borders, degrees")
+    max_angle_deg: float = Field(
+        15.0, gt=0.0, le=90.0, description="largest angle between the two borders, degrees"
+    )
     sobel_ksize: int = Field(3, ge=1, le=7, description="Sobel aperture (1, 3, 5 or 7), pixels")
 
     @field_validator("sobel_ksize")
@@ -369,12 +394,27 @@ def eslt(params: EsltParams, image: np.ndarray, where: np.ndarray | None = None)
         img = _as_gray32(image, "features.eslt")
         if img.size == 0:  # an empty BEV: no features (cv2.Sobel refuses empty images)
             _where_map(where, img.shape, "features.eslt")
-            return {"features": FeatureMap(mask=np.zeros(img.shape, bool), orientation=np.full(img.shape, -1.0, np.float32))}
+            return {
+                "features": FeatureMap(
+                    mask=np.zeros(img.shape, bool), orientation=np.full(img.shape, -1.0, np.float32)
+                )
+            }
         gx, gy = sobel(img, k)
     wm = _where_map(where, img.shape, "features.eslt")
     mask = np.empty(img.shape, np.uint8)
     ori = np.empty(img.shape, np.float32)
-    _eslt(img, gx, gy, params.window, float(params.threshold), math.radians(params.max_angle_deg), wm, mask, ori, False)
+    _eslt(
+        img,
+        gx,
+        gy,
+        params.window,
+        float(params.threshold),
+        math.radians(params.max_angle_deg),
+        wm,
+        mask,
+        ori,
+        False,
+    )
     # ori holds orientations at the features only: the map reads them there and builds its dense
     # orientation (-1 elsewhere) only if a consumer asks for it
     return {"features": _feature_map(mask, ori, dense_theta=False)}
@@ -383,7 +423,9 @@ def eslt(params: EsltParams, image: np.ndarray, where: np.ndarray | None = None)
 class MaskParams(NodeParams):
     """Params of ``features.mask``."""
 
-    erode_px: int = Field(4, ge=0, le=100, description="erode the road mask by this many BEV pixels so its border is no feature")
+    erode_px: int = Field(
+        4, ge=0, le=100, description="erode the road mask by this many BEV pixels so its border is no feature"
+    )
 
 
 @node_type(
@@ -395,7 +437,9 @@ class MaskParams(NodeParams):
     },
     outputs={"features": "features"},
 )
-def mask_features(params: MaskParams, features: FeatureMap, mask: np.ndarray, temporal: np.ndarray | None = None) -> dict:
+def mask_features(
+    params: MaskParams, features: FeatureMap, mask: np.ndarray, temporal: np.ndarray | None = None
+) -> dict:
     """Features multiplied by the BEV road mask (eroded) and, when given, the previous-frame mask."""
     shape = features.shape
     for port, m in (("mask", mask), ("temporal", temporal)):
@@ -407,7 +451,9 @@ def mask_features(params: MaskParams, features: FeatureMap, mask: np.ndarray, te
     if params.erode_px > 0 and keep.size:
         k = 2 * params.erode_px + 1
         # bool and 0/1 uint8 share their bytes: erode the view, read the result back as bool
-        keep = cv2.erode(keep.view(np.uint8), cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)), borderValue=0).view(bool)
+        keep = cv2.erode(
+            keep.view(np.uint8), cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)), borderValue=0
+        ).view(bool)
     # the masks read at the feature points only: a sparse map out, no dense pass over the features
     r, c = features.points()
     flat = r * shape[1] + c

@@ -287,8 +287,16 @@ def irls_fit_lstsq(
     """:func:`irls_fit` with ``np.linalg.lstsq`` solves (the reference; used when a normal-equation
     system of the kernel is singular)."""
     A = _design(t, degree)
-    ks = np.ones_like(y) if scale_of is None or np.size(scale_of) != np.size(y) else np.asarray(scale_of, dtype=np.float64)
-    pw = ks * ks * (1.0 if prior is None or np.size(prior) != np.size(y) else np.asarray(prior, dtype=np.float64))
+    ks = (
+        np.ones_like(y)
+        if scale_of is None or np.size(scale_of) != np.size(y)
+        else np.asarray(scale_of, dtype=np.float64)
+    )
+    pw = (
+        ks
+        * ks
+        * (1.0 if prior is None or np.size(prior) != np.size(y) else np.asarray(prior, dtype=np.float64))
+    )
     w = np.ones_like(y)
     coef = _wls(A, y, pw)
     k = c if c is not None else (4.685 if loss == "tukey" else 1.345)
@@ -340,7 +348,9 @@ def irls_fit(
     pr = np.empty(0) if prior is None else np.ascontiguousarray(prior, dtype=np.float64)
     k = c if c is not None else (4.685 if loss == "tukey" else 1.345)
     if t.size >= degree + 1 and degree <= 3:  # the kernel's power sums stop at x^6
-        ok, coef, w = _irls_kernel(t, y, int(degree), int(iterations), loss == "tukey", float(k), float(tol_px), ks, pr)
+        ok, coef, w = _irls_kernel(
+            t, y, int(degree), int(iterations), loss == "tukey", float(k), float(tol_px), ks, pr
+        )
         if ok:
             return coef, w
     return irls_fit_lstsq(t, y, degree, iterations, loss, c, tol_px, scale_of, prior)
@@ -440,7 +450,9 @@ def ransac_fit(
     ks = np.ones(n) if scale_of is None else np.asarray(scale_of, dtype=np.float64)
     tol = np.ascontiguousarray(inlier_px / ks)
     A = _design(t, degree)
-    best_in = _ransac_kernel(t, y, ransac_samples(n, m, iterations, seed), tol) if n >= m else np.zeros(n, bool)
+    best_in = (
+        _ransac_kernel(t, y, ransac_samples(n, m, iterations, seed), tol) if n >= m else np.zeros(n, bool)
+    )
     if best_in.sum() < m:
         best_in = np.ones(n, bool)
     coef, *_ = np.linalg.lstsq(A[best_in] * ks[best_in, None], y[best_in] * ks[best_in], rcond=None)
@@ -453,27 +465,54 @@ def ransac_fit(
 class FitParams(NodeParams):
     """Params shared by ``fit.irls`` and ``fit.ransac``."""
 
-    roi_width: float = Field(40.0, gt=1.0, le=1000.0, description="ROI thickness around each Hough line, BEV pixels")
+    roi_width: float = Field(
+        40.0, gt=1.0, le=1000.0, description="ROI thickness around each Hough line, BEV pixels"
+    )
     degree: int = Field(2, ge=1, le=3, description="polynomial degree (2: parabola)")
-    min_inliers: int = Field(80, ge=3, le=1000000, description="a lane needs at least this many supporting features")
-    min_extent_m: float = Field(4.0, ge=0.0, le=500.0, description="supporting features must span at least this much road, metres")
-    max_curvature: float = Field(0.02, gt=0.0, le=1.0, description="largest plausible curvature, 1/metres; above it the fit falls back to a line")
-    extend_to_bottom: bool = Field(True, description="report the lane down to the nearest BEV row (markings continue towards the car)")
+    min_inliers: int = Field(
+        80, ge=3, le=1000000, description="a lane needs at least this many supporting features"
+    )
+    min_extent_m: float = Field(
+        4.0, ge=0.0, le=500.0, description="supporting features must span at least this much road, metres"
+    )
+    max_curvature: float = Field(
+        0.02,
+        gt=0.0,
+        le=1.0,
+        description="largest plausible curvature, 1/metres; above it the fit falls back to a line",
+    )
+    extend_to_bottom: bool = Field(
+        True, description="report the lane down to the nearest BEV row (markings continue towards the car)"
+    )
     track_min_score: float = Field(
-        0.1, ge=0.0, le=1.0, description="with `previous` lanes: a side with no Hough line is fitted around the previous lane there when it scored at least this"
+        0.1,
+        ge=0.0,
+        le=1.0,
+        description="with `previous` lanes: a side with no Hough line is fitted around the previous lane there when it scored at least this",
     )
     track_min_offset_m: float = Field(
-        0.6, ge=0.0, le=20.0, description="a lane fitted around a previous one must cross the bottom row at least this far from the vehicle (as hough.min_offset_m), metres"
+        0.6,
+        ge=0.0,
+        le=20.0,
+        description="a lane fitted around a previous one must cross the bottom row at least this far from the vehicle (as hough.min_offset_m), metres",
     )
     track_max_offset_m: float = Field(
-        3.2, gt=0.0, le=50.0, description="a lane fitted around a previous one must cross the bottom row at most this far from the vehicle (as hough.max_offset_m), metres"
+        3.2,
+        gt=0.0,
+        le=50.0,
+        description="a lane fitted around a previous one must cross the bottom row at most this far from the vehicle (as hough.max_offset_m), metres",
     )
     track_lane_change: bool = Field(
         True,
         description="a lane fitted around a previous one may also lie nearer than track_min_offset_m (the line being crossed "
         "in a lane change), and then the other side's up to track_max_lane_width_m from it (as hough.lane_change)",
     )
-    track_max_lane_width_m: float = Field(4.6, gt=0.0, le=20.0, description="lane change: widest plausible lane (as hough.max_lane_width_m), metres")
+    track_max_lane_width_m: float = Field(
+        4.6,
+        gt=0.0,
+        le=20.0,
+        description="lane change: widest plausible lane (as hough.max_lane_width_m), metres",
+    )
     near_fit_m: float | None = Field(
         None,
         gt=0.0,
@@ -484,7 +523,10 @@ class FitParams(NodeParams):
         "would bend the parabola: it is fitted over the whole BEV. null: always the whole BEV (the paper)",
     )
     near_fit_coverage: float = Field(
-        0.7, gt=0.0, le=1.0, description="near_fit_m: the fraction of the near BEV rows the ROI's features must cover (unitless)"
+        0.7,
+        gt=0.0,
+        le=1.0,
+        description="near_fit_m: the fraction of the near BEV rows the ROI's features must cover (unitless)",
     )
     residuals: Literal["bev", "image"] = Field(
         "bev",
@@ -508,7 +550,10 @@ class IrlsParams(FitParams):
     iterations: int = Field(10, ge=1, le=100, description="reweighting iterations")
     loss: Literal["tukey", "huber"] = Field("tukey", description="robust weight function")
     tolerance_px: float = Field(
-        0.01, gt=0.0, le=10.0, description="converged when no fitted point moves by more than this between iterations, BEV pixels"
+        0.01,
+        gt=0.0,
+        le=10.0,
+        description="converged when no fitted point moves by more than this between iterations, BEV pixels",
     )
 
 
@@ -521,8 +566,15 @@ class RansacParams(FitParams):
 
 
 def _fit_roi(
-    t: np.ndarray, y: np.ndarray, side: str, rows: int, res: float, p: FitParams, fitter,
-    extra: dict | None = None, shape: tuple[float, float] | None = None,
+    t: np.ndarray,
+    y: np.ndarray,
+    side: str,
+    rows: int,
+    res: float,
+    p: FitParams,
+    fitter,
+    extra: dict | None = None,
+    shape: tuple[float, float] | None = None,
 ) -> Lane | None:
     """A lane fitted to the ROI points ``(t, y)``, or None without enough support: ``min_inliers``
     inliers spanning ``min_extent_m``, and a plausible curvature (else a straight refit).
@@ -576,7 +628,10 @@ def _plausible_tracked(lateral: float, others: list[float], p: FitParams) -> boo
         return False
     if abs(lateral) < p.track_min_offset_m:
         return True
-    return any(abs(o) < p.track_min_offset_m and o * lateral < 0 and abs(lateral - o) <= p.track_max_lane_width_m for o in others)
+    return any(
+        abs(o) < p.track_min_offset_m and o * lateral < 0 and abs(lateral - o) <= p.track_max_lane_width_m
+        for o in others
+    )
 
 
 def _near_fit(t: np.ndarray, y: np.ndarray, t_near: float, coverage: float) -> tuple[np.ndarray, np.ndarray]:
@@ -591,7 +646,12 @@ def _near_fit(t: np.ndarray, y: np.ndarray, t_near: float, coverage: float) -> t
 
 
 def _fit_lanes(
-    features: FeatureMap, lines: list[Line], geometry: BevGeometry, p: FitParams, fitter, previous: list[Lane] | None = None
+    features: FeatureMap,
+    lines: list[Line],
+    geometry: BevGeometry,
+    p: FitParams,
+    fitter,
+    previous: list[Lane] | None = None,
 ) -> list[Lane]:
     rows = features.mask.shape[0]
     res = geometry.resolution
@@ -610,7 +670,17 @@ def _fit_lanes(
         if prev.side in found or prev.side not in ("left", "right") or prev.score < p.track_min_score:
             continue
         t, y = _near_fit(*lane_roi_points(features, prev, p.roi_width), t_near, p.near_fit_coverage)
-        lane = _fit_roi(t, y, prev.side, rows, res, p, fitter, {"tracked": True}, shape=(float(prev.coeffs[1]), float(prev.coeffs[2])))
+        lane = _fit_roi(
+            t,
+            y,
+            prev.side,
+            rows,
+            res,
+            p,
+            fitter,
+            {"tracked": True},
+            shape=(float(prev.coeffs[1]), float(prev.coeffs[2])),
+        )
         if lane is None:
             continue
         # the side is where the lane is now (after a lane change the previous left line is right),
@@ -618,11 +688,15 @@ def _fit_lanes(
         # line the vehicle has moved away from would keep itself alive through the temporal mask
         lateral = geometry.lateral_m(lane.coeffs[0])
         side = "left" if lateral < 0 else "right"
-        if side in found or not _plausible_tracked(lateral, [geometry.lateral_m(ln.coeffs[0]) for ln in lanes], p):
+        if side in found or not _plausible_tracked(
+            lateral, [geometry.lateral_m(ln.coeffs[0]) for ln in lanes], p
+        ):
             continue
         # the line being crossed, which the Hough transform found this frame on the other side
         # (it moves from one side to the other): not a second lane
-        if abs(lateral) < p.track_min_offset_m and any(abs(lane.coeffs[0] - ln.coeffs[0]) <= 0.5 * p.roi_width for ln in lanes):
+        if abs(lateral) < p.track_min_offset_m and any(
+            abs(lane.coeffs[0] - ln.coeffs[0]) <= 0.5 * p.roi_width for ln in lanes
+        ):
             continue
         lanes.append(Lane(lane.coeffs, lane.bev_rows, side, lane.score, lane.points, lane.extra))
         found.add(side)
@@ -631,7 +705,9 @@ def _fit_lanes(
     return lanes
 
 
-def _residual_scale(t: np.ndarray, geometry: BevGeometry, p: FitParams) -> tuple[np.ndarray | None, np.ndarray | None]:
+def _residual_scale(
+    t: np.ndarray, geometry: BevGeometry, p: FitParams
+) -> tuple[np.ndarray | None, np.ndarray | None]:
     """The fitters' ``scale_of`` and ``prior`` for the ROI points at ``t`` (BEV rows above the bottom
     one): ``residuals: bev``, none; ``image``: the image pixels a BEV pixel spans across at the
     point's distance, ``f res / z``, relative to the nearest row's (``z_min / z``: the units
@@ -647,23 +723,41 @@ _FIT_INPUTS = {
     "features": "features",
     "lines": "lines",
     "geometry": Port("bev_geometry"),
-    "previous": Port("lanes", "the previous frame's lanes (a feedback edge): a side with no line is fitted around its lane", optional=True),
+    "previous": Port(
+        "lanes",
+        "the previous frame's lanes (a feedback edge): a side with no line is fitted around its lane",
+        optional=True,
+    ),
 }
 
 
 @node_type("fit.irls", inputs=_FIT_INPUTS, outputs={"lanes": "lanes"})
-def fit_irls(params: IrlsParams, features: FeatureMap, lines: list[Line], geometry: BevGeometry, previous: list[Lane] | None = None) -> dict:
+def fit_irls(
+    params: IrlsParams,
+    features: FeatureMap,
+    lines: list[Line],
+    geometry: BevGeometry,
+    previous: list[Lane] | None = None,
+) -> dict:
     """Parabola through the features of a 40 px ROI around each line, by robust IRLS (Tukey or Huber)."""
 
     def fitter(t, y, degree):
         k, prior = _residual_scale(t, geometry, params)
-        return irls_fit(t, y, degree, params.iterations, params.loss, tol_px=params.tolerance_px, scale_of=k, prior=prior)
+        return irls_fit(
+            t, y, degree, params.iterations, params.loss, tol_px=params.tolerance_px, scale_of=k, prior=prior
+        )
 
     return {"lanes": _fit_lanes(features, lines, geometry, params, fitter, previous)}
 
 
 @node_type("fit.ransac", inputs=_FIT_INPUTS, outputs={"lanes": "lanes"})
-def fit_ransac(params: RansacParams, features: FeatureMap, lines: list[Line], geometry: BevGeometry, previous: list[Lane] | None = None) -> dict:
+def fit_ransac(
+    params: RansacParams,
+    features: FeatureMap,
+    lines: list[Line],
+    geometry: BevGeometry,
+    previous: list[Lane] | None = None,
+) -> dict:
     """Parabola through the features of a 40 px ROI around each line, by RANSAC plus a least-squares refit."""
 
     def fitter(t, y, degree):
@@ -671,4 +765,5 @@ def fit_ransac(params: RansacParams, features: FeatureMap, lines: list[Line], ge
         if prior is not None:
             k = k * np.sqrt(prior)  # the weight of each square: k^2 prior
         return ransac_fit(t, y, degree, params.iterations, params.inlier_px, params.seed, scale_of=k)
+
     return {"lanes": _fit_lanes(features, lines, geometry, params, fitter, previous)}

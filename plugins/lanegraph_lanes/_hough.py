@@ -117,9 +117,18 @@ class OrientationParams(NodeParams):
 
     bin_deg: float = Field(1.0, ge=0.01, le=10.0, description="histogram bin width, degrees")
     smooth_bins: float = Field(1.5, ge=0.0, le=20.0, description="Gaussian smoothing of the histogram, bins")
-    max_deviation_deg: float = Field(35.0, gt=0.0, le=90.0, description="only orientations within this of straight ahead (90 deg) count, degrees")
-    default_deg: float = Field(90.0, ge=1.0, le=179.0, description="orientation when there are no oriented features (SLT), degrees")
-    min_features: int = Field(50, ge=1, le=1000000, description="fewer oriented features than this: use the default")
+    max_deviation_deg: float = Field(
+        35.0,
+        gt=0.0,
+        le=90.0,
+        description="only orientations within this of straight ahead (90 deg) count, degrees",
+    )
+    default_deg: float = Field(
+        90.0, ge=1.0, le=179.0, description="orientation when there are no oriented features (SLT), degrees"
+    )
+    min_features: int = Field(
+        50, ge=1, le=1000000, description="fewer oriented features than this: use the default"
+    )
 
 
 @functools.lru_cache(maxsize=32)
@@ -174,29 +183,65 @@ def orientation(params: OrientationParams, features: FeatureMap) -> dict:
 class HoughParams(NodeParams):
     """Peak selection params shared by ``hough.line1d`` and ``hough.line2d``."""
 
-    select: Literal["nearest", "paper"] = Field("nearest", description="nearest strong peak each side of the vehicle, or the paper's two strongest peaks")
-    smooth_px: float = Field(2.0, ge=0.0, le=50.0, description="Gaussian smoothing of the accumulator, BEV pixels")
-    min_separation_m: float = Field(1.2, gt=0.0, le=20.0, description="non-maximum suppression distance between peaks, metres")
-    min_votes: float = Field(40.0, ge=0.0, le=1e7, description="a peak needs at least this many (smoothed) votes")
-    min_relative: float = Field(0.25, ge=0.0, le=1.0, description="nearest rule: a peak needs this fraction of the strongest peak on its side")
-    min_offset_m: float = Field(0.6, ge=0.0, le=20.0, description="nearest rule: closest plausible lateral distance of a lane boundary, metres")
-    max_offset_m: float = Field(3.2, gt=0.0, le=50.0, description="nearest rule: farthest plausible lateral distance of a lane boundary, metres")
+    select: Literal["nearest", "paper"] = Field(
+        "nearest",
+        description="nearest strong peak each side of the vehicle, or the paper's two strongest peaks",
+    )
+    smooth_px: float = Field(
+        2.0, ge=0.0, le=50.0, description="Gaussian smoothing of the accumulator, BEV pixels"
+    )
+    min_separation_m: float = Field(
+        1.2, gt=0.0, le=20.0, description="non-maximum suppression distance between peaks, metres"
+    )
+    min_votes: float = Field(
+        40.0, ge=0.0, le=1e7, description="a peak needs at least this many (smoothed) votes"
+    )
+    min_relative: float = Field(
+        0.25,
+        ge=0.0,
+        le=1.0,
+        description="nearest rule: a peak needs this fraction of the strongest peak on its side",
+    )
+    min_offset_m: float = Field(
+        0.6,
+        ge=0.0,
+        le=20.0,
+        description="nearest rule: closest plausible lateral distance of a lane boundary, metres",
+    )
+    max_offset_m: float = Field(
+        3.2,
+        gt=0.0,
+        le=50.0,
+        description="nearest rule: farthest plausible lateral distance of a lane boundary, metres",
+    )
     lane_change: bool = Field(
         True,
         description="nearest rule with `previous` lanes: a peak nearer than min_offset_m that continues a previous lane is the "
         "line being crossed in a lane change, and the other side's boundary may then lie up to max_lane_width_m from it",
     )
     track_match_m: float = Field(
-        0.8, gt=0.0, le=5.0,
+        0.8,
+        gt=0.0,
+        le=5.0,
         description="lane change: a peak continues a previous lane within this lateral distance (the lane at its bottom row, the peak where its straight line meets the bottom edge: on a curve they differ), metres",
     )
-    max_lane_width_m: float = Field(4.6, gt=0.0, le=20.0, description="lane change: widest plausible lane, metres")
+    max_lane_width_m: float = Field(
+        4.6, gt=0.0, le=20.0, description="lane change: widest plausible lane, metres"
+    )
 
 
-def _select(acc: np.ndarray, offset: int, theta: float, geometry: BevGeometry, p: HoughParams, previous: list[Lane] | None = None) -> list[Line]:
+def _select(
+    acc: np.ndarray,
+    offset: int,
+    theta: float,
+    geometry: BevGeometry,
+    p: HoughParams,
+    previous: list[Lane] | None = None,
+) -> list[Line]:
     res = geometry.resolution
     sm = _smooth(acc, p.smooth_px)
     peaks = find_peaks(sm, max(1, int(round(p.min_separation_m / res))), p.min_votes)
+
     def lateral(i: int) -> float:
         return geometry.lateral_m(i - offset)  # the peak's offset from the vehicle at the bottom row
 
@@ -204,11 +249,17 @@ def _select(acc: np.ndarray, offset: int, theta: float, geometry: BevGeometry, p
         chosen = sorted(peaks, key=lambda i: -sm[i])[:2]
     else:
         # lane change: the previous lanes' lateral offsets at the bottom row (their model's c0)
-        prev_lat = [geometry.lateral_m(ln.coeffs[0]) for ln in previous or [] if p.lane_change and math.isfinite(ln.coeffs[0])]
+        prev_lat = [
+            geometry.lateral_m(ln.coeffs[0])
+            for ln in previous or []
+            if p.lane_change and math.isfinite(ln.coeffs[0])
+        ]
 
         def crossing(i: int) -> bool:
             """A peak under the vehicle that continues a previous lane: the line being crossed."""
-            return abs(lateral(i)) < p.min_offset_m and any(abs(lateral(i) - lp) <= p.track_match_m for lp in prev_lat)
+            return abs(lateral(i)) < p.min_offset_m and any(
+                abs(lateral(i) - lp) <= p.track_match_m for lp in prev_lat
+            )
 
         strong = {}
         chosen_side = {}
@@ -218,7 +269,9 @@ def _select(acc: np.ndarray, offset: int, theta: float, geometry: BevGeometry, p
                 continue
             best = max(sm[i] for i in side)
             strong[sign] = [i for i in side if sm[i] >= p.min_relative * best]
-            ok = [i for i in strong[sign] if p.min_offset_m <= abs(lateral(i)) <= p.max_offset_m or crossing(i)]
+            ok = [
+                i for i in strong[sign] if p.min_offset_m <= abs(lateral(i)) <= p.max_offset_m or crossing(i)
+            ]
             if ok:
                 chosen_side[sign] = min(ok, key=lambda i: abs(lateral(i)))
         for sign in (-1, 1):
@@ -226,15 +279,26 @@ def _select(acc: np.ndarray, offset: int, theta: float, geometry: BevGeometry, p
             if sign in chosen_side or sign not in strong or c is None or not crossing(c):
                 continue
             # the other side of a lane change: its boundary is a lane's width from the crossed line
-            ok = [i for i in strong[sign] if abs(lateral(i)) >= p.min_offset_m and abs(lateral(i) - lateral(c)) <= p.max_lane_width_m]
+            ok = [
+                i
+                for i in strong[sign]
+                if abs(lateral(i)) >= p.min_offset_m and abs(lateral(i) - lateral(c)) <= p.max_lane_width_m
+            ]
             if ok:
                 chosen_side[sign] = min(ok, key=lambda i: abs(lateral(i)))
         chosen = list(chosen_side.values())
-    lines = [Line(rho=float(i - offset), theta=theta, votes=float(sm[i]), side="left" if lateral(i) < 0 else "right") for i in chosen]
+    lines = [
+        Line(
+            rho=float(i - offset), theta=theta, votes=float(sm[i]), side="left" if lateral(i) < 0 else "right"
+        )
+        for i in chosen
+    ]
     return sorted(lines, key=lambda ln: ln.rho)
 
 
-_PREVIOUS_PORT = Port("lanes", "the previous frame's lanes (a feedback edge): lane changes (see lane_change)", optional=True)
+_PREVIOUS_PORT = Port(
+    "lanes", "the previous frame's lanes (a feedback edge): lane changes (see lane_change)", optional=True
+)
 
 
 def _feature_coords(features: FeatureMap) -> tuple[np.ndarray, np.ndarray]:
@@ -246,10 +310,21 @@ def _feature_coords(features: FeatureMap) -> tuple[np.ndarray, np.ndarray]:
 
 @node_type(
     "hough.line1d",
-    inputs={"features": "features", "orientation": "orientation", "geometry": Port("bev_geometry"), "previous": _PREVIOUS_PORT},
+    inputs={
+        "features": "features",
+        "orientation": "orientation",
+        "geometry": Port("bev_geometry"),
+        "previous": _PREVIOUS_PORT,
+    },
     outputs={"lines": "lines"},
 )
-def line1d(params: HoughParams, features: FeatureMap, orientation: float, geometry: BevGeometry, previous: list[Lane] | None = None) -> dict:
+def line1d(
+    params: HoughParams,
+    features: FeatureMap,
+    orientation: float,
+    geometry: BevGeometry,
+    previous: list[Lane] | None = None,
+) -> dict:
     """1D Hough over rho = x - (H - y) / tan(theta) with the global orientation; at most two lines."""
     rows, cols = features.shape
     r, c = _feature_coords(features)
@@ -266,15 +341,21 @@ def line1d(params: HoughParams, features: FeatureMap, orientation: float, geomet
 class Hough2dParams(HoughParams):
     """Params of ``hough.line2d``."""
 
-    theta_range_deg: float = Field(30.0, gt=0.0, le=89.0, description="thetas searched: 90 deg +- this, degrees")
-    theta_step_deg: float = Field(0.5, ge=0.05, le=10.0, description="theta resolution, degrees (at most 600 thetas)")
+    theta_range_deg: float = Field(
+        30.0, gt=0.0, le=89.0, description="thetas searched: 90 deg +- this, degrees"
+    )
+    theta_step_deg: float = Field(
+        0.5, ge=0.05, le=10.0, description="theta resolution, degrees (at most 600 thetas)"
+    )
 
     @model_validator(mode="after")
     def _thetas_bounded(self):
         # the accumulator and the voting grow with the number of thetas: at most 5x the default's 121
         n = 2 * self.theta_range_deg / self.theta_step_deg + 1
         if n > 600:
-            raise ValueError(f"2 * theta_range_deg / theta_step_deg + 1 = {n:.0f} thetas, more than 600; raise theta_step_deg")
+            raise ValueError(
+                f"2 * theta_range_deg / theta_step_deg + 1 = {n:.0f} thetas, more than 600; raise theta_step_deg"
+            )
         return self
 
 
@@ -288,11 +369,19 @@ class Hough2dParams(HoughParams):
     },
     outputs={"lines": "lines"},
 )
-def line2d(params: Hough2dParams, features: FeatureMap, geometry: BevGeometry, orientation: float | None = None, previous: list[Lane] | None = None) -> dict:
+def line2d(
+    params: Hough2dParams,
+    features: FeatureMap,
+    geometry: BevGeometry,
+    orientation: float | None = None,
+    previous: list[Lane] | None = None,
+) -> dict:
     """Classic 2D (rho, theta) Hough: the strongest theta row is the lane orientation; peaks chosen as in 1D."""
     rows, cols = features.shape
     r, c = _feature_coords(features)
-    thetas = np.radians(np.arange(90 - params.theta_range_deg, 90 + params.theta_range_deg + 1e-9, params.theta_step_deg))
+    thetas = np.radians(
+        np.arange(90 - params.theta_range_deg, 90 + params.theta_range_deg + 1e-9, params.theta_step_deg)
+    )
     inv = np.cos(thetas) / np.maximum(np.sin(thetas), 1e-6)
     offset = 2 * cols
     acc = np.zeros((thetas.size, 5 * cols), np.float64)

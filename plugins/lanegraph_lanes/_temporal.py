@@ -65,10 +65,24 @@ def _side_band_kernel(lane_cols_rows, c_lo, c_hi, band_px, feat_rows, feat_cols,
 class TemporalParams(NodeParams):
     """Params of ``lanes.temporal_mask``."""
 
-    band_px: float = Field(30.0, gt=0.0, le=1000.0, description="half width of the accepted band around a previous lane, BEV pixels")
-    min_score: float = Field(0.1, ge=0.0, le=1.0, description="previous lanes scoring below this do not restrict the search")
-    reacquire: bool = Field(True, description="open a side again when this frame's features do not support the previous lane")
-    min_band_fraction: float = Field(0.15, ge=0.0, le=1.0, description="reacquire when fewer than this fraction of a side's features lie in its band")
+    band_px: float = Field(
+        30.0,
+        gt=0.0,
+        le=1000.0,
+        description="half width of the accepted band around a previous lane, BEV pixels",
+    )
+    min_score: float = Field(
+        0.1, ge=0.0, le=1.0, description="previous lanes scoring below this do not restrict the search"
+    )
+    reacquire: bool = Field(
+        True, description="open a side again when this frame's features do not support the previous lane"
+    )
+    min_band_fraction: float = Field(
+        0.15,
+        ge=0.0,
+        le=1.0,
+        description="reacquire when fewer than this fraction of a side's features lie in its band",
+    )
     open_crossing_m: float = Field(
         0.6,
         ge=0.0,
@@ -87,7 +101,12 @@ class TemporalParams(NodeParams):
     },
     outputs={"mask": "bev_mask"},
 )
-def temporal_mask(params: TemporalParams, geometry: BevGeometry, previous: list[Lane] | None = None, features: FeatureMap | None = None) -> dict:
+def temporal_mask(
+    params: TemporalParams,
+    geometry: BevGeometry,
+    previous: list[Lane] | None = None,
+    features: FeatureMap | None = None,
+) -> dict:
     """Previous-frame mask: bands around the previous frame's lanes; re-acquires sides that are lost or unsupported."""
     rows, cols = geometry.rows, geometry.cols
     good = [ln for ln in (previous or []) if ln.score >= params.min_score]
@@ -99,7 +118,9 @@ def temporal_mask(params: TemporalParams, geometry: BevGeometry, previous: list[
     use_feat = params.reacquire and features is not None
     if use_feat:
         if features.shape != (rows, cols):
-            raise InputError(f"lanes.temporal_mask: features: expected a map of the BEV's shape {(rows, cols)}, got {features.shape}")
+            raise InputError(
+                f"lanes.temporal_mask: features: expected a map of the BEV's shape {(rows, cols)}, got {features.shape}"
+            )
         fr, fc = features.points()
     else:
         fr = fc = np.zeros(0, np.int64)
@@ -118,7 +139,9 @@ def temporal_mask(params: TemporalParams, geometry: BevGeometry, previous: list[
     return {"mask": mask}
 
 
-def image_points(lane: Lane, geometry: BevGeometry, width: int | None = None, height: int | None = None) -> np.ndarray:
+def image_points(
+    lane: Lane, geometry: BevGeometry, width: int | None = None, height: int | None = None
+) -> np.ndarray:
     """The lane's BEV rows ``bev_rows[0] .. bev_rows[1]`` projected into left-image pixels, ``N x 2``
     (x, y) in BEV row order; points that are not finite or fall outside the ``width`` x ``height``
     image (when given) are left out."""
@@ -137,15 +160,23 @@ def image_points(lane: Lane, geometry: BevGeometry, width: int | None = None, he
 class ToImageParams(NodeParams):
     """Params of ``lanes.to_image``."""
 
-    row_step: float = Field(5.0, ge=0.1, le=10.0, description="spacing of the output points, image rows (0.1 to 10)")
+    row_step: float = Field(
+        5.0, ge=0.1, le=10.0, description="spacing of the output points, image rows (0.1 to 10)"
+    )
 
 
 @node_type(
     "lanes.to_image",
-    inputs={"lanes": "lanes", "geometry": Port("bev_geometry"), "calib": Port("calibration", "image size for clipping", optional=True, rate="constant")},
+    inputs={
+        "lanes": "lanes",
+        "geometry": Port("bev_geometry"),
+        "calib": Port("calibration", "image size for clipping", optional=True, rate="constant"),
+    },
     outputs={"lanes": "lanes"},
 )
-def to_image(params: ToImageParams, lanes: list[Lane], geometry: BevGeometry, calib: Calibration | None = None) -> dict:
+def to_image(
+    params: ToImageParams, lanes: list[Lane], geometry: BevGeometry, calib: Calibration | None = None
+) -> dict:
     """Lanes as points in left-image pixels (x, y), covering the detected extent, at most 10 rows apart."""
     out = []
     w = calib.width if calib is not None and calib.width else None

@@ -195,7 +195,9 @@ def _lane_rows_in(image: np.ndarray, lane: Lane) -> tuple[np.ndarray, int, int]:
     return img, max(int(lane.bev_rows[0]), 0), min(int(lane.bev_rows[1]), img.shape[0] - 1)
 
 
-def band_textures(image: np.ndarray, lane: Lane, gap_px: int, band_px: int, measure: str = "std") -> tuple[np.ndarray, np.ndarray]:
+def band_textures(
+    image: np.ndarray, lane: Lane, gap_px: int, band_px: int, measure: str = "std"
+) -> tuple[np.ndarray, np.ndarray]:
     """Per lane row, the lateral texture of the (left, right) side band (NaN where a band leaves
     the image): ``measure="std"``, the intensity's standard deviation across the band; ``"diff"``,
     the mean absolute difference of neighbouring pixels across the band, which a smooth shadow
@@ -210,7 +212,17 @@ def band_textures(image: np.ndarray, lane: Lane, gap_px: int, band_px: int, meas
     out = []
     for sign in (-1, 1):
         tex = np.empty(centre.size, np.float64)
-        _band_texture_kernel(img, r0, centre, int(gap_px), int(band_px), float(sign), _MEASURES[measure], _median_hist(img), tex)
+        _band_texture_kernel(
+            img,
+            r0,
+            centre,
+            int(gap_px),
+            int(band_px),
+            float(sign),
+            _MEASURES[measure],
+            _median_hist(img),
+            tex,
+        )
         out.append(tex)
     return out[0], out[1]
 
@@ -250,13 +262,39 @@ def side_texture(
     img, r0, r1 = _lane_rows_in(image, lane)
     c0, c1, c2 = (float(c) for c in lane.coeffs)
     left, right = _side_texture_kernel(
-        img, r0, r1, c0, c1, c2, int(gap_px), int(band_px), _MEASURES[measure], _median_hist(img), float(quantile)
+        img,
+        r0,
+        r1,
+        c0,
+        c1,
+        c2,
+        int(gap_px),
+        int(band_px),
+        _MEASURES[measure],
+        _median_hist(img),
+        float(quantile),
     )
     return float(left), float(right)
 
 
 @jit
-def _paint_rows_kernel(img, r0, r1, c0, c1, c2, band_px, gap_px, align_px, min_row_contrast, sat_level, hist, profile, contrast, ratio):
+def _paint_rows_kernel(
+    img,
+    r0,
+    r1,
+    c0,
+    c1,
+    c2,
+    band_px,
+    gap_px,
+    align_px,
+    min_row_contrast,
+    sat_level,
+    hist,
+    profile,
+    contrast,
+    ratio,
+):
     """The painted rows of the lane ``col = c0 + c1 t + c2 t^2`` (``t = rows - 1 - row``) over the rows
     ``r0 .. r1``, for :func:`paint_cues`. Per row: the lane's column rounded, moved to the brightest
     pixel within ``align_px`` (a fit is a pixel or two off the paint); the strip of columns
@@ -326,8 +364,16 @@ def _crossing_width(profile: np.ndarray, centre: int, level: float) -> float:
     b = centre
     while b < n - 1 and profile[b + 1] >= level:
         b += 1
-    left = a - (profile[a] - level) / (profile[a] - profile[a - 1]) if a > 0 and profile[a] > profile[a - 1] else float(a)
-    right = b + (profile[b] - level) / (profile[b] - profile[b + 1]) if b < n - 1 and profile[b] > profile[b + 1] else float(b)
+    left = (
+        a - (profile[a] - level) / (profile[a] - profile[a - 1])
+        if a > 0 and profile[a] > profile[a - 1]
+        else float(a)
+    )
+    right = (
+        b + (profile[b] - level) / (profile[b] - profile[b + 1])
+        if b < n - 1 and profile[b] > profile[b + 1]
+        else float(b)
+    )
     return float(right - left)
 
 
@@ -377,7 +423,21 @@ def paint_cues(
     ratio = np.empty(n)
     sat = float(np.iinfo(img.dtype).max) if img.dtype.kind in "ui" else math.inf
     inside, painted, saturated = _paint_rows_kernel(
-        img, r0, r1, c0, c1, c2, band, gap, align, float(min_row_contrast), sat, _median_hist(img), profile, contrast, ratio
+        img,
+        r0,
+        r1,
+        c0,
+        c1,
+        c2,
+        band,
+        gap,
+        align,
+        float(min_row_contrast),
+        sat,
+        _median_hist(img),
+        profile,
+        contrast,
+        ratio,
     )
     nan = float("nan")
     if painted < max(min_rows, 1):
@@ -386,7 +446,15 @@ def paint_cues(
     base = max(float(np.median(profile[: band - gap + 1])), float(np.median(profile[band + gap :])))
     height = profile[band] - base
     if height <= 0.0:
-        return PaintCues(int(inside), int(painted), int(saturated), float(np.median(contrast[:painted])), float(np.median(ratio[:painted])), nan, nan)
+        return PaintCues(
+            int(inside),
+            int(painted),
+            int(saturated),
+            float(np.median(contrast[:painted])),
+            float(np.median(ratio[:painted])),
+            nan,
+            nan,
+        )
     return PaintCues(
         int(inside),
         int(painted),
@@ -401,15 +469,39 @@ def paint_cues(
 class VerifyParams(NodeParams):
     """Params of ``lanes.verify``."""
 
-    paint_check: bool = Field(True, description="drop a lane whose cross profile is not paint's (see the paint cues below)")
-    max_distance_m: float = Field(25.0, gt=0.0, le=500.0, description="paint check: the rows nearer than this are measured (where the BEV resolves paint), metres")
-    paint_band_m: float = Field(1.5, ge=0.1, le=10.0, description="paint check: the side bands reach this far from the lane, metres")
-    paint_gap_m: float = Field(0.25, ge=0.05, le=5.0, description="paint check: the side bands start this far from the lane (beyond the widest paint's half), metres")
-    align_m: float = Field(0.1, ge=0.0, le=1.0, description="paint check: each row's centre is the brightest pixel within this of the fitted lane, metres")
-    min_row_contrast: float = Field(
-        0.15, ge=0.0, le=10.0, description="paint check: a row is painted when its centre is this much brighter than the brighter side band (relative: 0.15 = 15 %)"
+    paint_check: bool = Field(
+        True, description="drop a lane whose cross profile is not paint's (see the paint cues below)"
     )
-    min_painted_rows: int = Field(10, ge=1, le=100000, description="paint check: fewer painted rows than this and the lane is not paint")
+    max_distance_m: float = Field(
+        25.0,
+        gt=0.0,
+        le=500.0,
+        description="paint check: the rows nearer than this are measured (where the BEV resolves paint), metres",
+    )
+    paint_band_m: float = Field(
+        1.5, ge=0.1, le=10.0, description="paint check: the side bands reach this far from the lane, metres"
+    )
+    paint_gap_m: float = Field(
+        0.25,
+        ge=0.05,
+        le=5.0,
+        description="paint check: the side bands start this far from the lane (beyond the widest paint's half), metres",
+    )
+    align_m: float = Field(
+        0.1,
+        ge=0.0,
+        le=1.0,
+        description="paint check: each row's centre is the brightest pixel within this of the fitted lane, metres",
+    )
+    min_row_contrast: float = Field(
+        0.15,
+        ge=0.0,
+        le=10.0,
+        description="paint check: a row is painted when its centre is this much brighter than the brighter side band (relative: 0.15 = 15 %)",
+    )
+    min_painted_rows: int = Field(
+        10, ge=1, le=100000, description="paint check: fewer painted rows than this and the lane is not paint"
+    )
     min_paint_contrast: float = Field(
         0.3,
         ge=0.0,
@@ -418,7 +510,10 @@ class VerifyParams(NodeParams):
         "bright against the road on both sides; the edge of a road beside a darker verge or a kerb's lit face barely is",
     )
     min_width_m: float = Field(
-        0.09, ge=0.0, le=2.0, description="paint check: narrowest mean profile at half height, metres (the narrowest marking is 10 cm; a kerb's lit edge is narrower)"
+        0.09,
+        ge=0.0,
+        le=2.0,
+        description="paint check: narrowest mean profile at half height, metres (the narrowest marking is 10 cm; a kerb's lit edge is narrower)",
     )
     max_foot_width_m: float = Field(
         0.36,
@@ -443,8 +538,12 @@ class VerifyParams(NodeParams):
         "band_px, in the grey levels of a road at reference_level): shadowed asphalt measures about 3-8, the gravel "
         "beside a kerb 15-17",
     )
-    gap_px: int = Field(6, ge=0, le=200, description="texture check: start of the side bands, BEV pixels from the lane")
-    band_px: int = Field(30, ge=2, le=400, description="texture check: end of the side bands, BEV pixels from the lane")
+    gap_px: int = Field(
+        6, ge=0, le=200, description="texture check: start of the side bands, BEV pixels from the lane"
+    )
+    band_px: int = Field(
+        30, ge=2, le=400, description="texture check: end of the side bands, BEV pixels from the lane"
+    )
     max_texture: float | None = Field(
         None,
         gt=0.0,
@@ -452,11 +551,34 @@ class VerifyParams(NodeParams):
         description="texture check: largest texture on either side, grey levels (see measure and brightness; 13.3 was "
         "the default before the paint check; about 12 suits 'diff', 18 'std'); null: no texture check",
     )
-    crossing_check: bool = Field(True, description="drop a lane with parallel bars beside it that repeat its spacing (a pedestrian crossing's bar, not a lane line)")
-    crossing_band_px: int = Field(50, ge=4, le=400, description="crossing check: how far each side bars are looked for, BEV pixels (50: 2.5 m at 5 cm; a crossing's bars are about 1 m apart; a ridge cut off at the band's end counts as wide)")
-    crossing_min_offset_px: int = Field(12, ge=1, le=400, description="crossing check: nearer bright stripes are the lane's own paint or a double line's other line, BEV pixels")
-    max_bar_px: int = Field(16, ge=1, le=400, description="crossing check: widest bar, BEV pixels (wider bright regions, a pavement, do not count)")
-    min_contrast: float = Field(15.0, gt=0.0, le=255.0, description="crossing check: a painted row's centre is this much brighter than the row's road level, grey levels")
+    crossing_check: bool = Field(
+        True,
+        description="drop a lane with parallel bars beside it that repeat its spacing (a pedestrian crossing's bar, not a lane line)",
+    )
+    crossing_band_px: int = Field(
+        50,
+        ge=4,
+        le=400,
+        description="crossing check: how far each side bars are looked for, BEV pixels (50: 2.5 m at 5 cm; a crossing's bars are about 1 m apart; a ridge cut off at the band's end counts as wide)",
+    )
+    crossing_min_offset_px: int = Field(
+        12,
+        ge=1,
+        le=400,
+        description="crossing check: nearer bright stripes are the lane's own paint or a double line's other line, BEV pixels",
+    )
+    max_bar_px: int = Field(
+        16,
+        ge=1,
+        le=400,
+        description="crossing check: widest bar, BEV pixels (wider bright regions, a pavement, do not count)",
+    )
+    min_contrast: float = Field(
+        15.0,
+        gt=0.0,
+        le=255.0,
+        description="crossing check: a painted row's centre is this much brighter than the row's road level, grey levels",
+    )
     measure: Literal["std", "diff", "mdiff"] = Field(
         "mdiff",
         description="'std': lateral intensity std in the band; 'diff': mean absolute difference of "
@@ -477,7 +599,10 @@ class VerifyParams(NodeParams):
         "brighter measures the same; 'absolute': grey levels of the image as it is",
     )
     reference_level: float = Field(
-        170.0, ge=1.0, le=255.0, description="'relative': the road level the thresholds are stated for, grey levels"
+        170.0,
+        ge=1.0,
+        le=255.0,
+        description="'relative': the road level the thresholds are stated for, grey levels",
     )
     level_quantile: float = Field(
         0.8,
@@ -490,7 +615,9 @@ class VerifyParams(NodeParams):
     @model_validator(mode="after")
     def _band_not_empty(self) -> VerifyParams:
         if self.band_px < self.gap_px + 2:
-            raise ValueError(f"band_px ({self.band_px}) must be at least gap_px + 2 ({self.gap_px + 2}): the side bands would be empty")
+            raise ValueError(
+                f"band_px ({self.band_px}) must be at least gap_px + 2 ({self.gap_px + 2}): the side bands would be empty"
+            )
         if self.crossing_band_px <= self.crossing_min_offset_px:
             raise ValueError(
                 f"crossing_band_px ({self.crossing_band_px}) must exceed crossing_min_offset_px ({self.crossing_min_offset_px}): no offset would be searched"
@@ -591,7 +718,9 @@ def _bar_offsets_kernel(profile, band_px, min_offset_px, max_bar_px, min_contras
     return centres[:bars]
 
 
-def neighbour_bars(image: np.ndarray, lane: Lane, band_px: int, min_offset_px: int, max_bar_px: int, min_contrast: float) -> np.ndarray:
+def neighbour_bars(
+    image: np.ndarray, lane: Lane, band_px: int, min_offset_px: int, max_bar_px: int, min_contrast: float
+) -> np.ndarray:
     """The offsets (BEV pixels, right positive) of the bright bars beside ``lane`` (see the module
     docstring). The BEV image is sampled along the lane (every 2nd of its rows, offsets
     ``-band_px .. band_px`` from its centre; rows whose strip leaves the image skipped), less each
@@ -608,7 +737,9 @@ def neighbour_bars(image: np.ndarray, lane: Lane, band_px: int, min_offset_px: i
     profile, painted = _bar_profile_kernel(img, r0, r1, c0, c1, c2, int(band_px), float(min_contrast))
     if painted < 10:
         return np.empty(0)
-    return _bar_offsets_kernel(profile, int(band_px), int(min_offset_px), int(max_bar_px), float(min_contrast))
+    return _bar_offsets_kernel(
+        profile, int(band_px), int(min_offset_px), int(max_bar_px), float(min_contrast)
+    )
 
 
 def crossing_pattern(offsets: np.ndarray, tolerance: float = 0.25) -> bool:
@@ -620,7 +751,9 @@ def crossing_pattern(offsets: np.ndarray, tolerance: float = 0.25) -> bool:
     left = np.sort(-offsets[offsets < 0])
     if left.size and right.size and abs(left[0] - right[0]) <= tolerance * max(left[0], right[0]):
         return True
-    return any(side.size >= 2 and abs(side[1] - 2.0 * side[0]) <= tolerance * side[1] for side in (left, right))
+    return any(
+        side.size >= 2 and abs(side[1] - 2.0 * side[0]) <= tolerance * side[1] for side in (left, right)
+    )
 
 
 #: road_level() samples every n-th row and column
@@ -638,7 +771,9 @@ def road_level(image: np.ndarray, mask: np.ndarray | None, quantile: float) -> f
         sel = sample > 0
     else:
         if np.shape(mask) != img.shape:
-            raise InputError(f"lanes.verify: mask: expected the BEV image's shape {img.shape}, got {np.shape(mask)}")
+            raise InputError(
+                f"lanes.verify: mask: expected the BEV image's shape {img.shape}, got {np.shape(mask)}"
+            )
         sel = np.asarray(mask, dtype=bool)[::_LEVEL_STEP, ::_LEVEL_STEP]
     values = sample[sel]
     if values.size < 200:
@@ -655,11 +790,21 @@ def road_level(image: np.ndarray, mask: np.ndarray | None, quantile: float) -> f
         "lanes": "lanes",
         "image": Port("bev_image", "the BEV image the lanes were found in"),
         "geometry": Port("bev_geometry", "the BEV grid: its resolution and distances"),
-        "mask": Port("bev_mask", "the BEV road mask: its pixels set the road level (brightness 'relative'; default: the BEV inside the image)", optional=True),
+        "mask": Port(
+            "bev_mask",
+            "the BEV road mask: its pixels set the road level (brightness 'relative'; default: the BEV inside the image)",
+            optional=True,
+        ),
     },
     outputs={"lanes": "lanes"},
 )
-def verify(params: VerifyParams, lanes: list[Lane], image: np.ndarray, geometry: BevGeometry, mask: np.ndarray | None = None) -> dict:
+def verify(
+    params: VerifyParams,
+    lanes: list[Lane],
+    image: np.ndarray,
+    geometry: BevGeometry,
+    mask: np.ndarray | None = None,
+) -> dict:
     """Keep the lanes that look like paint on a road: a bright stripe of paint width with road of like brightness on both sides, not among a crossing's bars (optionally: no textured surface beside it)."""
     if not lanes:
         return {"lanes": []}
@@ -687,7 +832,14 @@ def verify(params: VerifyParams, lanes: list[Lane], image: np.ndarray, geometry:
             if not _is_paint(cues, params):
                 continue
             if cues.side_ratio < params.min_side_ratio:  # a much darker side: a shadow, or gravel?
-                rough = max(side_texture(image, ln, params.gap_px, params.band_px, params.measure, params.row_quantile)) * gain
+                rough = (
+                    max(
+                        side_texture(
+                            image, ln, params.gap_px, params.band_px, params.measure, params.row_quantile
+                        )
+                    )
+                    * gain
+                )
                 if rough > params.max_dark_side_texture:
                     continue
             extra["paint"] = {
@@ -699,13 +851,22 @@ def verify(params: VerifyParams, lanes: list[Lane], image: np.ndarray, geometry:
                 "saturated_rows": cues.saturated,
             }
         if params.max_texture is not None:
-            left, right = side_texture(image, ln, params.gap_px, params.band_px, params.measure, params.row_quantile)
+            left, right = side_texture(
+                image, ln, params.gap_px, params.band_px, params.measure, params.row_quantile
+            )
             left, right = left * gain, right * gain
             if max(left, right) > params.max_texture:
                 continue
             extra["texture"] = [round(left, 1), round(right, 1)]
         if params.crossing_check and crossing_pattern(
-            neighbour_bars(image, ln, params.crossing_band_px, params.crossing_min_offset_px, params.max_bar_px, params.min_contrast / gain)
+            neighbour_bars(
+                image,
+                ln,
+                params.crossing_band_px,
+                params.crossing_min_offset_px,
+                params.max_bar_px,
+                params.min_contrast / gain,
+            )
         ):
             continue
         kept.append(Lane(ln.coeffs, ln.bev_rows, ln.side, ln.score, ln.points, extra))

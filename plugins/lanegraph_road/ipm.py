@@ -38,7 +38,12 @@ class IpmParams(NodeParams):
     x_max: float = Field(10.0, ge=-200.0, le=200.0, description="right edge of the BEV, metres")
     z_min: float = Field(5.0, gt=0.0, le=500.0, description="nearest distance ahead (bottom row), metres")
     z_max: float = Field(45.0, gt=0.0, le=500.0, description="farthest distance ahead (top row), metres")
-    resolution: float = Field(0.05, ge=0.005, le=10.0, description="BEV pixel size, metres per pixel (the grid has at most 2e6 pixels)")
+    resolution: float = Field(
+        0.05,
+        ge=0.005,
+        le=10.0,
+        description="BEV pixel size, metres per pixel (the grid has at most 2e6 pixels)",
+    )
     interpolation: Literal["nearest", "linear", "cubic"] = Field("linear", description="image interpolation")
     color: Literal["gray", "keep"] = Field(
         "gray", description="BEV of a BGR input: gray (Hb x Wb, the bev_image type) or keep the 3 channels"
@@ -69,7 +74,9 @@ class IpmParams(NodeParams):
             )
         cells = (self.x_max - self.x_min) / self.resolution * (self.z_max - self.z_min) / self.resolution
         if cells > MAX_BEV_PIXELS:  # memory and time grow with it: about 6x the default 400 x 800
-            raise ValueError(f"the BEV grid would have {cells:.3g} pixels (more than {MAX_BEV_PIXELS:.0e}); raise the resolution or narrow the ranges")
+            raise ValueError(
+                f"the BEV grid would have {cells:.3g} pixels (more than {MAX_BEV_PIXELS:.0e}); raise the resolution or narrow the ranges"
+            )
         return self
 
 
@@ -118,7 +125,9 @@ def warp_to_bev(
     """The work of ``bev.ipm``: ``(bev image, bev mask, geometry)``."""
     image = np.asarray(image)
     if image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] not in (1, 3)) or image.size == 0:
-        raise RoadInputError(f"bev.ipm: image: expected a non-empty HxW or HxWx3 image, got shape {image.shape}")
+        raise RoadInputError(
+            f"bev.ipm: image: expected a non-empty HxW or HxWx3 image, got shape {image.shape}"
+        )
     if image.dtype.kind not in "biuf":
         raise RoadInputError(f"bev.ipm: image: expected an image of numbers, got dtype {image.dtype}")
     if image.dtype not in (np.uint8, np.uint16, np.int16, np.float32, np.float64):
@@ -131,7 +140,9 @@ def warp_to_bev(
         image = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_BGR2GRAY)
     h_img, w_img = image.shape[:2]
     if mask is not None and np.shape(mask) != (h_img, w_img):
-        raise RoadInputError(f"bev.ipm: mask: expected shape {(h_img, w_img)} (the image's), got {np.shape(mask)}")
+        raise RoadInputError(
+            f"bev.ipm: mask: expected shape {(h_img, w_img)} (the image's), got {np.shape(mask)}"
+        )
     pitch, roll, height = bev_pose(params, road)
     geom = bev_geometry(params, calib, pitch, roll, height)
     # cv2 evaluates the homography per BEV pixel (the same mapping as bev_maps(), without building
@@ -147,7 +158,9 @@ def warp_to_bev(
         code = np.ones((h_img, w_img), np.uint8)
     else:
         code = np.add(np.ascontiguousarray(mask, dtype=bool).view(np.uint8), 1, dtype=np.uint8)  # one pass
-    code = cv2.warpPerspective(code, Hm, size, flags=cv2.INTER_NEAREST | flags, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    code = cv2.warpPerspective(
+        code, Hm, size, flags=cv2.INTER_NEAREST | flags, borderMode=cv2.BORDER_CONSTANT, borderValue=0
+    )
     # outside: 0, never a replicated border (a masked AND: 10x cheaper than np.copyto with where=)
     bev = cv2.bitwise_and(bev, bev, mask=code)
     bev_mask = code > (0 if mask is None else 1)

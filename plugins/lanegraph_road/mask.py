@@ -46,7 +46,9 @@ ROAD, ABOVE, BELOW, UNKNOWN = 1, 2, 3, 4  # labels of _height_class_kernel (0: b
 
 
 @jit
-def _height_class_kernel(disp, step, a0, a1, a2, cx, cy, s, c, height, height_tol, min_disp_tol, min_road_disp):
+def _height_class_kernel(
+    disp, step, a0, a1, a2, cx, cy, s, c, height, height_tol, min_disp_tol, min_road_disp
+):
     """Label every ``step``-th column of ``disp`` (column ``u`` of the result is image column
     ``step u``; ``cx``, ``s`` are given in result columns) by its height above the road (eq. 4): 1 road
     (``|d - d_road| <= tol`` with ``tol = max(height_tol * d / height, min_disp_tol)``), 2 above, 3
@@ -281,7 +283,9 @@ def _disk(diameter: int, column_step: int = 1) -> np.ndarray:
     return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (width, diameter))
 
 
-def _keep_components(mask: np.ndarray, keep: str, band_frac: float, cx: float, image_rows: int | None = None) -> np.ndarray:
+def _keep_components(
+    mask: np.ndarray, keep: str, band_frac: float, cx: float, image_rows: int | None = None
+) -> np.ndarray:
     """Keep the connected components that cover the seed region (the bottom band, or its central
     half) best: every component with at least a tenth of the largest one's overlap with the seed.
     ``mask`` may be the bottom rows of an image of ``image_rows`` rows (the band is a fraction of those)."""
@@ -356,15 +360,21 @@ def road_mask_array(
     top = max(0, int(first) - 2 * (params.open_px + params.close_px) - 2)
     labels = labels[top:]
     mask = (
-        _free_space_kernel(labels, int(params.min_obstacle_run_px), bool(params.textureless_is_road)) if params.free_space else labels == ROAD
+        _free_space_kernel(labels, int(params.min_obstacle_run_px), bool(params.textureless_is_road))
+        if params.free_space
+        else labels == ROAD
     )
     if params.open_px > 1:
         # bool and 0/1 uint8 share their bytes: views, no copies
-        mask = cv2.morphologyEx(np.ascontiguousarray(mask).view(np.uint8), cv2.MORPH_OPEN, _disk(params.open_px, st)).view(bool)
+        mask = cv2.morphologyEx(
+            np.ascontiguousarray(mask).view(np.uint8), cv2.MORPH_OPEN, _disk(params.open_px, st)
+        ).view(bool)
     if params.keep != "all":
         mask = _keep_components(mask, params.keep, params.bottom_band_frac, calib.cx / st, H)
     if params.close_px > 1:
-        mask = cv2.morphologyEx(np.ascontiguousarray(mask).view(np.uint8), cv2.MORPH_CLOSE, _disk(params.close_px, st)).view(bool)
+        mask = cv2.morphologyEx(
+            np.ascontiguousarray(mask).view(np.uint8), cv2.MORPH_CLOSE, _disk(params.close_px, st)
+        ).view(bool)
     if params.fill_holes_max_above > 0:
         mask = _fill_holes(mask, labels, params.fill_holes_max_above)
     if st > 1:

@@ -253,8 +253,20 @@ def _row_refine_kernel(rows, d, centre, radius):
 
 @jit
 def _profile_kernel(
-    vd, columns, max_step, smoothness, bin_size, radius0, rows, d, height, plane_tol, min_tol, step,
-    min_row_count, min_fit_disp,
+    vd,
+    columns,
+    max_step,
+    smoothness,
+    bin_size,
+    radius0,
+    rows,
+    d,
+    height,
+    plane_tol,
+    min_tol,
+    step,
+    min_row_count,
+    min_fit_disp,
 ):
     """Steps 2-3 of a pass up to the robust fit: DP path, row refinement, profile, fit rows.
 
@@ -457,7 +469,9 @@ def _line_fit_kernel(v, d, w, i, j, tol, rounds, min_slope):
 
 
 @jit
-def _plane_fit_kernel(disp, step, v_top, min_disp, b0, b1, b2, first_tol, plane_tol, height, min_tol, uc, vc, rounds):
+def _plane_fit_kernel(
+    disp, step, v_top, min_disp, b0, b1, b2, first_tol, plane_tol, height, min_tol, uc, vc, rounds
+):
     """The roll plane ``d = b0 + b1 u + b2 v`` (disparity space), ``rounds`` selection and
     least-squares rounds over every ``step``-th row and column from row 0 and column 0.
 
@@ -559,7 +573,12 @@ def checked_disparity(disparity: np.ndarray, node: str) -> np.ndarray:
     NaNs and infinities stay: every road kernel treats them as invalid pixels, as it does 0 (no
     pass over the map to look for them)."""
     disparity = np.asarray(disparity)
-    if disparity.ndim != 2 or disparity.shape[0] < 1 or disparity.shape[1] < 1 or disparity.dtype.kind not in "biuf":
+    if (
+        disparity.ndim != 2
+        or disparity.shape[0] < 1
+        or disparity.shape[1] < 1
+        or disparity.dtype.kind not in "biuf"
+    ):
         raise RoadInputError(
             f"{node}: disparity: expected a non-empty HxW array of numbers, "
             f"got shape {disparity.shape} of dtype {disparity.dtype}"
@@ -585,8 +604,21 @@ def _select(disp, cx, cy, s, c, bins, bin_size, max_disparity, band, step):
     vd = np.zeros((H, bins), np.float32)
     k, b0, b1, b2 = band if band is not None else (0.0, 0.0, 0.0, 0.0)
     n = _select_kernel(
-        disp, int(step), float(k), float(b0), float(b1), float(b2), float(cx), float(cy),
-        float(s), float(c), float(bin_size), float(max_disparity), rows, d, vd,
+        disp,
+        int(step),
+        float(k),
+        float(b0),
+        float(b1),
+        float(b2),
+        float(cx),
+        float(cy),
+        float(s),
+        float(c),
+        float(bin_size),
+        float(max_disparity),
+        rows,
+        d,
+        vd,
     )
     return rows[:n], d[:n], vd
 
@@ -623,7 +655,11 @@ def select_pixels(
 
 
 def compute_vdisparity(
-    disp: np.ndarray, max_disparity: float, bin_size: float, roll: float = 0.0, calib: Calibration | None = None
+    disp: np.ndarray,
+    max_disparity: float,
+    bin_size: float,
+    roll: float = 0.0,
+    calib: Calibration | None = None,
 ) -> np.ndarray:
     """``H x D`` v-disparity of a validated disparity map, optionally in roll-corrected rows."""
     if roll != 0.0 and calib is None:
@@ -642,7 +678,9 @@ class VDisparityParams(NodeParams):
     max_disparity: float = Field(
         128.0, gt=0.0, le=1024.0, description="disparities >= this are left out, pixels; D = ceil(max / bin)"
     )
-    bin_size: float = Field(1.0, ge=0.25, le=16.0, description="width of a disparity bin, pixels (>= 0.25; at most 1024 bins)")
+    bin_size: float = Field(
+        1.0, ge=0.25, le=16.0, description="width of a disparity bin, pixels (>= 0.25; at most 1024 bins)"
+    )
 
     @model_validator(mode="after")
     def _bins_bounded(self):
@@ -673,7 +711,9 @@ class ProfileParams(NodeParams):
     """Params of ``road.profile``."""
 
     max_disparity: float = Field(128.0, gt=0.0, le=1024.0, description="v-disparity range, pixels")
-    bin_size: float = Field(1.0, ge=0.25, le=16.0, description="v-disparity bin width, pixels (>= 0.25; at most 1024 bins)")
+    bin_size: float = Field(
+        1.0, ge=0.25, le=16.0, description="v-disparity bin width, pixels (>= 0.25; at most 1024 bins)"
+    )
     smoothness: float = Field(
         0.02,
         ge=0.0,
@@ -801,7 +841,9 @@ def _weighted_polyfit(v: np.ndarray, d: np.ndarray, w: np.ndarray, deg: int) -> 
     return coef if np.all(np.isfinite(coef)) else None
 
 
-def _robust_fit(v, d, w, deg, tol, iterations, init: np.ndarray | None, seed: int = 0, min_slope: float = 0.0):
+def _robust_fit(
+    v, d, w, deg, tol, iterations, init: np.ndarray | None, seed: int = 0, min_slope: float = 0.0
+):
     """RANSAC (for the line: ``iterations`` pairs drawn by :func:`_sample_pairs`, slopes above
     ``min_slope``) then least squares with inlier re-selection (four rounds at most); with ``init``
     (inliers) only the least squares. The line is one kernel (:func:`_line_fit_kernel`). Returns
@@ -822,7 +864,9 @@ def _robust_fit(v, d, w, deg, tol, iterations, init: np.ndarray | None, seed: in
     if np.count_nonzero(init) < deg + 1:
         return None, None
     if deg == 1:
-        ok, a0, a1, inl = _line_refit_kernel(v, d, w, np.ascontiguousarray(init, dtype=np.bool_), float(tol), 4)
+        ok, a0, a1, inl = _line_refit_kernel(
+            v, d, w, np.ascontiguousarray(init, dtype=np.bool_), float(tol), 4
+        )
         return (np.array([a0, a1]), inl) if ok else (None, inl)
     return _robust_refit_np(v, d, w, deg, tol, init)
 
@@ -891,7 +935,9 @@ def _profile_pass(
     )
     if rows.size < params.min_fit_rows:
         return None, profile, None
-    line, inl = _robust_fit(rows, dv, wv, 1, params.fit_tolerance_px, params.ransac_iterations, None, min_slope=min_slope)
+    line, inl = _robust_fit(
+        rows, dv, wv, 1, params.fit_tolerance_px, params.ransac_iterations, None, min_slope=min_slope
+    )
     if line is None or np.count_nonzero(inl) < params.min_fit_rows or not line[1] > 0:
         return None, profile, None
     coef = line
@@ -911,9 +957,19 @@ def _fit_road_plane(disp, line, height: float, v_top: int, params: ProfileParams
     a road (``b2 <= 0``). ``height``: the camera height of the line (metres)."""
     H, W = disp.shape
     ok, b0, b1, b2 = _plane_fit_kernel(
-        disp, int(params.roll_subsample), int(v_top), float(params.min_fit_disparity_px),
-        float(line[0]), 0.0, float(line[1]), float(params.roll_tolerance_px), float(params.plane_tolerance_m),
-        float(height), float(params.min_plane_tolerance_px), 0.5 * (W - 1), 0.5 * (H - 1),
+        disp,
+        int(params.roll_subsample),
+        int(v_top),
+        float(params.min_fit_disparity_px),
+        float(line[0]),
+        0.0,
+        float(line[1]),
+        float(params.roll_tolerance_px),
+        float(params.plane_tolerance_m),
+        float(height),
+        float(params.min_plane_tolerance_px),
+        0.5 * (W - 1),
+        0.5 * (H - 1),
         int(params.roll_iterations),  # at least one (the param's bound): b is then a fit
     )
     return np.array([b0, b1, b2]) if ok else None
@@ -960,7 +1016,14 @@ def estimate_road(
     # the road line rises by at least f B / (fy max_height_m) per row (eq. 3 at zero pitch)
     min_slope = float(calib.f * calib.baseline / (calib.f_y * params.max_height_m))
     fit, profile, inl = _profile_pass(
-        H, W, (rows, d), vd, params, vd_columns=W if vdisparity is not None else None, step=step1, min_slope=min_slope
+        H,
+        W,
+        (rows, d),
+        vd,
+        params,
+        vd_columns=W if vdisparity is not None else None,
+        step=step1,
+        min_slope=min_slope,
     )
     if fit is None:
         return _invalid(profile), vd
@@ -977,7 +1040,9 @@ def estimate_road(
     # pass 2: only the pixels within road_band_m of that plane, in roll-corrected rows
     band = (params.road_band_m / h1, *plane) if params.road_band_m > 0 else None
     s, c = geometry.roll_row_coeffs(roll, calib)
-    rows, d, vd = select_and_count(disp, cx, cy, s, c, params.max_disparity, params.bin_size, band, params.column_step)
+    rows, d, vd = select_and_count(
+        disp, cx, cy, s, c, params.max_disparity, params.bin_size, band, params.column_step
+    )
     fit, profile, inl = _profile_pass(H, W, (rows, d), vd, params, h1, min_slope=min_slope)
     if fit is None:
         return _invalid(profile, roll), vd

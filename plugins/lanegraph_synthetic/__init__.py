@@ -64,19 +64,35 @@ class SyntheticParams(NodeParams):
     frames: int = Field(10, ge=1, le=100000, description="number of frames in the sequence (10 Hz)")
     seed: int = Field(0, ge=0, description="random seed (texture, layout, dash phases, noise)")
     scale: float = Field(1.0, ge=0.1, le=2.0, description="image size relative to the 1242x375 KITTI rig")
-    pitch_deg: float | None = Field(None, ge=-10, le=10, description="camera pitch, degrees (positive = nose down)")
-    roll_deg: float | None = Field(None, ge=-10, le=10, description="camera roll, degrees (positive = clockwise)")
+    pitch_deg: float | None = Field(
+        None, ge=-10, le=10, description="camera pitch, degrees (positive = nose down)"
+    )
+    roll_deg: float | None = Field(
+        None, ge=-10, le=10, description="camera roll, degrees (positive = clockwise)"
+    )
     height: float | None = Field(None, gt=0.3, le=5.0, description="camera height above the road, metres")
     n_lanes: int | None = Field(None, ge=1, le=6, description="number of lanes")
     lane_width: float | None = Field(None, ge=2.0, le=6.0, description="lane width, metres")
-    curvature: float | None = Field(None, ge=-0.02, le=0.02, description="road curvature at the start, 1/metres (positive bends right)")
-    curvature_rate: float | None = Field(None, ge=-1e-3, le=1e-3, description="clothoid: curvature change per metre, 1/metres^2")
+    curvature: float | None = Field(
+        None, ge=-0.02, le=0.02, description="road curvature at the start, 1/metres (positive bends right)"
+    )
+    curvature_rate: float | None = Field(
+        None, ge=-1e-3, le=1e-3, description="clothoid: curvature change per metre, 1/metres^2"
+    )
     speed: float | None = Field(None, ge=0, le=60, description="ego speed, metres per second")
-    lateral_speed: float | None = Field(None, ge=-3, le=3, description="lateral drift, metres per second (right positive)")
-    lane_change: int | None = Field(None, ge=-1, le=1, description="a lane change from t = 0.5 s over 3 s: -1 left, +1 right, 0 none")
+    lateral_speed: float | None = Field(
+        None, ge=-3, le=3, description="lateral drift, metres per second (right positive)"
+    )
+    lane_change: int | None = Field(
+        None, ge=-1, le=1, description="a lane change from t = 0.5 s over 3 s: -1 left, +1 right, 0 none"
+    )
     noise_sigma: float | None = Field(None, ge=0, le=50, description="sensor noise, grey levels")
-    overexposed_every: int | None = Field(None, ge=0, le=100000, description="every n-th frame is over-exposed (0: none)")
-    exposure_gain: float | None = Field(None, ge=1.0, le=10.0, description="gain of the over-exposed frames (then clipped at 255)")
+    overexposed_every: int | None = Field(
+        None, ge=0, le=100000, description="every n-th frame is over-exposed (0: none)"
+    )
+    exposure_gain: float | None = Field(
+        None, ge=1.0, le=10.0, description="gain of the over-exposed frames (then clipped at 255)"
+    )
 
 
 def spec_from_params(params: SyntheticParams) -> SceneSpec:
@@ -109,7 +125,9 @@ class SyntheticSource:
             raise InputError("implausible calibration: " + "; ".join(f"{k}: {m}" for k, m in problems))
         sel = context.frames if context is not None else None
         what = f"--frames {selection_text(sel)}"
-        selected = select_frames(range(params.frames), [(what, sel)], f"io.synthetic ({params.frames} frames)")
+        selected = select_frames(
+            range(params.frames), [(what, sel)], f"io.synthetic ({params.frames} frames)"
+        )
         self.skipped = min(max(int(getattr(context, "skip", 0)), 0), len(selected))
         self.indices = selected[self.skipped :]
 

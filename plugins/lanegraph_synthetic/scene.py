@@ -142,7 +142,9 @@ class SceneSpec:
                     f"SceneSpec.{name}: expected 'solid' or 'dashed', got {getattr(self, name)!r}"
                 )
         if not self.verge_texture >= 0:
-            raise ValueError(f"SceneSpec.verge_texture: expected >= 0 (relative to the asphalt's texture), got {self.verge_texture}")
+            raise ValueError(
+                f"SceneSpec.verge_texture: expected >= 0 (relative to the asphalt's texture), got {self.verge_texture}"
+            )
         if self.height <= 0 or self.fps <= 0 or self.z_far <= 5:
             raise ValueError("SceneSpec: height, fps must be > 0 and z_far > 5 m")
         if self.tile_length < self.z_far + 80:
@@ -529,7 +531,9 @@ class SceneRenderer:
             if rows.size == 0:
                 continue
             r0, r1 = int(rows[0]), int(rows[-1]) + 1
-            sample = cv2.remap(self.tex_levels[k], tu[r0:r1], tv[r0:r1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+            sample = cv2.remap(
+                self.tex_levels[k], tu[r0:r1], tv[r0:r1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP
+            )
             lk, wk = lo[r0:r1], w[r0:r1]
             weight = np.where(lk == k, 1.0 - wk, 0.0) + np.where(lk == k - 1, wk, 0.0)
             out[r0:r1] += weight.astype(np.float32) * sample
@@ -665,7 +669,7 @@ def _rip_levels(tex: np.ndarray) -> list[np.ndarray]:
         n = 2**k
         c = np.cumsum(np.vstack([tex[-n:], tex]), axis=0, dtype=np.float64)  # a wrapping box sum
         avg = (c[n:] - c[:-n]) / n
-        avg = avg / max(float(avg.std()), 1e-6) * (n ** -0.25)
+        avg = avg / max(float(avg.std()), 1e-6) * (n**-0.25)
         levels.append(np.ascontiguousarray(avg, dtype=np.float32))  # RIP_LEVELS - 1 < log2(512)
     return levels
 

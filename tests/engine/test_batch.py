@@ -42,7 +42,11 @@ def test_chunk_selections_cover_every_frame_once():
     assert chunk_selections(10, None, 4, 2) == [
         (slice(0, 4, 1), 0, 0, 4), (slice(2, 8, 1), 2, 4, 4), (slice(6, 10, 1), 2, 8, 2)
     ]  # fmt: skip
-    for n, sel, k, w in [(23, slice(3, 20, 2), 3, 2), (9, slice(None, None, -1), 4, 1), (7, slice(-5, None), 2, 5)]:
+    for n, sel, k, w in [
+        (23, slice(3, 20, 2), 3, 2),
+        (9, slice(None, None, -1), 4, 1),
+        (7, slice(-5, None), 2, 5),
+    ]:
         picked = list(range(n))[sel]
         reported = []
         for s, warm, start, count in chunk_selections(n, sel, k, w):
@@ -70,17 +74,36 @@ def test_place_dir_replaces_a_folder_whole_and_leftovers_go(tmp_path):
 
 def test_run_dataset_writes_each_sequence_like_a_single_run(tmp_path, synthetic_dataset):
     out = tmp_path / "out"
-    r = CliRunner().invoke(main, ["run", PAPER, "--dataset", str(synthetic_dataset), "--out", str(out), "--quiet"])
+    r = CliRunner().invoke(
+        main, ["run", PAPER, "--dataset", str(synthetic_dataset), "--out", str(out), "--quiet"]
+    )
     assert r.exit_code == 0, r.output
     assert "straight: 5 frame(s)" in r.output and "curve: 7 frame(s)" in r.output
     for name, folder in (("straight", "a"), ("curve", "b")):
         single = tmp_path / f"single_{name}"
-        r = CliRunner().invoke(main, ["run", PAPER, "--input", str(synthetic_dataset.parent / folder), "--out", str(single), "--quiet"])
+        r = CliRunner().invoke(
+            main,
+            [
+                "run",
+                PAPER,
+                "--input",
+                str(synthetic_dataset.parent / folder),
+                "--out",
+                str(single),
+                "--quiet",
+            ],
+        )
         assert r.exit_code == 0, r.output
         assert (out / name / "lanes.jsonl").read_bytes() == (single / "lanes.jsonl").read_bytes()
         record = json.loads((out / name / "run.json").read_text())
-        assert record["frames_ok"] == json.loads((single / "run.json").read_text())["frames_ok"] and record["failures"] == []
-        assert json.loads((out / name / "timings.json").read_text())["nodes"]["disp"]["calls"] == record["frames_ok"]
+        assert (
+            record["frames_ok"] == json.loads((single / "run.json").read_text())["frames_ok"]
+            and record["failures"] == []
+        )
+        assert (
+            json.loads((out / name / "timings.json").read_text())["nodes"]["disp"]["calls"]
+            == record["frames_ok"]
+        )
     assert not [p for p in out.iterdir() if p.name.startswith(".") and p.is_dir()]  # no temporary folder left
 
 
@@ -88,13 +111,41 @@ def test_chunks_are_the_runs_after_their_warmup(tmp_path, synthetic_dataset):
     ds = tmp_path / "one.yaml"
     ds.write_text(f"sequences:\n  - {{name: curve, input: {synthetic_dataset.parent / 'b'}}}\n")
     out = tmp_path / "chunked"
-    r = CliRunner().invoke(main, ["run", PAPER, "--dataset", str(ds), "--out", str(out), "--chunk-frames", "3", "--warmup", "2", "--quiet"])
+    r = CliRunner().invoke(
+        main,
+        [
+            "run",
+            PAPER,
+            "--dataset",
+            str(ds),
+            "--out",
+            str(out),
+            "--chunk-frames",
+            "3",
+            "--warmup",
+            "2",
+            "--quiet",
+        ],
+    )
     assert r.exit_code == 0, r.output
     # 7 frames: [0, 3) alone, [3, 6) after frames 1-2, [6, 7) after frames 4-5
     expected = []
     for frames, warm in (("0:3", 0), ("1:6", 2), ("4:7", 2)):
         part = tmp_path / f"part_{frames}"
-        r = CliRunner().invoke(main, ["run", PAPER, "--input", str(synthetic_dataset.parent / "b"), "--frames", frames, "--out", str(part), "--quiet"])
+        r = CliRunner().invoke(
+            main,
+            [
+                "run",
+                PAPER,
+                "--input",
+                str(synthetic_dataset.parent / "b"),
+                "--frames",
+                frames,
+                "--out",
+                str(part),
+                "--quiet",
+            ],
+        )
         assert r.exit_code == 0, r.output
         expected += (part / "lanes.jsonl").read_text().splitlines(keepends=True)[warm:]
     assert (out / "curve" / "lanes.jsonl").read_text() == "".join(expected)
@@ -118,10 +169,15 @@ def test_a_failed_run_is_reported_and_the_others_finish(tmp_path, synthetic_data
     ds = _corrupt_copy(synthetic_dataset, tmp_path)
     out = tmp_path / "out"
     slt = str(ROOT / "graphs" / "ablations" / "slt.yaml")
-    r = CliRunner().invoke(main, ["ablate", PAPER, slt, "--dataset", str(ds), "--out", str(out), "--no-cache", "--quiet"])
+    r = CliRunner().invoke(
+        main, ["ablate", PAPER, slt, "--dataset", str(ds), "--out", str(out), "--no-cache", "--quiet"]
+    )
     assert r.exit_code == 1, r.output
     for variant in ("paper", "slt"):
-        assert f"error: run {variant} / curve failed: node 'src' (io.folder) failed on frame 0000000002" in r.stderr
+        assert (
+            f"error: run {variant} / curve failed: node 'src' (io.folder) failed on frame 0000000002"
+            in r.stderr
+        )
         assert "cannot decode image" in r.stderr
         assert len((out / "runs" / variant / "straight" / "lanes.jsonl").read_text().splitlines()) == 5
         # the failed run keeps what it wrote before the bad frame, and says where it stopped
@@ -131,11 +187,21 @@ def test_a_failed_run_is_reported_and_the_others_finish(tmp_path, synthetic_data
         assert not (out / "runs" / variant / "curve" / "run_key.txt").exists()  # never reused
     rows = {(row["variant"], row["sequence"]): row for row in csv.DictReader((out / "results.csv").open())}
     assert rows[("paper", "straight")]["error"] == "" and rows[("paper", "straight")]["detection_ratio"] != ""
-    assert "frame 0000000002" in rows[("slt", "curve")]["error"] and rows[("slt", "curve")]["detection_ratio"] == ""
-    assert rows[("slt", "all")]["error"] == "failed on sequence(s) curve" and rows[("slt", "all")]["detection_ratio"] == ""
-    assert "- slt / curve: node 'src' (io.folder) failed on frame 0000000002" in (out / "results.md").read_text()
+    assert (
+        "frame 0000000002" in rows[("slt", "curve")]["error"]
+        and rows[("slt", "curve")]["detection_ratio"] == ""
+    )
+    assert (
+        rows[("slt", "all")]["error"] == "failed on sequence(s) curve"
+        and rows[("slt", "all")]["detection_ratio"] == ""
+    )
+    assert (
+        "- slt / curve: node 'src' (io.folder) failed on frame 0000000002" in (out / "results.md").read_text()
+    )
 
-    r = CliRunner().invoke(main, ["run", PAPER, "--dataset", str(ds), "--out", str(tmp_path / "run"), "--quiet"])
+    r = CliRunner().invoke(
+        main, ["run", PAPER, "--dataset", str(ds), "--out", str(tmp_path / "run"), "--quiet"]
+    )
     assert r.exit_code == 1 and "error: curve: node 'src' (io.folder) failed on frame 0000000002" in r.stderr
     assert len((tmp_path / "run" / "straight" / "lanes.jsonl").read_text().splitlines()) == 5
 
@@ -147,11 +213,23 @@ def test_a_failed_run_is_reported_and_the_others_finish(tmp_path, synthetic_data
         (["run", "paper", "--chunk-frames", "3"], "--chunk-frames runs the sequences of a --dataset"),
         (["run", "paper", "--dataset", "{ds}", "--input", "x"], "--input is for a run on one input"),
         (["run", "paper", "--dataset", "{ds}", "--resume"], "--resume is for a run on one input"),
-        (["run", "paper", "--dataset", "{ds}", "--scheduler", "local:0"], "expected local:N with N a number of worker processes >= 1"),
-        (["run", "paper", "--dataset", "{ds}", "--warmup", "2"], "--warmup is the number of frames run before each chunk"),
-        (["run", "paper", "--dataset", "{ds}", "--chunk-frames", "0"], "--chunk-frames: expected an integer >= 1"),
+        (
+            ["run", "paper", "--dataset", "{ds}", "--scheduler", "local:0"],
+            "expected local:N with N a number of worker processes >= 1",
+        ),
+        (
+            ["run", "paper", "--dataset", "{ds}", "--warmup", "2"],
+            "--warmup is the number of frames run before each chunk",
+        ),
+        (
+            ["run", "paper", "--dataset", "{ds}", "--chunk-frames", "0"],
+            "--chunk-frames: expected an integer >= 1",
+        ),
         (["ablate", "paper", "--dataset", "{ds}", "--scheduler", "local:x"], "expected local:N"),
-        (["ablate", "paper", "--dataset", "{ds}", "--chunk-frames", "2", "--warmup", "-1"], "--warmup: expected an integer >= 0"),
+        (
+            ["ablate", "paper", "--dataset", "{ds}", "--chunk-frames", "2", "--warmup", "-1"],
+            "--warmup: expected an integer >= 0",
+        ),
     ],
 )
 def test_usage_errors_exit_2_before_anything_runs(tmp_path, synthetic_dataset, args, message):
@@ -187,7 +265,9 @@ def test_no_dask_without_a_scheduler(tmp_path, synthetic_dataset):
     )  # fmt: skip
     assert p.returncode == 0, p.stderr
     assert "LOADED []" in p.stdout
-    assert (tmp_path / "out" / "s" / "lanes.jsonl").is_file() and (tmp_path / "ab" / "runs" / "paper" / "s" / "lanes.jsonl").is_file()
+    assert (tmp_path / "out" / "s" / "lanes.jsonl").is_file() and (
+        tmp_path / "ab" / "runs" / "paper" / "s" / "lanes.jsonl"
+    ).is_file()
 
 
 def test_a_plain_run_imports_nothing_new():
@@ -206,8 +286,20 @@ main(sys.argv[1:])
 
 
 def test_a_scheduler_without_dask_installed_is_a_usage_error(tmp_path, synthetic_dataset):
-    args = ["run", PAPER, "--dataset", str(synthetic_dataset), "--out", str(tmp_path / "out"), "--scheduler", "local:2", "--quiet"]
-    p = subprocess.run([sys.executable, "-c", _WITHOUT_DASK, *args], capture_output=True, text=True, timeout=300)
+    args = [
+        "run",
+        PAPER,
+        "--dataset",
+        str(synthetic_dataset),
+        "--out",
+        str(tmp_path / "out"),
+        "--scheduler",
+        "local:2",
+        "--quiet",
+    ]
+    p = subprocess.run(
+        [sys.executable, "-c", _WITHOUT_DASK, *args], capture_output=True, text=True, timeout=300
+    )
     assert p.returncode == 2, p.stderr
     assert 'error: --scheduler needs Dask: pip install "lanegraph[distributed]"' in p.stderr
     assert not list((tmp_path / "out").rglob("lanes.jsonl")) if (tmp_path / "out").exists() else True
@@ -218,7 +310,9 @@ def test_a_sequence_that_cannot_start_does_not_stop_the_others(tmp_path, synthet
     (empty / "left").mkdir(parents=True)
     (empty / "right").mkdir()
     ds = tmp_path / "ds.yaml"
-    ds.write_text(f"sequences:\n  - {{name: good, input: {synthetic_dataset.parent / 'a'}, frames: '0:2'}}\n  - {{name: bad, input: {empty}}}\n")
+    ds.write_text(
+        f"sequences:\n  - {{name: good, input: {synthetic_dataset.parent / 'a'}, frames: '0:2'}}\n  - {{name: bad, input: {empty}}}\n"
+    )
     out = tmp_path / "out"
     r = CliRunner().invoke(main, ["run", PAPER, "--dataset", str(ds), "--out", str(out), "--quiet"])
     assert r.exit_code == 1, r.output
@@ -227,5 +321,7 @@ def test_a_sequence_that_cannot_start_does_not_stop_the_others(tmp_path, synthet
     record = json.loads((out / "bad" / "run.json").read_text())
     assert record["status"] == "stopped" and record["before_any_frame"] is True and record["error"]
     ds.write_text(f"sequences:\n  - {{name: bad, input: {empty}}}\n")  # nothing can start: exit 2
-    r = CliRunner().invoke(main, ["run", PAPER, "--dataset", str(ds), "--out", str(tmp_path / "out2"), "--quiet"])
+    r = CliRunner().invoke(
+        main, ["run", PAPER, "--dataset", str(ds), "--out", str(tmp_path / "out2"), "--quiet"]
+    )
     assert r.exit_code == 2, r.output

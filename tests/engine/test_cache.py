@@ -203,7 +203,9 @@ def test_two_processes_writing_one_entry_never_corrupt_it(tmp_path):
 
     root = tmp_path / "shared"
     cache = ResultCache(root, 10**9)
-    writers = [subprocess.Popen([sys.executable, "-c", _WRITER, str(root), str(ms), "150"]) for ms in (1.0, 2.0)]
+    writers = [
+        subprocess.Popen([sys.executable, "-c", _WRITER, str(root), str(ms), "150"]) for ms in (1.0, 2.0)
+    ]
     seen = set()
     try:
         while any(w.poll() is None for w in writers):

@@ -83,13 +83,24 @@ def test_nodes_and_schema(cli):
 
 
 def test_eval_json(cli, tmp_path):
-    gt = {"frame": "f0", "markings": [{"id": 1, "points": [[100, 300], [110, 290], [120, 280]]}], "ego": {"left": 1, "right": None}}
+    gt = {
+        "frame": "f0",
+        "markings": [{"id": 1, "points": [[100, 300], [110, 290], [120, 280]]}],
+        "ego": {"left": 1, "right": None},
+    }
     (tmp_path / "gt.jsonl").write_text(json.dumps(gt) + "\n" + json.dumps({**gt, "frame": "f1"}) + "\n")
     pred = {"frame": "f0", "lanes": [{"points": [[101, 300], [121, 280]]}]}
     (tmp_path / "p.jsonl").write_text(json.dumps(pred) + "\n")
     r = cli.invoke(main, ["eval", str(tmp_path / "p.jsonl"), str(tmp_path / "gt.jsonl"), "--json"])
     res = json.loads(r.output)
-    assert set(res) >= {"frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px", "failed_frames"}
+    assert set(res) >= {
+        "frames",
+        "detection_ratio",
+        "precision",
+        "ego_recall",
+        "mean_abs_dx_px",
+        "failed_frames",
+    }
     assert res["frames"] == 2 and res["detection_ratio"] == 0.5 and res["precision"] == 1.0
     assert res["failed_frames"][0]["frame"] == "f1"
     r = cli.invoke(main, ["eval", str(tmp_path / "p.jsonl"), str(tmp_path / "gt.jsonl")])

@@ -53,11 +53,20 @@ def test_paths_are_relative_to_the_file_and_frames_parsed(tmp_path):
     ("text", "message"),
     [
         ("sequences: []\n", "sequences: List should have at least 1 item"),
-        ("sequences:\n  - {name: x, input: ../data/a, colour: red}\n", "sequence 'x': colour: Extra inputs are not permitted"),
+        (
+            "sequences:\n  - {name: x, input: ../data/a, colour: red}\n",
+            "sequence 'x': colour: Extra inputs are not permitted",
+        ),
         ("sequences:\n  - {name: ../up, input: ../data/a}\n", "expected a plain name"),
         ("sequences:\n  - {name: all, input: ../data/a}\n", "expected a plain name"),
-        ("sequences:\n  - {name: x, input: ../data/a, frames: 'a:b'}\n", "sequence 'x': frames: Value error, expected A:B"),
-        ("sequences:\n  - {name: x, input: ../data/a}\n  - {name: x, input: ../data/b}\n", "sequence 'x': the name is used twice"),
+        (
+            "sequences:\n  - {name: x, input: ../data/a, frames: 'a:b'}\n",
+            "sequence 'x': frames: Value error, expected A:B",
+        ),
+        (
+            "sequences:\n  - {name: x, input: ../data/a}\n  - {name: x, input: ../data/b}\n",
+            "sequence 'x': the name is used twice",
+        ),
         ("sequences:\n  - {name: x, input: ../data/nope}\n", "sequence 'x': input:"),
         ("sequences:\n  - {name: x, input: ../data/a, gt: ../data/a/none.jsonl}\n", "sequence 'x': gt:"),
         ("sequences: [\n", "not valid YAML"),
@@ -103,12 +112,17 @@ def test_pooled_figures_count_every_frame_once():
 
 def test_eval_dataset_prints_each_sequence_and_the_pooled_row(tmp_path):
     ds = tmp_path / "ds.yaml"
-    for name, gt, pred in (("a", [_gt("0", 100)], [_pred("0", [100])]), ("b", [_gt("0", 100)], [_pred("0", [])])):
+    for name, gt, pred in (
+        ("a", [_gt("0", 100)], [_pred("0", [100])]),
+        ("b", [_gt("0", 100)], [_pred("0", [])]),
+    ):
         (tmp_path / "gt" / name).mkdir(parents=True)
         (tmp_path / "gt" / name / "lanes_gt.jsonl").write_text("".join(json.dumps(r) + "\n" for r in gt))
         (tmp_path / "runs" / name).mkdir(parents=True)
         (tmp_path / "runs" / name / "lanes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in pred))
-    ds.write_text("sequences:\n  - {name: a, input: gt/a, gt: gt/a/lanes_gt.jsonl}\n  - {name: b, input: gt/b, gt: gt/b/lanes_gt.jsonl}\n")
+    ds.write_text(
+        "sequences:\n  - {name: a, input: gt/a, gt: gt/a/lanes_gt.jsonl}\n  - {name: b, input: gt/b, gt: gt/b/lanes_gt.jsonl}\n"
+    )
     r = CliRunner().invoke(main, ["eval", str(tmp_path / "runs"), "--dataset", str(ds)])
     assert r.exit_code == 0, r.output
     lines = r.output.splitlines()

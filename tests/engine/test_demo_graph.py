@@ -18,11 +18,17 @@ def test_demo_graph_on_synthetic_scene(tmp_path):
     lines = (tmp_path / "lanes.jsonl").read_text().splitlines()
     assert [json.loads(x)["frame"] for x in lines] == ["0000000000", "0000000001"]
     t = json.loads((tmp_path / "timings.json").read_text())
-    assert t["frames"] == 2 and t["nodes"]["src"]["type"] == "io.synthetic" and t["nodes"]["disp"]["type"] == "disparity.sgbm"
+    assert (
+        t["frames"] == 2
+        and t["nodes"]["src"]["type"] == "io.synthetic"
+        and t["nodes"]["disp"]["type"] == "disparity.sgbm"
+    )
 
 
 def test_demo_graph_on_kitti(kitti_drive, tmp_path):
-    r = CliRunner().invoke(main, ["run", DEMO, "--input", str(kitti_drive), "--out", str(tmp_path), "--quiet"])
+    r = CliRunner().invoke(
+        main, ["run", DEMO, "--input", str(kitti_drive), "--out", str(tmp_path), "--quiet"]
+    )
     assert r.exit_code == 0, r.output
     assert len((tmp_path / "lanes.jsonl").read_text().splitlines()) == 54
     t = json.loads((tmp_path / "timings.json").read_text())

@@ -129,7 +129,11 @@ def test_source_yielding_an_error_goes_on(tmp_path, pm, prefetch):
     import copy
 
     d = copy.deepcopy(VALID)
-    d["nodes"]["src"] = {"type": "toy.flaky", "params": {"n": 4, "bad": 1, "resume": True}, "on_error": "skip"}
+    d["nodes"]["src"] = {
+        "type": "toy.flaky",
+        "params": {"n": 4, "bad": 1, "resume": True},
+        "on_error": "skip",
+    }
     d["nodes"].pop("k")
     res = Executor(load(tmp_path, pm, d), RunContext(), pm, prefetch=prefetch).run()
     assert [f for f, _ in toyplugin.Collect.out] == ["0000", "0002", "0003"]
@@ -142,7 +146,9 @@ def test_warmup_frames_feed_the_feedback_edges_but_no_sink(tmp_path, pm):
     d = copy.deepcopy(VALID)
     d["nodes"]["src"]["params"]["n"] = 6
     seen = []
-    res = Executor(load(tmp_path, pm, d), RunContext(frames=slice(1, 6)), pm, warmup=2).run(on_frame=lambda i, f: seen.append((i, f)))
+    res = Executor(load(tmp_path, pm, d), RunContext(frames=slice(1, 6)), pm, warmup=2).run(
+        on_frame=lambda i, f: seen.append((i, f))
+    )
     # frames 1 and 2 only warm up acc (2, then 2 + 4); the sink and on_frame see 3, 4, 5
     assert toyplugin.Collect.out == [("0003", 12.0), ("0004", 20.0), ("0005", 30.0)]
     assert seen == [(2, "0003"), (3, "0004"), (4, "0005")]
@@ -164,7 +170,10 @@ def test_failures_of_warmup_frames_are_not_recorded(tmp_path, pm):
     res = Executor(load(tmp_path, pm, d), RunContext(), pm, warmup=2).run()
     assert res.failures == [] and res.frames == 3
     res = Executor(load(tmp_path, pm, d), RunContext(), pm, warmup=1).run()
-    assert [(f.frame, f.index, f.node_id) for f in res.failures] == [("0001", 1, "double"), ("0001", 1, "acc")]
+    assert [(f.frame, f.index, f.node_id) for f in res.failures] == [
+        ("0001", 1, "double"),
+        ("0001", 1, "acc"),
+    ]
 
 
 # --------------------------------------------------------------------------- lanegraph_after_node sees failures
@@ -196,9 +205,16 @@ def test_after_node_receives_the_error_of_a_failed_node(tmp_path, pm, policy):
         ex.run()
     failed = [(n, f, o, e) for n, f, o, e in spy.calls if e is not None]
     node, frame, outputs, error = failed[0]
-    assert (node, frame, outputs) == ("double", "0002", None) and isinstance(error, ValueError) and "boom on 2" in str(error)
+    assert (
+        (node, frame, outputs) == ("double", "0002", None)
+        and isinstance(error, ValueError)
+        and "boom on 2" in str(error)
+    )
     ok = [(n, f, o) for n, f, o, e in spy.calls if e is None and n == "double"]
-    assert ok[:2] == [("double", "0000", {"y": 0.0}), ("double", "0001", {"y": 2.0})]  # success: outputs, no error
+    assert ok[:2] == [
+        ("double", "0000", {"y": 0.0}),
+        ("double", "0001", {"y": 2.0}),
+    ]  # success: outputs, no error
 
 
 def test_after_node_receives_the_error_of_a_frame_the_source_could_not_read(tmp_path, pm):
@@ -207,7 +223,11 @@ def test_after_node_receives_the_error_of_a_frame_the_source_could_not_read(tmp_
     spy = AfterNode()
     pm.register(spy)
     d = copy.deepcopy(VALID)
-    d["nodes"]["src"] = {"type": "toy.flaky", "params": {"n": 3, "bad": 1, "resume": True}, "on_error": "skip"}
+    d["nodes"]["src"] = {
+        "type": "toy.flaky",
+        "params": {"n": 3, "bad": 1, "resume": True},
+        "on_error": "skip",
+    }
     d["nodes"].pop("k")
     Executor(load(tmp_path, pm, d), RunContext(), pm, prefetch=0).run()
     src = [(f, o is None, type(e).__name__ if e else None) for n, f, o, e in spy.calls if n == "src"]
@@ -219,7 +239,12 @@ class PickParams(NodeParams):
     default: str = Field("toy.count", description="the source without an input")
 
 
-@node_type("toy.pick", source=True, params=PickParams, outputs={"frame": "frame_id", "value": "number", "calib": Port("calibration", rate="constant")})
+@node_type(
+    "toy.pick",
+    source=True,
+    params=PickParams,
+    outputs={"frame": "frame_id", "value": "number", "calib": Port("calibration", rate="constant")},
+)
 class Pick:
     """Stands for toy.count (no input) or the source a plugin detects for the input."""
 
@@ -261,7 +286,9 @@ def test_a_selecting_source_is_replaced_by_the_source_it_names(tmp_path, pm):
     assert g.source.type.name == "toy.flaky"
     with pytest.raises(GraphError) as info:
         Executor(load(tmp_path, pm, d), RunContext(input_path=tmp_path / "other"), pm)
-    assert str(info.value) == f"{tmp_path / 'g.yaml'}: node 'src' (toy.pick): nothing reads {tmp_path / 'other'}"
+    assert (
+        str(info.value) == f"{tmp_path / 'g.yaml'}: node 'src' (toy.pick): nothing reads {tmp_path / 'other'}"
+    )
     with pytest.raises(GraphError, match="source node type 'toy.scale' is not installed"):
         Executor(load(tmp_path, pm, d, sets=["src.default=toy.scale"]), RunContext(), pm)
 
@@ -303,7 +330,11 @@ def test_a_run_records_the_result_files_its_sinks_declare(tmp_path, pm):
 
     pm.register(Writers, name="writers")
     d = copy.deepcopy(VALID)
-    d["nodes"]["w"] = {"type": "toy.write", "params": {"filename": "x.txt"}, "inputs": {"frame": "src.frame", "x": "acc.y"}}
+    d["nodes"]["w"] = {
+        "type": "toy.write",
+        "params": {"filename": "x.txt"},
+        "inputs": {"frame": "src.frame", "x": "acc.y"},
+    }
     g = load(tmp_path, pm, d)
     assert graph_result_files(g) == {"values": "x.txt"}
     res = Executor(g, RunContext(out_dir=tmp_path), pm).run()

@@ -52,21 +52,86 @@ def test_valid_graph_loads_in_topological_order(tmp_path, pm):
 @pytest.mark.parametrize(
     "mutator, node, field, words",
     [
-        (lambda d: d["nodes"]["double"].update(type="toy.scael"), "double", "type", ["unknown node type", "did you mean 'toy.scale'"]),
-        (lambda d: d["nodes"]["double"]["inputs"].update(xx="src.value"), "double", "inputs.xx", ["unknown input port 'xx'"]),
-        (lambda d: d["nodes"]["double"].update(inputs={}), "double", "inputs.x", ["required input port 'x'", "not connected"]),
-        (lambda d: d["nodes"]["double"]["inputs"].update(x="src.valu"), "double", "inputs.x", ["no output port 'valu'", "did you mean 'value'"]),
-        (lambda d: d["nodes"]["double"]["inputs"].update(x="nosuch.y"), "double", "inputs.x", ["unknown node 'nosuch'"]),
-        (lambda d: d["nodes"]["double"]["inputs"].update(x="src.frame"), "double", "inputs.x", ["port type mismatch", "expected 'number'", "got 'frame_id'"]),
-        (lambda d: d["nodes"]["double"]["params"].update(factor=1000), "double", "params.factor", ["less than or equal to 100", "1000"]),
-        (lambda d: d["nodes"]["double"]["params"].update(factr=3), "double", "params.factr", ["unknown key", "did you mean 'factor'"]),
-        (lambda d: d["nodes"]["double"]["params"].update(factor="big"), "double", "params.factor", ["expected", "'big'"]),
-        (lambda d: d["nodes"]["double"]["inputs"].update(x="src.value.x"), "double", "inputs.x", ["expected 'node_id.port'"]),
-        (lambda d: d["nodes"]["acc"]["inputs"].update(b="acc.y"), "acc", "inputs", ["cycle without a feedback edge", "acc -> acc"]),
+        (
+            lambda d: d["nodes"]["double"].update(type="toy.scael"),
+            "double",
+            "type",
+            ["unknown node type", "did you mean 'toy.scale'"],
+        ),
+        (
+            lambda d: d["nodes"]["double"]["inputs"].update(xx="src.value"),
+            "double",
+            "inputs.xx",
+            ["unknown input port 'xx'"],
+        ),
+        (
+            lambda d: d["nodes"]["double"].update(inputs={}),
+            "double",
+            "inputs.x",
+            ["required input port 'x'", "not connected"],
+        ),
+        (
+            lambda d: d["nodes"]["double"]["inputs"].update(x="src.valu"),
+            "double",
+            "inputs.x",
+            ["no output port 'valu'", "did you mean 'value'"],
+        ),
+        (
+            lambda d: d["nodes"]["double"]["inputs"].update(x="nosuch.y"),
+            "double",
+            "inputs.x",
+            ["unknown node 'nosuch'"],
+        ),
+        (
+            lambda d: d["nodes"]["double"]["inputs"].update(x="src.frame"),
+            "double",
+            "inputs.x",
+            ["port type mismatch", "expected 'number'", "got 'frame_id'"],
+        ),
+        (
+            lambda d: d["nodes"]["double"]["params"].update(factor=1000),
+            "double",
+            "params.factor",
+            ["less than or equal to 100", "1000"],
+        ),
+        (
+            lambda d: d["nodes"]["double"]["params"].update(factr=3),
+            "double",
+            "params.factr",
+            ["unknown key", "did you mean 'factor'"],
+        ),
+        (
+            lambda d: d["nodes"]["double"]["params"].update(factor="big"),
+            "double",
+            "params.factor",
+            ["expected", "'big'"],
+        ),
+        (
+            lambda d: d["nodes"]["double"]["inputs"].update(x="src.value.x"),
+            "double",
+            "inputs.x",
+            ["expected 'node_id.port'"],
+        ),
+        (
+            lambda d: d["nodes"]["acc"]["inputs"].update(b="acc.y"),
+            "acc",
+            "inputs",
+            ["cycle without a feedback edge", "acc -> acc"],
+        ),
         (lambda d: d["nodes"]["double"].update(colour="red"), "double", "colour", ["unknown key"]),
         (lambda d: d["nodes"].pop("src"), None, "nodes", ["exactly one source node"]),
-        (lambda d: d["nodes"].update(src2={"type": "toy.count"}), None, "nodes", ["exactly one source", "src, src2"]),
-        (lambda d: d["nodes"].update({"bad id": {"type": "toy.count"}}), None, "nodes", ["must start with a letter"]),
+        (
+            lambda d: d["nodes"].update(src2={"type": "toy.count"}),
+            None,
+            "nodes",
+            ["exactly one source", "src, src2"],
+        ),
+        (
+            lambda d: d["nodes"].update({"bad id": {"type": "toy.count"}}),
+            None,
+            "nodes",
+            ["must start with a letter"],
+        ),
     ],
 )
 def test_each_graph_error_is_located(tmp_path, pm, mutator, node, field, words):
@@ -102,7 +167,11 @@ def test_duplicate_node_ids_rejected(tmp_path, pm):
     p.write_text("nodes:\n  src: {type: toy.count}\n  src: {type: toy.count}\n")
     with pytest.raises(GraphError) as info:
         load_graph(p, pm=pm)
-    assert "duplicate key 'src'" in str(info.value) and "dup.yaml" in str(info.value) and "line 3" in str(info.value)
+    assert (
+        "duplicate key 'src'" in str(info.value)
+        and "dup.yaml" in str(info.value)
+        and "line 3" in str(info.value)
+    )
 
 
 def test_python_tags_never_execute(tmp_path, pm):
@@ -158,7 +227,10 @@ def test_extends_overrides_params_type_and_removal(tmp_path, pm):
 
 def test_extends_type_change_resets_params(tmp_path, pm):
     write(tmp_path, VALID, "base.yaml")
-    child = {"extends": "base.yaml", "nodes": {"acc": {"type": "toy.scale", "inputs": {"x": "double.y", "a": None, "b": None}}}}
+    child = {
+        "extends": "base.yaml",
+        "nodes": {"acc": {"type": "toy.scale", "inputs": {"x": "double.y", "a": None, "b": None}}},
+    }
     g = load_graph(write(tmp_path, child, "child.yaml"), pm=pm)
     assert g.nodes["acc"].type.name == "toy.scale" and g.nodes["acc"].params.factor == 2.0
 

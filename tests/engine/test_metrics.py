@@ -47,8 +47,11 @@ def test_one_to_one_greedy_by_mean_dx():
 
 
 def test_frame_correctness_rules():
-    gt = {"frame": "a", "markings": [{"id": 1, "points": GT_ROWS}, {"id": 2, "points": shifted(200)}],
-          "ego": {"left": 1, "right": None}}
+    gt = {
+        "frame": "a",
+        "markings": [{"id": 1, "points": GT_ROWS}, {"id": 2, "points": shifted(200)}],
+        "ego": {"left": 1, "right": None},
+    }
     assert evaluate_frame([{"points": shifted(0)}], gt).correct  # non-ego marking need not be reported
     assert evaluate_frame([{"points": shifted(0)}, {"points": shifted(200)}], gt).correct
     assert not evaluate_frame([{"points": shifted(200)}], gt).correct  # ego boundary missed
@@ -75,7 +78,11 @@ def test_match_frame_exposes_each_lane_and_marking_outcome():
 
     gt = {
         "frame": "a",
-        "markings": [{"id": 7, "points": GT_ROWS}, {"id": 8, "points": shifted(200)}, {"id": 9, "points": shifted(-200)}],
+        "markings": [
+            {"id": 7, "points": GT_ROWS},
+            {"id": 8, "points": shifted(200)},
+            {"id": 9, "points": shifted(-200)},
+        ],
         "ego": {"left": 7, "right": 8},
     }
     # lane 0 is 30 px off every marking (false), lane 1 lies on marking 9 (not an ego boundary),
@@ -90,7 +97,10 @@ def test_match_frame_exposes_each_lane_and_marking_outcome():
     # the frame's figures are counted from this matching
     r = evaluate_frame(lanes, gt)
     assert r.match == m and not r.correct and r.matched == 2 and r.ego_matched == 1
-    assert r.reasons == ["1 false lane(s) (reported lane index [0])", "ego right boundary (marking 8) not matched"]
+    assert r.reasons == [
+        "1 false lane(s) (reported lane index [0])",
+        "ego right boundary (marking 8) not matched",
+    ]
     # an ego id that names no marking counts as missed, and no marking is flagged for it
     m2 = match_frame([], {"markings": [{"id": 1, "points": GT_ROWS}], "ego": {"left": 5, "right": None}})
     assert m2.ego == {"left": None} and m2.marking_outcomes() == ["unmatched"]

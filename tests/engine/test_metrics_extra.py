@@ -22,8 +22,12 @@ def vertical(x, y0=10, y1=90):
 
 
 def gt_frame(*xs, frame="a"):
-    return {"frame": frame, "image_size": SIZE, "markings": [{"id": i, "points": vertical(x)} for i, x in enumerate(xs)],
-            "ego": {"left": None, "right": None}}
+    return {
+        "frame": frame,
+        "image_size": SIZE,
+        "markings": [{"id": i, "points": vertical(x)} for i, x in enumerate(xs)],
+        "ego": {"left": None, "right": None},
+    }
 
 
 def pred(frame, *xs):

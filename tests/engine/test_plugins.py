@@ -85,7 +85,9 @@ def test_duplicate_node_type_reported():
     assert list(pm.node_types) == ["good.node"]
     assert pm.node_types["good.node"].plugin == "a"
     (err,) = pm.plugin_errors
-    assert err.plugin == "b" and "provided by both 'a' and 'b'" in str(err) and err.node_types == ("good.node",)
+    assert (
+        err.plugin == "b" and "provided by both 'a' and 'b'" in str(err) and err.node_types == ("good.node",)
+    )
     assert pm.get_plugin("b") is None, "the duplicating plugin is unregistered"
 
 
@@ -118,7 +120,9 @@ def test_node_type_returns_the_function_with_its_record():
     decorated = node_type("toy.double", inputs={"x": "number"}, outputs={"y": "number"})(double)
     assert decorated is double and decorated(NodeParams(), x=4) == {"y": 8}  # still the plain function
     nt = node_type_of(double)
-    assert isinstance(nt, NodeType) and nt.name == "toy.double" and nt.func is double and double.node_type is nt
+    assert (
+        isinstance(nt, NodeType) and nt.name == "toy.double" and nt.func is double and double.node_type is nt
+    )
     assert node_type_of(nt) is nt and node_type_of(len) is None and node_type_of(42) is None
 
 
@@ -229,7 +233,9 @@ def test_a_plugin_returning_something_else_than_node_types_is_left_out():
     pm.register(GoodPlugin, name="good")
     pm.register(Wrong, name="wrong")
     assert list(pm.node_types) == ["good.node"]
-    assert "returned 'image.gray', expected a function or class decorated with @lanegraph.node_type" in str(pm.plugin_errors[0])
+    assert "returned 'image.gray', expected a function or class decorated with @lanegraph.node_type" in str(
+        pm.plugin_errors[0]
+    )
 
 
 def test_hookimpls_may_still_return_node_type_records():
@@ -249,7 +255,12 @@ def broken_eps(monkeypatch):
     """The installed entry points plus three broken third-party plugins, in a fresh process-wide
     plugin manager. The broken ones sort before the built-ins by name."""
     real = list(metadata.entry_points(group="lanegraph.plugins"))
-    eps = [*real, FakeEP("a_misspelt", "lg-misspelt", Misspelt), FakeEP("a_raising", "lg-raising", Raising), FakeEP("a_dup", "lg-dup", Duplicate)]
+    eps = [
+        *real,
+        FakeEP("a_misspelt", "lg-misspelt", Misspelt),
+        FakeEP("a_raising", "lg-raising", Raising),
+        FakeEP("a_dup", "lg-dup", Duplicate),
+    ]
     monkeypatch.setattr(metadata, "entry_points", lambda group: eps if group == "lanegraph.plugins" else [])
     monkeypatch.setattr(plugins, "_default", None)
     yield
@@ -263,14 +274,19 @@ def _warnings(output: str) -> list[str]:
 def test_broken_plugins_leave_every_command_working_with_a_warning(broken_eps, tmp_path):
     pm = plugins.get_plugin_manager()
     assert {e.plugin for e in pm.plugin_errors} == {"a_misspelt", "a_raising", "a_dup"}
-    assert pm.node_types["image.gray"].plugin == "lanegraph_image", "a third-party plugin never displaces a built-in type"
+    assert pm.node_types["image.gray"].plugin == "lanegraph_image", (
+        "a third-party plugin never displaces a built-in type"
+    )
     assert "dup.other" not in pm.node_types
     runner = CliRunner()
     demo = "graphs/demo_sgbm.yaml"
     r = runner.invoke(main, ["run", demo, "--out", str(tmp_path / "out"), "--frames", "0:1", "--quiet"])
     assert r.exit_code == 0, r.output
     assert "Traceback" not in r.output and len(_warnings(r.output)) == 3, r.output
-    assert "(did you mean 'lanegraph_node_types'?)" in r.output and "provided by both 'lanegraph_image' and 'a_dup'" in r.output
+    assert (
+        "(did you mean 'lanegraph_node_types'?)" in r.output
+        and "provided by both 'lanegraph_image' and 'a_dup'" in r.output
+    )
     assert (tmp_path / "out" / "lanes.jsonl").is_file()
     for args in (["validate", demo], ["show", demo], ["schema"]):
         r = runner.invoke(main, args)
@@ -291,6 +307,15 @@ def test_a_graph_using_a_type_of_a_broken_plugin_says_so(broken_eps, tmp_path):
     )
     r = CliRunner().invoke(main, ["validate", str(g)])
     assert r.exit_code == 2, r.output
-    assert "node 'a': type: unknown node type 'raising.node' (hint: it is a node type of plugin 'a_raising', which is not loaded: its lanegraph_node_types hook raised" in r.output
-    assert "node 'b': type: unknown node type 'dup.other' (hint: it is a node type of plugin 'a_dup', which is not loaded: node type 'image.gray' is provided by both" in r.output
-    assert "node 'c': type: unknown node type 'no.such'" in r.output and "could not be loaded (see the warnings): one may provide it" in r.output
+    assert (
+        "node 'a': type: unknown node type 'raising.node' (hint: it is a node type of plugin 'a_raising', which is not loaded: its lanegraph_node_types hook raised"
+        in r.output
+    )
+    assert (
+        "node 'b': type: unknown node type 'dup.other' (hint: it is a node type of plugin 'a_dup', which is not loaded: node type 'image.gray' is provided by both"
+        in r.output
+    )
+    assert (
+        "node 'c': type: unknown node type 'no.such'" in r.output
+        and "could not be loaded (see the warnings): one may provide it" in r.output
+    )

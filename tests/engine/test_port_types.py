@@ -16,14 +16,18 @@ from lanegraph.testing import check_node_type
 from . import toyplugin
 
 
-@node_type("cloud.points", inputs={"x": "number"}, outputs={"cloud": Port("point_cloud", "N x 3 points, metres")})
+@node_type(
+    "cloud.points", inputs={"x": "number"}, outputs={"cloud": Port("point_cloud", "N x 3 points, metres")}
+)
 def points(params: NodeParams, x):
     """A cloud of ``x + 1`` points on a line."""
     n = int(x) + 1
     return {"cloud": np.stack([np.arange(n, dtype=float)] * 3, axis=1)}
 
 
-@node_type("cloud.ground", inputs={"x": "number"}, outputs={"cloud": Port("ground_cloud", "points on the road")})
+@node_type(
+    "cloud.ground", inputs={"x": "number"}, outputs={"cloud": Port("ground_cloud", "points on the road")}
+)
 def ground(params: NodeParams, x):
     """A cloud of road points (a ground_cloud is a point_cloud)."""
     return {"cloud": np.zeros((int(x) + 2, 3))}
@@ -65,7 +69,9 @@ def pm() -> PluginManager:
 
 
 def graph(pm: PluginManager, nodes: dict) -> object:
-    return validate_raw({"nodes": {"src": {"type": "toy.count", "params": {"n": 3}}, **nodes}}, {}, "g.yaml", pm)
+    return validate_raw(
+        {"nodes": {"src": {"type": "toy.count", "params": {"n": 3}}, **nodes}}, {}, "g.yaml", pm
+    )
 
 
 def test_a_plugin_port_type_is_registered_beside_lanegraphs_own(pm):
@@ -81,7 +87,10 @@ def test_a_graph_wires_through_a_plugin_port_type_and_its_subtype(pm):
             "pts": {"type": "cloud.points", "inputs": {"x": "src.value"}},
             "gnd": {"type": "cloud.ground", "inputs": {"x": "src.value"}},
             "n1": {"type": "cloud.count", "inputs": {"cloud": "pts.cloud"}},
-            "n2": {"type": "cloud.count", "inputs": {"cloud": "gnd.cloud"}},  # a ground_cloud is a point_cloud
+            "n2": {
+                "type": "cloud.count",
+                "inputs": {"cloud": "gnd.cloud"},
+            },  # a ground_cloud is a point_cloud
             "out": {"type": "toy.collect", "inputs": {"frame": "src.frame", "x": "n2.n"}},
         },
     )
@@ -100,8 +109,14 @@ def test_a_wrong_wiring_of_a_plugin_port_type_is_a_located_problem(pm):
             },
         )
     text = str(info.value)
-    assert "g.yaml: node 'wrong' (toy.scale): inputs.x: port type mismatch: expected 'number', got 'point_cloud' from pts.cloud" in text
-    assert "g.yaml: node 'up' (cloud.count): inputs.cloud: port type mismatch: expected 'point_cloud', got 'number' from src.value" in text
+    assert (
+        "g.yaml: node 'wrong' (toy.scale): inputs.x: port type mismatch: expected 'number', got 'point_cloud' from pts.cloud"
+        in text
+    )
+    assert (
+        "g.yaml: node 'up' (cloud.count): inputs.cloud: port type mismatch: expected 'point_cloud', got 'number' from src.value"
+        in text
+    )
 
 
 def test_a_parent_does_not_feed_its_subtype(pm):
@@ -118,7 +133,13 @@ def test_a_parent_does_not_feed_its_subtype(pm):
 
     pm.register(More, name="more")
     with pytest.raises(GraphError, match="expected 'ground_cloud', got 'point_cloud' from pts.cloud"):
-        graph(pm, {"pts": {"type": "cloud.points", "inputs": {"x": "src.value"}}, "g": {"type": "cloud.ground_only", "inputs": {"cloud": "pts.cloud"}}})
+        graph(
+            pm,
+            {
+                "pts": {"type": "cloud.points", "inputs": {"x": "src.value"}},
+                "g": {"type": "cloud.ground_only", "inputs": {"cloud": "pts.cloud"}},
+            },
+        )
 
 
 def test_an_unregistered_port_type_is_a_problem_of_the_graph_that_wires_it(pm):
@@ -141,8 +162,16 @@ def test_an_unregistered_port_type_is_a_problem_of_the_graph_that_wires_it(pm):
             return [points, count]
 
     bare.register(NodesOnly, name="nodes")
-    with pytest.raises(GraphError, match=r"node 'n' \(cloud.count\): inputs.cloud: unknown port type 'point_cloud'"):
-        graph(bare, {"p": {"type": "cloud.points", "inputs": {"x": "src.value"}}, "n": {"type": "cloud.count", "inputs": {"cloud": "p.cloud"}}})
+    with pytest.raises(
+        GraphError, match=r"node 'n' \(cloud.count\): inputs.cloud: unknown port type 'point_cloud'"
+    ):
+        graph(
+            bare,
+            {
+                "p": {"type": "cloud.points", "inputs": {"x": "src.value"}},
+                "n": {"type": "cloud.count", "inputs": {"cloud": "p.cloud"}},
+            },
+        )
 
 
 def test_a_port_type_name_is_checked_when_declared():
@@ -153,8 +182,14 @@ def test_a_port_type_name_is_checked_when_declared():
 @pytest.mark.parametrize(
     "provided, words",
     [
-        ([PortType("image", "not lanegraph's image")], "port type 'image' is already registered by lanegraph"),
-        ([PortType("orphan", "a child of nothing", parent="nothing")], "port type 'orphan': its parent 'nothing' is not a registered port type"),
+        (
+            [PortType("image", "not lanegraph's image")],
+            "port type 'image' is already registered by lanegraph",
+        ),
+        (
+            [PortType("orphan", "a child of nothing", parent="nothing")],
+            "port type 'orphan': its parent 'nothing' is not a registered port type",
+        ),
         ([PortType("a", "x", parent="b"), PortType("b", "y", parent="a")], "closes a cycle"),
         (["point_cloud"], "expected a PortType"),
     ],
@@ -207,5 +242,7 @@ def test_lanegraph_nodes_lists_the_port_types_plugins_add(pm, monkeypatch):
     assert r.exit_code == 0, r.output
     assert "port types added by plugins:" in r.output
     assert "    ground_cloud (feeds point_cloud ports): 3-D points on the road plane" in r.output
-    listed = {t["name"]: t for t in json.loads(CliRunner().invoke(main, ["nodes", "--json"]).output)["port_types"]}
+    listed = {
+        t["name"]: t for t in json.loads(CliRunner().invoke(main, ["nodes", "--json"]).output)["port_types"]
+    }
     assert listed["ground_cloud"]["parent"] == "point_cloud" and "image" in listed

@@ -159,7 +159,22 @@ def test_debug_dir_writes_every_output_and_a_mosaic(cli, pm, tmp_path):
     graph = tmp_path / "g.yaml"
     graph.write_text(yaml.safe_dump(VALID))
     dbg = tmp_path / "dbg"
-    r = cli.invoke(main, ["run", str(graph), "--out", str(tmp_path / "o"), "--quiet", "--frames", "0:3", "--debug-dir", str(dbg), "--debug-frames", "1"])
+    r = cli.invoke(
+        main,
+        [
+            "run",
+            str(graph),
+            "--out",
+            str(tmp_path / "o"),
+            "--quiet",
+            "--frames",
+            "0:3",
+            "--debug-dir",
+            str(dbg),
+            "--debug-frames",
+            "1",
+        ],
+    )
     assert r.exit_code == 0, r.output
     # only the chosen frame; the toy graph's numbers become text cards
     assert sorted(p.name for p in dbg.iterdir()) == ["0001"]

@@ -324,7 +324,10 @@ def test_bad_folders_and_files_exit_2_saying_where(run_out, tmp_path):
     assert r.exit_code == 2 and "no such folder" in r.output
     (tmp_path / "empty").mkdir()
     r = CliRunner().invoke(main, ["report", str(tmp_path / "empty")])
-    assert r.exit_code == 2 and f"not a run folder (no lanes file: {tmp_path / 'empty' / 'lanes.jsonl'})" in r.output, r.output
+    assert (
+        r.exit_code == 2
+        and f"not a run folder (no lanes file: {tmp_path / 'empty' / 'lanes.jsonl'})" in r.output
+    ), r.output
     bad = tmp_path / "bad"
     bad.mkdir()
     (bad / "lanes.jsonl").write_text('{"frame": "0", "lanes": []}\n{"frame": \n')

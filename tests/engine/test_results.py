@@ -39,7 +39,20 @@ def test_the_lanes_writer_declares_its_file(installed_pm):
 
 def test_a_renamed_lanes_file_is_found_through_run_json(cli, scene, tmp_path):
     out = tmp_path / "out"
-    r = cli.invoke(main, ["run", DEMO, "--input", str(scene), "--out", str(out), "--set", "write.filename=sub/mine.jsonl", "--quiet"])
+    r = cli.invoke(
+        main,
+        [
+            "run",
+            DEMO,
+            "--input",
+            str(scene),
+            "--out",
+            str(out),
+            "--set",
+            "write.filename=sub/mine.jsonl",
+            "--quiet",
+        ],
+    )
     assert r.exit_code == 0, r.output
     assert recorded_result_files(out) == {"lanes": "sub/mine.jsonl"} and not (out / "lanes.jsonl").exists()
     assert find_result(out, LANES) == out / "sub" / "mine.jsonl"
@@ -50,13 +63,28 @@ def test_a_renamed_lanes_file_is_found_through_run_json(cli, scene, tmp_path):
     assert r.exit_code == 0, r.output
     assert "3 frame(s)" in r.output
     r = cli.invoke(main, ["eval", str(tmp_path), str(scene / "lanes_gt.jsonl")])
-    assert r.exit_code == 2 and f"{tmp_path}: no predictions (expected {tmp_path / 'lanes.jsonl'})" in r.output, r.output
+    assert (
+        r.exit_code == 2 and f"{tmp_path}: no predictions (expected {tmp_path / 'lanes.jsonl'})" in r.output
+    ), r.output
 
 
 def test_run_dataset_says_where_each_sequence_s_lanes_are(cli, scene, tmp_path):
     ds = tmp_path / "ds.yaml"
     ds.write_text(f"sequences:\n  - {{name: one, input: {scene}, gt: {scene / 'lanes_gt.jsonl'}}}\n")
-    r = cli.invoke(main, ["run", DEMO, "--dataset", str(ds), "--out", str(tmp_path / "runs"), "--set", "write.filename=l.jsonl", "--quiet"])
+    r = cli.invoke(
+        main,
+        [
+            "run",
+            DEMO,
+            "--dataset",
+            str(ds),
+            "--out",
+            str(tmp_path / "runs"),
+            "--set",
+            "write.filename=l.jsonl",
+            "--quiet",
+        ],
+    )
     assert r.exit_code == 0, r.output
     assert f"one: 3 frame(s) -> {tmp_path / 'runs' / 'one' / 'l.jsonl'}" in r.output
     r = cli.invoke(main, ["eval", str(tmp_path / "runs"), "--dataset", str(ds), "--json"])
@@ -66,9 +94,28 @@ def test_run_dataset_says_where_each_sequence_s_lanes_are(cli, scene, tmp_path):
 def test_ablate_evaluates_a_renamed_lanes_file(cli, scene, tmp_path):
     variant = tmp_path / "renamed.yaml"
     variant.write_text(f"extends: {DEMO}\nnodes:\n  write: {{params: {{filename: other.jsonl}}}}\n")
-    r = cli.invoke(main, ["ablate", DEMO, str(variant), "--input", str(scene), "--gt", str(scene / "lanes_gt.jsonl"), "--out", str(tmp_path / "abl"), "--no-cache", "--quiet"])
+    r = cli.invoke(
+        main,
+        [
+            "ablate",
+            DEMO,
+            str(variant),
+            "--input",
+            str(scene),
+            "--gt",
+            str(scene / "lanes_gt.jsonl"),
+            "--out",
+            str(tmp_path / "abl"),
+            "--no-cache",
+            "--quiet",
+        ],
+    )
     assert r.exit_code == 0, r.output
-    rows = {row.split(",")[0]: row.split(",") for row in (tmp_path / "abl" / "results.csv").read_text().splitlines()[1:] if ",all," not in row}
+    rows = {
+        row.split(",")[0]: row.split(",")
+        for row in (tmp_path / "abl" / "results.csv").read_text().splitlines()[1:]
+        if ",all," not in row
+    }
     assert rows["renamed"][2] == rows["demo_sgbm"][2] == "3"  # both evaluated over the 3 frames
     assert (tmp_path / "abl" / "runs" / "renamed" / "seq" / "other.jsonl").is_file()
 
@@ -76,11 +123,20 @@ def test_ablate_evaluates_a_renamed_lanes_file(cli, scene, tmp_path):
 def test_eval_lateral_reads_the_calibration_through_the_plugins(cli, scene, tmp_path):
     out = tmp_path / "out"
     assert cli.invoke(main, ["run", DEMO, "--input", str(scene), "--out", str(out), "--quiet"]).exit_code == 0
-    args = ["eval", str(out / "lanes.jsonl"), str(scene / "lanes_gt.jsonl"), "--scene", str(scene / "scene.json"), "--json"]
+    args = [
+        "eval",
+        str(out / "lanes.jsonl"),
+        str(scene / "lanes_gt.jsonl"),
+        "--scene",
+        str(scene / "scene.json"),
+        "--json",
+    ]
     r = cli.invoke(main, args)  # the calibration of the folder holding scene.json, read by its source
     assert r.exit_code == 0, r.output
     assert set(json.loads(r.output)["lateral_error_cm"]) == {"10", "20", "30"}
-    r = cli.invoke(main, [*args, "--calib", str(scene / "calib.yaml")])  # a calibration file, read by a plugin
+    r = cli.invoke(
+        main, [*args, "--calib", str(scene / "calib.yaml")]
+    )  # a calibration file, read by a plugin
     assert r.exit_code == 0, r.output
     (tmp_path / "calib.txt").write_text("not a format any plugin reads\n")
     r = cli.invoke(main, [*args, "--calib", str(tmp_path / "calib.txt")])

@@ -18,7 +18,9 @@ PAPER = str(ROOT / "graphs" / "paper.yaml")
 
 
 def lanegraph(*args, **kw):
-    return subprocess.run([sys.executable, "-m", "lanegraph.cli", *args], capture_output=True, text=True, **kw)
+    return subprocess.run(
+        [sys.executable, "-m", "lanegraph.cli", *args], capture_output=True, text=True, **kw
+    )
 
 
 def test_kill_and_resume_equals_uninterrupted(tmp_path):
@@ -29,8 +31,20 @@ def test_kill_and_resume_equals_uninterrupted(tmp_path):
 
     part = tmp_path / "part"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "lanegraph.cli", "run", PAPER, "--out", str(part), "--frames", frames, "--quiet"],
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        [
+            sys.executable,
+            "-m",
+            "lanegraph.cli",
+            "run",
+            PAPER,
+            "--out",
+            str(part),
+            "--frames",
+            frames,
+            "--quiet",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
     )
     lanes = part / "lanes.jsonl"
     deadline = time.time() + 120
@@ -60,7 +74,16 @@ def test_resume_without_checkpoint_starts_over(tmp_path):
 
 # ------------------------------------------------------------------ interrupted again and again
 TESTS = Path(__file__).resolve().parent
-SMALL = ["--set", "src.type=io.synthetic", "--set", "src.scale=0.4", "--set", "src.frames=9", "--set", "src.preset=curved"]
+SMALL = [
+    "--set",
+    "src.type=io.synthetic",
+    "--set",
+    "src.scale=0.4",
+    "--set",
+    "src.frames=9",
+    "--set",
+    "src.preset=curved",
+]
 
 
 def interrupted_run(out: Path, spec: str | None, *extra: str) -> subprocess.CompletedProcess:
@@ -68,7 +91,19 @@ def interrupted_run(out: Path, spec: str | None, *extra: str) -> subprocess.Comp
     from .interrupter import DRIVER
 
     env = {**os.environ, "LANEGRAPH_TEST_INTERRUPT": spec or ""}
-    args = [sys.executable, "-c", DRIVER, str(TESTS), "run", PAPER, "--out", str(out), "--quiet", *SMALL, *extra]
+    args = [
+        sys.executable,
+        "-c",
+        DRIVER,
+        str(TESTS),
+        "run",
+        PAPER,
+        "--out",
+        str(out),
+        "--quiet",
+        *SMALL,
+        *extra,
+    ]
     return subprocess.run(args, capture_output=True, text=True, env=env, timeout=300)
 
 
@@ -78,7 +113,9 @@ def uninterrupted(tmp_path_factory) -> str:
     r = interrupted_run(out, None)
     assert r.returncode == 0, r.stderr
     text = (out / "lanes.jsonl").read_text()
-    assert text.count("\n") == 9 and '"points":[[' in text, "the sequence should have lanes to carry from frame to frame"
+    assert text.count("\n") == 9 and '"points":[[' in text, (
+        "the sequence should have lanes to carry from frame to frame"
+    )
     return text
 
 
@@ -158,7 +195,13 @@ def test_a_source_that_cannot_skip_is_read_past_the_frames_done(tmp_path, pm):
     assert toyplugin.Collect.out == [("0000", 0.0), ("0001", 2.0)]
     state = load_checkpoint(ck)
     assert state.position == 2 and state.total == 4 and state.feedback[0].value == 2.0
-    ex = Executor(_toy_graph(tmp_path, pm), RunContext(skip=state.position, extra={"resume": True}), pm, checkpoint=ck, resume=state)
+    ex = Executor(
+        _toy_graph(tmp_path, pm),
+        RunContext(skip=state.position, extra={"resume": True}),
+        pm,
+        checkpoint=ck,
+        resume=state,
+    )
     res = ex.run()
     assert toyplugin.Collect.out == [("0002", 6.0), ("0003", 12.0)]  # as in the uninterrupted run
     assert res.frames == 4 and res.resumed_frames == 2 and load_checkpoint(ck).complete
@@ -189,12 +232,18 @@ def test_a_feedback_value_a_checkpoint_cannot_hold(tmp_path, pm):
 
     pm.register(Plugin, name="opaque")
     ck = tmp_path / "checkpoint.json"
-    g = _toy_graph(tmp_path, pm, {"op": {"type": "toy.opaque", "inputs": {"x": "src.value", "prev": "op.o@prev"}}})
+    g = _toy_graph(
+        tmp_path, pm, {"op": {"type": "toy.opaque", "inputs": {"x": "src.value", "prev": "op.o@prev"}}}
+    )
     res = Executor(g, RunContext(), pm, checkpoint=ck).run()
     assert res.frames == 4
-    assert any("--resume will not be possible" in w and "Opaque cannot be stored" in w for w in res.warnings())
+    assert any(
+        "--resume will not be possible" in w and "Opaque cannot be stored" in w for w in res.warnings()
+    )
     state = load_checkpoint(ck)
     assert state.unresumable and state.feedback == []
-    g = _toy_graph(tmp_path, pm, {"op": {"type": "toy.opaque", "inputs": {"x": "src.value", "prev": "op.o@prev"}}})
+    g = _toy_graph(
+        tmp_path, pm, {"op": {"type": "toy.opaque", "inputs": {"x": "src.value", "prev": "op.o@prev"}}}
+    )
     with pytest.raises(UsageError, match="cannot be resumed: a feedback value cannot be stored"):
         Executor(g, RunContext(skip=state.position), pm, checkpoint=ck, resume=state)

@@ -8,7 +8,9 @@ import sys
 
 import pytest
 
-CODE = "from lanegraph._runtime import tune_allocator; a = tune_allocator(); b = tune_allocator(); print(a, b)"
+CODE = (
+    "from lanegraph._runtime import tune_allocator; a = tune_allocator(); b = tune_allocator(); print(a, b)"
+)
 
 
 def _run(env_value: str | None) -> str:
@@ -16,7 +18,9 @@ def _run(env_value: str | None) -> str:
     env.pop("LANEGRAPH_MALLOC_TUNING", None)
     if env_value is not None:
         env["LANEGRAPH_MALLOC_TUNING"] = env_value
-    return subprocess.run([sys.executable, "-c", CODE], capture_output=True, text=True, env=env, check=True).stdout.split()
+    return subprocess.run(
+        [sys.executable, "-c", CODE], capture_output=True, text=True, env=env, check=True
+    ).stdout.split()
 
 
 def test_turned_off_by_the_environment():
@@ -56,5 +60,7 @@ def test_openmp_threads_sleep_unless_the_environment_says(preset, expected):
     if preset is not None:
         env["OMP_WAIT_POLICY"] = preset
     code = "import os, lanegraph._numba; print(os.environ['OMP_WAIT_POLICY'])"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True).stdout.split()
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True
+    ).stdout.split()
     assert out == [expected]

@@ -357,9 +357,7 @@ def test_mismatched_pair_is_an_input_error():
 
 def test_wrong_image_shape_is_an_input_error():
     with pytest.raises(InputError, match="input 'right'"):
-        ld.bm(
-            ld.BmParams(num_disparities=16), np.zeros((40, 64), np.uint8), np.zeros((40, 64, 2), np.uint8)
-        )
+        ld.bm(ld.BmParams(num_disparities=16), np.zeros((40, 64), np.uint8), np.zeros((40, 64, 2), np.uint8))
 
 
 @pytest.mark.parametrize(
@@ -427,7 +425,13 @@ def test_every_param_is_documented_and_bounded(model):
 
 def test_plugin_registers_the_five_backends():
     types = {t.name: t for t in map(node_type_of, ld.lanegraph_node_types())}
-    assert set(types) == {"disparity.sgbm", "disparity.bm", "disparity.sgm", "disparity.file", "disparity.onnx"}
+    assert set(types) == {
+        "disparity.sgbm",
+        "disparity.bm",
+        "disparity.sgm",
+        "disparity.file",
+        "disparity.onnx",
+    }
     for t in types.values():
         assert t.outputs["disparity"].type == "disparity"
         assert t.inputs["left"].type == "image" and t.inputs["right"].type == "image"
@@ -457,9 +461,7 @@ def test_file_backend_reads_npy_and_invalidates_nan(tmp_path):
     disp = np.linspace(1, 50, 12 * 16, dtype=np.float64).reshape(12, 16)
     disp[0, 0], disp[1, 1] = np.nan, -3.0
     np.save(tmp_path / "f1.npy", disp)
-    out = ld.file(ld.FileParams(dir=str(tmp_path)), np.zeros((12, 16), np.uint8), frame="f1")[
-        "disparity"
-    ]
+    out = ld.file(ld.FileParams(dir=str(tmp_path)), np.zeros((12, 16), np.uint8), frame="f1")["disparity"]
     assert out.dtype == np.float32 and out[0, 0] == 0 and out[1, 1] == 0
     np.testing.assert_allclose(out[2:], disp[2:], rtol=1e-6)
 
@@ -545,7 +547,9 @@ def test_sgm_agrees_with_sgbm_on_kitti(kitti_drive):
 def test_strips_and_top_fraction_agree_with_one_pass():
     left, right = shifted_pair(7, h=120, w=96)
     one = run(ld.sgbm, ld.SgbmParams(), left, right, num_disparities=16, block_size=5)
-    strips = run(ld.sgbm, ld.SgbmParams(), left, right, num_disparities=16, block_size=5, strips=3, strip_overlap=12)
+    strips = run(
+        ld.sgbm, ld.SgbmParams(), left, right, num_disparities=16, block_size=5, strips=3, strip_overlap=12
+    )
     both = (one > 0) & (strips > 0)
     assert both.mean() > 0.5 and np.mean(np.abs(one - strips)[both] < 0.5) > 0.95
     top = run(ld.sgbm, ld.SgbmParams(), left, right, num_disparities=16, block_size=5, top_fraction=0.5)

@@ -654,7 +654,10 @@ def test_images_the_node_cannot_take(cv_model):
         ({"mean": [0.1, 0.2]}, "mean: 2 values for 3 channel(s)"),
         ({"channels": "gray"}, "mean: 3 values for 1 channel(s) of channels 'gray' (e.g. [0.449])"),
         ({"std": [0.2, 0.0, 0.2]}, "std: expected values in 1e-6..1e4"),
-        ({"mean": [float("nan")]}, "finite number"),  # every float param: NaN and infinities refused (NodeParams)
+        (
+            {"mean": [float("nan")]},
+            "finite number",
+        ),  # every float param: NaN and infinities refused (NodeParams)
         ({"resize": (4, 100)}, "resize: expected [height, width], each 8..8192 pixels, got [4, 100]"),
         ({"resize": (100,)}, "resize"),
         ({"output_factor": 0.0}, "output_factor: expected a non-zero factor"),

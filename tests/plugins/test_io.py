@@ -33,7 +33,11 @@ def kitti_raw(tmp_path: Path, n=3, calib_rows=None, w=20, h=12) -> Path:
         (drive / cam / "data").mkdir(parents=True)
         for i in range(n):
             cv2.imwrite(str(drive / cam / "data" / f"{i:010d}.png"), img(h, w, 10 * i))
-    rows = calib_rows if calib_rows is not None else [f"S_rect_02: {w} {h}", f"P_rect_02: {P2}", f"P_rect_03: {P3}"]
+    rows = (
+        calib_rows
+        if calib_rows is not None
+        else [f"S_rect_02: {w} {h}", f"P_rect_02: {P2}", f"P_rect_03: {P3}"]
+    )
     (date / "calib_cam_to_cam.txt").write_text("calib_time: 09-Jan-2012 13:57:47\n" + "\n".join(rows) + "\n")
     return drive
 
@@ -76,15 +80,33 @@ def test_images_are_read_lazily(tmp_path):
 @pytest.mark.parametrize(
     "breaker, words",
     [
-        (lambda d: (d / "image_03" / "data" / "0000000001.png").unlink(), ["0000000001.png has no right partner"]),
+        (
+            lambda d: (d / "image_03" / "data" / "0000000001.png").unlink(),
+            ["0000000001.png has no right partner"],
+        ),
         (lambda d: [p.unlink() for p in (d / "image_02" / "data").iterdir()], ["no images in the folder"]),
         (lambda d: (d.parent / "calib_cam_to_cam.txt").unlink(), ["calibration file not found"]),
-        (lambda d: (d.parent / "calib_cam_to_cam.txt").write_text("P_rect_02: 1 2 3\nP_rect_03: " + P3 + "\n"),
-         ["line 1", "'P_rect_02' has 3 numbers, expected 12"]),
-        (lambda d: (d.parent / "calib_cam_to_cam.txt").write_text("P_rect_02: " + P2 + "\n"), ["row 'P_rect_03' missing"]),
-        (lambda d: (d.parent / "calib_cam_to_cam.txt").write_text("garbage line\n"), ["line 1", "expected 'KEY: values'"]),
-        (lambda d: [(d / c / "data" / "0000000002.png").rename(d / c / "data" / "frame_x.png") for c in ("image_02", "image_03")],
-         ["'frame_x' is not a frame number"]),
+        (
+            lambda d: (d.parent / "calib_cam_to_cam.txt").write_text(
+                "P_rect_02: 1 2 3\nP_rect_03: " + P3 + "\n"
+            ),
+            ["line 1", "'P_rect_02' has 3 numbers, expected 12"],
+        ),
+        (
+            lambda d: (d.parent / "calib_cam_to_cam.txt").write_text("P_rect_02: " + P2 + "\n"),
+            ["row 'P_rect_03' missing"],
+        ),
+        (
+            lambda d: (d.parent / "calib_cam_to_cam.txt").write_text("garbage line\n"),
+            ["line 1", "expected 'KEY: values'"],
+        ),
+        (
+            lambda d: [
+                (d / c / "data" / "0000000002.png").rename(d / c / "data" / "frame_x.png")
+                for c in ("image_02", "image_03")
+            ],
+            ["'frame_x' is not a frame number"],
+        ),
     ],
 )
 def test_bad_kitti_folders_are_located(tmp_path, breaker, words):
@@ -111,7 +133,11 @@ def test_bad_frames_are_yielded_as_errors_and_the_rest_read(tmp_path):
     (drive / "image_02" / "data" / "0000000001.png").write_bytes(b"\x89PNG\r\n\x1a\n truncated")
     cv2.imwrite(str(drive / "image_03" / "data" / "0000000002.png"), img(12, 18))
     items = list(open_source(KittiRawSource, {}, drive))
-    assert isinstance(items[1], InputError) and "cannot decode image" in str(items[1]) and "0000000001" in str(items[1])
+    assert (
+        isinstance(items[1], InputError)
+        and "cannot decode image" in str(items[1])
+        and "0000000001" in str(items[1])
+    )
     assert isinstance(items[2], InputError) and "size mismatch" in str(items[2])
     assert items[3]["frame"] == "0000000003"
 
@@ -122,7 +148,11 @@ def test_kitti_odometry(tmp_path):
         (seq / cam).mkdir(parents=True)
         for i in range(2):
             cv2.imwrite(str(seq / cam / f"{i:06d}.png"), img(colour=False))
-    rows = [f"P{k}: " + " ".join(["700", "0", "10", str(-700 * 0.54 * (k % 2)), "0", "700", "6", "0", "0", "0", "1", "0"]) for k in range(4)]
+    rows = [
+        f"P{k}: "
+        + " ".join(["700", "0", "10", str(-700 * 0.54 * (k % 2)), "0", "700", "6", "0", "0", "0", "1", "0"])
+        for k in range(4)
+    ]
     (seq / "calib.txt").write_text("\n".join(rows) + "\n")
     assert detect_source(seq) == "io.kitti_odometry"
     src = open_source(KittiOdometrySource, {}, seq)
@@ -155,7 +185,13 @@ def test_missing_input_folder(tmp_path):
 
 def test_write_lanes_flushes_every_frame(tmp_path):
     w = WriteLanes(WriteLanesParams(), RunContext(out_dir=tmp_path))
-    lane = Lane(coeffs=(1.0, 0.0, 0.0), bev_rows=(0, 10), side="left", score=0.5, points=np.array([[10.0, 370.0], [12.0, 360.0]]))
+    lane = Lane(
+        coeffs=(1.0, 0.0, 0.0),
+        bev_rows=(0, 10),
+        side="left",
+        score=0.5,
+        points=np.array([[10.0, 370.0], [12.0, 360.0]]),
+    )
     w(frame="0001", lanes=[lane])
     w(frame="0002", lanes=None)
     lines = (tmp_path / "lanes.jsonl").read_text().splitlines()  # before close()
@@ -171,7 +207,13 @@ def test_write_lanes_flushes_every_frame(tmp_path):
 
 def test_write_overlay(tmp_path):
     w = WriteOverlay(OverlayParams(every=2), RunContext(out_dir=tmp_path))
-    lane = Lane(coeffs=(1.0, 0.0, 0.0), bev_rows=(0, 10), side="left", score=0.5, points=np.array([[2.0, 11.0], [5.0, 1.0]]))
+    lane = Lane(
+        coeffs=(1.0, 0.0, 0.0),
+        bev_rows=(0, 10),
+        side="left",
+        score=0.5,
+        points=np.array([[2.0, 11.0], [5.0, 1.0]]),
+    )
     w(frame="a", image=img(), lanes=[lane], mask=np.ones((12, 20), bool))
     w(frame="b", image=img())
     assert (tmp_path / "overlay" / "a.png").is_file() and not (tmp_path / "overlay" / "b.png").exists()

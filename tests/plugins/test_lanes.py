@@ -74,7 +74,9 @@ def vote_twin(r, c, H, inv_tan, offset, n):
     return acc
 
 
-@pytest.mark.parametrize("shape, w, T", [((7, 23), 3, 5.0), ((5, 9), 20, 0.0), ((1, 1), 2, 1.0), ((4, 2), 1, 0.0)])
+@pytest.mark.parametrize(
+    "shape, w, T", [((7, 23), 3, 5.0), ((5, 9), 20, 0.0), ((1, 1), 2, 1.0), ((4, 2), 1, 0.0)]
+)
 def test_slt_kernel_matches_twin(shape, w, T):
     rng = np.random.default_rng(1)
     img = rng.integers(0, 255, shape).astype(np.float32)
@@ -85,15 +87,21 @@ def test_slt_kernel_matches_twin(shape, w, T):
 
 def test_atan2_fast_matches_numpy():
     rng = np.random.default_rng(4)
-    y = np.concatenate([rng.normal(0, 1, 3000), rng.normal(0, 1e6, 1000), [0.0, 0.0, 1.0, -1.0, 0.0, 5.0, -5.0]])
-    x = np.concatenate([rng.normal(0, 1, 3000), rng.normal(0, 1e6, 1000), [0.0, 1.0, 0.0, 0.0, -1.0, 5.0, -5.0]])
+    y = np.concatenate(
+        [rng.normal(0, 1, 3000), rng.normal(0, 1e6, 1000), [0.0, 0.0, 1.0, -1.0, 0.0, 5.0, -5.0]]
+    )
+    x = np.concatenate(
+        [rng.normal(0, 1, 3000), rng.normal(0, 1e6, 1000), [0.0, 1.0, 0.0, 0.0, -1.0, 5.0, -5.0]]
+    )
     got = np.array([_features.atan2_fast(float(a), float(b)) for a, b in zip(y, x)])
     assert np.abs(got - np.arctan2(y, x)).max() < 5e-8
 
 
 @pytest.mark.parametrize("w", [2, 4, 30])
 def test_eslt_kernel_matches_twin(w):
-    img = make_bev_image(rows=24, cols=40, lane_cols=(12.0, 30.0), slope=0.3, noise=10.0, seed=3).astype(np.float32)
+    img = make_bev_image(rows=24, cols=40, lane_cols=(12.0, 30.0), slope=0.3, noise=10.0, seed=3).astype(
+        np.float32
+    )
     gx, gy = _features.sobel(img)
     mask = np.zeros(img.shape, np.uint8)
     ori = np.empty(img.shape, np.float32)
@@ -118,7 +126,9 @@ def test_eslt_kernel_on_uint8_and_int16_gradients_matches_twin(w):
     # the node's call: orientations written at the features only, the rest of ori left alone
     mask2 = np.ones(img.shape, np.uint8)
     ori2 = np.full(img.shape, 7.0, np.float32)
-    _features._eslt(img.astype(np.uint8), gx, gy, w, 8.0, math.radians(15), _features._EVERYWHERE, mask2, ori2, False)
+    _features._eslt(
+        img.astype(np.uint8), gx, gy, w, 8.0, math.radians(15), _features._EVERYWHERE, mask2, ori2, False
+    )
     np.testing.assert_array_equal(mask2, tm)
     np.testing.assert_array_equal(ori2[tm == 1], ori[tm == 1])
     assert np.all(ori2[tm == 0] == 7.0)
@@ -168,7 +178,9 @@ def _boundary_rows(count=3):
         v = 255.0 - T
         passes = v * n > s
         if (v > s / n) != passes and len(found[passes]) < count:
-            found[passes].append((np.concatenate([left, [255], np.zeros(n)]).astype(np.float32), n, T, passes))
+            found[passes].append(
+                (np.concatenate([left, [255], np.zeros(n)]).astype(np.float32), n, T, passes)
+            )
         if all(len(f) == count for f in found.values()):
             break
     return found[True] + found[False]
@@ -208,7 +220,9 @@ def _random_where(shape, seed):
 @pytest.mark.parametrize("w", [1, 3, 30])
 def test_slt_eslt_kernels_with_where_match_masked_twins(w):
     """Tested only where ``where`` is set: the twins' features AND the map, at every image border."""
-    img = make_bev_image(rows=30, cols=41, lane_cols=(10.0, 31.0), slope=0.3, noise=12.0, seed=6).astype(np.float32)
+    img = make_bev_image(rows=30, cols=41, lane_cols=(10.0, 31.0), slope=0.3, noise=12.0, seed=6).astype(
+        np.float32
+    )
     gx, gy = _features.sobel(img)
     for seed in range(3):
         where = _random_where(img.shape, seed)
@@ -232,7 +246,9 @@ def test_slt_eslt_kernels_with_where_match_masked_twins(w):
 def test_feature_nodes_where_input(node):
     """The node's ``where`` input gives the features of the unmasked node on the mask, and a
     mask of the wrong shape is refused with the port named."""
-    img = make_bev_image(rows=60, cols=80, lane_cols=(20.0, 60.0), slope=0.2, noise=8.0, seed=7).astype(np.uint8)
+    img = make_bev_image(rows=60, cols=80, lane_cols=(20.0, 60.0), slope=0.2, noise=8.0, seed=7).astype(
+        np.uint8
+    )
     where = _random_where(img.shape, 9).astype(bool)
     p = node_type_of(node).params(window=4, threshold=6.0)
     full = node(p, image=img)["features"]
@@ -312,7 +328,9 @@ def test_orientation_histogram_and_default():
     f = features_for((50.0, 110.0), slope=0.2)
     th = orientation(OrientationParams(), features=f)["orientation"]
     assert th == pytest.approx(math.atan2(1, 0.2), abs=math.radians(1.5))
-    assert orientation(OrientationParams(default_deg=80), features=FeatureMap(f.mask))["orientation"] == pytest.approx(math.radians(80))
+    assert orientation(OrientationParams(default_deg=80), features=FeatureMap(f.mask))[
+        "orientation"
+    ] == pytest.approx(math.radians(80))
 
 
 def test_line1d_finds_rho_and_sides():
@@ -332,7 +350,9 @@ def test_nearest_rule_vs_paper_rule():
     g = geometry(rows, cols)
     near = line1d(HoughParams(min_votes=20), features=f, orientation=math.pi / 2, geometry=g)["lines"]
     assert [round(ln.rho) for ln in near] == [90, 150]
-    paper = line1d(HoughParams(min_votes=20, select="paper"), features=f, orientation=math.pi / 2, geometry=g)["lines"]
+    paper = line1d(
+        HoughParams(min_votes=20, select="paper"), features=f, orientation=math.pi / 2, geometry=g
+    )["lines"]
     assert any(abs(ln.rho - 200) < 5 for ln in paper)
 
 
@@ -351,9 +371,14 @@ def test_nearest_rule_takes_the_line_being_crossed_in_a_lane_change(node):
     g = geometry(rows, cols)
 
     def lines(lane_cols, previous, **params):
-        f = slt(SltParams(window=8), image=make_bev_image(rows=rows, cols=cols, lane_cols=lane_cols, noise=2))["features"]
+        f = slt(
+            SltParams(window=8), image=make_bev_image(rows=rows, cols=cols, lane_cols=lane_cols, noise=2)
+        )["features"]
         p = node_type_of(node).params(min_votes=20, **params)
-        return [round(ln.rho) for ln in node(p, features=f, orientation=math.pi / 2, geometry=g, previous=previous)["lines"]]
+        return [
+            round(ln.rho)
+            for ln in node(p, features=f, orientation=math.pi / 2, geometry=g, previous=previous)["lines"]
+        ]
 
     def lane(col, side):
         return Lane((col, 0.0, 0.0), (0, rows - 1), side, 0.9)
@@ -453,7 +478,9 @@ def test_ransac_kernel_matches_numpy_twin(degree):
         t, y, _ = parabola_with_outliers(n=50 + 120 * seed, seed=seed)
         t = np.round(t)  # BEV rows: repeated abscissae happen
         samples = ransac_samples(t.size, degree + 1, 60, seed)
-        assert samples.shape == (60, degree + 1) and np.all(np.sort(samples, 1)[:, 1:] != np.sort(samples, 1)[:, :-1])
+        assert samples.shape == (60, degree + 1) and np.all(
+            np.sort(samples, 1)[:, 1:] != np.sort(samples, 1)[:, :-1]
+        )
         np.testing.assert_array_equal(ransac_samples(t.size, degree + 1, 60, seed), samples)  # deterministic
         tol = np.full(t.size, 3.0)
         tol[::3] = 1.5  # per point, as the residuals in image pixels give them
@@ -479,7 +506,13 @@ def test_lane_roi_kernel_matches_numpy_twin():
 
     rng = np.random.default_rng(13)
     feats = FeatureMap(mask=rng.random((70, 50)) < 0.3, orientation=None)
-    for coeffs in ((20.0, 0.1, 0.002), (-5.0, 0.5, 0.0), (45.5, -0.3, -0.004), (25.0, 0.0, 0.05), (np.nan, 0.0, 0.0)):
+    for coeffs in (
+        (20.0, 0.1, 0.002),
+        (-5.0, 0.5, 0.0),
+        (45.5, -0.3, -0.004),
+        (25.0, 0.0, 0.05),
+        (np.nan, 0.0, 0.0),
+    ):
         for width in (4.0, 9.0, 40.0):
             lane = Lane(coeffs, (0, 69), "left", 0.5)
             got, ref = lane_roi_points(feats, lane, width), lane_roi_points_np(feats, lane, width)
@@ -526,7 +559,17 @@ def test_irls_kernel_matches_lstsq_twin(degree, loss):
     for seed in range(5):
         t, y, _ = parabola_with_outliers(n=60 + 100 * seed, seed=seed)
         t = np.round(t)  # BEV rows
-        ok, coef, w = _irls_kernel(t, y, degree, 10, loss == "tukey", 4.685 if loss == "tukey" else 1.345, 0.01, np.empty(0), np.empty(0))
+        ok, coef, w = _irls_kernel(
+            t,
+            y,
+            degree,
+            10,
+            loss == "tukey",
+            4.685 if loss == "tukey" else 1.345,
+            0.01,
+            np.empty(0),
+            np.empty(0),
+        )
         assert ok
         ref, wref = irls_fit_lstsq(t, y, degree, 10, loss)
         np.testing.assert_allclose(coef, ref, rtol=1e-7, atol=1e-9)
@@ -552,7 +595,9 @@ def test_fit_nodes_on_curved_stripe(node):
         bev[rows - 1 - tt, int(round(cc)) - 1 : int(round(cc)) + 2] = 220
     f = eslt(EsltParams(), image=bev)["features"]
     line = Line(rho=60.0, theta=math.atan2(1, 0.1), side="left")
-    lanes = node(node_type_of(node).params(), features=f, lines=[line], geometry=geometry(rows, cols))["lanes"]
+    lanes = node(node_type_of(node).params(), features=f, lines=[line], geometry=geometry(rows, cols))[
+        "lanes"
+    ]
     assert len(lanes) == 1
     c0, c1, c2 = lanes[0].coeffs
     fitted = c0 + c1 * t + c2 * t * t
@@ -644,13 +689,23 @@ def test_fit_follows_the_previous_lane_where_the_hough_found_nothing(node):
     strict = node_type_of(node).params(track_lane_change=False)
     for x, kept in ((78.0, True), (9.0, False)):
         prev = [Lane((x, 0.0, 0.0), (0, rows - 1), "left", 0.5)]
-        assert len(node(node_type_of(node).params(), features=f_far, lines=[], geometry=g, previous=prev)["lanes"]) == int(kept)
+        assert len(
+            node(node_type_of(node).params(), features=f_far, lines=[], geometry=g, previous=prev)["lanes"]
+        ) == int(kept)
         assert node(strict, features=f_far, lines=[], geometry=g, previous=prev)["lanes"] == []
-        wide = node_type_of(node).params(track_min_offset_m=0.0, track_max_offset_m=10.0, track_lane_change=False)  # the check is what rejects them
+        wide = node_type_of(node).params(
+            track_min_offset_m=0.0, track_max_offset_m=10.0, track_lane_change=False
+        )  # the check is what rejects them
         assert len(node(wide, features=f_far, lines=[], geometry=g, previous=prev)["lanes"]) == 1
     # a side with a Hough line is fitted around the line only
     line = Line(rho=50.0, theta=math.atan2(1, 0.05), side="left")
-    lanes = node(node_type_of(node).params(), features=f, lines=[line], geometry=g, previous=[Lane((120.0, 0.0, 0.0), (0, 299), "left", 0.9)])["lanes"]
+    lanes = node(
+        node_type_of(node).params(),
+        features=f,
+        lines=[line],
+        geometry=g,
+        previous=[Lane((120.0, 0.0, 0.0), (0, 299), "left", 0.9)],
+    )["lanes"]
     assert len(lanes) <= 1 and all("tracked" not in ln.extra for ln in lanes)
 
 
@@ -665,14 +720,18 @@ def test_fit_does_not_report_the_line_being_crossed_twice(node):
     g = geometry(rows, cols)
     line = Line(rho=80.5, theta=math.pi / 2, side="right")
     previous = [Lane((77.0, 0.0, 0.0), (0, rows - 1), "left", 0.9)]
-    lanes = node(node_type_of(node).params(), features=f, lines=[line], geometry=g, previous=previous)["lanes"]
+    lanes = node(node_type_of(node).params(), features=f, lines=[line], geometry=g, previous=previous)[
+        "lanes"
+    ]
     assert len(lanes) == 1 and "tracked" not in lanes[0].extra
 
 
 def test_fit_rejects_weak_support():
     f = FeatureMap(np.zeros((100, 80), bool))
     f.mask[90:100, 40] = True  # 10 features only
-    lanes = fit_irls(IrlsParams(), features=f, lines=[Line(40.0, math.pi / 2)], geometry=geometry(100, 80))["lanes"]
+    lanes = fit_irls(IrlsParams(), features=f, lines=[Line(40.0, math.pi / 2)], geometry=geometry(100, 80))[
+        "lanes"
+    ]
     assert lanes == []
 
 
@@ -701,7 +760,12 @@ def test_temporal_mask_band_follows_a_line_across_the_vehicle():
     # moves into has its far boundary there
     m = temporal_mask(TemporalParams(band_px=5), geometry=g, previous=prev)["mask"]
     assert m[:, 40:].all() and m[:, 37:40].all() and not m[:, 26:37].any()
-    assert temporal_mask(TemporalParams(band_px=5, open_crossing_m=0.1), geometry=g, previous=prev)["mask"][:, 48:].sum() == 0
+    assert (
+        temporal_mask(TemporalParams(band_px=5, open_crossing_m=0.1), geometry=g, previous=prev)["mask"][
+            :, 48:
+        ].sum()
+        == 0
+    )
 
 
 def test_temporal_mask_reacquires_when_band_is_unsupported():
@@ -726,7 +790,9 @@ def band_textures_twin(image, lane, gap_px, band_px, measure):
         cc = np.round(centre[:, None] + offs[None, :]).astype(np.int64)
         vals = image[r[:, None], np.clip(cc, 0, cols - 1)].astype(np.float64)
         diffs = np.abs(np.diff(vals, axis=1))
-        tex = {"diff": diffs.mean(axis=1), "mdiff": np.median(diffs, axis=1), "std": vals.std(axis=1)}[measure]
+        tex = {"diff": diffs.mean(axis=1), "mdiff": np.median(diffs, axis=1), "std": vals.std(axis=1)}[
+            measure
+        ]
         out.append(np.where(((cc >= 0) & (cc < cols)).all(axis=1), tex, np.nan))
     return out
 
@@ -800,7 +866,9 @@ def test_verify_drops_lane_beside_texture():
     paint = Lane((12.0, 0.0, 0.0), (0, 99), "left", 0.9)
     out = verify(TEXTURE(), geometry=geometry(*img.shape), lanes=[kerb, paint], image=img)["lanes"]
     assert [ln.side for ln in out] == ["left"]
-    out = verify(TEXTURE(measure="std", max_texture=18), geometry=geometry(*img.shape), lanes=[kerb, paint], image=img)["lanes"]
+    out = verify(
+        TEXTURE(measure="std", max_texture=18), geometry=geometry(*img.shape), lanes=[kerb, paint], image=img
+    )["lanes"]
     assert [ln.side for ln in out] == ["left"]
 
 
@@ -810,9 +878,16 @@ def test_verify_keeps_lane_beside_a_shadow_edge_by_default():
     img[:, 60:] = 40
     img[:, 58:62] = [85, 70, 55, 45]  # a soft edge
     line = Lane((46.0, 0.0, 0.0), (0, 99), "right", 0.9)
-    assert [ln.side for ln in verify(TEXTURE(), geometry=geometry(*img.shape), lanes=[line], image=img)["lanes"]] == ["right"]
+    assert [
+        ln.side for ln in verify(TEXTURE(), geometry=geometry(*img.shape), lanes=[line], image=img)["lanes"]
+    ] == ["right"]
     # the std measure mistakes it for texture
-    assert verify(TEXTURE(measure="std", max_texture=18), geometry=geometry(*img.shape), lanes=[line], image=img)["lanes"] == []
+    assert (
+        verify(
+            TEXTURE(measure="std", max_texture=18), geometry=geometry(*img.shape), lanes=[line], image=img
+        )["lanes"]
+        == []
+    )
 
 
 def _kerb_scene(gain: float = 1.0) -> tuple[np.ndarray, Lane, Lane]:
@@ -833,7 +908,9 @@ def test_verify_decides_the_same_at_any_exposure(gain):
     out = verify(TEXTURE(), geometry=geometry(*img.shape), lanes=[paint, kerb], image=img)["lanes"]
     assert [ln.side for ln in out] == ["left"]
     # the textures are reported in the reference road's grey levels: about the same at every gain
-    ref = verify(TEXTURE(), geometry=geometry(*img.shape), lanes=[paint], image=_kerb_scene()[0])["lanes"][0].extra["texture"]
+    ref = verify(TEXTURE(), geometry=geometry(*img.shape), lanes=[paint], image=_kerb_scene()[0])["lanes"][
+        0
+    ].extra["texture"]
     assert np.allclose(out[0].extra["texture"], ref, atol=1.0)
 
 
@@ -841,7 +918,9 @@ def test_absolute_brightness_lets_a_dark_kerb_through():
     """The reason for 'relative': at 0.4 exposure the gravel's texture is 0.4 times as large and an
     absolute threshold no longer sees it."""
     img, paint, kerb = _kerb_scene(0.4)
-    out = verify(TEXTURE(brightness="absolute"), geometry=geometry(*img.shape), lanes=[paint, kerb], image=img)["lanes"]
+    out = verify(
+        TEXTURE(brightness="absolute"), geometry=geometry(*img.shape), lanes=[paint, kerb], image=img
+    )["lanes"]
     assert [ln.side for ln in out] == ["left", "right"]
 
 
@@ -851,8 +930,12 @@ def test_verify_road_level_from_the_mask():
     dark[:, :60] //= 2  # the road in shadow: level about 80, not 160
     mask = np.zeros(img.shape, bool)
     mask[:, :60] = True
-    assert _verify.road_level(dark, mask, 0.8) == pytest.approx(np.quantile(dark[::4, ::4][mask[::4, ::4]], 0.8), abs=1)
-    assert _verify.road_level(dark, None, 0.8) == pytest.approx(np.quantile(dark[::4, ::4][dark[::4, ::4] > 0], 0.8), abs=1)
+    assert _verify.road_level(dark, mask, 0.8) == pytest.approx(
+        np.quantile(dark[::4, ::4][mask[::4, ::4]], 0.8), abs=1
+    )
+    assert _verify.road_level(dark, None, 0.8) == pytest.approx(
+        np.quantile(dark[::4, ::4][dark[::4, ::4] > 0], 0.8), abs=1
+    )
     with pytest.raises(InputError, match="mask: expected the BEV image's shape"):
         verify(TEXTURE(), geometry=geometry(*img.shape), lanes=[paint], image=img, mask=mask[:, :50])
 
@@ -860,7 +943,13 @@ def test_verify_road_level_from_the_mask():
 def test_verify_wants_a_grey_bev():
     img, paint, _ = _kerb_scene()
     with pytest.raises(InputError, match="image: expected an Hb x Wb grey BEV image"):
-        verify(TEXTURE(), geometry=geometry(*img.shape), lanes=[paint], image=np.dstack([img] * 3), mask=np.ones(img.shape, bool))
+        verify(
+            TEXTURE(),
+            geometry=geometry(*img.shape),
+            lanes=[paint],
+            image=np.dstack([img] * 3),
+            mask=np.ones(img.shape, bool),
+        )
 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32])
@@ -884,8 +973,13 @@ def test_row_quantile_sees_gravel_resolved_on_the_near_rows_only():
     img, paint, kerb = _kerb_scene()
     far = np.random.default_rng(4).normal(150, 2, (72, 36))
     img[:72, 74:] = np.clip(far, 0, 255).astype(np.uint8)  # the gravel smoothed on the far 60 %
-    assert [ln.side for ln in verify(TEXTURE(), geometry=geometry(*img.shape), lanes=[paint, kerb], image=img)["lanes"]] == ["left"]
-    kept = verify(TEXTURE(row_quantile=0.5), geometry=geometry(*img.shape), lanes=[paint, kerb], image=img)["lanes"]
+    assert [
+        ln.side
+        for ln in verify(TEXTURE(), geometry=geometry(*img.shape), lanes=[paint, kerb], image=img)["lanes"]
+    ] == ["left"]
+    kept = verify(TEXTURE(row_quantile=0.5), geometry=geometry(*img.shape), lanes=[paint, kerb], image=img)[
+        "lanes"
+    ]
     assert [ln.side for ln in kept] == ["left", "right"]
 
 
@@ -949,7 +1043,9 @@ def test_paint_rows_kernel_matches_twin(dtype):
         prof, con, rat = np.zeros(2 * band + 1), np.empty(n), np.empty(n)
         hist = _verify._median_hist(img)
         sat = 250.0
-        got = _verify._paint_rows_kernel(img, r0, r1, *coeffs, band, gap, align, mrc, sat, hist, prof, con, rat)
+        got = _verify._paint_rows_kernel(
+            img, r0, r1, *coeffs, band, gap, align, mrc, sat, hist, prof, con, rat
+        )
         ref = paint_rows_twin(img, r0, r1, coeffs, band, gap, align, mrc, sat)
         assert got == ref[:3]
         painted = got[1]
@@ -967,7 +1063,11 @@ def _road_bev(rows=600, cols=200, level=100.0, noise=3.0, seed=0):
 def _stripe(img, centre, width_px, value, soft_px=0.0):
     """A stripe of ``width_px`` (its edges ramping over ``soft_px`` each side) at column ``centre``."""
     x = np.arange(img.shape[1]) - centre
-    ramp = np.clip((width_px / 2 + soft_px - np.abs(x)) / max(soft_px, 1e-9), 0, 1) if soft_px else (np.abs(x) <= width_px / 2)
+    ramp = (
+        np.clip((width_px / 2 + soft_px - np.abs(x)) / max(soft_px, 1e-9), 0, 1)
+        if soft_px
+        else (np.abs(x) <= width_px / 2)
+    )
     img[:] = img * (1 - ramp) + value * ramp
     return img
 
@@ -1009,7 +1109,16 @@ def _paint_scene(kind: str, gain: float = 1.0) -> tuple[np.ndarray, Lane, BevGeo
 @pytest.mark.parametrize("gain", [1.0, 0.4, 1.3])
 @pytest.mark.parametrize(
     ("kind", "paint"),
-    [("paint", True), ("dashed", True), ("edge_grass", True), ("shadow", True), ("kerb", False), ("kerb_top", False), ("step", False), ("gutter", False)],
+    [
+        ("paint", True),
+        ("dashed", True),
+        ("edge_grass", True),
+        ("shadow", True),
+        ("kerb", False),
+        ("kerb_top", False),
+        ("step", False),
+        ("gutter", False),
+    ],
 )
 def test_verify_keeps_paint_drops_kerbs_edges_and_gutters(kind, paint, gain):
     """What the paint check is for, at any exposure (its measures are relative)."""
@@ -1041,11 +1150,29 @@ def test_paint_cues_name_the_failing_cue():
     kerb = _verify.paint_cues(*_paint_scene("kerb"))
     assert kerb.side_ratio < 0.75 and kerb.width_m < p.min_width_m
     gutter = _verify.paint_cues(*_paint_scene("gutter"))
-    assert gutter.contrast > p.min_paint_contrast and gutter.side_ratio > 0.9 and gutter.foot_width_m > p.max_foot_width_m
+    assert (
+        gutter.contrast > p.min_paint_contrast
+        and gutter.side_ratio > 0.9
+        and gutter.foot_width_m > p.max_foot_width_m
+    )
     top = _verify.paint_cues(*_paint_scene("kerb_top"))  # like paint but for the rough dark side
-    assert top.contrast > p.min_paint_contrast and p.min_width_m < top.width_m and top.foot_width_m < p.max_foot_width_m
+    assert (
+        top.contrast > p.min_paint_contrast
+        and p.min_width_m < top.width_m
+        and top.foot_width_m < p.max_foot_width_m
+    )
     assert top.side_ratio < p.min_side_ratio
-    assert len(verify(VerifyParams(min_side_ratio=0.0), lanes=[_paint_scene("kerb_top")[1]], image=_paint_scene("kerb_top")[0], geometry=_paint_scene("kerb_top")[2])["lanes"]) == 1
+    assert (
+        len(
+            verify(
+                VerifyParams(min_side_ratio=0.0),
+                lanes=[_paint_scene("kerb_top")[1]],
+                image=_paint_scene("kerb_top")[0],
+                geometry=_paint_scene("kerb_top")[2],
+            )["lanes"]
+        )
+        == 1
+    )
     step = _verify.paint_cues(*_paint_scene("step"))
     assert step.painted < p.min_painted_rows  # no row's centre stands above the brighter side
     dashed = _verify.paint_cues(*_paint_scene("dashed"))
@@ -1106,7 +1233,12 @@ def bar_offsets_twin(profile, band, min_offset, max_bar, min_contrast):
 @pytest.mark.parametrize("band", [3, 12, 50])
 def test_bar_kernels_match_twins(band):
     rng = np.random.default_rng(band)
-    for shape, rows_range in [((120, 150), (0, 119)), ((60, 2 * band + 1), (5, 59)), ((30, 40), (10, 12)), ((200, 90), (50, 40))]:
+    for shape, rows_range in [
+        ((120, 150), (0, 119)),
+        ((60, 2 * band + 1), (5, 59)),
+        ((30, 40), (10, 12)),
+        ((200, 90), (50, 40)),
+    ]:
         img = rng.integers(0, 255, shape).astype(np.uint8)
         img[:, ::7] = 250  # bright stripes: painted rows and bars
         for coeffs in [(shape[1] / 2, 0.0, 0.0), (shape[1] / 2 + 0.5, 0.05, -1e-4), (3.0, 0.3, 0.0)]:
@@ -1118,7 +1250,9 @@ def test_bar_kernels_match_twins(band):
         prof = rng.normal(0, 20, 2 * band + 1)
         prof[rng.integers(0, prof.size, 3)] += 80
         mo, mb = int(rng.integers(1, band)), int(rng.integers(1, 20))
-        np.testing.assert_array_equal(_verify._bar_offsets_kernel(prof, band, mo, mb, 15.0), bar_offsets_twin(prof, band, mo, mb, 15.0))
+        np.testing.assert_array_equal(
+            _verify._bar_offsets_kernel(prof, band, mo, mb, 15.0), bar_offsets_twin(prof, band, mo, mb, 15.0)
+        )
 
 
 def _bev_with_bars(cols_bars, width=10, value=200, rows=(300, 380), shape=(400, 300)):
@@ -1149,8 +1283,20 @@ def test_verify_drops_a_crossing_bar_keeps_lane_lines():
         # the paint check off: a bar is 0.5 m wide, wider than paint, and would be dropped anyway
         g = geometry(*zebra.shape)
         assert verify(VerifyParams(paint_check=False), lanes=[lane], image=zebra, geometry=g)["lanes"] == []
-        assert len(verify(VerifyParams(paint_check=False, crossing_check=False), lanes=[lane], image=zebra, geometry=g)["lanes"]) == 1
-        assert verify(VerifyParams(crossing_check=False), lanes=[lane], image=zebra, geometry=g)["lanes"] == []
+        assert (
+            len(
+                verify(
+                    VerifyParams(paint_check=False, crossing_check=False),
+                    lanes=[lane],
+                    image=zebra,
+                    geometry=g,
+                )["lanes"]
+            )
+            == 1
+        )
+        assert (
+            verify(VerifyParams(crossing_check=False), lanes=[lane], image=zebra, geometry=g)["lanes"] == []
+        )
     cases = {
         "single": _bev_with_bars([145], width=4, rows=(0, 400)),
         "double": _bev_with_bars([145, 153], width=4, rows=(0, 400)),
@@ -1161,7 +1307,9 @@ def test_verify_drops_a_crossing_bar_keeps_lane_lines():
     cases["pavement"][:, 175:] = 200  # a wide bright pavement from 1.4 m on
     for name, img in cases.items():
         lane = Lane((146.5, 0.0, 0.0), (0, 399), "left", 0.9)
-        assert len(verify(VerifyParams(), lanes=[lane], image=img, geometry=geometry(*img.shape))["lanes"]) == 1, name
+        assert (
+            len(verify(VerifyParams(), lanes=[lane], image=img, geometry=geometry(*img.shape))["lanes"]) == 1
+        ), name
 
 
 def test_to_image_spacing_and_extent():
@@ -1293,7 +1441,11 @@ def mask_features_twin(features, mask, temporal, erode_px):
     m = np.asarray(features.mask, bool) & keep
     if temporal is not None:
         m &= np.asarray(temporal, bool)
-    ori = None if features.orientation is None else np.where(m, np.asarray(features.orientation, np.float32), np.float32(-1))
+    ori = (
+        None
+        if features.orientation is None
+        else np.where(m, np.asarray(features.orientation, np.float32), np.float32(-1))
+    )
     return m, ori
 
 
@@ -1309,7 +1461,9 @@ def test_mask_features_sparse_equals_dense_twin(erode_px, oriented):
     temporal = rng.random(mask.shape) < 0.7
     for tm in (temporal, None):
         for fm in (FeatureMap(mask, ori), _features._feature_map(mask.astype(np.uint8), ori)):
-            out = mask_features(MaskParams(erode_px=erode_px), features=fm, mask=road, temporal=tm)["features"]
+            out = mask_features(MaskParams(erode_px=erode_px), features=fm, mask=road, temporal=tm)[
+                "features"
+            ]
             assert "mask" not in vars(out)  # sparse: nothing dense made
             m, o = mask_features_twin(fm, road, tm, erode_px)
             np.testing.assert_array_equal(out.mask, m)
@@ -1343,7 +1497,9 @@ def test_uniform_histogram_is_np_histogram(dtype, nb):
     edges = np.linspace(lo, hi, nb + 1, dtype=dtype)
     for n in (0, 1, 50, 3000):
         v = rng.uniform(lo, hi, n).astype(dtype)
-        v = np.concatenate([v, edges, [dtype(lo), dtype(hi)], np.nextafter(edges, dtype(0)), np.nextafter(edges, dtype(10))])
+        v = np.concatenate(
+            [v, edges, [dtype(lo), dtype(hi)], np.nextafter(edges, dtype(0)), np.nextafter(edges, dtype(10))]
+        )
         v = v[(v >= lo) & (v <= hi)]  # as the node filters them
         hist, e = _hough.uniform_histogram(v, lo, hi, nb)
         ref_hist, ref_e = np.histogram(v, bins=nb, range=(lo, hi))
@@ -1352,7 +1508,9 @@ def test_uniform_histogram_is_np_histogram(dtype, nb):
         np.testing.assert_array_equal(e, ref_e)
         assert e.dtype == ref_e.dtype
     ints = np.arange(10)
-    np.testing.assert_array_equal(_hough.uniform_histogram(ints, 0.0, 9.0, 3)[0], np.histogram(ints, 3, (0.0, 9.0))[0])
+    np.testing.assert_array_equal(
+        _hough.uniform_histogram(ints, 0.0, 9.0, 3)[0], np.histogram(ints, 3, (0.0, 9.0))[0]
+    )
 
 
 def find_peaks_twin(acc, min_separation, min_value):
@@ -1395,7 +1553,9 @@ def test_temporal_mask_rejects_features_of_another_shape():
     g = geometry()
     lane = Lane((80.0, 0.0, 0.0), (0, 199), "right", 0.9)
     with pytest.raises(InputError, match="features"):
-        temporal_mask(TemporalParams(), geometry=g, previous=[lane], features=FeatureMap(np.zeros((10, 10), bool)))
+        temporal_mask(
+            TemporalParams(), geometry=g, previous=[lane], features=FeatureMap(np.zeros((10, 10), bool))
+        )
 
 
 def to_image_twin(lane, geometry, row_step, w=None, h=None):
@@ -1422,7 +1582,10 @@ def to_image_twin(lane, geometry, row_step, w=None, h=None):
 )
 def test_to_image_matches_sort_unique_twin(H):
     g = BevGeometry(-4, 4, 5, 15, 0.05, H)
-    lanes = [Lane((40.0, 0.1, 0.0), (20, 180), "left", 0.8), Lane((120.0, -0.9, 0.004), (0, 199), "right", 0.5)]
+    lanes = [
+        Lane((40.0, 0.1, 0.0), (20, 180), "left", 0.8),
+        Lane((120.0, -0.9, 0.004), (0, 199), "right", 0.5),
+    ]
     out = to_image(ToImageParams(), lanes=lanes, geometry=g)["lanes"]
     ref = [p for p in (to_image_twin(ln, g, 5.0) for ln in lanes) if p is not None]
     assert len(out) == len(ref)
@@ -1439,7 +1602,17 @@ def test_eslt_node_dense_orientation_is_minus_one_off_the_features():
     mask = np.empty(img.shape, np.uint8)
     ori = np.empty(img.shape, np.float32)
     p = EsltParams()
-    _features._eslt(img.astype(np.uint8), gx, gy, p.window, float(p.threshold), math.radians(p.max_angle_deg), _features._EVERYWHERE, mask, ori)
+    _features._eslt(
+        img.astype(np.uint8),
+        gx,
+        gy,
+        p.window,
+        float(p.threshold),
+        math.radians(p.max_angle_deg),
+        _features._EVERYWHERE,
+        mask,
+        ori,
+    )
     assert mask.any()
     np.testing.assert_array_equal(f.mask, mask.view(bool))
     np.testing.assert_array_equal(f.orientation, ori)

@@ -78,7 +78,16 @@ def plane_sums_np(disp, step, v_top, min_disp, b0, b1, b2, fixed_tol, plane_tol,
     tol = fixed_tol if fixed_tol > 0 else np.maximum(plane_tol * sub / height, min_tol)
     sel = (sub > min_disp) & np.isfinite(sub) & (vv >= v_top) & (np.abs(sub - (b0 + b1 * uu + b2 * vv)) < tol)
     x, y, d = uu[sel] - uc, vv[sel] - vc, sub[sel]
-    sums = [x.sum(), y.sum(), (x * x).sum(), (x * y).sum(), (y * y).sum(), d.sum(), (x * d).sum(), (y * d).sum()]
+    sums = [
+        x.sum(),
+        y.sum(),
+        (x * x).sum(),
+        (x * y).sum(),
+        (y * y).sum(),
+        d.sum(),
+        (x * d).sum(),
+        (y * d).sum(),
+    ]
     return int(sel.sum()), np.array(sums)
 
 
@@ -186,7 +195,9 @@ def test_select_kernel_matches_numpy(shape, roll, band):
     rng = np.random.default_rng(1)
     disp = random_disparity(rng, shape)
     s, c = math.sin(roll), math.cos(roll)
-    keep = np.ones(shape, bool) if band is None else plane_band_np(disp, band[1], band[2], band[3], 1.0, band[0])
+    keep = (
+        np.ones(shape, bool) if band is None else plane_band_np(disp, band[1], band[2], band[3], 1.0, band[0])
+    )
     for step in (1, 2, 3):
         r_np, d_np = select_np(disp, band, 6.3, 4.1, s, c, step)
         rows, d = profile.select_pixels(disp, 6.3, 4.1, s, c, band, step)
@@ -204,7 +215,9 @@ def test_select_kernel_matches_numpy(shape, roll, band):
 
 def test_select_kernel_edge_cases():
     # all invalid: nothing selected, nothing counted
-    rows, d, vd = profile.select_and_count(np.zeros((6, 9), np.float32), 4.0, 3.0, 0.1, 0.99, 16.0, 1.0, None, 2)
+    rows, d, vd = profile.select_and_count(
+        np.zeros((6, 9), np.float32), 4.0, 3.0, 0.1, 0.99, 16.0, 1.0, None, 2
+    )
     assert rows.size == d.size == 0 and vd.shape == (6, 16) and not vd.any()
     # every pixel rotated off the image: nothing selected
     rows, d, vd = profile.select_and_count(np.ones((3, 5), np.float32), 2.0, -5.0, 0.0, 0.0, 16.0, 1.0)
@@ -260,7 +273,14 @@ def test_profile_treats_non_finite_disparities_as_invalid(scene):
     zeroed = np.where(idx, 0.0, disp).astype(np.float32)
     a, vd_a = profile.estimate_road(rd.ProfileParams(), bad, CALIB)
     b, vd_b = profile.estimate_road(rd.ProfileParams(), zeroed, CALIB)
-    assert a.valid and (a.a0, a.a1, a.roll, a.pitch, a.height, a.v_min) == (b.a0, b.a1, b.roll, b.pitch, b.height, b.v_min)
+    assert a.valid and (a.a0, a.a1, a.roll, a.pitch, a.height, a.v_min) == (
+        b.a0,
+        b.a1,
+        b.roll,
+        b.pitch,
+        b.height,
+        b.v_min,
+    )
     np.testing.assert_array_equal(a.profile, b.profile)
     np.testing.assert_array_equal(vd_a, vd_b)
     assert np.isnan(bad).any()  # the input is left as it was
@@ -316,7 +336,9 @@ def test_dp_kernel_matches_vectorised_twin(max_step, smoothness):
     rng = np.random.default_rng(max_step)
     for shape in ((1, 6), (30, 1), (120, 40)):
         score = rng.random(shape)
-        np.testing.assert_array_equal(profile._dp_path_kernel(score, max_step, smoothness), dp_np(score, max_step, smoothness))
+        np.testing.assert_array_equal(
+            profile._dp_path_kernel(score, max_step, smoothness), dp_np(score, max_step, smoothness)
+        )
 
 
 def test_dp_follows_a_slanted_line_not_a_vertical_obstacle():
@@ -356,10 +378,27 @@ def row_refine_list_np(rows, d, centre, radius):
     rows, d = rows.astype(np.int64), d.astype(np.float64)
     ok = np.abs(d - centre[rows]) <= radius[rows]
     H = centre.size
-    return np.bincount(rows[ok], weights=d[ok], minlength=H), np.bincount(rows[ok], minlength=H).astype(np.float64)
+    return np.bincount(rows[ok], weights=d[ok], minlength=H), np.bincount(rows[ok], minlength=H).astype(
+        np.float64
+    )
 
 
-def profile_np(vd, columns, max_step, smoothness, bin_size, radius0, rows, d, height, plane_tol, min_tol, step, min_row_count, min_fit_disp):
+def profile_np(
+    vd,
+    columns,
+    max_step,
+    smoothness,
+    bin_size,
+    radius0,
+    rows,
+    d,
+    height,
+    plane_tol,
+    min_tol,
+    step,
+    min_row_count,
+    min_fit_disp,
+):
     """NumPy twin of ``_profile_kernel`` (the former NumPy steps of ``_profile_pass``)."""
     H = vd.shape[0]
     supported = np.flatnonzero(vd.any(axis=1))
@@ -401,7 +440,22 @@ def test_profile_kernel_matches_numpy(scene, height, roll):
     s, c = geometry.roll_row_coeffs(roll, CALIB)
     for step in (1, 4):
         rows, d, vd = profile.select_and_count(disp, CALIB.cx, CALIB.cy, s, c, 64.0, 1.0, None, step)
-        args = (vd, float(-(-CALIB.width // step)), 3, 0.02, 1.0, 1.0, rows, d, height, 0.05, 0.25, step, 10, np.float32(3.0))
+        args = (
+            vd,
+            float(-(-CALIB.width // step)),
+            3,
+            0.02,
+            1.0,
+            1.0,
+            rows,
+            d,
+            height,
+            0.05,
+            0.25,
+            step,
+            10,
+            np.float32(3.0),
+        )
         got = profile._profile_kernel(*args)
         assert got[1].size > 50
         assert_profiles_match(got, profile_np(*args))
@@ -416,7 +470,20 @@ def test_profile_kernel_matches_numpy(scene, height, roll):
             assert_profiles_match(profile._profile_kernel(*args), profile_np(*args))
     # nothing supported, no pixels: level path at bin 0, no profile, no fit rows
     prof, fit_rows, _, _ = profile._profile_kernel(
-        np.zeros((5, 4), np.float32), 3.0, 2, 0.1, 1.0, 1.0, np.zeros(0, np.int16), np.zeros(0, np.float32), height, 0.3, 0.5, 2, 2, np.float32(1.5)
+        np.zeros((5, 4), np.float32),
+        3.0,
+        2,
+        0.1,
+        1.0,
+        1.0,
+        np.zeros(0, np.int16),
+        np.zeros(0, np.float32),
+        height,
+        0.3,
+        0.5,
+        2,
+        2,
+        np.float32(1.5),
     )
     assert (prof == -1).all() and fit_rows.size == 0
 
@@ -512,7 +579,9 @@ def test_line_refit_kernel_matches_numpy():
     assert not ok
 
 
-def plane_fit_np(disp, step, v_top, min_disp, b0, b1, b2, first_tol, plane_tol, height, min_tol, uc, vc, rounds):
+def plane_fit_np(
+    disp, step, v_top, min_disp, b0, b1, b2, first_tol, plane_tol, height, min_tol, uc, vc, rounds
+):
     """NumPy twin of ``_plane_fit_kernel``: ``(ok, b)``, the rounds of ``plane_sums_np`` and a solve."""
     b = np.array([b0, b1, b2])
     fixed = first_tol
@@ -546,14 +615,30 @@ def test_plane_fit_kernel_matches_numpy(shape):
         disp[rng.random(shape) < 0.1] = 0.0
         for step in (1, 2, 3):
             for rounds in (1, 3):
-                args = (step, 4, 3.0, b_true[0], 0.0, b_true[2], 1.0, 0.5, 1.6, 0.25, 0.5 * (W - 1), 0.5 * (H - 1), rounds)
+                args = (
+                    step,
+                    4,
+                    3.0,
+                    b_true[0],
+                    0.0,
+                    b_true[2],
+                    1.0,
+                    0.5,
+                    1.6,
+                    0.25,
+                    0.5 * (W - 1),
+                    0.5 * (H - 1),
+                    rounds,
+                )
                 ok, *b = profile._plane_fit_kernel(disp, *args)
                 ref_ok, ref = plane_fit_np(disp, *args)
                 assert ok == ref_ok
                 if ok:
                     np.testing.assert_allclose(b, ref, rtol=1e-9, atol=1e-9)
     # all invalid: no plane
-    assert not profile._plane_fit_kernel(np.zeros((40, 57), np.float32), 1, 0, 3.0, 0.0, 0.0, 0.5, 1.0, 0.5, 1.6, 0.25, 28.0, 19.5, 3)[0]
+    assert not profile._plane_fit_kernel(
+        np.zeros((40, 57), np.float32), 1, 0, 3.0, 0.0, 0.0, 0.5, 1.0, 0.5, 1.6, 0.25, 28.0, 19.5, 3
+    )[0]
 
 
 def test_fit_road_plane_matches_lstsq():
@@ -590,7 +675,21 @@ def test_fit_road_plane_without_a_plane_is_none():
     calib = Calibration(f=100.0, cx=W / 2, cy=H / 2, baseline=0.5)
     params = profile.ProfileParams(roll_subsample=1, roll_iterations=2)
     # enough pixels (>= 50): the plane is refused for being singular, not for want of pixels
-    n, _ = plane_sums_np(disp, 1, 20, params.min_fit_disparity_px, -8.0, 0.0, 0.6, params.roll_tolerance_px, 0.1, 1.6, 0.5, 44.5, 59.5)
+    n, _ = plane_sums_np(
+        disp,
+        1,
+        20,
+        params.min_fit_disparity_px,
+        -8.0,
+        0.0,
+        0.6,
+        params.roll_tolerance_px,
+        0.1,
+        1.6,
+        0.5,
+        44.5,
+        59.5,
+    )
     assert n >= 50
     _, h1 = geometry.pose_from_line(-8.0, 0.6, calib)
     assert profile._fit_road_plane(disp, np.array([-8.0, 0.6]), h1, 20, params) is None
@@ -643,7 +742,9 @@ def test_free_space_takes_unknown_bottom_rows_below_the_first_road_pixel():
     out = mask._free_space_kernel(labels, 2, True)
     np.testing.assert_array_equal(out[:, 0], [0, 0, 0, 1, 1, 1, 1, 0, 1, 1])
     assert not out[:, 1].any() and not out[:, 2].any()
-    np.testing.assert_array_equal(mask._free_space_kernel(labels, 2, False)[:, 0], [0, 0, 0, 0, 1, 1, 0, 0, 0, 0])
+    np.testing.assert_array_equal(
+        mask._free_space_kernel(labels, 2, False)[:, 0], [0, 0, 0, 0, 1, 1, 0, 0, 0, 0]
+    )
     np.testing.assert_array_equal(out, free_space_np(labels, 2, True))
 
 
@@ -654,11 +755,15 @@ def test_fill_holes_matches_numpy(shape, max_above):
     for density in (0.3, 0.6, 0.9):
         m = rng.random(shape) < density
         classes = rng.integers(0, 5, shape).astype(np.uint8)
-        np.testing.assert_array_equal(mask._fill_holes(m, classes, max_above), fill_holes_np(m, classes, max_above))
+        np.testing.assert_array_equal(
+            mask._fill_holes(m, classes, max_above), fill_holes_np(m, classes, max_above)
+        )
     m = np.ones(shape, bool)
     m[shape[0] // 2, shape[1] // 2] = False  # one hole off the border (when the shape allows)
     classes = np.ones(shape, np.uint8)
-    np.testing.assert_array_equal(mask._fill_holes(m, classes, max_above), fill_holes_np(m, classes, max_above))
+    np.testing.assert_array_equal(
+        mask._fill_holes(m, classes, max_above), fill_holes_np(m, classes, max_above)
+    )
 
 
 def widen_np(red, step, width):
@@ -804,9 +909,7 @@ def test_profile_recovers_pitch_roll_height(scene):
 def test_profile_other_poses_and_quadratic(pitch_deg, roll_deg, height):
     disp, _, _ = render_scene(pitch=math.radians(pitch_deg), roll=math.radians(roll_deg), height=height)
     for model in ("linear", "quadratic"):
-        road = rd.road_profile(rd.ProfileParams(model=model), disparity=noisy(disp, 1), calib=CALIB)[
-            "road"
-        ]
+        road = rd.road_profile(rd.ProfileParams(model=model), disparity=noisy(disp, 1), calib=CALIB)["road"]
         assert road.valid
         assert math.degrees(road.pitch) == pytest.approx(pitch_deg, abs=0.2)
         assert math.degrees(road.roll) == pytest.approx(roll_deg, abs=0.2)
@@ -817,9 +920,7 @@ def test_profile_other_poses_and_quadratic(pitch_deg, roll_deg, height):
 
 def test_profile_without_roll_estimation_is_biased_by_roll(scene):
     disp, _, _ = scene
-    road = rd.road_profile(rd.ProfileParams(estimate_roll=False), disparity=noisy(disp), calib=CALIB)[
-        "road"
-    ]
+    road = rd.road_profile(rd.ProfileParams(estimate_roll=False), disparity=noisy(disp), calib=CALIB)["road"]
     assert road.roll == 0.0 and road.valid
 
 
@@ -851,7 +952,12 @@ def test_profile_accepts_the_vdisparity_node_output(scene):
     assert (a.pitch, a.roll, a.height) == (b.pitch, b.roll, b.height)
     # every 2nd column (the default): the full-resolution v-disparity is scaled, the pose agrees
     a = rd.road_profile(rd.ProfileParams(), disparity=disp, calib=CALIB, vdisparity=vd)["road"]
-    assert a.valid and abs(a.pitch - b.pitch) < 1e-3 and abs(a.roll - b.roll) < 1e-3 and abs(a.height - b.height) < 0.01
+    assert (
+        a.valid
+        and abs(a.pitch - b.pitch) < 1e-3
+        and abs(a.roll - b.roll) < 1e-3
+        and abs(a.height - b.height) < 0.01
+    )
 
 
 def test_mask_removes_box_and_kerb_keeps_road(scene):
@@ -967,7 +1073,10 @@ def test_ipm_mask_geometry_and_fallback():
     ).reshape(m.shape)
     # nearest-pixel convention of the warp: the two may differ only within half a pixel of the border
     near_border = (
-        (xy[:, 0] > -0.5) & (xy[:, 0] < CALIB.width - 0.5) & (xy[:, 1] > -0.5) & (xy[:, 1] < CALIB.height - 0.5)
+        (xy[:, 0] > -0.5)
+        & (xy[:, 0] < CALIB.width - 0.5)
+        & (xy[:, 1] > -0.5)
+        & (xy[:, 1] < CALIB.height - 0.5)
     ).reshape(m.shape) & ~inside
     assert not (inside & ~m).any()
     assert not (m & ~inside & ~near_border).any()

@@ -36,7 +36,9 @@ from lanegraph import FeatureMap, NodeParams, Port, PortType, hookimpl, jit, nod
 __all__ = ["TophatParams", "tophat", "vertical_runs", "white_tophat", "structure_orientation"]
 
 #: the port type this plugin adds: any node may produce or take it
-BEV_RESPONSE = PortType("bev_response", "a response map on the BEV grid, Hb x Wb float32 (larger: more marking-like)")
+BEV_RESPONSE = PortType(
+    "bev_response", "a response map on the BEV grid, Hb x Wb float32 (larger: more marking-like)"
+)
 
 
 def white_tophat(gray: np.ndarray, width: int) -> np.ndarray:
@@ -83,7 +85,9 @@ def vertical_runs(mask: np.ndarray, min_run: int) -> np.ndarray:
     set pixels of their column (bool, same shape)."""
     mask = np.asarray(mask)
     if mask.ndim != 2 or mask.dtype != np.bool_:
-        raise ValueError(f"vertical_runs: expected an Hb x Wb bool mask, got {mask.dtype} of shape {mask.shape}")
+        raise ValueError(
+            f"vertical_runs: expected an Hb x Wb bool mask, got {mask.dtype} of shape {mask.shape}"
+        )
     if min_run <= 1:
         return mask
     return _vertical_runs(np.ascontiguousarray(mask), int(min_run))
@@ -95,7 +99,12 @@ class TophatParams(NodeParams):
     width: int = Field(9, ge=3, le=99, description="horizontal line element, BEV pixels (> marking width)")
     threshold: float = Field(20.0, ge=0.0, le=255.0, description="minimum top-hat response, grey levels")
     smooth_rows: int = Field(5, ge=1, le=51, description="rows averaged before thresholding, BEV pixels")
-    min_run: int = Field(1, ge=1, le=200, description="keep a feature only in a vertical run of this many feature rows, BEV pixels (1: all)")
+    min_run: int = Field(
+        1,
+        ge=1,
+        le=200,
+        description="keep a feature only in a vertical run of this many feature rows, BEV pixels (1: all)",
+    )
     orientation: Literal["structure", "vertical", "none"] = Field(
         "structure", description="feature orientation: structure tensor, constant pi/2, or none (like SLT)"
     )
@@ -105,7 +114,10 @@ class TophatParams(NodeParams):
 @node_type(
     "features.tophat",
     inputs={"image": Port("bev_image", "BEV grey image")},
-    outputs={"features": "features", "response": Port("bev_response", "the smoothed top-hat response, grey levels")},
+    outputs={
+        "features": "features",
+        "response": Port("bev_response", "the smoothed top-hat response, grey levels"),
+    },
 )
 def tophat(params: TophatParams, image: np.ndarray) -> dict:
     """White top-hat: T brighter than the opening by a horizontal line; structure-tensor orientation."""
@@ -122,7 +134,10 @@ def tophat(params: TophatParams, image: np.ndarray) -> dict:
         theta = np.full(gray.shape, np.pi / 2, np.float32)
     else:
         theta = structure_orientation(response, params.orientation_window)
-    return {"features": FeatureMap(mask=mask, orientation=np.where(mask, theta, np.float32(-1.0))), "response": response}
+    return {
+        "features": FeatureMap(mask=mask, orientation=np.where(mask, theta, np.float32(-1.0))),
+        "response": response,
+    }
 
 
 @hookimpl

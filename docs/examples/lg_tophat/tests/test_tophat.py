@@ -59,7 +59,10 @@ def test_registered_through_the_hooks(pm):
     assert set(pm.node_types) == {"features.tophat"}
     nt = pm.node_types["features.tophat"]
     assert nt.inputs["image"].type == "bev_image" and nt.outputs["features"].type == "features"
-    assert nt.outputs["response"].type == "bev_response" and pm.port_types["bev_response"] is lg_tophat.BEV_RESPONSE
+    assert (
+        nt.outputs["response"].type == "bev_response"
+        and pm.port_types["bev_response"] is lg_tophat.BEV_RESPONSE
+    )
 
 
 def test_a_plain_function(pm):
@@ -89,7 +92,10 @@ def test_vertical_runs_matches_its_twin(min_run, density):
     mask = rng.random((37, 23)) < density
     assert np.array_equal(lg_tophat.vertical_runs(mask, min_run), vertical_runs_twin(mask, min_run))
     assert not lg_tophat.vertical_runs(np.zeros((5, 4), bool), 2).any()
-    assert lg_tophat.vertical_runs(np.ones((5, 4), bool), 5).all() and not lg_tophat.vertical_runs(np.ones((5, 4), bool), 6).any()
+    assert (
+        lg_tophat.vertical_runs(np.ones((5, 4), bool), 5).all()
+        and not lg_tophat.vertical_runs(np.ones((5, 4), bool), 6).any()
+    )
 
 
 def test_min_run_drops_short_speckles_and_keeps_the_markings(pm):
