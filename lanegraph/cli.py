@@ -97,6 +97,46 @@ def _load(graph: str, sets: tuple[str, ...] = (), pm: PluginManager | None = Non
     return load_graph(path, list(sets), pm or get_plugin_manager(), roots=allowed_roots(path))
 
 
+def _scale_out_options(scope: str = ""):
+    """The options ``run --dataset`` and ``ablate`` share: a Dask scheduler, chunks and their
+    warm-up, the report at the end (``scope``: what they need, said before each help text)."""
+    options = [
+        click.option(
+            "--scheduler",
+            metavar="SPEC",
+            help=f"{scope}run the sequences on a Dask cluster: local, local:N (N worker processes) "
+            "or a scheduler address tcp://HOST:PORT",
+        ),
+        click.option(
+            "--chunk-frames",
+            type=int,
+            metavar="K",
+            help=f"{scope}split sequences into chunks of K frames run as separate tasks",
+        ),
+        click.option(
+            "--warmup",
+            type=int,
+            default=0,
+            show_default=True,
+            metavar="W",
+            help="with --chunk-frames: run W frames before each chunk and discard their outputs",
+        ),
+        click.option(
+            "--report",
+            "make_report",
+            is_flag=True,
+            help="write OUT/report/index.html at the end (see `lanegraph report`)",
+        ),
+    ]
+
+    def decorate(command):
+        for option in reversed(options):
+            command = option(command)
+        return command
+
+    return decorate
+
+
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="lanegraph")
 def main() -> None:
@@ -143,31 +183,7 @@ def main() -> None:
     type=click.Path(path_type=Path),
     help="a dataset file (YAML list of sequences) in place of --input: writes each sequence's run into OUT/<sequence>/",
 )
-@click.option(
-    "--scheduler",
-    metavar="SPEC",
-    help="with --dataset: run the sequences on a Dask cluster: local, local:N (N worker processes) or a scheduler address tcp://HOST:PORT",
-)
-@click.option(
-    "--chunk-frames",
-    type=int,
-    metavar="K",
-    help="with --dataset: split sequences into chunks of K frames run as separate tasks",
-)
-@click.option(
-    "--warmup",
-    type=int,
-    default=0,
-    show_default=True,
-    metavar="W",
-    help="with --chunk-frames: run W frames before each chunk and discard their outputs",
-)
-@click.option(
-    "--report",
-    "make_report",
-    is_flag=True,
-    help="write OUT/report/index.html at the end (see `lanegraph report`)",
-)
+@_scale_out_options("with --dataset: ")
 def run(
     graph: str,
     input_path: Path | None,
@@ -868,31 +884,7 @@ def _mermaid_text(text: str) -> str:
     "--cache-max-gb", type=float, default=2.0, show_default=True, help="size bound of the result cache, GiB"
 )
 @click.option("--quiet", is_flag=True, help="no progress bars")
-@click.option(
-    "--scheduler",
-    metavar="SPEC",
-    help="run on a Dask cluster: local, local:N (N worker processes) or a scheduler address tcp://HOST:PORT",
-)
-@click.option(
-    "--chunk-frames",
-    type=int,
-    metavar="K",
-    help="split sequences into chunks of K frames run as separate tasks",
-)
-@click.option(
-    "--warmup",
-    type=int,
-    default=0,
-    show_default=True,
-    metavar="W",
-    help="with --chunk-frames: run W frames before each chunk and discard their outputs",
-)
-@click.option(
-    "--report",
-    "make_report",
-    is_flag=True,
-    help="write OUT/report/index.html at the end (see `lanegraph report`)",
-)
+@_scale_out_options()
 def ablate(
     base,
     variants,

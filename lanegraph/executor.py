@@ -18,6 +18,7 @@
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -253,20 +254,16 @@ class Executor:
     ) -> dict:
         hook = self.pm.hook
         hook.lanegraph_before_node(node_id=node.id, node_type=node.type.name, frame=frame, inputs=inputs)
+        after = functools.partial(
+            hook.lanegraph_after_node, node_id=node.id, node_type=node.type.name, frame=frame
+        )
         use_cache = self.cache is not None and key is not None and node.id in self.cache_nodes
         if use_cache:
             hit = self.cache.get(key)
             if hit is not self.cache.MISS:
                 result.timings_ms.setdefault(node.id, []).append(hit["ms"])  # the time it took to compute
                 result.cache_hits[node.id] = result.cache_hits.get(node.id, 0) + 1
-                hook.lanegraph_after_node(
-                    node_id=node.id,
-                    node_type=node.type.name,
-                    frame=frame,
-                    outputs=hit["outputs"],
-                    elapsed_ms=hit["ms"],
-                    error=None,
-                )
+                after(outputs=hit["outputs"], elapsed_ms=hit["ms"], error=None)
                 return hit["outputs"]
         t0 = time.perf_counter()
         try:
@@ -283,8 +280,6 @@ class Executor:
             missing = set(node.type.outputs) - set(out)
             if missing and not node.type.sink:
                 raise TypeError(f"node function did not return output port(s) {sorted(missing)}")
-        except LanegraphError as exc:
-            err = exc
         except Exception as exc:  # noqa: BLE001 - reported with node id and frame
             err = exc
         else:
@@ -292,14 +287,7 @@ class Executor:
         elapsed = (time.perf_counter() - t0) * 1000.0
         result.timings_ms.setdefault(node.id, []).append(elapsed)
         if err is not None:
-            hook.lanegraph_after_node(
-                node_id=node.id,
-                node_type=node.type.name,
-                frame=frame,
-                outputs=None,
-                elapsed_ms=elapsed,
-                error=err,
-            )
+            after(outputs=None, elapsed_ms=elapsed, error=err)
             if node.on_error == "fail" or (node.on_error == "skip" and index < 0):  # index -1: runs once
                 raise NodeError(node.id, node.type.name, frame, err) from err
             result.failures.append(
@@ -311,14 +299,7 @@ class Executor:
         if use_cache:
             self.cache.put(key, {"outputs": out, "ms": elapsed})
             result.cache_misses[node.id] = result.cache_misses.get(node.id, 0) + 1
-        hook.lanegraph_after_node(
-            node_id=node.id,
-            node_type=node.type.name,
-            frame=frame,
-            outputs=out,
-            elapsed_ms=elapsed,
-            error=None,
-        )
+        after(outputs=out, elapsed_ms=elapsed, error=None)
         return out
 
     def _write_checkpoint(

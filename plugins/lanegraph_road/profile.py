@@ -672,6 +672,17 @@ def compute_vdisparity(
 # --------------------------------------------------------------------------- road.vdisparity
 
 
+def bins_bounded(params):
+    """``params`` (with ``max_disparity`` and ``bin_size``) when its v-disparity has at most
+    :data:`MAX_BINS` bins (memory and time grow with them: 8x the default's 128); else ValueError."""
+    if params.max_disparity / params.bin_size > MAX_BINS:
+        raise ValueError(
+            f"max_disparity / bin_size = {params.max_disparity / params.bin_size:.0f} disparity bins, "
+            f"more than {MAX_BINS}; raise bin_size or lower max_disparity"
+        )
+    return params
+
+
 class VDisparityParams(NodeParams):
     """Params of ``road.vdisparity``."""
 
@@ -684,13 +695,7 @@ class VDisparityParams(NodeParams):
 
     @model_validator(mode="after")
     def _bins_bounded(self):
-        # memory and time grow with the number of bins: at most 8x the default's 128
-        if self.max_disparity / self.bin_size > MAX_BINS:
-            raise ValueError(
-                f"max_disparity / bin_size = {self.max_disparity / self.bin_size:.0f} disparity bins, more than {MAX_BINS}; "
-                "raise bin_size or lower max_disparity"
-            )
-        return self
+        return bins_bounded(self)
 
 
 @node_type(
@@ -796,13 +801,7 @@ class ProfileParams(NodeParams):
 
     @model_validator(mode="after")
     def _bins_bounded(self):
-        # memory and time grow with the number of bins: at most 8x the default's 128
-        if self.max_disparity / self.bin_size > MAX_BINS:
-            raise ValueError(
-                f"max_disparity / bin_size = {self.max_disparity / self.bin_size:.0f} disparity bins, more than {MAX_BINS}; "
-                "raise bin_size or lower max_disparity"
-            )
-        return self
+        return bins_bounded(self)
 
 
 @functools.lru_cache(maxsize=512)
