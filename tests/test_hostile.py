@@ -104,7 +104,7 @@ def test_a_crafted_pickle_in_out_never_runs(cli, tmp_path, installed_pm):
     [
         ("[]", ["expected a JSON object", "got list"]),
         ("{}", ["format: expected 'lanegraph-checkpoint'"]),
-        ('{"format": "lanegraph-checkpoint", "version": 7}', ["version: expected 1, got 7"]),
+        ('{"format": "lanegraph-checkpoint", "version": 7}', ["version: expected 2, got 7"]),
         ("not json at all", ["not a valid JSON checkpoint", "line 1"]),
         ("[" * 100000, ["not a valid JSON checkpoint"]),
         (b"\xff\xfe\x00garbage", ["cannot read the checkpoint"]),
