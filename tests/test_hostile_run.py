@@ -124,7 +124,7 @@ def test_a_lanes_file_with_other_lines_than_frames_done(tmp_path):
     assert (tmp_path / "lanes.jsonl").read_bytes() == data
     for bad, words in [
         ({**state, "frames": 0}, "does not agree with itself"),
-            ({**state, "frames": 3}, "hold 2 whole line(s), the checkpoint recorded 3"),
+        ({**state, "frames": 3}, "hold 2 whole line(s), the checkpoint recorded 3"),
         ({**state, "frames": 1}, "hold 2 whole line(s), the checkpoint recorded 1"),
         ({**state, "start": len(data) + 1}, "does not agree with itself"),
         ({**state, "frames": True}, "no valid state"),
@@ -153,3 +153,30 @@ def test_a_feedback_value_of_the_wrong_type_is_refused(tmp_path, installed_pm):
             UsageError, match=r"feedback \(verify.lanes\): expected a value of port type 'lanes'"
         ):
             check_feedback_types({("verify", "lanes"): wrong}, g, path)
+
+
+# ============================================================================ 3. inputs refused
+def test_a_scheduler_that_cannot_work_is_refused_at_once(monkeypatch):
+    """Issue 31, item 7: ``local:1000`` on a 2-core machine was still starting workers after 120 s;
+    ``ftp://x`` waited 30 s before it was refused."""
+    pytest.importorskip("distributed")
+    from lanegraph import distributed
+    from lanegraph.batch import parse_scheduler
+    from lanegraph.errors import UsageError
+
+    monkeypatch.setattr(distributed, "_cores", lambda: 2)
+    for text, words in [
+        (
+            "local:1000",
+            "1000 worker processes, but this process may use 2 CPU(s): expected local:N with N <= 2",
+        ),
+        ("local:3", "expected local:N with N <= 2"),
+        ("ftp://x", "unknown scheme 'ftp'"),
+        ("FILE:///tmp/s.json", "unknown scheme 'file'"),
+    ]:
+        with pytest.raises(UsageError, match=words.replace("(", r"\(").replace(")", r"\)")):
+            distributed.check_spec(parse_scheduler(text))
+        with pytest.raises(UsageError, match=words.replace("(", r"\(").replace(")", r"\)")):
+            distributed.run_tasks([], parse_scheduler(text), progress=False, echo=lambda s: None)
+    for text in ("local", "local:2", "tcp://127.0.0.1:8786", "127.0.0.1:8786", "tls://h:1", "sched.json"):
+        distributed.check_spec(parse_scheduler(text))
