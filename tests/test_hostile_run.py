@@ -17,6 +17,7 @@ import json
 import pytest
 
 from . import test_hostile as hostile
+from .test_bad_input import DEMO, P2, SMALL, kitti_raw, pair_folder
 from .test_hostile import PAPER, SYNTH, _interrupted_run, lines
 
 cli = hostile.cli  # the fixture: ``cli(*args)`` -> (exit code, output)
@@ -180,3 +181,55 @@ def test_a_scheduler_that_cannot_work_is_refused_at_once(monkeypatch):
             distributed.run_tasks([], parse_scheduler(text), progress=False, echo=lambda s: None)
     for text in ("local", "local:2", "tcp://127.0.0.1:8786", "127.0.0.1:8786", "tls://h:1", "sched.json"):
         distributed.check_spec(parse_scheduler(text))
+
+
+@pytest.mark.parametrize(
+    "text, words",
+    [
+        (
+            "f: 60\ncx: 32\ncy: 24\nbaseline: 0.5\nf: 600\n",
+            ["line 5", "key 'f' is given twice (first at line 1)"],
+        ),
+        (
+            "f: 60\ncx: 32\ncy: 24\nbaseline: 0.5\nbaseline_mm: 500\n",
+            ["unknown key 'baseline_mm'", "baseline"],
+        ),
+        ("f: 60\ncx: 32\ncy: 24\nbaseline: 0.5\nk1: 0.1\n", ["unknown key 'k1'", "known keys: f, fy, cx"]),
+    ],
+    ids=["duplicate key", "unknown key, near", "unknown key"],
+)
+def test_a_calib_yaml_with_a_key_twice_or_an_unknown_key(cli, tmp_path, text, words):
+    """Issue 31, item 9: the last of two keys used to win silently, unknown keys were ignored."""
+    d = pair_folder(tmp_path / "in")
+    (d / "calib.yaml").write_text(text)
+    code, output = cli("run", DEMO, "--input", d, "--out", tmp_path / "out", "--quiet", *SMALL)
+    assert code == 2, output
+    assert str(d / "calib.yaml") in output, output
+    for w in words:
+        assert w in output, output
+    assert len(output.strip().splitlines()) == 1, output
+
+
+@pytest.mark.parametrize(
+    "rows, words",
+    [
+        (
+            [f"P_rect_02: {P2}", "P_rect_03: 60 0 32 -30 0 60 24 -18000 0 0 1 0"],
+            ["row 'P_rect_03'", "translation ty", "-300 m, more than 10 m"],
+        ),
+        (
+            [f"P_rect_02: {P2}", "P_rect_03: 60 0 32 -30 0 60 24 -6 0 0 1 0"],
+            ["rows 'P_rect_02'/'P_rect_03'", "0.1 m apart along y", "differ along x only"],
+        ),
+    ],
+    ids=["ty -300 m", "right camera below the left"],
+)
+def test_a_kitti_camera_far_from_the_rig_is_refused(cli, tmp_path, rows, words):
+    drive = kitti_raw(tmp_path, calib_rows=rows)
+    code, output = cli("run", DEMO, "--input", drive, "--out", tmp_path / "out", "--quiet", *SMALL)
+    assert code == 2, output
+    assert str(drive.parent / "calib_cam_to_cam.txt") in output and "implausible calibration" in output, (
+        output
+    )
+    for w in words:
+        assert w in output, output
