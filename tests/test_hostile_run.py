@@ -233,3 +233,22 @@ def test_a_kitti_camera_far_from_the_rig_is_refused(cli, tmp_path, rows, words):
     )
     for w in words:
         assert w in output, output
+
+
+def test_two_ablation_variants_never_share_a_folder(cli, tmp_path):
+    """Issue 31, item 11: two variants of one name shared runs/<variant>/ and gave identical rows."""
+    from lanegraph.ablate import Variant, distinct_folders
+    from lanegraph.errors import UsageError
+
+    a, b, c = tmp_path / "a.yaml", tmp_path / "b.yaml", tmp_path / "c.yaml"
+    variants = [Variant("x", a), Variant("x", b), Variant("X", c), Variant("x-2", a, ["n.p=1"])]
+    distinct_folders(variants)
+    assert [v.name for v in variants] == ["x", "x-2", "X-3", "x-2-2"]
+    with pytest.raises(UsageError, match=r"variant 'x' \(.*a.yaml with --set n.p=1\) is given twice"):
+        distinct_folders([Variant("x", a, ["n.p=1"]), Variant("x", tmp_path / "." / "a.yaml", ["n.p=1"])])
+    d = pair_folder(tmp_path / "in")
+    g = tmp_path / "g.yaml"
+    g.write_text(f"extends: {DEMO}\nnodes:\n  disp: {{params: {{num_disparities: 16}}}}\n")
+    code, output = cli("ablate", g, g, "--input", d, "--out", tmp_path / "out", "--quiet")
+    assert code == 2 and "is given twice" in output, output
+    assert not (tmp_path / "out" / "runs").exists()
