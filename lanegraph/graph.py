@@ -45,6 +45,8 @@ from .types import port_compatible
 
 #: a node's error policy: ``fail`` stops the run, ``skip`` drops the frame, ``empty`` passes None on
 ON_ERROR_CHOICES = ("fail", "skip", "empty")
+#: the most graph files one ``extends`` chain may hold (the graph itself included)
+MAX_EXTENDS = 32
 OnError = Annotated[str, StringConstraints(pattern=f"^({'|'.join(ON_ERROR_CHOICES)})$")]
 
 _REF = re.compile(r"^(?P<node>[A-Za-z_][\w-]*)\.(?P<port>[A-Za-z_]\w*)(?P<prev>@prev)?$")
@@ -255,6 +257,13 @@ def _base_file(
         raise problem(f"invalid path {_short(ext)}: {exc}") from None
     if base_path in chain or base_path == path.resolve():
         raise problem("extends cycle: " + " -> ".join(str(p) for p in (*chain, path.resolve(), base_path)))
+    if len(chain) + 1 >= MAX_EXTENDS:
+        files = [*chain, path.resolve(), base_path]
+        shown = [*map(str, files[:2]), "...", *map(str, files[-2:])]
+        raise problem(
+            f"an extends chain of more than {MAX_EXTENDS} files ({' -> '.join(shown)}): "
+            "extend a graph that extends fewer"
+        )
     if roots is not None and not any(base_path.is_relative_to(r) for r in roots):
         raise problem(
             f"{ext!r} resolves to {base_path}, outside the allowed roots ({', '.join(map(str, roots))})"

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+from pathlib import Path
 
 import pytest
 
@@ -252,3 +253,25 @@ def test_two_ablation_variants_never_share_a_folder(cli, tmp_path):
     code, output = cli("ablate", g, g, "--input", d, "--out", tmp_path / "out", "--quiet")
     assert code == 2 and "is given twice" in output, output
     assert not (tmp_path / "out" / "runs").exists()
+
+
+def test_an_over_long_extends_chain_is_reported_as_one(tmp_path, installed_pm):
+    """Issue 31, item 11: a chain of 2000 files was "nesting deeper than 32 levels" on an unrelated
+    two-line file (the recursion ran out of stack in the YAML parser)."""
+    from lanegraph.errors import GraphError
+    from lanegraph.graph import MAX_EXTENDS, load_graph
+
+    def chain(n: int) -> Path:
+        (tmp_path / "g0.yaml").write_text(f"extends: {DEMO}\n")
+        for i in range(1, n - 1):
+            (tmp_path / f"g{i}.yaml").write_text(f"extends: g{i - 1}.yaml\nname: g{i}\n")
+        return tmp_path / f"g{n - 2}.yaml"
+
+    top = chain(MAX_EXTENDS)  # 32 files with the demo graph: fine
+    assert load_graph(top, pm=installed_pm).nodes
+    top = chain(2000)
+    with pytest.raises(GraphError) as info:
+        load_graph(top, pm=installed_pm)
+    text = str(info.value)
+    assert f"g1967.yaml: extends: an extends chain of more than {MAX_EXTENDS} files ({top} -> " in text, text
+    assert "nesting" not in text and len(text.splitlines()) == 1, text
