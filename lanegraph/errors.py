@@ -116,3 +116,17 @@ class NodeError(LanegraphError):
         super().__init__(
             f"node '{node_id}' ({node_type}) failed on frame {frame}: {type(cause).__name__}: {cause}"
         )
+
+
+class HookError(LanegraphError):
+    """A plugin's hook implementation raised (any ``BaseException`` but the user's interruption:
+    ``SystemExit`` and ``KeyboardInterrupt`` included) or returned what its hook does not allow.
+
+    ``plugin``, ``hook``: whose and which; ``cause``: what it raised, or None for a wrong return
+    value. Exit code 1: a failure while running, as a node's."""
+
+    def __init__(self, plugin: str, hook: str, message: str, cause: BaseException | None = None):
+        self.plugin = plugin
+        self.hook = hook
+        self.cause = cause
+        super().__init__(f"plugin {plugin!r}: hook {hook}: {message}")

@@ -13,9 +13,12 @@ from __future__ import annotations
 
 import hashlib
 import json
+import sys
 from pathlib import Path
 
 import pytest
+
+from lanegraph import hookimpl
 
 from . import test_hostile as hostile
 from .test_bad_input import DEMO, P2, SMALL, kitti_raw, pair_folder
@@ -275,3 +278,196 @@ def test_an_over_long_extends_chain_is_reported_as_one(tmp_path, installed_pm):
     text = str(info.value)
     assert f"g1967.yaml: extends: an extends chain of more than {MAX_EXTENDS} files ({top} -> " in text, text
     assert "nesting" not in text and len(text.splitlines()) == 1, text
+
+
+# ============================================================================ 2. plugins that end things
+HOSTILE_PLUGINS = {
+    "lg_exit": "import sys\nsys.exit(0)\n",
+    "lg_ctrlc": "raise KeyboardInterrupt\n",
+    "lg_base": "class Odd(BaseException):\n    pass\n\nraise Odd('from a plugin')\n",
+    "lg_printer": (
+        "import lanegraph\n"
+        "print('hello from a plugin at import')\n\n"
+        "class _P(lanegraph.NodeParams):\n    pass\n\n"
+        "@lanegraph.node_type('printer.id', inputs={'x': 'number'}, outputs={'y': 'number'})\n"
+        "def ident(params: _P, x):\n    '''Passes x on.'''\n    return {'y': x}\n\n"
+        "@lanegraph.hookimpl\n"
+        "def lanegraph_node_types():\n    print('hello from a registration hook')\n    return [ident]\n"
+    ),
+    "lg_exit_hook": (
+        "import sys\nimport lanegraph\n\n@lanegraph.hookimpl\ndef lanegraph_node_types():\n    sys.exit(3)\n"
+    ),
+}
+
+
+@pytest.fixture
+def hostile_site(tmp_path, monkeypatch):
+    """The installed plugins plus HOSTILE_PLUGINS, each a distribution on a temporary sys.path
+    entry, in a fresh process-wide plugin manager."""
+    from importlib import metadata
+
+    from lanegraph import plugins
+
+    site = tmp_path / "site"
+    site.mkdir()
+    for name, code in HOSTILE_PLUGINS.items():
+        (site / f"{name}.py").write_text(code)
+        dist = site / f"{name}-0.1.dist-info"
+        dist.mkdir()
+        (dist / "METADATA").write_text(
+            f"Metadata-Version: 2.1\nName: {name.replace('_', '-')}\nVersion: 0.1\n"
+        )
+        (dist / "entry_points.txt").write_text(f"[lanegraph.plugins]\n{name} = {name}\n")
+    monkeypatch.syspath_prepend(str(site))
+    metadata.distributions  # noqa: B018 - the new path is searched from now on
+    monkeypatch.setattr(plugins, "_default", None)
+    yield site
+    plugins.set_plugin_manager(None)
+    for name in HOSTILE_PLUGINS:
+        sys.modules.pop(name, None)
+
+
+def test_a_plugin_that_exits_or_interrupts_at_import_is_unloaded(hostile_site):
+    """Issue 31, item 2: a plugin calling sys.exit(0) while being imported made every command exit 0
+    having done nothing; a KeyboardInterrupt or another BaseException alike."""
+    from lanegraph.plugins import PluginManager
+
+    pm = PluginManager()
+    pm.load_entrypoints()
+    errors = {e.plugin: str(e) for e in pm.plugin_errors}
+    assert set(errors) == {"lg_exit", "lg_ctrlc", "lg_base", "lg_exit_hook"}, errors
+    assert "failed to load: SystemExit: it called sys.exit(0)" in errors["lg_exit"]
+    assert "failed to load: KeyboardInterrupt" in errors["lg_ctrlc"]
+    assert "failed to load: Odd: from a plugin" in errors["lg_base"]
+    assert "its lanegraph_node_types hook raised SystemExit: it called sys.exit(3)" in errors["lg_exit_hook"]
+    assert all(pm.get_plugin(name) is None for name in errors)
+    assert "printer.id" in pm.node_types and "image.gray" in pm.node_types
+
+
+def test_plugins_printing_never_corrupt_a_commands_json(hostile_site):
+    """Issue 31, item 11: a plugin printing at import (or in a registration hook) corrupted
+    ``lanegraph schema``'s JSON on stdout; its prints now go to stderr."""
+    from click.testing import CliRunner
+
+    from lanegraph.cli import main
+
+    for args in (["schema"], ["nodes", "--json"]):
+        r = CliRunner().invoke(main, args)
+        assert r.exit_code == 0, r.output
+        data = json.loads(r.stdout)
+        assert data
+        assert "hello from a plugin at import" in r.stderr and "hello from a registration hook" in r.stderr
+        from lanegraph import plugins
+
+        plugins.set_plugin_manager(None)
+        sys.modules.pop("lg_printer", None)
+    r = CliRunner().invoke(main, ["validate", str(DEMO)])
+    assert r.exit_code == 0 and r.output.count("warning: plugin") == 4, r.output
+
+
+class _Renders:
+    """A plugin whose lanegraph_render returns ``what`` (or raises it)."""
+
+    def __init__(self, what):
+        self.what = what
+
+    @hookimpl
+    def lanegraph_render(self, node_type, port, value):
+        if isinstance(self.what, BaseException):
+            raise self.what
+        return self.what
+
+
+def test_call_hook_names_the_plugin_and_the_hook(installed_pm):
+    """Issue 31, item 4: every way a hook can misbehave is a HookError naming the plugin and the
+    hook; the user's own interruption goes through."""
+    import numpy as np
+
+    from lanegraph import interrupts
+    from lanegraph.errors import HookError
+    from lanegraph.plugins import PluginManager, call_hook
+
+    pm = PluginManager()
+    img = np.zeros((4, 4, 3), np.uint8)
+    pm.register(_Renders(None), name="declines")
+    pm.register(_Renders(img), name="draws")
+    assert call_hook(pm, "lanegraph_render", node_type="t", port="p", value=1) is img
+    assert call_hook(pm, "lanegraph_before_node", node_id="n", node_type="t", frame=None, inputs={}) == []
+    for what, words in [
+        ("a string", "returned str 'a string', expected an image (an HxW or HxWx3 array) or None"),
+        (ValueError("bad value"), "raised ValueError: bad value"),
+        (SystemExit(0), "raised SystemExit: it called sys.exit(0)"),
+        (GeneratorExit(), "raised GeneratorExit"),
+    ]:
+        pm.register(_Renders(what), name="bad")  # registered last: called first
+        with pytest.raises(HookError) as info:
+            call_hook(pm, "lanegraph_render", node_type="t", port="p", value=1)
+        assert str(info.value) == f"plugin 'bad': hook lanegraph_render: {words}", str(info.value)
+        assert info.value.plugin == "bad" and info.value.hook == "lanegraph_render"
+        pm.unregister(name="bad")
+    pm.register(_Renders(KeyboardInterrupt()), name="ctrl-c")
+    with pytest.raises(KeyboardInterrupt):  # without handlers installed: taken for the user's
+        call_hook(pm, "lanegraph_render", node_type="t", port="p", value=1)
+    with interrupts.handling():
+        with pytest.raises(
+            HookError, match="plugin 'ctrl-c': hook lanegraph_render: raised KeyboardInterrupt"
+        ):
+            call_hook(pm, "lanegraph_render", node_type="t", port="p", value=1)
+        pm.unregister(name="ctrl-c")
+        pm.register(_Renders(interrupts.Interrupted("SIGTERM")), name="signal")
+        with pytest.raises(interrupts.Interrupted):  # a signal's stop is never a plugin's failure
+            call_hook(pm, "lanegraph_render", node_type="t", port="p", value=1)
+    pm.unregister(name="signal")
+
+    class Wraps:
+        @hookimpl(wrapper=True)
+        def lanegraph_detect_source(self, path):
+            return (yield)
+
+    class Detects:
+        @hookimpl
+        def lanegraph_detect_source(self, path):
+            raise OSError("cannot look")
+
+    pm.register(Detects(), name="detects")
+    pm.register(Wraps(), name="wraps")
+    with pytest.raises(
+        HookError, match="plugin 'detects': hook lanegraph_detect_source: raised OSError: cannot look"
+    ):
+        call_hook(pm, "lanegraph_detect_source", path=".")
+
+
+def test_a_misbehaving_render_hook_with_debug_dir_is_located(cli, tmp_path, installed_pm):
+    """Issue 31, item 4: lanegraph_render raising, or returning a string, with --debug-dir gave a
+    raw traceback."""
+    for what, words in [
+        ("not an image", "returned str 'not an image', expected an image"),
+        (RuntimeError("boom"), "raised RuntimeError: boom"),
+    ]:
+        installed_pm.register(_Renders(what), name="bad-render")
+        try:
+            out = tmp_path / f"out-{type(what).__name__}"
+            code, output = cli("run", DEMO, "--out", out, "--debug-dir", tmp_path / "dbg", "--quiet", *SYNTH)
+        finally:
+            installed_pm.unregister(name="bad-render")
+        assert code == 1, output
+        assert f"plugin 'bad-render': hook lanegraph_render: {words}" in output, output
+
+
+def test_a_raising_detect_source_hook_is_located(cli, tmp_path, installed_pm):
+    class Detects:
+        @hookimpl
+        def lanegraph_detect_source(self, path):
+            sys.exit(0)
+
+    d = pair_folder(tmp_path / "in")
+    installed_pm.register(Detects(), name="bad-detect")
+    try:
+        code, output = cli("run", DEMO, "--input", d, "--out", tmp_path / "out", "--quiet", *SMALL)
+    finally:
+        installed_pm.unregister(name="bad-detect")
+    assert code != 0, output
+    assert (
+        "plugin 'bad-detect': hook lanegraph_detect_source: raised SystemExit: it called sys.exit(0)"
+        in output
+    )
