@@ -466,7 +466,7 @@ def test_a_raising_detect_source_hook_is_located(cli, tmp_path, installed_pm):
         code, output = cli("run", DEMO, "--input", d, "--out", tmp_path / "out", "--quiet", *SMALL)
     finally:
         installed_pm.unregister(name="bad-detect")
-    assert code != 0, output
+    assert code == 2, output  # found before any frame
     assert (
         "plugin 'bad-detect': hook lanegraph_detect_source: raised SystemExit: it called sys.exit(0)"
         in output
