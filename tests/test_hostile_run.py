@@ -471,3 +471,42 @@ def test_a_raising_detect_source_hook_is_located(cli, tmp_path, installed_pm):
         "plugin 'bad-detect': hook lanegraph_detect_source: raised SystemExit: it called sys.exit(0)"
         in output
     )
+
+
+# ============================================================================ 4. one run at a time, whatever happens to the lock file
+def test_deleting_the_lock_file_lets_no_second_run_in(cli, tmp_path, installed_pm):
+    """Issue 31, item 1: the lock file deleted during a run let a second run into the folder; the
+    first then exited 0 with the second one's lines in lanes.jsonl."""
+    from click.testing import CliRunner
+
+    from lanegraph.cli import main
+    from lanegraph.paths import LOCK_NAME, OutputLock
+
+    out = tmp_path / "out"
+    out.mkdir()
+    with OutputLock(out, "run"):
+        (out / LOCK_NAME).unlink()
+        code, output = cli("run", DEMO, "--out", out, "--quiet", *SYNTH)
+        assert code == 2, output
+        assert f"{out}: in use by another lanegraph run (holder unknown: its lock file was removed)" in output
+    second: list = []
+
+    class Intruder:
+        @hookimpl
+        def lanegraph_before_node(self, node_id, frame):
+            if node_id == "write" and frame == "0000000002" and not second:
+                (out / LOCK_NAME).unlink()
+                r = CliRunner().invoke(main, ["run", str(DEMO), "--out", str(out), "--quiet", *SYNTH])
+                second.append(r)
+
+    installed_pm.register(Intruder(), name="intruder")
+    try:
+        code, output = cli("run", DEMO, "--out", out, "--quiet", *SYNTH)
+    finally:
+        installed_pm.unregister(name="intruder")
+    assert code == 0, output
+    assert second[0].exit_code == 2 and "in use by another lanegraph run" in second[0].output, second[
+        0
+    ].output
+    assert [json.loads(x)["frame"] for x in lines(out / "lanes.jsonl")] == [f"{i:010d}" for i in range(4)]
+    assert not (out / LOCK_NAME).exists()  # the refused run created nothing
