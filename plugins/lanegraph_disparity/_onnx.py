@@ -425,11 +425,13 @@ class OnnxDisparity:
     ------
     GraphError
         When the run opens: no model, a missing or unloadable file, inputs or outputs
-        without the declared names, ranks, element types or channel count, no ONNX Runtime,
+        without the declared names, ranks, element types or channel count (an output of
+        32- or 64-bit integers is an index, not a disparity), no ONNX Runtime,
         ``providers: cuda`` without a CUDA provider.
     InputError
         At a frame: images the model's fixed input sizes do not fit, an output that is not
-        one map, or ONNX Runtime failing on the input.
+        one map or is smaller than 1/16 of the network input (1x1), or ONNX Runtime failing
+        on the input.
     """
 
     def __init__(self, params: OnnxParams, context: RunContext):
