@@ -510,3 +510,18 @@ def test_deleting_the_lock_file_lets_no_second_run_in(cli, tmp_path, installed_p
     ].output
     assert [json.loads(x)["frame"] for x in lines(out / "lanes.jsonl")] == [f"{i:010d}" for i in range(4)]
     assert not (out / LOCK_NAME).exists()  # the refused run created nothing
+
+
+def test_resource_fork_files_are_not_frames(cli, tmp_path):
+    """Issue 31, item 3: an image folder holding macOS ``._*.png`` files failed on its first frame
+    (and the process then aborted); they are not images."""
+    d = pair_folder(tmp_path / "in", n=3)
+    for side in ("left", "right"):
+        (d / side / "._000000.png").write_bytes(b"\x00\x05\x16\x07\x00\x02\x00\x00Mac OS X        ")
+    code, output = cli("run", DEMO, "--input", d, "--out", tmp_path / "out", "--quiet", *SMALL)
+    assert code == 0, output
+    assert [json.loads(x)["frame"] for x in lines(tmp_path / "out" / "lanes.jsonl")] == [
+        "000000",
+        "000001",
+        "000002",
+    ]

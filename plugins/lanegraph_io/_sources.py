@@ -57,7 +57,13 @@ def parse_frames(text: str | None) -> slice | None:
 
 
 def list_images(folder: Path) -> list[Path]:
-    return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXT and p.is_file())
+    """The image files of ``folder`` by name; AppleDouble files (``._NAME``: the resource forks
+    macOS leaves beside every file it copies to another file system) are not images."""
+    return sorted(
+        p
+        for p in folder.iterdir()
+        if p.suffix.lower() in IMAGE_EXT and not p.name.startswith("._") and p.is_file()
+    )
 
 
 #: ``image_size`` of an image whose header claims more pixels than PIL reads (about 179 Mpx)
