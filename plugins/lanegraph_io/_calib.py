@@ -152,13 +152,14 @@ def _check_translations(
     p_left: np.ndarray, p_right: np.ndarray, keys: tuple[str, str], path: Path, baseline: float
 ) -> None:
     """Refuse a projection row whose camera sits implausibly far from the rig's reference camera
-    (more than :data:`MAX_CAMERA_OFFSET_M` along an axis: ``ty = -300`` m), and a pair whose right
+    (more than :data:`MAX_CAMERA_OFFSET_M` along y or z: ``ty = -300`` m), and a pair whose right
     camera is not beside the left one (a rectified pair's cameras differ along x only: rows of
     the two images would not match)."""
     ts = {}
     for key, p in zip(keys, (p_left, p_right)):
         t = ts[key] = translation(p)
-        far = next((i for i in range(3) if abs(t[i]) > MAX_CAMERA_OFFSET_M), None)
+        # along x the cameras are a baseline apart: the baseline's own check names it (millimetres?)
+        far = next((i for i in (1, 2) if abs(t[i]) > MAX_CAMERA_OFFSET_M), None)
         if far is not None:
             axis = "xyz"[far]
             raise InputError(
