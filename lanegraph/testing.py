@@ -269,8 +269,8 @@ def _round_trip(
 ) -> None:
     """The conformance check's last rule: a graph feeding ``sample_inputs`` to ``node`` validates,
     round-trips through a graph file and runs."""
-    from .executor import Executor
-    from .graph import load_graph
+    from .graph.model import load_graph
+    from .run.executor import Executor
     from .types import PORT_TYPES as own
 
     types = {k: node.inputs[k].type for k in sample_inputs}

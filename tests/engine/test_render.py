@@ -12,7 +12,7 @@ from click.testing import CliRunner
 
 from lanegraph import hookimpl, plugins
 from lanegraph.cli import main
-from lanegraph.render import (
+from lanegraph.presentation.render import (
     DebugRecorder,
     hough_1d,
     lane_columns,
@@ -184,9 +184,9 @@ def test_debug_dir_writes_every_output_and_a_mosaic(cli, pm, tmp_path):
 
 
 def test_plugin_render_hook_is_used(pm, tmp_path):
-    from lanegraph.executor import Executor
-    from lanegraph.graph import load_graph
+    from lanegraph.graph.model import load_graph
     from lanegraph.nodes import RunContext
+    from lanegraph.run.executor import Executor
 
     marker = np.full((7, 9, 3), (1, 2, 3), np.uint8)
 

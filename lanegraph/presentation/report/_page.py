@@ -10,8 +10,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from .. import __version__
-from ..dataset import POOLED
+from ... import __version__
+from ...evaluation.dataset import POOLED
 from . import _svg
 from ._collect import Collected
 
@@ -25,7 +25,7 @@ def _path(p: Any) -> str:
 
 
 def _asset(name: str) -> str:
-    return resources.files("lanegraph.report").joinpath(name).read_text(encoding="utf-8")
+    return resources.files("lanegraph.presentation.report").joinpath(name).read_text(encoding="utf-8")
 
 
 def _pct(x: Any) -> str:

@@ -2,7 +2,7 @@
 ``run.json``; with a dataset file, a run folder ``<sequence>/`` per sequence) or a ``lanegraph
 ablate`` output folder (``runs/<variant>/<sequence>/``, ``results.csv``), the ground truth, and the
 graph the run names. A run folder's lanes are the file its ``run.json`` records
-(:mod:`lanegraph.results`)."""
+(:mod:`lanegraph.run.results`)."""
 
 from __future__ import annotations
 
@@ -12,12 +12,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..dataset import Dataset, read_gt, single_sequence
-from ..errors import GraphError, InputError, UsageError
-from ..graph import Graph
-from ..metrics import read_jsonl
-from ..plugins import PluginManager
-from ..results import LANES, describe, find_result
+from ...errors import GraphError, InputError, UsageError
+from ...evaluation.dataset import Dataset, read_gt, single_sequence
+from ...evaluation.metrics import read_jsonl
+from ...graph.model import Graph
+from ...plugins import PluginManager
+from ...run.results import LANES, describe, find_result
 
 #: the ground truth looked for in an input folder when none is given
 GT_NAME = "lanes_gt.jsonl"
@@ -130,8 +130,8 @@ def load_recorded_graph(
     run_json: dict[str, Any], run_dir: Path, sets: list[str], pm: PluginManager, notes: list[str]
 ) -> Graph | None:
     """The graph run.json names, with ``sets`` applied; None (and a note) when it cannot be loaded."""
-    from ..cli import allowed_roots, resolve_graph_path
-    from ..graph import load_graph
+    from ...cli import allowed_roots, resolve_graph_path
+    from ...graph.model import load_graph
 
     text = run_json.get("graph")
     if not text:

@@ -7,7 +7,7 @@ ablate`` output folder (``runs/<variant>/<sequence>/``, ``results.csv``) and wri
 
 - **Frames**: the left image of every frame with the reported lanes and the ground-truth markings,
   coloured by outcome (matched, false lane, missed ego boundary) as
-  :func:`lanegraph.metrics.match_frame` decides it; the frame list marks the frames
+  :func:`lanegraph.evaluation.metrics.match_frame` decides it; the frame list marks the frames
   ``lanegraph eval`` fails, with a "failed only" filter; ← / → and a slider step through it.
 - **Nodes**: the resolved graph drawn with each node's median and p90 time, and every node's
   picture of the frames recorded with ``--debug-dir``, in graph order.

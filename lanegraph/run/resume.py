@@ -35,10 +35,10 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from ..errors import UsageError
+from ..paths import write_bytes_atomic
+from ..types import BevGeometry, Calibration, FeatureMap, Lane, Line, RoadModel
 from .cache import digest
-from .errors import UsageError
-from .paths import write_bytes_atomic
-from .types import BevGeometry, Calibration, FeatureMap, Lane, Line, RoadModel
 
 CHECKPOINT_NAME = "checkpoint.json"
 LEGACY_NAME = "checkpoint.pkl"  # written by lanegraph before 0.1: never read (a pickle can run code)

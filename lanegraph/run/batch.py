@@ -1,5 +1,5 @@
 """Batch runs: graphs over the sequences of a dataset as independent units of work, run one after
-another in this process or in parallel on a Dask cluster (:mod:`lanegraph.distributed`), with the
+another in this process or in parallel on a Dask cluster (:mod:`lanegraph.run.distributed`), with the
 same outputs byte for byte.
 
 A unit of work (:class:`RunTask`) is one graph on one sequence: the executor sees every frame of the
@@ -34,12 +34,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ..errors import GraphError, InputError, LanegraphError, NodeError, UsageError
+from ..graph.model import load_raw, validate_raw
+from ..nodes import RunContext
+from ..plugins import PluginManager, get_plugin_manager
 from .cache import ResultCache, digest
-from .errors import GraphError, InputError, LanegraphError, NodeError, UsageError
 from .executor import Executor, FrameFailure, RunResult
-from .graph import load_raw, validate_raw
-from .nodes import RunContext
-from .plugins import PluginManager, get_plugin_manager
 from .sources import close_source, open_source, select_source
 
 _SCHEDULER = re.compile(r"^local(?::(?P<n>[^:]*))?$")
@@ -87,7 +87,7 @@ def parse_scheduler(text: str | None) -> SchedulerSpec | None:
 @dataclass(frozen=True)
 class ResolvedGraph:
     """A graph file with ``extends`` and ``--set`` applied, not yet validated (see
-    :func:`lanegraph.graph.load_raw`): what a task carries to a worker."""
+    :func:`lanegraph.graph.model.load_raw`): what a task carries to a worker."""
 
     raw: dict[str, Any]
     origin: dict[str, str]
@@ -101,7 +101,7 @@ class ResolvedGraph:
         return cls(raw, origin, display)
 
     def validate(self, pm: PluginManager | None = None):
-        """A fresh :class:`~lanegraph.graph.Graph` (the executor replaces a selecting source in
+        """A fresh :class:`~lanegraph.graph.model.Graph` (the executor replaces a selecting source in
         place, so every run validates its own copy)."""
         return validate_raw(copy.deepcopy(self.raw), dict(self.origin), self.display, pm)
 
@@ -567,7 +567,7 @@ def run_tasks(
     done: dict[int, TaskOutcome] | None = None,
 ) -> dict[int, TaskOutcome]:
     """Run ``tasks``: in this process one after another (``scheduler`` ``None``), or on a Dask
-    cluster (:func:`lanegraph.distributed.run_tasks`); returns the outcome of every task. ``done``:
+    cluster (:func:`lanegraph.run.distributed.run_tasks`); returns the outcome of every task. ``done``:
     filled with the outcomes as the tasks end (what finished when the batch is interrupted)."""
     echo = echo or (lambda msg: print(msg, file=sys.stderr))
     if not tasks:
@@ -653,7 +653,7 @@ def run_dataset(
     """``lanegraph run GRAPH --dataset FILE``: the graph on every sequence, into
     ``OUT/<sequence>/`` (what the graph's sinks write, ``timings.json``, ``run.json``). Returns one
     summary per sequence: ``sequence``, ``frames``, ``failures`` (failed frames), ``error`` (what
-    stopped the run, or ``None``), ``results`` (the sinks' result files, :mod:`lanegraph.results`)."""
+    stopped the run, or ``None``), ``results`` (the sinks' result files, :mod:`lanegraph.run.results`)."""
     pm = get_plugin_manager()
     graph.validate(pm)  # a GraphError before anything runs
     planner = Planner(pm, chunk_frames, warmup)

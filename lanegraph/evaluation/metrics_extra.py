@@ -29,8 +29,8 @@ from typing import Any
 import cv2
 import numpy as np
 
+from ..types import Calibration
 from .metrics import evaluate_frame, match_score, polyline_x_at
-from .types import Calibration
 
 
 def _lane_mask(points: Sequence[Sequence[float]], size: tuple[int, int], width: int) -> np.ndarray:

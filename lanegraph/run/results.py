@@ -10,7 +10,7 @@ every installed sink type that declares the kind.
 Kinds the engine reads:
 
 ``lanes`` (:data:`LANES`)
-    JSON lines, one record per frame as :func:`lanegraph.metrics.read_predictions` reads them:
+    JSON lines, one record per frame as :func:`lanegraph.evaluation.metrics.read_predictions` reads them:
     ``{"frame": id, "lanes": [{"points": [[x, y], ...], "side": ..., "score": ...}, ...]}``.
 """
 
@@ -20,9 +20,9 @@ import json
 from pathlib import Path
 from typing import Any
 
-from .errors import UsageError
-from .paths import inside
-from .plugins import PluginManager, get_plugin_manager
+from ..errors import UsageError
+from ..paths import inside
+from ..plugins import PluginManager, get_plugin_manager
 
 #: the kind of the lanes a run reports, the predictions the metrics read
 LANES = "lanes"

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 
 COVER_MIN = 0.5
 ROW_OK_FRACTION = 0.85
@@ -233,7 +233,7 @@ def _check_frame(rec: dict[str, Any], where: str, seen: dict[str, int], k: int) 
 
 
 def validate_predictions(records: list[dict[str, Any]], lines: list[int]) -> None:
-    """Check predictions records (a run's lanes, :data:`lanegraph.results.LANES`): ``{"frame": id,
+    """Check predictions records (a run's lanes, :data:`lanegraph.run.results.LANES`): ``{"frame": id,
     "lanes": [{"points": [[x, y], ...], ...}]}``,
     one record per frame; raises ``ValueError`` naming the line."""
     seen: dict[str, int] = {}

@@ -36,12 +36,12 @@ from typing import Annotated, Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints, ValidationError, field_validator
 
-from .errors import GraphError, Problem, did_you_mean
+from ..errors import GraphError, Problem, did_you_mean
+from ..nodes import NodeParams, NodeType
+from ..paths import output_fields, output_problems
+from ..plugins import PluginManager, get_plugin_manager
+from ..types import port_compatible
 from .loader import read_graph_file
-from .nodes import NodeParams, NodeType
-from .paths import output_fields, output_problems
-from .plugins import PluginManager, get_plugin_manager
-from .types import port_compatible
 
 #: a node's error policy: ``fail`` stops the run, ``skip`` drops the frame, ``empty`` passes None on
 ON_ERROR_CHOICES = ("fail", "skip", "empty")

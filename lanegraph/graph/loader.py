@@ -13,7 +13,7 @@ from typing import Any
 import tomllib
 import yaml
 
-from .errors import GraphError, Problem
+from ..errors import GraphError, Problem
 
 MAX_FILE_BYTES = 1_000_000
 MAX_DEPTH = 32

@@ -1,8 +1,8 @@
 """Batch runs on a Dask cluster (``pip install "lanegraph[distributed]"``): ``--scheduler local``,
 ``local:N`` or the address of an existing ``dask scheduler``.
 
-The tasks of :mod:`lanegraph.batch` are submitted as they are, one Dask task each, and run by
-:func:`lanegraph.batch.execute_task` in the workers: outputs equal the in-process run's byte for
+The tasks of :mod:`lanegraph.run.batch` are submitted as they are, one Dask task each, and run by
+:func:`lanegraph.run.batch.execute_task` in the workers: outputs equal the in-process run's byte for
 byte. Dask runs a task again on another worker when its worker dies (up to
 ``distributed.scheduler.allowed-failures`` times); a task's folder is put in place only when the
 task ends, so a re-run never duplicates frames. A task that fails because of its input returns its
@@ -18,7 +18,7 @@ the cores. A local cluster also sets ``NUMBA_NUM_THREADS``, ``OMP_NUM_THREADS``,
 Progress: the tasks report frames done as Dask events (topic ``lanegraph-progress-<job>``), at most
 twice a second each, to one progress bar in the client.
 
-Only :func:`lanegraph.batch.run_tasks` imports this module, and only with a scheduler: a run
+Only :func:`lanegraph.run.batch.run_tasks` imports this module, and only with a scheduler: a run
 without one never imports Dask.
 """
 
@@ -31,9 +31,9 @@ import uuid
 from collections.abc import Callable
 from typing import Any
 
+from ..errors import UsageError
+from ..plugins import get_plugin_manager
 from .batch import Progress, RunTask, SchedulerSpec, TaskOutcome, execute_task
-from .errors import UsageError
-from .plugins import get_plugin_manager
 
 try:
     from distributed import WorkerPlugin as _WorkerPlugin

@@ -13,9 +13,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from .errors import GraphError, LanegraphError, NodeError, Problem
-from .nodes import NodeParams, NodeType, RunContext
-from .plugins import PluginManager
+from ..errors import GraphError, LanegraphError, NodeError, Problem
+from ..nodes import NodeParams, NodeType, RunContext
+from ..plugins import PluginManager
 
 
 def select_source(
@@ -97,7 +97,7 @@ def read_calibration(pm: PluginManager, path: Path) -> Any:
     ``calibration`` output of the source that reads it; of a file, what a plugin's
     ``lanegraph_read_calibration`` reads. Raises an :class:`~lanegraph.errors.InputError` naming
     the path when nothing installed reads it."""
-    from .errors import InputError
+    from ..errors import InputError
 
     path = Path(path)
     if not path.is_dir():

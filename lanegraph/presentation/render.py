@@ -22,10 +22,10 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .errors import UsageError
-from .hookspecs import hookimpl
-from .paths import inside, safe_name, write_bytes_atomic
-from .types import BevGeometry, Calibration, FeatureMap, Lane, Line, RoadModel
+from ..errors import UsageError
+from ..hookspecs import hookimpl
+from ..paths import inside, safe_name, write_bytes_atomic
+from ..types import BevGeometry, Calibration, FeatureMap, Lane, Line, RoadModel
 
 #: colours (BGR)
 LEFT_COLOUR = (60, 60, 255)

@@ -15,11 +15,11 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..errors import GraphError, LanegraphError, NodeError
-from ..plugins import PluginManager
+from ...errors import GraphError, LanegraphError, NodeError
+from ...plugins import PluginManager
+from ...run.sources import detect_source, open_source, select_source
 from ..render import _safe as debug_folder_name
 from ..render import to_bgr
-from ..sources import detect_source, open_source, select_source
 
 #: the ``--debug-dir`` picture of one node output: ``<node id>.<port>.png`` (node ids have no dot)
 _PICTURE = re.compile(r"^(?P<node>[^.]+)\.(?P<port>.+)\.png$")

@@ -1,4 +1,4 @@
-"""Building a report: evaluate every run's frames with :mod:`lanegraph.metrics` (the same function
+"""Building a report: evaluate every run's frames with :mod:`lanegraph.evaluation.metrics` (the same function
 ``lanegraph eval`` uses, so a frame fails here exactly when it fails there), write the pictures,
 and assemble the page."""
 
@@ -15,11 +15,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..dataset import POOLED, Dataset, evaluate_sequences
-from ..errors import InputError, LanegraphError, UsageError
-from ..graph import Graph
-from ..metrics import evaluate
-from ..plugins import PluginManager, get_plugin_manager
+from ...errors import InputError, LanegraphError, UsageError
+from ...evaluation.dataset import POOLED, Dataset, evaluate_sequences
+from ...evaluation.metrics import evaluate
+from ...graph.model import Graph
+from ...plugins import PluginManager, get_plugin_manager
 from . import _page
 from ._collect import Collected, collect
 from ._images import JpegWriter, choose_source, debug_pictures, find_debug_dir, read_left_images

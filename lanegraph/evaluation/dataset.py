@@ -32,8 +32,8 @@ from typing import Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from .errors import InputError
-from .frames import parse_frames
+from ..errors import InputError
+from ..frames import parse_frames
 from .metrics import evaluate, read_ground_truth
 
 _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.\-]*$")
@@ -195,7 +195,7 @@ def evaluate_sequences(
 ) -> dict[str, dict[str, Any]]:
     """Evaluate ``(name, predictions, ground truth)`` per sequence and pooled.
 
-    Returns ``{name: result, ..., "all": pooled}`` with the keys of :func:`lanegraph.metrics.evaluate`
+    Returns ``{name: result, ..., "all": pooled}`` with the keys of :func:`lanegraph.evaluation.metrics.evaluate`
     (``per_frame`` left out); the pooled result's failed frames are named ``<sequence>/<frame>``.
     """
     out: dict[str, dict[str, Any]] = {}

@@ -1,16 +1,16 @@
 """Ablation runs: several graph variants (and param sweeps) over the same input, evaluated and
-tabulated, with the work the variants share computed once (:mod:`lanegraph.cache`).
+tabulated, with the work the variants share computed once (:mod:`lanegraph.run.cache`).
 
-The input is a :class:`~lanegraph.dataset.Dataset` (one or more sequences). Writes
+The input is a :class:`~lanegraph.evaluation.dataset.Dataset` (one or more sequences). Writes
 ``OUT/runs/<variant>/<sequence>/`` per run (what its sinks write, ``timings.json``, ``run.json``;
-its lanes are found through :mod:`lanegraph.results`), and ``OUT/results.csv``
+its lanes are found through :mod:`lanegraph.run.results`), and ``OUT/results.csv``
 (one row per variant and sequence, and a pooled row per variant with ``sequence`` = ``all``),
 ``OUT/results.md``, ``OUT/accuracy.png`` (pooled accuracy per variant) and ``OUT/accuracy_vs_ms.png``.
 A run whose resolved graph, input files and frame selection are unchanged since the last ablation
 (same output folder) is not run again: its recorded results are reused.
 
-The runs are the units of work of :mod:`lanegraph.batch`: one after another in this process, or on
-a Dask cluster (``--scheduler``, :mod:`lanegraph.distributed`) with the same outputs byte for byte.
+The runs are the units of work of :mod:`lanegraph.run.batch`: one after another in this process, or on
+a Dask cluster (``--scheduler``, :mod:`lanegraph.run.distributed`) with the same outputs byte for byte.
 
 A run that fails (a node raising under ``on_error: fail``, an input a variant cannot read) does not
 end the ablation: every run is made, the failed one gets its row with its ``error`` (and no
@@ -29,14 +29,22 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .batch import Planned, Planner, ResolvedGraph, SchedulerSpec, clean_leftovers, finish_runs, run_tasks
-from .cache import ResultCache, digest
+from ..paths import inside, safe_name, write_bytes_atomic, write_text_atomic
+from ..plugins import get_plugin_manager
+from ..run.batch import (
+    Planned,
+    Planner,
+    ResolvedGraph,
+    SchedulerSpec,
+    clean_leftovers,
+    finish_runs,
+    run_tasks,
+)
+from ..run.cache import ResultCache, digest
+from ..run.results import LANES, find_result
+from ..run.resume import input_identity
 from .dataset import POOLED, Dataset, evaluate_sequences, read_gt
 from .metrics import evaluate, read_predictions
-from .paths import inside, safe_name, write_bytes_atomic, write_text_atomic
-from .plugins import get_plugin_manager
-from .results import LANES, find_result
-from .resume import input_identity
 
 
 @dataclass
@@ -94,7 +102,7 @@ def run_ablation(
 
     Outputs: ``OUT/runs/<variant>/<sequence>/`` (the sinks' files, ``timings.json``, ``run.json``),
     ``OUT/results.csv``, ``OUT/results.md`` and the plots. ``frames`` (``--frames``) applies to
-    sequences that do not choose their own. The runs are the tasks of :mod:`lanegraph.batch`: in
+    sequences that do not choose their own. The runs are the tasks of :mod:`lanegraph.run.batch`: in
     this process one after another, or on a Dask cluster with ``scheduler``, with the same outputs;
     ``chunk_frames`` / ``warmup`` split sequences into chunks.
     """

@@ -27,13 +27,13 @@ from typing import Any
 
 import numpy as np
 
-from ._runtime import tune_allocator
+from .._runtime import tune_allocator
+from ..errors import InputError, LanegraphError, NodeError, UsageError
+from ..frames import selection_text
+from ..graph.model import Graph, GraphNode
+from ..nodes import RunContext
+from ..plugins import PluginManager, get_plugin_manager
 from .cache import ResultCache, digest
-from .errors import InputError, LanegraphError, NodeError, UsageError
-from .frames import selection_text
-from .graph import Graph, GraphNode
-from .nodes import RunContext
-from .plugins import PluginManager, get_plugin_manager
 from .results import graph_result_files
 from .resume import (
     _HINT,
@@ -94,7 +94,7 @@ class RunResult:
     notes: list[str] = field(default_factory=list)
     results: dict[str, str] = field(
         default_factory=dict
-    )  # the sinks' result files by kind (lanegraph.results)
+    )  # the sinks' result files by kind (lanegraph.run.results)
 
     def warnings(self) -> list[str]:
         """Things that did not fail a frame but make the result doubtful: an output invalid on every
@@ -145,7 +145,7 @@ class _Position:
 
 
 class Executor:
-    """Runs a validated :class:`~lanegraph.graph.Graph` over the frames of its source node."""
+    """Runs a validated :class:`~lanegraph.graph.model.Graph` over the frames of its source node."""
 
     def __init__(
         self,
@@ -159,10 +159,10 @@ class Executor:
         resume: Checkpoint | None = None,
         warmup: int = 0,
     ):
-        """``cache``: a :class:`~lanegraph.cache.ResultCache` for the results of ``cache_nodes``
+        """``cache``: a :class:`~lanegraph.run.cache.ResultCache` for the results of ``cache_nodes``
         (default: every stateless node); results are keyed by node type, params, upstream keys and
         the identity of the source's input files. ``checkpoint``: a file rewritten (atomically)
-        before the first frame and after every frame consumed (:mod:`lanegraph.resume`); ``resume``:
+        before the first frame and after every frame consumed (:mod:`lanegraph.run.resume`); ``resume``:
         such a checkpoint, validated, to continue its run -- refused (:class:`UsageError`) unless the
         graph, params, input and frame selection are its own. ``context.skip`` must then be its
         ``position``. ``warmup``: the first ``warmup`` frames only bring the feedback edges and
@@ -307,7 +307,7 @@ class Executor:
     ) -> None:
         """After a frame is consumed (done -- its sinks have written -- or failed): how far the run
         got, its failures, the values of the feedback edges and the stateful nodes' states, so that
-        a resumed run continues exactly where this one stopped (:mod:`lanegraph.resume`)."""
+        a resumed run continues exactly where this one stopped (:mod:`lanegraph.run.resume`)."""
         assert self.checkpoint is not None
         result = self.result
         feedback: list[dict[str, Any]] = []

@@ -15,13 +15,13 @@ from typing import Any
 import click
 import yaml
 
-from . import __version__
-from .errors import GraphError, InputError, LanegraphError, Problem, UsageError
-from .graph import Graph, graph_json_schema, load_graph
-from .nodes import NodeType, RunContext
-from .plugins import PluginManager, get_plugin_manager
+from .. import __version__
+from ..errors import GraphError, InputError, LanegraphError, Problem, UsageError
+from ..graph.model import Graph, graph_json_schema, load_graph
+from ..nodes import NodeType, RunContext
+from ..plugins import PluginManager, get_plugin_manager
 
-REPO_GRAPHS = Path(__file__).resolve().parents[1] / "graphs"
+REPO_GRAPHS = Path(__file__).resolve().parents[2] / "graphs"
 
 
 def resolve_graph_path(name: str) -> Path:
@@ -40,7 +40,7 @@ def resolve_graph_path(name: str) -> Path:
 def parse_frames(text: str | None) -> slice | None:
     """``A:B`` or ``A:B:S`` (Python slice semantics over the frame list) or a single index ``A``
     (:func:`lanegraph.frames.parse_frames`); a bad selection is a usage error naming ``--frames``."""
-    from .frames import parse_frames as parse
+    from ..frames import parse_frames as parse
 
     try:
         return parse(text)
@@ -228,7 +228,7 @@ def run(
         if given is not None:
             click.echo(f"error: {flag} runs the sequences of a --dataset: give --dataset FILE", err=True)
             sys.exit(2)
-    from .paths import OutputLock, prepare_dir
+    from ..paths import OutputLock, prepare_dir
 
     try:
         g = _load(graph, sets, _plugins())
@@ -275,7 +275,7 @@ def _run_locked(
     make_report: bool = False,
 ) -> int:
     """The body of ``lanegraph run`` once OUT is locked; returns the exit code."""
-    from .executor import Executor
+    from ..run.executor import Executor
 
     ckpt, checkpoint = _checkpoint(out_dir, resume)
     ctx = RunContext(
@@ -300,7 +300,7 @@ def _run_locked(
     recorder = None
     pm = get_plugin_manager()
     if debug_dir is not None:
-        from .render import DebugRecorder
+        from ..presentation.render import DebugRecorder
 
         recorder = DebugRecorder(debug_dir, debug_frames, pm)
         pm.register(recorder)
@@ -329,7 +329,7 @@ def _run_locked(
 def _checkpoint(out_dir: Path, resume: bool) -> tuple[Any, Path]:
     """The checkpoint to resume (with ``--resume``, when OUT has one; validated) and where the run
     keeps its own; a checkpoint of an older lanegraph is never read."""
-    from .resume import CHECKPOINT_NAME, LEGACY_NAME, load_checkpoint
+    from ..run.resume import CHECKPOINT_NAME, LEGACY_NAME, load_checkpoint
 
     checkpoint = out_dir / CHECKPOINT_NAME
     legacy = out_dir / LEGACY_NAME
@@ -477,9 +477,9 @@ def _run_dataset(
 ) -> None:
     """``run GRAPH --dataset FILE``: every sequence into OUT/<sequence>/; exit 1 when a frame failed
     or a sequence stopped, 2 when no sequence could start."""
-    from .batch import ResolvedGraph, describe_error, parse_scheduler, run_dataset
-    from .dataset import load_dataset
-    from .paths import OutputLock, prepare_dir
+    from ..evaluation.dataset import load_dataset
+    from ..paths import OutputLock, prepare_dir
+    from ..run.batch import ResolvedGraph, describe_error, parse_scheduler, run_dataset
 
     for flag, given in (
         ("--input", input_path),
@@ -542,7 +542,7 @@ def _write_run_files(
 ) -> bool:
     """``timings.json`` and ``run.json`` (frames done, failed frames, warnings, and the error that
     stopped the run); False (and the reason on stderr) when they cannot be written (a full disk)."""
-    from .paths import write_text_atomic
+    from ..paths import write_text_atomic
 
     record: dict[str, Any] = {
         "graph": g.file,
@@ -589,7 +589,7 @@ def builtin_node_types(pm: PluginManager) -> dict[str, NodeType]:
     """The node types of ``pm`` provided by lanegraph's own plugins (its ``lanegraph.plugins`` entry points)."""
     from importlib import metadata
 
-    from .plugins import BUILTIN_DISTRIBUTION, ENTRY_POINT_GROUP
+    from ..plugins import BUILTIN_DISTRIBUTION, ENTRY_POINT_GROUP
 
     own = {
         ep.name
@@ -760,7 +760,7 @@ def nodes(as_json: bool, as_markdown: bool, builtin: bool) -> None:
         for fname, f in nt.params.model_fields.items():
             default = "(required)" if f.is_required() else f"= {f.default!r}"
             click.echo(f"    - {fname} {default}: {f.description or ''}")
-    from .types import PORT_TYPES
+    from ..types import PORT_TYPES
 
     added = [t for t in pm.port_types.values() if t.name not in PORT_TYPES]
     if added:
@@ -907,7 +907,7 @@ def ablate(
     each and write OUT/results.csv (per sequence and pooled), OUT/results.md and plots; runs go to
     OUT/runs/<variant>/<sequence>/; work shared between variants is computed once. A run that
     fails gets its row with the error and the others go on (exit 1)."""
-    from .batch import parse_scheduler
+    from ..run.batch import parse_scheduler
 
     pm = _plugins()
     try:
@@ -953,9 +953,9 @@ def _run_ablation(
     cache: Any,
     options: dict[str, Any],
 ) -> list[dict[str, Any]]:
-    """:func:`lanegraph.ablate.run_ablation` with OUT locked; its errors located, exit 2 for an
+    """:func:`lanegraph.evaluation.ablate.run_ablation` with OUT locked; its errors located, exit 2 for an
     input or usage found unusable before any run, 130 on Ctrl-C (the finished runs stay)."""
-    from .ablate import run_ablation
+    from ..evaluation.ablate import run_ablation
 
     try:
         return run_ablation(runs, dataset, out_dir, selection, cache, **options)
@@ -1011,7 +1011,7 @@ def _ablation_failures(rows: list[dict[str, Any]]) -> None:
 def _ablation_variants(base: Path, variants: tuple[Path, ...], sweeps: tuple[str, ...]) -> list[Any]:
     """BASE, each VARIANT (named by its file; by folder/file where two files share a name) and a
     variant of BASE per ``--sweep`` value."""
-    from .ablate import Variant, expand_sweeps
+    from ..evaluation.ablate import Variant, expand_sweeps
 
     paths = [resolve_graph_path(str(p)) for p in (base, *variants)]
     runs = [Variant(p.stem, p) for p in paths]
@@ -1033,8 +1033,8 @@ def _ablation_out(
     """OUT checked and locked, and the result cache (None with ``--no-cache``)."""
     import math
 
-    from .cache import ResultCache
-    from .paths import OutputLock, prepare_dir
+    from ..paths import OutputLock, prepare_dir
+    from ..run.cache import ResultCache
 
     if not (math.isfinite(cache_max_gb) and cache_max_gb > 0):
         _fail(UsageError(f"--cache-max-gb: expected a size in GiB > 0, got {cache_max_gb}"))
@@ -1055,7 +1055,7 @@ def _ablation_out(
 
 def _dataset_option(dataset_path: Path | None, input_path: Path | None, gt_path: Path | None):
     """The dataset of ``--dataset``, or the one sequence of ``--input`` / ``--gt``."""
-    from .dataset import load_dataset, single_sequence
+    from ..evaluation.dataset import load_dataset, single_sequence
 
     if dataset_path is not None:
         if input_path is not None or gt_path is not None:
@@ -1174,8 +1174,8 @@ def eval_cmd(
 def _eval_one(
     pred: Path, gt: Path, wanted: set[str], scene: Path | None, calib: Path | None
 ) -> dict[str, Any]:
-    from .metrics import evaluate, read_ground_truth, read_predictions
-    from .metrics_extra import culane_metrics, lateral_error_cm, tusimple_metrics
+    from ..evaluation.metrics import evaluate, read_ground_truth, read_predictions
+    from ..evaluation.metrics_extra import culane_metrics, lateral_error_cm, tusimple_metrics
 
     if pred.is_dir():  # a run folder: the lanes its sinks recorded
         pred = _run_lanes(pred)
@@ -1198,7 +1198,7 @@ def _eval_one(
             raise UsageError(
                 "--metrics lateral needs --scene scene.json (and --calib, default: the calibration of the input folder holding it)"
             )
-        from .sources import read_calibration
+        from ..run.sources import read_calibration
 
         cal = read_calibration(_plugins(), calib or Path(scene).parent)
         pitch, height = _scene_pose(Path(scene))
@@ -1207,8 +1207,8 @@ def _eval_one(
 
 
 def _run_lanes(folder: Path, what: str = "") -> Path:
-    """The lanes file of run folder ``folder`` (the one its run.json records; :mod:`lanegraph.results`)."""
-    from .results import LANES, describe, find_result
+    """The lanes file of run folder ``folder`` (the one its run.json records; :mod:`lanegraph.run.results`)."""
+    from ..run.results import LANES, describe, find_result
 
     lanes = find_result(folder, LANES, get_plugin_manager())
     if lanes is None:
@@ -1250,8 +1250,8 @@ def _print_eval(res: dict[str, Any]) -> None:
 
 def _eval_dataset(pred_dir: Path, dataset_path: Path, as_json: bool) -> None:
     """``eval PRED --dataset FILE``: each sequence's figures and the pooled ones (the README metric)."""
-    from .dataset import POOLED, load_dataset, read_gt
-    from .metrics import read_predictions
+    from ..evaluation.dataset import POOLED, load_dataset, read_gt
+    from ..evaluation.metrics import read_predictions
 
     try:
         ds = load_dataset(dataset_path)
@@ -1271,7 +1271,7 @@ def _eval_dataset(pred_dir: Path, dataset_path: Path, as_json: bool) -> None:
     except LanegraphError as exc:
         click.echo(f"error: {exc}", err=True)
         sys.exit(2)
-    from .dataset import evaluate_sequences
+    from ..evaluation.dataset import evaluate_sequences
 
     res = evaluate_sequences(pairs)
     if as_json:
@@ -1362,8 +1362,8 @@ def _write_report(
 ):
     """`lanegraph report` and the --report of run and ablate: write the report and print its
     summary line (how many frames, failed ones, its size)."""
-    from .dataset import load_dataset
-    from .report import write_report
+    from ..evaluation.dataset import load_dataset
+    from ..presentation.report import write_report
 
     if dataset_path is not None:
         dataset = load_dataset(dataset_path)

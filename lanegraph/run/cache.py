@@ -39,7 +39,7 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-from ._numba import cache_root
+from .._numba import cache_root
 
 DEFAULT_MAX_BYTES = 2 * 1024**3
 #: a temporary entry file older than this (seconds) belongs to a writer that died
@@ -94,7 +94,7 @@ class _RestrictedUnpickler(pickle.Unpickler):
         if (module, name) in _ALLOWED_GLOBALS:
             return super().find_class(module, name)
         if module == "lanegraph.types" and name in _ALLOWED_TYPES:
-            from . import types
+            from .. import types
 
             return getattr(types, name)
         raise pickle.UnpicklingError(f"{module}.{name} is not a type a cache entry may hold")
