@@ -15,7 +15,7 @@ import time
 from pydantic import Field
 
 from lanegraph import NodeParams, RunContext, hookimpl, node_type
-from lanegraph.graph.model import validate_raw
+from lanegraph.graph.validation import validate_raw
 from lanegraph.plugins import PluginManager
 from lanegraph.run.executor import Executor
 

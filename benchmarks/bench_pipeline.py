@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lanegraph.graph.model import load_graph
+from lanegraph.graph.validation import load_graph
 from lanegraph.nodes import RunContext
 from lanegraph.run.executor import Executor
 

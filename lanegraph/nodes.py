@@ -199,7 +199,7 @@ def _code_version(module: str) -> str:
     import hashlib
     import importlib.util
 
-    from . import __version__
+    from ._version import __version__
 
     h = hashlib.sha256(__version__.encode())
     top = module.split(".")[0]

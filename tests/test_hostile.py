@@ -826,7 +826,7 @@ def test_a_full_disk_during_the_run(cli, tmp_path, monkeypatch):
 
 
 def test_a_checkpoint_that_cannot_be_written(cli, tmp_path, monkeypatch):
-    from lanegraph.run import executor
+    from lanegraph.run import checkpointing as executor
 
     calls = {"n": 0}
     real = executor.save_checkpoint

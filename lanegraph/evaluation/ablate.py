@@ -23,26 +23,20 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ..graph.files import ResolvedGraph
 from ..paths import inside, safe_name, write_bytes_atomic, write_text_atomic
 from ..plugins import get_plugin_manager
-from ..run.batch import (
-    Planned,
-    Planner,
-    ResolvedGraph,
-    SchedulerSpec,
-    clean_leftovers,
-    finish_runs,
-    run_tasks,
-)
+from ..run.batch import Planned, Planner, clean_leftovers, finish_runs
 from ..run.cache import ResultCache, digest
+from ..run.record import RunRecord, read_record
 from ..run.results import LANES, find_result
 from ..run.resume import input_identity
+from ..run.runners import InProcessRunner, Runner
 from .dataset import POOLED, Dataset, evaluate_sequences, read_gt
 from .metrics import evaluate, read_predictions
 
@@ -92,7 +86,7 @@ def run_ablation(
     frames: slice | None = None,
     cache: ResultCache | None = None,
     progress: bool = True,
-    scheduler: SchedulerSpec | None = None,
+    runner: Runner | None = None,
     chunk_frames: int | None = None,
     warmup: int = 0,
     echo: Callable[[str], None] | None = None,
@@ -103,7 +97,7 @@ def run_ablation(
     Outputs: ``OUT/runs/<variant>/<sequence>/`` (the sinks' files, ``timings.json``, ``run.json``),
     ``OUT/results.csv``, ``OUT/results.md`` and the plots. ``frames`` (``--frames``) applies to
     sequences that do not choose their own. The runs are the tasks of :mod:`lanegraph.run.batch`: in
-    this process one after another, or on a Dask cluster with ``scheduler``, with the same outputs;
+    this process one after another, or on another ``runner`` (a Dask cluster, :mod:`lanegraph.run.runners`), with the same outputs;
     ``chunk_frames`` / ``warmup`` split sequences into chunks.
     """
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -144,7 +138,8 @@ def run_ablation(
     rows: list[dict[str, Any]] = []
     _done: dict[int, Any] = {}
     try:
-        outcomes = run_tasks(planner.tasks, scheduler, cache, progress, echo, done=_done)
+        runner = runner if runner is not None else InProcessRunner(cache)
+        outcomes = runner.run(planner.tasks, progress=progress, echo=echo, done=_done)
     except KeyboardInterrupt:
         finish_runs(every, _done, partial=True)
         rows = _rows(plans, gts, finished_only=True)
@@ -152,7 +147,9 @@ def run_ablation(
             write_reports(rows, out_dir)  # the finished variants keep their report
         raise
     finish_runs(every, outcomes)
-    if cache is not None and scheduler is not None:  # the workers' counts, for the summary line
+    if cache is not None and not isinstance(
+        runner, InProcessRunner
+    ):  # the workers' counts, for the summary line
         for out in outcomes.values():
             cache.hits += sum(out.result.cache_hits.values())
             cache.misses += sum(out.result.cache_misses.values())
@@ -174,17 +171,17 @@ def _rows(
         evals: list[tuple[str, list, list]] = []
         for plan in var_plans:
             run_dir = plan.run_dir
-            record = plan.record if plan.record is not None else (_read_record(run_dir) or {})
-            timings = record.get("timings") or {}
+            record = plan.record if plan.record is not None else (_read_record(run_dir) or RunRecord())
+            timings = record.timings or {}
             row: dict[str, Any] = {
                 "variant": var.name,
                 "sequence": plan.sequence,
                 "graph": str(var.graph),
                 "sets": " ".join(var.sets),
             }
-            row["error"] = record.get("error")
-            row["failed_frames"] = len(record.get("failures") or [])
-            row["before_any_frame"] = bool(record.get("before_any_frame"))
+            row["error"] = record.error
+            row["failed_frames"] = len(record.failures)
+            row["before_any_frame"] = record.before_any_frame
             gt = gts[plan.sequence]
             lanes_file = find_result(run_dir, LANES) if gt is not None and not row["error"] else None
             if lanes_file is not None:
@@ -214,13 +211,10 @@ def _rows(
     return rows
 
 
-def _read_record(run_dir: Path) -> dict[str, Any] | None:
+def _read_record(run_dir: Path) -> RunRecord | None:
     """A reused run's ``run.json`` (None when it is missing or not one of ours: run again)."""
-    try:
-        record = json.loads((run_dir / "run.json").read_text())
-    except (OSError, ValueError):
-        return None
-    return record if isinstance(record, dict) and isinstance(record.get("timings"), dict) else None
+    record = read_record(run_dir)
+    return record if record is not None and record.timings is not None else None
 
 
 def _pooled_row(

@@ -1,31 +1,25 @@
 """Pictures to debug a pipeline by: every port type rendered as a BGR image, and a mosaic.
 
-:func:`render_value` turns one node output into a BGR ``uint8`` picture according to its port
-type (disparity colour map, v-disparity with the DP path and the road model, road-mask overlay,
-bird's-eye view, features coloured by orientation, the 1D Hough accumulator with its peaks, ROIs
-and fitted parabolas, the final overlay). Values that are not pictures (calibration, a frame id)
-are rendered as a small text card. Plugins render their own values through the
-``lanegraph_render`` hook, which is asked first.
+The drawing functions of the built-in port types (disparity colour map, v-disparity with the DP
+path and the road model, road-mask overlay, bird's-eye view, features coloured by orientation,
+the 1D Hough accumulator with its peaks, ROIs and fitted parabolas, the final overlay). Which one
+draws a value is its port type's own ``render`` (:mod:`lanegraph.presentation.port_types`, where
+:func:`~lanegraph.presentation.port_types.render_value` dispatches); a node type may draw its
+outputs itself through the ``lanegraph_render`` hook, which is asked first.
 
-:class:`DebugRecorder` is a plugin that ``lanegraph run --debug-dir DIR`` registers: for each
-chosen frame it writes ``DIR/<frame>/<node>.<port>.png`` for every node output and
-``DIR/<frame>/mosaic.png`` with all of them side by side, captioned.
+The ``--debug-dir`` recorder that writes them: :mod:`lanegraph.presentation.debug`.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping
-from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 
-from ..errors import UsageError
-from ..hookspecs import hookimpl
-from ..paths import inside, safe_name, write_bytes_atomic
-from ..types import BevGeometry, Calibration, FeatureMap, Lane, Line, RoadModel
+from ..types import FeatureMap, Lane, Line, RoadModel
 
 #: colours (BGR)
 LEFT_COLOUR = (60, 60, 255)
@@ -330,65 +324,6 @@ def render_lanes(lanes: list[Lane], context: Mapping[str, Any]) -> np.ndarray:
     return render_lanes_bev(lanes, context.get("bev_image"))
 
 
-# --------------------------------------------------------------------------- by port type
-def render_value(port_type: str, value: Any, context: Mapping[str, Any] | None = None) -> np.ndarray | None:
-    """Render a value of ``port_type`` as a BGR uint8 image; ``None`` when it is not renderable.
-
-    ``context`` maps port types to other values of the same frame (the left image, the BEV image,
-    the v-disparity, the features ...), used to draw a value over what it belongs to.
-    """
-    ctx = dict(context or {})
-    if value is None:
-        return None
-    if port_type in ("image", "gray", "bev_image"):
-        return to_bgr(value)
-    if port_type == "disparity":
-        return render_disparity(value)
-    if port_type == "mask":
-        return render_mask(value, ctx.get("image"))
-    if port_type == "bev_mask":
-        return render_mask(value, ctx.get("bev_image"))
-    if port_type == "vdisparity":
-        return render_vdisparity(value, ctx.get("road_model"))
-    if port_type == "road_model" and isinstance(value, RoadModel):
-        return render_road_model(value, ctx.get("vdisparity"))
-    if port_type == "features" and isinstance(value, FeatureMap):
-        return render_features(value)
-    if port_type == "orientation":
-        shape = ctx["features"].mask.shape if isinstance(ctx.get("features"), FeatureMap) else (200, 200)
-        line = Line(
-            rho=shape[1] / 2 + (shape[0] / 2) * math.cos(value) / max(math.sin(value), 1e-6),
-            theta=float(value),
-        )
-        img = render_lines([line], ctx.get("bev_image"), None, shape)
-        cv2.putText(
-            img,
-            f"theta {math.degrees(value):.1f} deg",
-            (4, 16),
-            cv2.FONT_HERSHEY_SIMPLEX,
-            0.5,
-            OTHER_COLOUR,
-            1,
-            cv2.LINE_AA,
-        )
-        return img
-    if port_type == "lines" and isinstance(value, list):
-        feats = ctx.get("features")
-        return render_lines(value, ctx.get("bev_image"), feats if isinstance(feats, FeatureMap) else None)
-    if port_type == "lanes" and isinstance(value, list):
-        return render_lanes(value, ctx)
-    if isinstance(value, (Calibration, BevGeometry)):
-        return None  # metadata, not a picture
-    if isinstance(value, np.ndarray) and value.ndim in (2, 3) and value.size:
-        try:
-            return to_bgr(value)
-        except ValueError:
-            return None
-    if isinstance(value, (str, int, float)):
-        return text_card([str(value)], title=port_type)
-    return None
-
-
 # --------------------------------------------------------------------------- mosaic
 def caption(img: np.ndarray, text: str) -> np.ndarray:
     """``img`` with a caption bar on top."""
@@ -437,128 +372,3 @@ def mosaic(
         lines.append(np.hstack([np.pad(t, ((0, height - t.shape[0]), (0, 4), (0, 0))) for t in row]))
     full = max(line.shape[1] for line in lines)
     return np.vstack([np.pad(line, ((0, 4), (0, full - line.shape[1]), (0, 0))) for line in lines])
-
-
-# --------------------------------------------------------------------------- the recorder plugin
-def _safe(name: str) -> str:
-    return safe_name(name)
-
-
-class DebugRecorder:
-    """A plugin that saves every node output of the chosen frames as pictures, and a mosaic.
-
-    ``frames``: frame ids to record (``None``: all). Pictures go to ``out_dir/<frame>/`` as
-    ``<node>.<port>.png`` plus ``mosaic.png``. A node type's own rendering (the
-    ``lanegraph_render`` hook of any plugin) is used when it returns an image.
-    """
-
-    def __init__(self, out_dir: Path | str, frames: set[str] | None = None, pm: Any = None) -> None:
-        self.out_dir = Path(out_dir)
-        self.frames = frames
-        self.pm = pm
-        self.written: dict[str, list[Path]] = {}
-        self.matched: set[str] = set()  # the entries of ``frames`` that matched a frame
-        self._frame: str | None = None
-        self._tiles: list[tuple[str, np.ndarray]] = []
-        self._context: dict[str, Any] = {}
-        self._constants: dict[str, Any] = {}
-
-    def wants(self, frame: str) -> bool:
-        """Whether ``frame`` is chosen: by its id, or by its number (``7`` matches ``0000000007``)."""
-        if self.frames is None:
-            return True
-        hits = {
-            f for f in self.frames if f == frame or (frame.isdigit() and f.isdigit() and int(f) == int(frame))
-        }
-        self.matched |= hits
-        return bool(hits)
-
-    def _folder(self, frame: str) -> Path:
-        """The frame's folder: one safe name, resolved inside ``out_dir`` (never above it)."""
-        folder = inside(self.out_dir, safe_name(frame), "--debug-dir")
-        try:
-            folder.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise UsageError(f"--debug-dir: cannot create {folder}: {exc.strerror or exc}") from None
-        return folder
-
-    @staticmethod
-    def _write(path: Path, img: np.ndarray) -> None:
-        try:
-            ok, png = cv2.imencode(".png", img)
-            if not ok:
-                raise UsageError(f"--debug-dir: cannot encode {path.name} as PNG")
-            write_bytes_atomic(path, png.tobytes())  # never through a link planted at its name
-        except (cv2.error, OSError) as exc:
-            raise UsageError(f"--debug-dir: cannot write {path}: {exc}") from None
-
-    # -- helpers
-    def _port_type(self, node_type: str, port: str) -> str:
-        nt = self.pm.get_node_type(node_type) if self.pm is not None else None
-        if nt is None or port not in nt.outputs:
-            return "any"
-        return nt.outputs[port].type
-
-    def _render(self, node_type: str, port: str, port_type: str, value: Any) -> np.ndarray | None:
-        if self.pm is not None:
-            img = self.pm.hook.lanegraph_render(node_type=node_type, port=port, value=value)
-            if img is not None:
-                return to_bgr(img)
-        return render_value(port_type, value, {**self._constants, **self._context})
-
-    def _flush(self) -> None:
-        frame, tiles = self._frame, self._tiles
-        self._frame, self._tiles, self._context = None, [], {}
-        if frame is not None and tiles:
-            path = self._folder(frame) / "mosaic.png"
-            self._write(path, mosaic(tiles))
-            self.written.setdefault(frame, []).append(path)
-
-    # -- hooks
-    @hookimpl
-    def lanegraph_run_start(self) -> None:
-        self._flush()
-        self._constants = {}
-
-    @hookimpl
-    def lanegraph_after_node(
-        self, node_id: str, node_type: str, frame: str | None, outputs: dict[str, Any] | None
-    ) -> None:
-        if not outputs:
-            return
-        if frame is None:  # constant outputs (calibration, BEV grid): context for every frame
-            for port, value in outputs.items():
-                self._constants.setdefault(self._port_type(node_type, port), value)
-            return
-        if not self.wants(frame):
-            return
-        if frame != self._frame:
-            self._flush()
-            self._frame = frame
-        folder = self._folder(frame)
-        typed = []
-        for port, value in outputs.items():  # context first: a node's outputs are drawn over each other
-            port_type = self._port_type(node_type, port)
-            if port_type == "any" and isinstance(value, np.ndarray) and value.ndim == 3:
-                port_type = "image"
-            typed.append((port, port_type, value))
-            if port_type in ("image", "gray"):
-                self._context.setdefault(
-                    "image", value
-                )  # the first image of a frame (the left one) is the base
-            else:
-                self._context[port_type] = value
-        for port, port_type, value in typed:
-            if port_type == "frame_id":
-                continue
-            img = self._render(node_type, port, port_type, value)
-            if img is None:
-                continue
-            path = folder / f"{safe_name(node_id)}.{safe_name(port)}.png"
-            self._write(path, img)
-            self.written.setdefault(frame, []).append(path)
-            self._tiles.append((f"{node_id}.{port}", img))
-
-    @hookimpl
-    def lanegraph_run_end(self) -> None:
-        self._flush()

@@ -19,9 +19,7 @@ Nothing here imports Dask: without a scheduler a batch runs in this process.
 
 from __future__ import annotations
 
-import copy
 import errno
-import json
 import os
 import re
 import shutil
@@ -29,17 +27,18 @@ import sys
 import threading
 import time
 import uuid
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from ..errors import GraphError, InputError, LanegraphError, NodeError, UsageError
-from ..graph.model import load_raw, validate_raw
+from ..graph.files import ResolvedGraph
 from ..nodes import RunContext
 from ..plugins import PluginManager, get_plugin_manager
 from .cache import ResultCache, digest
 from .executor import Executor, FrameFailure, RunResult
+from .record import RunRecord, Stopped, read_record, write_run_files
 from .sources import close_source, open_source, select_source
 
 _SCHEDULER = re.compile(r"^local(?::(?P<n>[^:]*))?$")
@@ -84,28 +83,6 @@ def parse_scheduler(text: str | None) -> SchedulerSpec | None:
     return SchedulerSpec(text, address=text)
 
 
-@dataclass(frozen=True)
-class ResolvedGraph:
-    """A graph file with ``extends`` and ``--set`` applied, not yet validated (see
-    :func:`lanegraph.graph.model.load_raw`): what a task carries to a worker."""
-
-    raw: dict[str, Any]
-    origin: dict[str, str]
-    display: str
-
-    @classmethod
-    def load(
-        cls, path: str | Path, sets: Iterable[str] = (), roots: list[Path] | None = None
-    ) -> ResolvedGraph:
-        raw, origin, display = load_raw(path, list(sets), roots)
-        return cls(raw, origin, display)
-
-    def validate(self, pm: PluginManager | None = None):
-        """A fresh :class:`~lanegraph.graph.model.Graph` (the executor replaces a selecting source in
-        place, so every run validates its own copy)."""
-        return validate_raw(copy.deepcopy(self.raw), dict(self.origin), self.display, pm)
-
-
 @dataclass
 class RunTask:
     """One unit of work: a graph on a sequence (or on a chunk of one)."""
@@ -125,6 +102,7 @@ class RunTask:
     warmup: int = 0  # frames run before the reported ones
     offset: int = 0  # the sequence index of the first reported frame
     record_cache: bool = False  # timings.json gets the cache's hits and misses
+    record_extra: dict[str, Any] = field(default_factory=dict)  # what the run service adds to run.json
 
     @property
     def label(self) -> str:
@@ -214,36 +192,28 @@ def _error_record(task: RunTask, exc: BaseException) -> dict[str, Any]:
     }
 
 
-def run_record(
+def task_record(
     graph_file: str | None,
     input_path: str | None,
     result: RunResult,
     error: dict[str, Any] | None = None,
     timings: dict[str, Any] | None = None,
     **extra: Any,
-) -> dict[str, Any]:
-    """The content of a run folder's ``run.json``: what ``lanegraph run`` writes (``status``, frames
-    done, failed frames, warnings, ``stopped``: where the run stopped) and what ``ablate`` reads back
-    to reuse a run (``error``, ``timings``, ``before_any_frame``)."""
-    status = "stopped" if error is not None else ("failed frames" if result.failures else "ok")
-    record: dict[str, Any] = {
-        "graph": graph_file,
-        "input": input_path,
-        **extra,
-        "status": status,
-        "error": error["message"] if error else None,
-    }
-    record.update(
-        frames_ok=result.frames,
-        failures=[f.to_json() for f in result.failures],
-        warnings=result.warnings(),
-        results=result.results,
-    )
-    record["timings"] = timings if timings is not None else result.timings_json()
+) -> RunRecord:
+    """The :class:`~lanegraph.run.record.RunRecord` of a task's run (``error``: the task's error
+    record, when it stopped)."""
+    stopped = None
     if error is not None:
-        record["stopped"] = {"error": error["message"], "node": error["node"], "frame": error["frame"]}
-        record["before_any_frame"] = bool(error.get("before_any_frame"))
-    return record
+        stopped = Stopped(error=error["message"], node=error["node"], frame=error["frame"])
+    return RunRecord.of(
+        result,
+        graph=graph_file,
+        input=input_path,
+        stopped=stopped,
+        timings=timings,
+        before_any_frame=bool(error.get("before_any_frame")) if error is not None else False,
+        **extra,
+    )
 
 
 def _write_run_files(
@@ -252,9 +222,10 @@ def _write_run_files(
     timings = result.timings_json()
     if task.record_cache:
         timings["cache"] = {"hits": result.cache_hits, "misses": result.cache_misses}
-    (folder / "timings.json").write_text(json.dumps(timings, indent=2) + "\n")
-    record = run_record(graph_file, task.input, result, error, timings, sequence=task.sequence)
-    (folder / "run.json").write_text(json.dumps(record, indent=2) + "\n")
+    record = task_record(
+        graph_file, task.input, result, error, timings, sequence=task.sequence, **task.record_extra
+    )
+    write_run_files(folder, record, timings)
     if task.run_key is not None and error is None:
         (folder / "run_key.txt").write_text(task.run_key)
 
@@ -299,20 +270,13 @@ def execute_task(
             graph_file=g.file,
         )
         ex = Executor(g, ctx, pm, cache=cache, warmup=task.warmup)
-        try:
-            ex.open()
-        except BaseException:
-            for inst in ex.instances.values():  # the sinks opened before the failing node
-                close = getattr(inst, "close", None)
-                if close is not None:
-                    close()
-            raise
-        started = True
-        result = ex.run(on_frame=on_frame)
+        with ex:  # the nodes opened are closed, however the run ends
+            started = True
+            result = ex.run(on_frame=on_frame)
     except Exception as exc:  # noqa: BLE001 - reported with variant, sequence and frame; the others go on
         error = _error_record(task, exc)
         error["before_any_frame"] = not started
-        result = getattr(ex, "result", None) or RunResult()
+        result = (ex.result if ex is not None else None) or RunResult()
     shift = task.offset - task.warmup  # executor indices count from the first warm-up frame
     if shift:
         result.failures = [
@@ -419,7 +383,7 @@ class Planned:
     tasks: list[RunTask] = field(default_factory=list)
     reused: bool = False
     outcome: TaskOutcome | None = None
-    record: dict[str, Any] | None = None  # its run.json once it ran (or could not start)
+    record: RunRecord | None = None  # its run.json once it ran (or could not start)
 
 
 class Planner:
@@ -432,6 +396,7 @@ class Planner:
         chunk_frames: int | None = None,
         warmup: int = 0,
         cache: ResultCache | None = None,
+        record_extra: dict[str, Any] | None = None,
     ):
         if chunk_frames is not None and chunk_frames < 1:
             raise UsageError(f"--chunk-frames: expected an integer >= 1, got {chunk_frames}")
@@ -445,6 +410,7 @@ class Planner:
         self.chunk_frames = chunk_frames
         self.warmup = warmup
         self.cache = cache
+        self.record_extra = dict(record_extra or {})
         self.tasks: list[RunTask] = []
         self._counts: dict[str, int | None] = {}
 
@@ -476,6 +442,7 @@ class Planner:
             "cache_dir": str(cache.root.resolve()) if cache is not None else None,
             "cache_max_bytes": cache.max_bytes if cache is not None else 0,
             "record_cache": cache is not None,
+            "record_extra": self.record_extra,
         }
         plan = Planned(variant, sequence, run_dir)
         try:
@@ -558,37 +525,6 @@ class Progress:
         self.bar.close()
 
 
-def run_tasks(
-    tasks: list[RunTask],
-    scheduler: SchedulerSpec | None = None,
-    cache: ResultCache | None = None,
-    progress: bool = True,
-    echo: Callable[[str], None] | None = None,
-    done: dict[int, TaskOutcome] | None = None,
-) -> dict[int, TaskOutcome]:
-    """Run ``tasks``: in this process one after another (``scheduler`` ``None``), or on a Dask
-    cluster (:func:`lanegraph.run.distributed.run_tasks`); returns the outcome of every task. ``done``:
-    filled with the outcomes as the tasks end (what finished when the batch is interrupted)."""
-    echo = echo or (lambda msg: print(msg, file=sys.stderr))
-    if not tasks:
-        return {}
-    if scheduler is not None:
-        from .distributed import run_tasks as run_on_cluster
-
-        return run_on_cluster(tasks, scheduler, progress=progress, echo=echo, done=done)
-    bar = Progress(tasks, progress)
-    outcomes = done if done is not None else {}
-    try:
-        for task in tasks:
-            bar.bar.set_description_str(task.label, refresh=False)
-            out = execute_task(task, cache=cache, progress=lambda n, i=task.index: bar.update(i, "", n))
-            bar.finish(task.index, out.result.frames)
-            outcomes[task.index] = out
-    finally:
-        bar.close()
-    return outcomes
-
-
 def finish_runs(plans: list[Planned], outcomes: dict[int, TaskOutcome], partial: bool = False) -> None:
     """Give every planned run its outcome and record (merging chunked runs; a run that could not
     start gets a folder with its run.json), and remove what killed tasks left. ``partial``: after an
@@ -601,8 +537,8 @@ def finish_runs(plans: list[Planned], outcomes: dict[int, TaskOutcome], partial:
             assert plan.outcome is not None
             tmp = _tmp_dir(plan.run_dir)
             tmp.mkdir(parents=True)
-            record = run_record(None, None, RunResult(), plan.outcome.error, {})
-            (tmp / "run.json").write_text(json.dumps(record, indent=2) + "\n")
+            record = task_record(None, None, RunResult(), plan.outcome.error, {})
+            write_run_files(tmp, record, {})
             place_dir(tmp, plan.run_dir)
         elif any(t.index not in outcomes for t in plan.tasks):
             if not partial:
@@ -615,12 +551,11 @@ def finish_runs(plans: list[Planned], outcomes: dict[int, TaskOutcome], partial:
             plan.outcome = outcomes[plan.tasks[0].index]
         clean_leftovers(plan.run_dir)
         if not plan.outcome.placed:  # its workers kept dying: the folder (if any) is an older run's
-            plan.record = run_record(None, None, plan.outcome.result, plan.outcome.error, {})
+            plan.record = task_record(None, None, plan.outcome.result, plan.outcome.error, {})
             continue
-        try:
-            plan.record = json.loads((plan.run_dir / "run.json").read_text())
-        except (OSError, ValueError):
-            plan.record = run_record(None, None, plan.outcome.result, plan.outcome.error, {})
+        plan.record = read_record(plan.run_dir) or task_record(
+            None, None, plan.outcome.result, plan.outcome.error, {}
+        )
 
 
 def describe_error(error: dict[str, Any]) -> str:
@@ -636,52 +571,3 @@ def describe_error(error: dict[str, Any]) -> str:
         else ""
     )
     return f"{where}: {frame}{error['message']}"
-
-
-# --------------------------------------------------------------------------- lanegraph run --dataset
-def run_dataset(
-    graph: ResolvedGraph,
-    dataset: Any,
-    out_dir: Path,
-    frames: slice | None = None,
-    scheduler: SchedulerSpec | None = None,
-    chunk_frames: int | None = None,
-    warmup: int = 0,
-    progress: bool = True,
-    echo: Callable[[str], None] | None = None,
-) -> list[dict[str, Any]]:
-    """``lanegraph run GRAPH --dataset FILE``: the graph on every sequence, into
-    ``OUT/<sequence>/`` (what the graph's sinks write, ``timings.json``, ``run.json``). Returns one
-    summary per sequence: ``sequence``, ``frames``, ``failures`` (failed frames), ``error`` (what
-    stopped the run, or ``None``), ``results`` (the sinks' result files, :mod:`lanegraph.run.results`)."""
-    pm = get_plugin_manager()
-    graph.validate(pm)  # a GraphError before anything runs
-    planner = Planner(pm, chunk_frames, warmup)
-    plans = []
-    for seq in dataset:
-        sel = seq.frames if seq.frames is not None else frames
-        run_dir = out_dir / seq.name
-        if run_dir.exists() and not run_dir.is_dir():
-            raise UsageError(f"{run_dir}: expected a folder for sequence {seq.name!r}, found a file")
-        plans.append(planner.add(None, seq.name, graph, seq.input, sel, run_dir))
-    out_dir.mkdir(parents=True, exist_ok=True)
-    for plan in plans:
-        clean_leftovers(plan.run_dir)
-    outcomes = run_tasks(planner.tasks, scheduler, None, progress, echo)
-    finish_runs(plans, outcomes)
-    summary = []
-    for plan in plans:
-        out = plan.outcome
-        assert out is not None
-        results = out.result.results if out.error is None or not out.error.get("before_any_frame") else {}
-        summary.append(
-            {
-                "sequence": plan.sequence,
-                "frames": out.result.frames,
-                "failures": out.result.failures,
-                "error": out.error,
-                "wall_s": out.wall_s,
-                "results": results,
-            }
-        )
-    return summary

@@ -25,108 +25,27 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from .._runtime import tune_allocator
-from ..errors import InputError, LanegraphError, NodeError, UsageError
-from ..frames import selection_text
+from ..errors import InputError, LanegraphError, NodeError
 from ..graph.model import Graph, GraphNode
+from ..lifecycle import (
+    Identified,
+    KeyedFrames,
+    Sink,
+    Sized,
+    SkipsFrames,
+    close_all,
+    constants_of,
+)
 from ..nodes import RunContext
 from ..plugins import PluginManager, get_plugin_manager
 from .cache import ResultCache, digest
+from .checkpointing import Checkpointer, OpenedInput, run_identity
+from .outcome import FrameFailure, RunResult
+from .prefetch import prefetched, timed
 from .results import graph_result_files
-from .resume import (
-    _HINT,
-    FORMAT,
-    VERSION,
-    Checkpoint,
-    CheckpointValueError,
-    check_identity,
-    decode_feedback,
-    feedback_entries,
-    graph_identity,
-    input_identity,
-    resolved_input,
-    save_checkpoint,
-)
+from .resume import Checkpoint, input_identity
 from .sources import select_source
-
-
-@dataclass
-class FrameFailure:
-    """A frame that failed: which node, and why."""
-
-    frame: str | None
-    index: int
-    node_id: str
-    node_type: str
-    error: str
-
-    def to_json(self) -> dict[str, Any]:
-        return {
-            "frame": self.frame,
-            "index": self.index,
-            "node": self.node_id,
-            "type": self.node_type,
-            "error": self.error,
-        }
-
-
-@dataclass
-class RunResult:
-    """What a run did: frames processed, per-node timings and failures.
-
-    In a resumed run ``frames``, ``failures`` and ``invalid_outputs`` include what the checkpoint
-    recorded (``resumed_frames`` of the frames were done before); timings cover this process only.
-    ``invalid_outputs``: ``"node.port" -> [frames with an invalid value, frames with a value]``
-    for values that carry a ``valid`` flag (a road model the profile could not fit).
-    """
-
-    frames: int = 0
-    timings_ms: dict[str, list[float]] = field(default_factory=dict)
-    node_types: dict[str, str] = field(default_factory=dict)
-    failures: list[FrameFailure] = field(default_factory=list)
-    frame_ms: list[float] = field(default_factory=list)
-    cache_hits: dict[str, int] = field(default_factory=dict)
-    cache_misses: dict[str, int] = field(default_factory=dict)
-    invalid_outputs: dict[str, list[int]] = field(default_factory=dict)
-    resumed_frames: int = 0
-    notes: list[str] = field(default_factory=list)
-    results: dict[str, str] = field(
-        default_factory=dict
-    )  # the sinks' result files by kind (lanegraph.run.results)
-
-    def warnings(self) -> list[str]:
-        """Things that did not fail a frame but make the result doubtful: an output invalid on every
-        frame, a run that cannot be resumed."""
-        out = list(self.notes)
-        for key, (bad, total) in self.invalid_outputs.items():
-            if total and bad == total:
-                nid, _, port = key.rpartition(".")
-                out.append(
-                    f"node '{nid}' ({self.node_types.get(nid, '?')}): output '{port}' was invalid on every frame "
-                    f"({bad} of {total}); check the calibration and the input"
-                )
-        return out
-
-    def timings_json(self) -> dict[str, Any]:
-        nodes = {}
-        for nid, ts in self.timings_ms.items():
-            arr = np.asarray(ts, dtype=np.float64)
-            nodes[nid] = {
-                "type": self.node_types.get(nid, "?"),
-                "median_ms": round(float(np.median(arr)), 3) if arr.size else None,
-                "p90_ms": round(float(np.percentile(arr, 90)), 3) if arr.size else None,
-                "calls": int(arr.size),
-            }
-        out: dict[str, Any] = {"frames": self.frames, "nodes": nodes}
-        if self.frame_ms:
-            total = np.asarray(self.frame_ms)
-            out["total"] = {
-                "median_ms": round(float(np.median(total)), 3),
-                "p90_ms": round(float(np.percentile(total, 90)), 3),
-            }
-        return out
 
 
 class _SkipFrame(Exception):
@@ -174,31 +93,13 @@ class Executor:
         self.warmup = max(0, int(warmup))
         self.graph = graph
         ctx0 = context or RunContext()
-        resolved = graph.resolved_dict()  # before a selecting source is replaced: what the user's graph says
-        self.identity = {
-            "graph": graph.file,
-            "graph_digest": graph_identity(resolved),
-            "resolved": resolved,
-            "input": resolved_input(ctx0.input_path),
-            "frames": selection_text(ctx0.frames),
-        }
-        if resume is not None:
-            where = checkpoint or Path("checkpoint")
-            check_identity(resume, where, **{k: v for k, v in self.identity.items() if k != "graph"})
-            if ctx0.skip != resume.position:
-                raise UsageError(
-                    f"{where}: the run context skips {ctx0.skip} frame(s), the checkpoint has done {resume.position}"
-                )
-            sources = {(e.src_node, e.src_port) for e in graph.edges if e.previous}
-            for i, fb in enumerate(resume.feedback):
-                if (fb.node, fb.port) not in sources:
-                    raise UsageError(
-                        f"{where}: feedback[{i}]: no feedback edge of the graph comes from {fb.node}.{fb.port}{_HINT}"
-                    )
-            self._resumed_feedback = decode_feedback(
-                resume, where
-            )  # a malformed value: refused before anything opens
-        self.unresumable: str | None = None
+        # the checkpoint piece (:mod:`lanegraph.run.checkpointing`): identity checked before anything opens
+        self.identity = run_identity(graph, ctx0)
+        self.checkpointer = (
+            Checkpointer(graph, ctx0, checkpoint, resume, self.identity)
+            if checkpoint is not None or resume is not None
+            else None
+        )
         self.prefetch = prefetch
         self.cache = cache
         self.cache_nodes = (
@@ -211,6 +112,8 @@ class Executor:
         self._select_source()
         self.result_files = graph_result_files(graph)
         self.instances: dict[str, Any] = {}
+        self.result: RunResult | None = None  # set when the run starts: a caller keeps it if the run stops
+        self._closed = False
         self.constant_nodes: set[str] = self._constant_nodes()
 
     # -- compile -------------------------------------------------------------
@@ -305,46 +208,16 @@ class Executor:
     def _write_checkpoint(
         self, position: int, frame: str | None, previous: dict, prev_keys: dict, complete: bool = False
     ) -> None:
-        """After a frame is consumed (done -- its sinks have written -- or failed): how far the run
-        got, its failures, the values of the feedback edges and the stateful nodes' states, so that
-        a resumed run continues exactly where this one stopped (:mod:`lanegraph.run.resume`)."""
-        assert self.checkpoint is not None
-        result = self.result
-        feedback: list[dict[str, Any]] = []
-        if self.unresumable is None:
-            try:
-                feedback = feedback_entries(previous, prev_keys)
-            except CheckpointValueError as exc:
-                self.unresumable = f"a feedback value cannot be stored ({exc})"
-                result.notes.append(f"--resume will not be possible for this run: {self.unresumable}")
-        states = {}
-        for nid, inst in self.instances.items():
-            state = getattr(inst, "state", None)
-            if callable(state):
-                states[nid] = state()
-        data = {
-            "format": FORMAT,
-            "version": VERSION,
-            **self.identity,
-            "input_identity": self._input_identity,
-            "total": self._total,
-            "position": position,
-            "frames_ok": result.frames,
-            "last_frame": None if frame is None else str(frame),
-            "complete": complete,
-            "failures": [f.to_json() for f in result.failures],
-            "invalid_outputs": result.invalid_outputs,
-            "feedback": feedback,
-            "states": states,
-            "unresumable": self.unresumable,
-        }
-        try:
-            save_checkpoint(self.checkpoint, data)
-        except ValueError as exc:  # a state that JSON cannot hold (a plugin's)
-            self.unresumable = f"a node's state cannot be stored ({exc})"
-            data.update(states={}, feedback=[], unresumable=self.unresumable)
-            result.notes.append(f"--resume will not be possible for this run: {self.unresumable}")
-            save_checkpoint(self.checkpoint, data)
+        """After a frame is consumed: the checkpoint (:meth:`Checkpointer.write`)."""
+        assert self.checkpointer is not None and self.result is not None
+        self.checkpointer.write(
+            self.result, self.instances, position, frame, previous, prev_keys, self._opened, complete
+        )
+
+    @property
+    def unresumable(self) -> str | None:
+        """Why the run cannot be resumed (a value a checkpoint cannot hold), or None."""
+        return self.checkpointer.unresumable if self.checkpointer is not None else None
 
     def _key(
         self,
@@ -382,6 +255,14 @@ class Executor:
         :class:`InputError` when that is not possible)."""
         if self.instances:
             return
+        try:
+            self._open()
+        except BaseException:
+            close_all(reversed(list(self.instances.values())))  # the nodes opened before the failing one
+            self.instances.clear()
+            raise
+
+    def _open(self) -> None:
         g = self.graph
         for nid in g.order:
             n = g.nodes[nid]
@@ -398,40 +279,19 @@ class Executor:
                 except Exception as exc:  # noqa: BLE001
                     raise NodeError(nid, n.type.name, None, exc) from exc
         source = self.instances[g.source.id]
-        self._skipped = int(getattr(source, "skipped", 0) or 0)
+        self._skipped = int(source.skipped or 0) if isinstance(source, SkipsFrames) else 0
         try:
-            self._total: int | None = len(source) + self._skipped
+            total: int | None = len(source) + self._skipped
         except TypeError:
-            self._total = None
-        ident = getattr(source, "identity", None)
-        self._input_identity = (
-            str(ident()) if callable(ident) else input_identity(self.context.input_path, self.context.out_dir)
+            total = None
+        identity = (
+            str(source.identity())
+            if isinstance(source, Identified)
+            else input_identity(self.context.input_path, self.context.out_dir)
         )
-        ck = self.resume
-        if ck is None:
-            return
-        where = self.checkpoint or Path("checkpoint")
-        if ck.input_identity != self._input_identity:
-            raise UsageError(
-                f"{where}: the input files changed since the checkpoint (another file, size or modification time){_HINT}"
-            )
-        if ck.total is not None and self._total is not None and self._total != ck.total:
-            raise UsageError(
-                f"{where}: the frame selection now has {self._total} frame(s), the checkpoint's run had {ck.total}{_HINT}"
-            )
-        for nid, inst in self.instances.items():
-            restore = getattr(inst, "restore", None)
-            if callable(restore):
-                try:
-                    restore(ck.states.get(nid))
-                except LanegraphError:
-                    raise
-                except Exception as exc:  # noqa: BLE001
-                    n = g.nodes[nid]
-                    raise InputError(
-                        f"node '{nid}' ({n.type.name}): cannot restore its checkpointed state: {type(exc).__name__}: {exc}",
-                        path=str(where),
-                    ) from exc
+        self._opened = OpenedInput(identity, total)
+        if self.checkpointer is not None:
+            self.checkpointer.resume_nodes(g, self.instances, self._opened)
 
     def run(self, on_frame: Callable[[int, str | None], None] | None = None) -> RunResult:
         """Stream every frame of the source through the graph."""
@@ -452,13 +312,7 @@ class Executor:
             if self.checkpoint is not None:
                 self._write_checkpoint(at.position, at.last_frame, at.previous, at.prev_keys, complete=True)
         finally:
-            for inst in self.instances.values():
-                close = getattr(inst, "close", None)
-                if close is not None:
-                    try:
-                        close()
-                    except Exception:  # noqa: BLE001 - closing must not hide the real error
-                        pass
+            self.close()  # an error of a close must not hide the run's own
             self.pm.hook.lanegraph_run_end(graph=g, context=self.context, frames=result.frames)
         return result
 
@@ -471,7 +325,8 @@ class Executor:
         result.frames = result.resumed_frames = ck.frames_ok
         result.failures = [FrameFailure(f.frame, f.index, f.node, f.type, f.error) for f in ck.failures]
         result.invalid_outputs = {k: list(v) for k, v in ck.invalid_outputs.items()}
-        previous, prev_keys = self._resumed_feedback
+        assert self.checkpointer is not None
+        previous, prev_keys = self.checkpointer.resumed_feedback
         return _Position(ck.position, ck.last_frame, previous, prev_keys)
 
     def _run_constants(self) -> tuple[dict[tuple[str, str], Any], dict[tuple[str, str], str | None]]:
@@ -484,7 +339,7 @@ class Executor:
         keys: dict[tuple[str, str], str | None] = {}
         caching = self.cache is not None
         src_params = src.params.model_dump(mode="json")
-        consts = source.constants() if hasattr(source, "constants") else {}
+        consts = constants_of(source)
         for port, v in consts.items():
             values[(src.id, port)] = v
             keys[(src.id, port)] = (
@@ -573,7 +428,8 @@ class Executor:
         frame = frame_out.get("frame")
         cur = dict(values)
         cur_keys = dict(keys)
-        frame_key = getattr(self.instances[src_id], "frame_key", None)
+        src = self.instances[src_id]
+        frame_key = src.frame_key if isinstance(src, KeyedFrames) else None
         identity = frame_key(frame) if (self.cache is not None and frame_key is not None) else None
         src_params = g.source.params.model_dump(mode="json") if identity is not None else None
         for port, v in frame_out.items():
@@ -635,7 +491,7 @@ class Executor:
         (image decoding releases the GIL).
         """
         node = self.graph.nodes[src_id]
-        items = _prefetched(iter(source), self.prefetch) if self.prefetch > 0 else _timed(iter(source))
+        items = prefetched(iter(source), self.prefetch) if self.prefetch > 0 else timed(iter(source))
         index = start
         scratch = RunResult()  # what warm-up frames record
         for kind, item, elapsed in items:
@@ -670,70 +526,28 @@ class Executor:
 
     def __len__(self) -> int:
         src = self.instances.get(self.graph.source.id)
-        try:
-            return len(src)  # type: ignore[arg-type]
-        except TypeError:
-            return 0
+        return len(src) if isinstance(src, Sized) else 0
 
+    def outputs(self) -> list[Any]:
+        """The files the sinks say they wrote (:class:`lanegraph.lifecycle.Sink`)."""
+        return [p for inst in self.instances.values() if isinstance(inst, Sink) for p in inst.outputs]
 
-def _timed(it: Iterator[Any]) -> Iterator[tuple[str, Any, float]]:
-    """(kind, item, ms) for each item of ``it``; an error ends nothing but that item."""
-    while True:
-        t0 = time.perf_counter()
-        try:
-            item = next(it)
-        except StopIteration:
-            return
-        except Exception as exc:  # noqa: BLE001 - handed to the caller with its frame
-            yield "error", exc, 0.0
-            if not isinstance(exc, LanegraphError):
-                return
-            continue
-        if isinstance(item, BaseException):  # a source may yield the error of one frame and go on
-            yield "error", item, 0.0
-            continue
-        yield "item", item, (time.perf_counter() - t0) * 1000.0
+    # -- life cycle ------------------------------------------------------------
+    def close(self) -> BaseException | None:
+        """Close every open node instance, once (:func:`lanegraph.lifecycle.close_all`); returns
+        the first error a ``close`` raised."""
+        if self._closed or not self.instances:
+            return None
+        self._closed = True
+        return close_all(self.instances.values())
 
+    def __enter__(self) -> Executor:
+        """Open the nodes; leaving the block closes them, however it is left."""
+        self.open()
+        return self
 
-def _prefetched(it: Iterator[Any], depth: int) -> Iterator[tuple[str, Any, float]]:
-    """:func:`_timed` run by a background thread, ``depth`` items ahead."""
-    import queue
-    import threading
-
-    q: queue.Queue = queue.Queue(maxsize=depth)
-    stop = threading.Event()
-    done = object()
-
-    def work() -> None:
-        try:
-            for entry in _timed(it):
-                while not stop.is_set():
-                    try:
-                        q.put(entry, timeout=0.1)
-                        break
-                    except queue.Full:
-                        continue
-                if stop.is_set():
-                    return
-        finally:
-            while not stop.is_set():
-                try:
-                    q.put(done, timeout=0.1)
-                    break
-                except queue.Full:
-                    continue
-
-    th = threading.Thread(target=work, name="lanegraph-prefetch", daemon=True)
-    th.start()
-    try:
-        while True:
-            entry = q.get()
-            if entry is done:
-                return
-            yield entry
-    finally:
-        stop.set()
-        th.join(timeout=5)
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
 
 def run_graph(graph: Graph, context: RunContext | None = None, pm: PluginManager | None = None) -> RunResult:

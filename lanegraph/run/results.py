@@ -16,13 +16,13 @@ Kinds the engine reads:
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 from ..errors import UsageError
 from ..paths import inside
 from ..plugins import PluginManager, get_plugin_manager
+from .record import read_record
 
 #: the kind of the lanes a run reports, the predictions the metrics read
 LANES = "lanes"
@@ -42,14 +42,8 @@ def graph_result_files(graph: Any) -> dict[str, str]:
 
 def recorded_result_files(folder: Path) -> dict[str, str]:
     """What ``folder/run.json`` records under ``results`` (empty when it records nothing)."""
-    try:
-        record = json.loads((Path(folder) / "run.json").read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return {}
-    results = record.get("results") if isinstance(record, dict) else None
-    if not isinstance(results, dict):
-        return {}
-    return {str(k): v for k, v in results.items() if isinstance(v, str) and v}
+    record = read_record(Path(folder))
+    return dict(record.results) if record is not None else {}
 
 
 def default_names(kind: str, pm: PluginManager | None = None) -> list[str]:

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import GraphError, LanegraphError, NodeError, Problem
+from ..lifecycle import close, closing, constants_of
 from ..nodes import NodeParams, NodeType, RunContext
 from ..plugins import PluginManager
 
@@ -87,9 +88,8 @@ def open_source(
 
 
 def close_source(instance: Any) -> None:
-    close = getattr(instance, "close", None)
-    if callable(close):
-        close()
+    """Close a source opened by :func:`open_source` (:func:`lanegraph.lifecycle.close`)."""
+    close(instance)
 
 
 def read_calibration(pm: PluginManager, path: Path) -> Any:
@@ -119,11 +119,8 @@ def read_calibration(pm: PluginManager, path: Path) -> Any:
     )
     if nt is None or port is None:
         raise InputError("no installed source reads a calibration from this folder", path=str(path))
-    source = open_source(nt, nt.params(), path)
-    try:
-        consts = source.constants() if hasattr(source, "constants") else {}
-    finally:
-        close_source(source)
+    with closing(open_source(nt, nt.params(), path)) as source:
+        consts = constants_of(source)
     if consts.get(port) is None:
         raise InputError(f"source {nt.name!r} gives no calibration for this folder", path=str(path))
     return consts[port]

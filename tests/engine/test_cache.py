@@ -6,7 +6,7 @@ import copy
 
 import yaml
 
-from lanegraph.graph.model import load_graph
+from lanegraph.graph.validation import load_graph
 from lanegraph.nodes import RunContext
 from lanegraph.run.cache import ResultCache
 from lanegraph.run.executor import Executor

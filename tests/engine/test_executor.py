@@ -9,7 +9,7 @@ from pydantic import Field
 
 from lanegraph import NodeParams, Port, hookimpl, node_type
 from lanegraph.errors import GraphError, NodeError
-from lanegraph.graph.model import load_graph
+from lanegraph.graph.validation import load_graph
 from lanegraph.nodes import RunContext
 from lanegraph.run.executor import Executor
 

@@ -159,7 +159,7 @@ def test_interrupted_again_and_again_equals_uninterrupted(tmp_path, uninterrupte
 def _toy_graph(tmp_path, pm, extra: dict | None = None):
     import yaml
 
-    from lanegraph.graph.model import load_graph
+    from lanegraph.graph.validation import load_graph
 
     from .test_graph import VALID
 

@@ -8,7 +8,7 @@ import textwrap
 
 import yaml
 
-from lanegraph.graph.model import load_graph
+from lanegraph.graph.validation import load_graph
 from lanegraph.nodes import RunContext
 from lanegraph.plugins import PluginManager
 from lanegraph.run.executor import Executor

@@ -4,7 +4,6 @@ and assemble the page."""
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import shutil
@@ -23,6 +22,7 @@ from ...plugins import PluginManager, get_plugin_manager
 from . import _page
 from ._collect import Collected, collect
 from ._images import JpegWriter, choose_source, debug_pictures, find_debug_dir, read_left_images
+from ._page import dumps_for_html  # noqa: F401 - where the page's data is made safe
 
 #: widest left image in the report, pixels (KITTI's 1242 px: ~40 KiB per frame as JPEG)
 IMAGE_WIDTH = 800
@@ -484,9 +484,3 @@ def _metrics(data: Collected) -> dict[str, Any]:
                 res.pop(POOLED)
             out[name] = res
     return out
-
-
-def dumps_for_html(obj: Any) -> str:
-    """JSON that is safe inside a ``<script>`` element (no ``<``, ``>`` or ``&`` left as such)."""
-    text = json.dumps(obj, separators=(",", ":"), allow_nan=False)
-    return text.replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026")

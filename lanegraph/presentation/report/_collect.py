@@ -17,6 +17,7 @@ from ...evaluation.dataset import Dataset, read_gt, single_sequence
 from ...evaluation.metrics import read_jsonl
 from ...graph.model import Graph
 from ...plugins import PluginManager
+from ...run.record import RunRecord, read_record
 from ...run.results import LANES, describe, find_result
 
 #: the ground truth looked for in an input folder when none is given
@@ -78,13 +79,13 @@ def read_run(folder: Path, lanes: Path) -> RunFiles:
     """A run's lanes (the file ``lanes``, required), ``timings.json`` and ``run.json`` (optional)."""
     records = read_jsonl(lanes)
     failures: dict[str, str] = {}
-    run = _read_json(folder / "run.json") or {}
-    for f in run.get("failures") or []:
-        if isinstance(f, dict) and f.get("frame") is not None:
+    run = read_record(folder, strict=True) or RunRecord()
+    for f in run.failures:
+        if f.get("frame") is not None:
             failures[str(f["frame"])] = f"node '{f.get('node')}' ({f.get('type')}): {f.get('error')}"
-    stopped = run.get("stopped")
-    if isinstance(stopped, dict) and stopped.get("frame") is not None:
-        failures.setdefault(str(stopped["frame"]), f"the run stopped here: {stopped.get('error')}")
+    stopped = run.stopped
+    if stopped is not None and stopped.frame is not None:
+        failures.setdefault(str(stopped.frame), f"the run stopped here: {stopped.error}")
     return RunFiles(folder, records, _read_json(folder / "timings.json"), failures, lanes)
 
 
@@ -127,13 +128,13 @@ def _resolve_recorded(path_text: str | None, run_dir: Path) -> Path | None:
 
 
 def load_recorded_graph(
-    run_json: dict[str, Any], run_dir: Path, sets: list[str], pm: PluginManager, notes: list[str]
+    run_json: RunRecord, run_dir: Path, sets: list[str], pm: PluginManager, notes: list[str]
 ) -> Graph | None:
     """The graph run.json names, with ``sets`` applied; None (and a note) when it cannot be loaded."""
-    from ...cli import allowed_roots, resolve_graph_path
-    from ...graph.model import load_graph
+    from ...graph.files import allowed_roots, resolve_graph_path
+    from ...graph.validation import load_graph
 
-    text = run_json.get("graph")
+    text = run_json.graph
     if not text:
         return None
     path = _resolve_recorded(str(text), run_dir) or resolve_graph_path(Path(str(text)).stem)
@@ -183,10 +184,10 @@ def collect(
 
 def _collect_run(run_dir, gt, dataset, input_path, frames, sets, graph, pm) -> Collected:
     notes: list[str] = []
-    run_json = _read_json(run_dir / "run.json") or {}
+    run_json = read_record(run_dir, strict=True) or RunRecord()
     if graph is None:
         graph = load_recorded_graph(run_json, run_dir, sets, pm, notes)
-    variant = graph.name if graph is not None else Path(str(run_json.get("graph") or "run")).stem
+    variant = graph.name if graph is not None else Path(str(run_json.graph or "run")).stem
     if dataset is not None:  # `run --dataset`: a run folder RUN_DIR/<sequence>/ per sequence
         seqs, runs = [], {}
         for s in _from_dataset(dataset, frames):
@@ -208,11 +209,11 @@ def _collect_run(run_dir, gt, dataset, input_path, frames, sets, graph, pm) -> C
             f"{run_dir}: not a run folder (no lanes file: {describe(run_dir, LANES, pm)}) nor an ablation folder (no runs/ and "
             "results.csv); for a `run --dataset` folder give --dataset FILE"
         )
-    if input_path is None and run_json.get("input"):
-        input_path = _resolve_recorded(str(run_json["input"]), run_dir)
+    if input_path is None and run_json.input:
+        input_path = _resolve_recorded(str(run_json.input), run_dir)
         if input_path is None:
             notes.append(
-                f"the input {run_json['input']} that run.json names was not found (give --input): no left images"
+                f"the input {run_json.input} that run.json names was not found (give --input): no left images"
             )
     if input_path is not None and not Path(input_path).exists():
         raise UsageError(f"--input {input_path}: no such file or folder")
@@ -227,7 +228,7 @@ def _collect_run(run_dir, gt, dataset, input_path, frames, sets, graph, pm) -> C
         frames,
         _gt_records(gt, frames),
         gt,
-        default_source=input_path is None and not run_json.get("input"),
+        default_source=input_path is None and not run_json.input,
     )
     return Collected("run", run_dir, [variant], [seq], {(0, 0): read_run(run_dir, lanes)}, graph, notes=notes)
 

@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from ...errors import GraphError, LanegraphError, NodeError
+from ...lifecycle import close
 from ...plugins import PluginManager
 from ...run.sources import detect_source, open_source, select_source
 from ..render import _safe as debug_folder_name
@@ -100,9 +101,7 @@ def read_left_images(
             f"source {choice.node_type.name!r} failed after {len(order)} frame(s): {type(exc).__name__}: {exc}"
         ) from exc
     finally:
-        close = getattr(source, "close", None)
-        if close is not None:
-            close()
+        close(source)
     return order
 
 

@@ -4,13 +4,14 @@ server and fetches nothing from the network (a Content-Security-Policy forbids i
 
 from __future__ import annotations
 
+import json
 import re
 from html import escape
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from ... import __version__
+from ..._version import __version__
 from ...evaluation.dataset import POOLED
 from . import _svg
 from ._collect import Collected
@@ -190,7 +191,6 @@ def _graph(data: Collected) -> str:
 
 def render(data: Collected, frames: list[dict[str, Any]], metrics: dict[str, Any]) -> str:
     """The report page as HTML text."""
-    from ._build import dumps_for_html
 
     seqs = ", ".join(s.name for s in data.sequences)
     if data.kind == "run":
@@ -238,3 +238,9 @@ def render(data: Collected, frames: list[dict[str, Any]], metrics: dict[str, Any
     }
     # one pass: text put in is never searched for placeholders again
     return re.sub(r"@@([A-Z]+)@@", lambda m: values[m.group(1)], _asset("page.html"))
+
+
+def dumps_for_html(obj: Any) -> str:
+    """JSON that is safe inside a ``<script>`` element (no ``<``, ``>`` or ``&`` left as such)."""
+    text = json.dumps(obj, separators=(",", ":"), allow_nan=False)
+    return text.replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026")
