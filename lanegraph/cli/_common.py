@@ -10,10 +10,12 @@ from ..errors import UsageError
 from ..service import Session
 
 
-def session(quiet: bool = False) -> Session:
-    """The run service for a command; the plugins that could not be loaded said as warnings."""
+def session(quiet: bool = False, warn: bool = True) -> Session:
+    """The run service for a command; the plugins that could not be loaded said as warnings
+    (``warn``: the commands that load plugins for their own use say so)."""
     s = Session(out=click.echo, err=lambda msg: click.echo(msg, err=True), progress=not quiet)
-    s.warn_plugins()
+    if warn:
+        s.warn_plugins()
     return s
 
 

@@ -56,7 +56,7 @@ def report(run_dir, gt_path, dataset_path, input_path, frames, sets, debug_dir, 
     `lanegraph ablate`: every frame's lanes against the ground truth, every node's pictures of the
     frames recorded with --debug-dir, the graph with its times, the metrics; for an ablation its
     results table and two variants side by side. Opens from file://, fetches nothing."""
-    summary = session(quiet).report(
+    summary = session(quiet, warn=False).report(
         run_dir, out_dir=out_dir, gt_path=gt_path, dataset_path=dataset_path, input_path=input_path,
         frames=parse_frames(frames), sets=sets, debug_dir=debug_dir,
     )  # fmt: skip

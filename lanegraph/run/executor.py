@@ -77,6 +77,7 @@ class Executor:
         checkpoint: Path | None = None,
         resume: Checkpoint | None = None,
         warmup: int = 0,
+        checkpointer: Checkpointer | None = None,
     ):
         """``cache``: a :class:`~lanegraph.run.cache.ResultCache` for the results of ``cache_nodes``
         (default: every stateless node); results are keyed by node type, params, upstream keys and
@@ -87,19 +88,18 @@ class Executor:
         ``position``. ``warmup``: the first ``warmup`` frames only bring the feedback edges and
         stateful nodes up to date (a chunk of a longer sequence starts from the frames before it):
         the sinks do not see them, their times and failures are not recorded, ``on_frame`` is not
-        called for them."""
-        self.checkpoint = checkpoint
-        self.resume = resume
+        called for them. ``checkpointer``: the checkpoint piece itself, in place of ``checkpoint`` and
+        ``resume`` (:class:`~lanegraph.run.checkpointing.Checkpointer`)."""
         self.warmup = max(0, int(warmup))
         self.graph = graph
         ctx0 = context or RunContext()
         # the checkpoint piece (:mod:`lanegraph.run.checkpointing`): identity checked before anything opens
         self.identity = run_identity(graph, ctx0)
-        self.checkpointer = (
-            Checkpointer(graph, ctx0, checkpoint, resume, self.identity)
-            if checkpoint is not None or resume is not None
-            else None
-        )
+        if checkpointer is None and (checkpoint is not None or resume is not None):
+            checkpointer = Checkpointer(graph, ctx0, checkpoint, resume, self.identity)
+        self.checkpointer = checkpointer
+        self.checkpoint = checkpointer.path if checkpointer is not None else None
+        self.resume = checkpointer.resume if checkpointer is not None else None
         self.prefetch = prefetch
         self.cache = cache
         self.cache_nodes = (

@@ -24,7 +24,7 @@ import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..errors import InputError, LanegraphError, NotStarted, RunStopped, UsageError
 from ..graph.files import ResolvedGraph, load_graph_named, open_graph
@@ -32,11 +32,12 @@ from ..graph.model import Graph
 from ..nodes import RunContext
 from ..paths import OutputLock, prepare_dir
 from ..plugins import PluginManager, get_plugin_manager
-from ..run.batch import Planner, clean_leftovers, describe_error, finish_runs
 from ..run.executor import Executor, RunResult
 from ..run.record import RunRecord, stopped_by, write_run_files
-from ..run.runners import InProcessRunner, Runner, select_runner
 from .single import checkpoint_for
+
+if TYPE_CHECKING:  # the batch modules load only for a batch: `lanegraph run` on one input keeps its start-up
+    from ..run.runners import Runner
 
 
 def _stdout(msg: str) -> None:
@@ -84,6 +85,8 @@ class Session:
 
     def runner(self, scheduler: str | None, cache: Any = None) -> Runner:
         """The runner of ``--scheduler`` (:func:`lanegraph.run.runners.select_runner`)."""
+        from ..run.runners import select_runner
+
         return select_runner(scheduler, self.pm, cache)
 
     @contextmanager
@@ -317,6 +320,9 @@ class Session:
         """``lanegraph run GRAPH --dataset FILE``: the graph on every sequence, into
         ``OUT/<sequence>/``; 0, 1 when a frame failed or a sequence stopped, 2 when no sequence
         could start. Errors found before anything runs are raised (exit 2)."""
+        from ..run.batch import describe_error
+        from ..run.runners import InProcessRunner
+
         runner = runner if runner is not None else InProcessRunner()
         try:
             with self.locked(out_dir, "run"):
@@ -349,6 +355,8 @@ class Session:
     ) -> list[dict[str, Any]]:
         """One summary per sequence: ``sequence``, ``frames``, ``failures`` (failed frames),
         ``error`` (what stopped the run, or ``None``), ``results`` (the sinks' result files)."""
+        from ..run.batch import Planner, clean_leftovers, finish_runs
+
         graph.validate(self.pm)  # a GraphError before anything runs
         planner = Planner(self.pm, chunk_frames, warmup, record_extra=self.record_extra)
         plans = []

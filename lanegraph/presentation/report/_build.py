@@ -438,7 +438,7 @@ def _node_pictures(
         debug_dir = find_debug_dir(data.run_dir, entries, exclude=[out])
     if debug_dir is None:
         return 0
-    from ..render import _safe
+    from ..debug import _safe
 
     g = data.graph
     order = list(g.order) if g is not None else []

@@ -19,7 +19,7 @@ from ...errors import GraphError, LanegraphError, NodeError
 from ...lifecycle import close
 from ...plugins import PluginManager
 from ...run.sources import detect_source, open_source, select_source
-from ..render import _safe as debug_folder_name
+from ..debug import _safe as debug_folder_name
 from ..render import to_bgr
 
 #: the ``--debug-dir`` picture of one node output: ``<node id>.<port>.png`` (node ids have no dot)
