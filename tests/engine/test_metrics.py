@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lanegraph.metrics import evaluate, evaluate_frame, match_score, polyline_x_at
+from lanegraph.evaluation.metrics import evaluate, evaluate_frame, match_score, polyline_x_at
 
 GT_ROWS = [[100.0 + (300 - y) * 0.5, float(y)] for y in range(300, 190, -10)]  # 11 rows, 300..200
 
@@ -74,7 +74,7 @@ def test_aggregate_and_missing_frames():
 
 
 def test_match_frame_exposes_each_lane_and_marking_outcome():
-    from lanegraph.metrics import match_frame
+    from lanegraph.evaluation.metrics import match_frame
 
     gt = {
         "frame": "a",
