@@ -141,8 +141,8 @@ def test_a_lanes_file_with_other_lines_than_frames_done(tmp_path):
 def test_a_feedback_value_of_the_wrong_type_is_refused(tmp_path, installed_pm):
     """A string where lanes belong used to fail frame 3 with an AttributeError."""
     from lanegraph.errors import UsageError
-    from lanegraph.graph import load_graph
-    from lanegraph.resume import check_feedback_types
+    from lanegraph.graph.validation import load_graph
+    from lanegraph.run.resume import check_feedback_types
     from lanegraph.types import Lane
 
     g = load_graph(PAPER, pm=installed_pm)
@@ -165,9 +165,9 @@ def test_a_scheduler_that_cannot_work_is_refused_at_once(monkeypatch):
     """Issue 31, item 7: ``local:1000`` on a 2-core machine was still starting workers after 120 s;
     ``ftp://x`` waited 30 s before it was refused."""
     pytest.importorskip("distributed")
-    from lanegraph import distributed
-    from lanegraph.batch import parse_scheduler
     from lanegraph.errors import UsageError
+    from lanegraph.run import distributed
+    from lanegraph.run.batch import parse_scheduler
 
     monkeypatch.setattr(distributed, "_cores", lambda: 2)
     for text, words in [
@@ -241,8 +241,8 @@ def test_a_kitti_camera_far_from_the_rig_is_refused(cli, tmp_path, rows, words):
 
 def test_two_ablation_variants_never_share_a_folder(cli, tmp_path):
     """Issue 31, item 11: two variants of one name shared runs/<variant>/ and gave identical rows."""
-    from lanegraph.ablate import Variant, distinct_folders
     from lanegraph.errors import UsageError
+    from lanegraph.evaluation.ablate import Variant, distinct_folders
 
     a, b, c = tmp_path / "a.yaml", tmp_path / "b.yaml", tmp_path / "c.yaml"
     variants = [Variant("x", a), Variant("x", b), Variant("X", c), Variant("x-2", a, ["n.p=1"])]
@@ -262,7 +262,8 @@ def test_an_over_long_extends_chain_is_reported_as_one(tmp_path, installed_pm):
     """Issue 31, item 11: a chain of 2000 files was "nesting deeper than 32 levels" on an unrelated
     two-line file (the recursion ran out of stack in the YAML parser)."""
     from lanegraph.errors import GraphError
-    from lanegraph.graph import MAX_EXTENDS, load_graph
+    from lanegraph.graph.model import MAX_EXTENDS
+    from lanegraph.graph.validation import load_graph
 
     def chain(n: int) -> Path:
         (tmp_path / "g0.yaml").write_text(f"extends: {DEMO}\n")

@@ -38,7 +38,7 @@ from ..run.results import LANES, find_result
 from ..run.resume import input_identity
 from ..run.runners import InProcessRunner, Runner
 from .dataset import POOLED, Dataset, evaluate_sequences, read_gt
-from .errors import UsageError
+from ..errors import UsageError
 from .metrics import evaluate, read_predictions
 
 
