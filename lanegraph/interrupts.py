@@ -45,6 +45,14 @@ def _raise(signum: int, frame: object) -> None:
     raise Interrupted(signal.Signals(signum).name)
 
 
+def label_and_code(exc: BaseException) -> tuple[str, int]:
+    """How a message names an interruption and the exit code it gives: ``("SIGTERM", 143)``; a
+    plain ``KeyboardInterrupt`` is Ctrl-C (130)."""
+    if isinstance(exc, Interrupted):
+        return exc.label, exc.exit_code
+    return "Ctrl-C", 130
+
+
 def active() -> bool:
     """Whether :func:`handling` is installed (then a plain ``KeyboardInterrupt`` is a plugin's)."""
     return _depth > 0

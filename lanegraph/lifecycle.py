@@ -32,6 +32,8 @@ Capabilities around the life cycle, each its own protocol:
     content key for the result cache.
 :class:`Sink`
     ``outputs``: the files it wrote (printed at the end of ``lanegraph run``).
+:class:`Verified`
+    ``verify()`` after the last frame: raises when its output on disk is no longer the one it wrote.
 
 Declarations made on the class itself, read before anything is instantiated (static methods; see
 :mod:`lanegraph.nodes`): ``select_source(params, input_path, detect)`` (a source that stands for
@@ -101,6 +103,15 @@ class SkipsFrames(Protocol):
     says how many (the executor drops the rest unseen)."""
 
     skipped: int
+
+
+@runtime_checkable
+class Verified(Protocol):
+    """A node that can tell, after the last frame and before close, whether its outputs on disk
+    are still those it wrote (``verify()`` raises when not: the lanes file was replaced during the
+    run)."""
+
+    def verify(self) -> None: ...
 
 
 @runtime_checkable

@@ -24,6 +24,7 @@ import json
 import os
 import pickle
 import shutil
+import signal
 from pathlib import Path
 
 import cv2
@@ -71,7 +72,9 @@ def _interrupted_run(cli, out: Path, installed_pm, at: int = 2, graph: str = DEM
         @hookimpl
         def lanegraph_before_node(self, node_id, frame):
             if node_id == "write" and frame is not None and int(frame) == at:
-                raise KeyboardInterrupt
+                os.kill(
+                    os.getpid(), signal.SIGINT
+                )  # Ctrl-C (a plugin raising KeyboardInterrupt is its own failure)
 
     installed_pm.register(CtrlC(), name="ctrl-c")
     try:
@@ -373,7 +376,9 @@ def test_resume_with_another_input_or_deleted_lanes_is_refused(cli, tmp_path, in
         @hookimpl
         def lanegraph_after_node(self, node_id, frame):
             if node_id == "write" and frame == "000001":
-                raise KeyboardInterrupt
+                os.kill(
+                    os.getpid(), signal.SIGINT
+                )  # Ctrl-C (a plugin raising KeyboardInterrupt is its own failure)
 
     installed_pm.register(CtrlC(), name="ctrl-c")
     try:
@@ -434,7 +439,9 @@ def test_failures_accumulate_over_resumes(cli, tmp_path, installed_pm):
         @hookimpl
         def lanegraph_after_node(self, node_id, frame):
             if node_id == "write" and frame == "000003":
-                raise KeyboardInterrupt
+                os.kill(
+                    os.getpid(), signal.SIGINT
+                )  # Ctrl-C (a plugin raising KeyboardInterrupt is its own failure)
 
     installed_pm.register(CtrlC(), name="ctrl-c")
     try:
@@ -962,7 +969,9 @@ def test_ablate_interrupted_keeps_the_finished_variants(cli, tmp_path, installed
         @hookimpl
         def lanegraph_before_node(self, node_id, node_type, frame):
             if node_type == "disparity.sgbm" and frame == "000001" and CtrlC.armed:
-                raise KeyboardInterrupt
+                os.kill(
+                    os.getpid(), signal.SIGINT
+                )  # Ctrl-C (a plugin raising KeyboardInterrupt is its own failure)
 
     CtrlC.armed = False
     runs = {"n": 0}

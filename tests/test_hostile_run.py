@@ -13,12 +13,14 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import sys
 from pathlib import Path
 
 import pytest
+from pydantic import Field
 
-from lanegraph import hookimpl
+from lanegraph import NodeParams, Port, hookimpl, node_type
 
 from . import test_hostile as hostile
 from .test_bad_input import DEMO, P2, SMALL, kitti_raw, pair_folder
@@ -526,3 +528,212 @@ def test_resource_fork_files_are_not_frames(cli, tmp_path):
         "000001",
         "000002",
     ]
+
+
+# ============================================================================ 5. plugins that end a run
+class EndsParams(NodeParams):
+    frame: str = Field("", description="id of the frame on which to end things (empty: never)")
+    how: str = Field(
+        "exit", description="exit (sys.exit(0)), ctrl-c (KeyboardInterrupt) or base (a BaseException)"
+    )
+
+
+class _Odd(BaseException):
+    pass
+
+
+@node_type("hostile.ends", inputs={"frame": Port("frame_id")}, outputs={"y": "number"})
+def ends(params: EndsParams, frame: str) -> dict:
+    """Ends the process on frame ``params.frame``, the way ``params.how`` says."""
+    if frame == params.frame:
+        if params.how == "exit":
+            sys.exit(0)
+        if params.how == "ctrl-c":
+            raise KeyboardInterrupt
+        raise _Odd("a plugin's own BaseException")
+    return {"y": 1.0}
+
+
+class EndsPlugin:
+    @staticmethod
+    @hookimpl
+    def lanegraph_node_types():
+        return [ends]
+
+
+def _ends_graph(tmp_path: Path, how: str, on_error: str = "fail") -> Path:
+    g = tmp_path / f"ends_{how}_{on_error}.yaml"
+    g.write_text(
+        f"extends: {DEMO}\non_error: {on_error}\nnodes:\n"
+        f"  boom: {{type: hostile.ends, params: {{frame: '0000000002', how: {how}}}, inputs: {{frame: src.frame}}}}\n"
+    )
+    return g
+
+
+@pytest.mark.parametrize(
+    "how, words",
+    [("exit", "SystemExit: 0"), ("ctrl-c", "KeyboardInterrupt"), ("base", "_Odd: a plugin's own")],
+)
+def test_a_node_that_exits_is_a_located_failure(cli, tmp_path, installed_pm, how, words):
+    """Issue 31, item 2: a node calling sys.exit(0) ended the run with exit 0, no error and no
+    run.json. Now: the node's failure, located, recorded, exit 1; under on_error: skip the frame."""
+    installed_pm.register(EndsPlugin, name="ends")
+    try:
+        out = tmp_path / "out"
+        code, output = cli("run", _ends_graph(tmp_path, how), "--out", out, "--quiet", *SYNTH)
+        assert code == 1, output
+        assert f"node 'boom' (hostile.ends) failed on frame 0000000002: {words}" in output, output
+        rec = json.loads((out / "run.json").read_text())
+        assert rec["status"] == "stopped" and rec["stopped"]["node"] == "boom", rec
+        assert rec["stopped"]["frame"] == "0000000002" and (out / "timings.json").is_file()
+        assert len(lines(out / "lanes.jsonl")) == 2
+        out = tmp_path / "skip"
+        code, output = cli("run", _ends_graph(tmp_path, how, "skip"), "--out", out, "--quiet", *SYNTH)
+        assert code == 1, output
+        rec = json.loads((out / "run.json").read_text())
+        assert [(f["frame"], f["node"]) for f in rec["failures"]] == [("0000000002", "boom")], rec
+        assert words in rec["failures"][0]["error"] and len(lines(out / "lanes.jsonl")) == 3
+    finally:
+        installed_pm.unregister(name="ends")
+
+
+class _HookEnds:
+    """A plugin whose hook ``name`` calls sys.exit(0) (on frame 0000000002 for the node hooks)."""
+
+    def __init__(self, name: str):
+        self.name = name
+
+    def _maybe(self, name: str, frame=None) -> None:
+        if name == self.name and (frame is None or frame == "0000000002"):
+            sys.exit(0)
+
+    @hookimpl
+    def lanegraph_run_start(self):
+        self._maybe("lanegraph_run_start")
+
+    @hookimpl
+    def lanegraph_before_node(self, node_id, frame):
+        if node_id == "write":
+            self._maybe("lanegraph_before_node", frame or "-")
+
+    @hookimpl
+    def lanegraph_after_node(self, node_id, frame):
+        if node_id == "write":
+            self._maybe("lanegraph_after_node", frame or "-")
+
+    @hookimpl
+    def lanegraph_run_end(self):
+        self._maybe("lanegraph_run_end")
+
+
+@pytest.mark.parametrize(
+    "hook, n_lines",
+    [
+        ("lanegraph_run_start", 0),
+        ("lanegraph_before_node", 2),
+        ("lanegraph_after_node", 3),
+        ("lanegraph_run_end", 4),
+    ],
+)
+def test_a_hook_that_exits_is_a_located_failure_and_the_record_is_written(
+    cli, tmp_path, installed_pm, hook, n_lines
+):
+    """Issue 31, item 4: a raising lanegraph_run_end gave a traceback after the last frame and no
+    run.json nor timings.json; the node hooks raw tracebacks."""
+    installed_pm.register(_HookEnds(hook), name="hook-ends")
+    try:
+        out = tmp_path / "out"
+        code, output = cli("run", DEMO, "--out", out, "--quiet", *SYNTH)
+    finally:
+        installed_pm.unregister(name="hook-ends")
+    assert code == 1, output
+    assert f"plugin 'hook-ends': hook {hook}: raised SystemExit: it called sys.exit(0)" in output, output
+    rec = json.loads((out / "run.json").read_text())
+    assert rec["status"] == "stopped" and f"hook {hook}" in rec["stopped"]["error"], rec
+    assert (out / "timings.json").is_file()
+    assert len(lines(out / "lanes.jsonl")) == n_lines
+
+
+def test_a_lanes_file_replaced_during_the_run_is_said_exit_1(cli, tmp_path, installed_pm):
+    """Issue 31, item 1: the run checks at the end that the lanes file on disk is the one it wrote."""
+    out = tmp_path / "out"
+
+    class Replaces:
+        @hookimpl
+        def lanegraph_after_node(self, node_id, frame):
+            if node_id == "write" and frame == "0000000001":
+                (out / "other.jsonl").write_text('{"frame": "x", "lanes": []}\n')
+                os.replace(out / "other.jsonl", out / "lanes.jsonl")
+
+    installed_pm.register(Replaces(), name="replaces")
+    try:
+        code, output = cli("run", DEMO, "--out", out, "--quiet", *SYNTH)
+    finally:
+        installed_pm.unregister(name="replaces")
+    assert code == 1, output
+    assert f"{out / 'lanes.jsonl'}: replaced during the run" in output, output
+    rec = json.loads((out / "run.json").read_text())
+    assert rec["status"] == "stopped" and "replaced during the run" in rec["stopped"]["error"]
+
+
+def test_no_abort_when_the_first_frame_cannot_be_read(tmp_path):
+    """Issue 31, item 3: a truncated first frame wrote the right error and run.json, then the
+    process aborted ('terminate called without an active exception', exit 134) while the
+    read-ahead thread was still decoding the next frame. Now it is stopped and joined first."""
+    import subprocess
+
+    import cv2
+    import numpy as np
+
+    d = tmp_path / "in"
+    for side in ("left", "right"):
+        (d / side).mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    for i in range(3):
+        img = rng.integers(0, 256, (1000, 1500), dtype=np.uint8)
+        for side in ("left", "right"):
+            cv2.imwrite(str(d / side / f"{i:06d}.png"), img)
+    (d / "calib.yaml").write_text("f: 1200\ncx: 750\ncy: 500\nbaseline: 0.5\n")
+    first = d / "left" / "000000.png"
+    first.write_bytes(first.read_bytes()[:2000])
+    for k in range(3):
+        r = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "lanegraph.cli",
+                "run",
+                str(DEMO),
+                "--input",
+                str(d),
+                "--out",
+                str(tmp_path / f"o{k}"),
+                "--quiet",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        assert r.returncode == 1, (r.returncode, r.stderr)
+        assert "terminate called" not in r.stderr and "cannot decode image" in r.stderr, r.stderr
+        assert json.loads((tmp_path / f"o{k}" / "run.json").read_text())["status"] == "stopped"
+
+
+def test_debug_frames_that_match_nothing_are_in_run_json(cli, tmp_path):
+    """Issue 31, item 11: the warning was on stderr only; docs/errors.md says run.json holds it."""
+    out = tmp_path / "out"
+    code, output = cli(
+        "run",
+        DEMO,
+        "--out",
+        out,
+        "--debug-dir",
+        tmp_path / "dbg",
+        "--debug-frames",
+        "1,77",
+        "--quiet",
+        *SYNTH,
+    )
+    assert code == 0, output
+    rec = json.loads((out / "run.json").read_text())
+    assert any("--debug-frames 77 matched no frame" in w for w in rec["warnings"]), rec["warnings"]

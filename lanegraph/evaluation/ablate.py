@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ..errors import UsageError
 from ..graph.files import ResolvedGraph
 from ..paths import inside, safe_name, write_bytes_atomic, write_text_atomic
 from ..plugins import get_plugin_manager
@@ -38,7 +39,6 @@ from ..run.results import LANES, find_result
 from ..run.resume import input_identity
 from ..run.runners import InProcessRunner, Runner
 from .dataset import POOLED, Dataset, evaluate_sequences, read_gt
-from ..errors import UsageError
 from .metrics import evaluate, read_predictions
 
 

@@ -25,8 +25,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from .. import interrupts
 from .._runtime import tune_allocator
-from ..errors import InputError, LanegraphError, NodeError
+from ..errors import HookError, InputError, LanegraphError, NodeError
 from ..graph.model import Graph, GraphNode
 from ..lifecycle import (
     Identified,
@@ -34,11 +35,12 @@ from ..lifecycle import (
     Sink,
     Sized,
     SkipsFrames,
+    Verified,
     close_all,
     constants_of,
 )
 from ..nodes import RunContext
-from ..plugins import PluginManager, get_plugin_manager
+from ..plugins import PluginManager, call_hook, get_plugin_manager
 from .cache import ResultCache, digest
 from .checkpointing import Checkpointer, OpenedInput, run_identity
 from .outcome import FrameFailure, RunResult
@@ -155,10 +157,17 @@ class Executor:
         result: RunResult,
         key: str | None = None,
     ) -> dict:
-        hook = self.pm.hook
-        hook.lanegraph_before_node(node_id=node.id, node_type=node.type.name, frame=frame, inputs=inputs)
+        # every hook guarded (:func:`lanegraph.plugins.call_hook`): a raising one is a HookError
+        call_hook(
+            self.pm,
+            "lanegraph_before_node",
+            node_id=node.id,
+            node_type=node.type.name,
+            frame=frame,
+            inputs=inputs,
+        )
         after = functools.partial(
-            hook.lanegraph_after_node, node_id=node.id, node_type=node.type.name, frame=frame
+            call_hook, self.pm, "lanegraph_after_node", node_id=node.id, node_type=node.type.name, frame=frame
         )
         use_cache = self.cache is not None and key is not None and node.id in self.cache_nodes
         if use_cache:
@@ -183,7 +192,9 @@ class Executor:
             missing = set(node.type.outputs) - set(out)
             if missing and not node.type.sink:
                 raise TypeError(f"node function did not return output port(s) {sorted(missing)}")
-        except Exception as exc:  # noqa: BLE001 - reported with node id and frame
+        except BaseException as exc:  # SystemExit, KeyboardInterrupt too: the node's failure, located
+            if interrupts.is_interruption(exc):
+                raise
             err = exc
         else:
             err = None
@@ -303,18 +314,42 @@ class Executor:
         )
         self.open()
         at = self._start()
-        self.pm.hook.lanegraph_run_start(graph=g, context=self.context)
+        failed: BaseException | None = None
         try:
+            call_hook(self.pm, "lanegraph_run_start", graph=g, context=self.context)
             values, keys = self._run_constants()
             if self.checkpoint is not None:
                 self._write_checkpoint(at.position, at.last_frame, at.previous, at.prev_keys)
             self._stream(values, keys, at, on_frame)
+            self._verify()
             if self.checkpoint is not None:
                 self._write_checkpoint(at.position, at.last_frame, at.previous, at.prev_keys, complete=True)
+        except BaseException as exc:
+            failed = exc
+            raise
         finally:
             self.close()  # an error of a close must not hide the run's own
-            self.pm.hook.lanegraph_run_end(graph=g, context=self.context, frames=result.frames)
+            try:
+                call_hook(self.pm, "lanegraph_run_end", graph=g, context=self.context, frames=result.frames)
+            except HookError as exc:
+                if failed is None:
+                    raise  # the run's record says so (the session writes run.json, exit 1)
+                result.notes.append(str(exc))  # the run's own error comes first
         return result
+
+    def _verify(self) -> None:
+        """After the last frame: every node that can tell (:class:`lanegraph.lifecycle.Verified`)
+        checks that its outputs on disk are still the ones it wrote (the lanes file was not
+        replaced during the run); a :class:`LanegraphError` (exit 1) when one is not."""
+        for nid, inst in self.instances.items():
+            if isinstance(inst, Verified):
+                try:
+                    inst.verify()
+                except LanegraphError:
+                    raise
+                except Exception as exc:  # noqa: BLE001
+                    n = self.graph.nodes[nid]
+                    raise NodeError(nid, n.type.name, None, exc) from exc
 
     def _start(self) -> _Position:
         """Where the stream starts: the beginning, or where a resumed checkpoint left off (its
@@ -348,7 +383,9 @@ class Executor:
                 else None
             )
         if consts:
-            self.pm.hook.lanegraph_after_node(
+            call_hook(
+                self.pm,
+                "lanegraph_after_node",
                 node_id=src.id,
                 node_type=src.type.name,
                 frame=None,
@@ -376,7 +413,25 @@ class Executor:
         feedback = {(e.src_node, e.src_port) for e in g.edges if e.previous}
         warm = RunResult(node_types=result.node_types) if self.warmup else result
         drop = max(self.context.skip - self._skipped, 0)  # frames done that the source did not leave out
-        for index, frame_out in self._frames(source, g.source.id, result, at.position, drop):
+        frames = self._frames(source, g.source.id, result, at.position, drop)
+        try:
+            self._each_frame(frames, values, keys, at, on_frame, feedback, warm)
+        finally:
+            frames.close()  # the read-ahead thread stops and is joined on every path (no abort at exit)
+
+    def _each_frame(
+        self,
+        frames: Iterator[tuple[int, dict[str, Any] | None]],
+        values: dict,
+        keys: dict,
+        at: _Position,
+        on_frame: Callable[[int, str | None], None] | None,
+        feedback: set[tuple[str, str]],
+        warm: RunResult,
+    ) -> None:
+        result = self.result
+        assert result is not None
+        for index, frame_out in frames:
             at.position = index + 1
             if frame_out is None:  # the source could not read this frame (recorded as a failure)
                 at.previous, at.prev_keys = {}, {}
@@ -441,7 +496,9 @@ class Executor:
             )
         # the source is an iterator read ahead, so it fires only the after-node hook
         src_ms = (self.result.timings_ms.get(src_id) or [0.0])[-1]
-        self.pm.hook.lanegraph_after_node(
+        call_hook(
+            self.pm,
+            "lanegraph_after_node",
             node_id=src_id,
             node_type=g.source.type.name,
             frame=frame,
@@ -492,6 +549,20 @@ class Executor:
         """
         node = self.graph.nodes[src_id]
         items = prefetched(iter(source), self.prefetch) if self.prefetch > 0 else timed(iter(source))
+        try:
+            yield from self._read(items, node, src_id, result, start, drop)
+        finally:
+            items.close()  # stop the read-ahead thread and join it, whatever ended the stream
+
+    def _read(
+        self,
+        items: Iterator[tuple[str, Any, float]],
+        node: GraphNode,
+        src_id: str,
+        result: RunResult,
+        start: int,
+        drop: int,
+    ) -> Iterator[tuple[int, dict[str, Any] | None]]:
         index = start
         scratch = RunResult()  # what warm-up frames record
         for kind, item, elapsed in items:
@@ -504,7 +575,9 @@ class Executor:
             if kind == "error":
                 exc = item
                 frame = getattr(exc, "frame", None)
-                self.pm.hook.lanegraph_after_node(
+                call_hook(
+                    self.pm,
+                    "lanegraph_after_node",
                     node_id=src_id,
                     node_type=node.type.name,
                     frame=frame,

@@ -14,8 +14,9 @@ maps errors to exit codes in one place (:mod:`lanegraph.cli._errors`).
 
 Extension points kept here for every command alike: :attr:`Session.record_extra` (fields every
 ``run.json`` of the session gets: the command line, overrides, versions), :meth:`Session.locked`
-(the output folder's lock), and the interruption of a run (:class:`~lanegraph.errors.RunStopped`
-with exit code 130 after the record of what was done is written).
+(the output folder's lock), and the interruption of a run by Ctrl-C, SIGTERM or SIGHUP
+(:class:`~lanegraph.errors.RunStopped` with exit code 130, 143 or 129 after the record of what was
+done is written; :mod:`lanegraph.interrupts`).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from .. import interrupts
 from ..errors import InputError, LanegraphError, NotStarted, RunStopped, UsageError
 from ..graph.files import ResolvedGraph, load_graph_named, open_graph
 from ..graph.model import Graph
@@ -129,7 +131,8 @@ class Session:
                 raise UsageError(
                     f"--debug-frames {debug_frames!r}: expected frame ids or indices, comma-separated"
                 )
-        with self.locked(out_dir, "run", (debug_dir, "--debug-dir")):
+        # Ctrl-C, SIGTERM and SIGHUP stop the run alike: its record says so, --resume continues
+        with interrupts.handling(), self.locked(out_dir, "run", (debug_dir, "--debug-dir")):
             status = self._run_locked(g, input_path, out_dir, frames, resume, debug_dir, chosen)
         if make_report and status is not None:
             dbg = (
@@ -226,9 +229,9 @@ class Session:
         except (LanegraphError, KeyboardInterrupt, OSError) as exc:
             if bar is not None:
                 bar.close()
-            if isinstance(exc, KeyboardInterrupt):
-                err: LanegraphError = LanegraphError("interrupted (Ctrl-C); continue with --resume")
-                code = 130
+            if isinstance(exc, KeyboardInterrupt):  # Ctrl-C, SIGTERM, SIGHUP (lanegraph.interrupts)
+                label, code = interrupts.label_and_code(exc)
+                err: LanegraphError = LanegraphError(f"interrupted ({label}); continue with --resume")
             elif isinstance(exc, OSError):
                 err = LanegraphError(
                     f"{str(exc.filename) + ': ' if exc.filename else ''}{exc.strerror or exc}"
@@ -281,6 +284,12 @@ class Session:
         """Write the run's record and say what it did: 0, 1 (frames failed) or None (its record
         could not be written)."""
         status = 0
+        if recorder is not None and debug_frames is not None:
+            missed = sorted(f for f in debug_frames if f not in recorder.matched)
+            if missed:  # said at the end and in run.json's warnings
+                result.notes.append(
+                    f"--debug-frames {', '.join(missed)} matched no frame of the run; nothing recorded for them"
+                )
         written = self._write_record(out_dir, g, input_path, result)
         if result.failures:
             self.err(f"{len(result.failures)} frame(s) failed:")
@@ -289,12 +298,6 @@ class Session:
             status = 1
         for w in result.warnings():
             self.err(f"warning: {w}")
-        if recorder is not None and debug_frames is not None:
-            missed = sorted(f for f in debug_frames if f not in recorder.matched)
-            if missed:
-                self.err(
-                    f"warning: --debug-frames {', '.join(missed)} matched no frame of the run; nothing recorded for them"
-                )
         if not written:
             return None
         outputs = [str(p) for p in ex.outputs()]
@@ -325,7 +328,7 @@ class Session:
 
         runner = runner if runner is not None else InProcessRunner()
         try:
-            with self.locked(out_dir, "run"):
+            with interrupts.handling(), self.locked(out_dir, "run"):
                 summary = self._run_dataset(graph, dataset, out_dir, frames, runner, chunk_frames, warmup)
         except LanegraphError as exc:  # a usage error, an unusable input found before any frame ran
             if exc.exit_code == 2:

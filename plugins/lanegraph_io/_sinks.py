@@ -170,6 +170,30 @@ class WriteLanes:
         self.fh.seek(n)
         self._hash, self._bytes, self._start, self._frames = h, n, start, frames
 
+    def verify(self) -> None:
+        """After the last frame: the file at :attr:`path` must be the one this run wrote (the same
+        file, of the length written); another run, or a person, replacing it is an error (the run
+        exits 1 saying so)."""
+        if self.fh is None:
+            return
+        mine = os.fstat(self.fh.fileno())
+        try:
+            there = os.stat(self.path, follow_symlinks=False)
+        except OSError:
+            there = None
+        if there is None or (there.st_dev, there.st_ino) != (mine.st_dev, mine.st_ino):
+            raise InputError(
+                f"{'gone' if there is None else 'replaced'} during the run: the file there is not the one this run "
+                f"wrote its {self._frames} line(s) to (another process wrote into the output folder?)",
+                path=str(self.path),
+            )
+        if mine.st_size != self._bytes:
+            raise InputError(
+                f"changed during the run: {mine.st_size} bytes, this run wrote {self._bytes} "
+                "(another process wrote into it?)",
+                path=str(self.path),
+            )
+
     def close(self) -> None:
         if self.fh is not None:
             self.fh.close()
