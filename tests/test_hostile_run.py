@@ -737,3 +737,33 @@ def test_debug_frames_that_match_nothing_are_in_run_json(cli, tmp_path):
     assert code == 0, output
     rec = json.loads((out / "run.json").read_text())
     assert any("--debug-frames 77 matched no frame" in w for w in rec["warnings"]), rec["warnings"]
+
+
+def test_an_empty_out_and_an_unusable_scheduler_are_refused_at_once(cli, tmp_path):
+    """Issue 31, items 7 and 9: ``--out ""`` wrote the run files into the current folder;
+    ``--scheduler local:1000`` started workers for minutes, ``ftp://x`` waited 30 s."""
+    pytest.importorskip("distributed")
+    for args in (["run", DEMO, *SYNTH], ["ablate", DEMO], ["report", tmp_path]):
+        code, output = cli(*args, "--out", "")
+        assert code == 2 and "expected a folder, got ''" in output, output
+    assert not (tmp_path / "lanes.jsonl").exists() and not (tmp_path / "run.json").exists()
+    ds = tmp_path / "ds.yaml"
+    ds.write_text(f"name: d\nsequences:\n  - {{name: a, input: {pair_folder(tmp_path / 'in')}}}\n")
+    for sched, words in (
+        ("local:100000", "worker processes, but this process may use"),
+        ("ftp://x", "unknown scheme 'ftp'"),
+    ):
+        code, output = cli(
+            "run", DEMO, "--dataset", ds, "--scheduler", sched, "--out", tmp_path / "o", "--quiet"
+        )
+        assert code == 2 and words in output, output
+        assert not (tmp_path / "o").exists()
+
+
+def test_what_a_graph_carries_from_frame_to_frame(installed_pm):
+    """Issue 31, item 10: a chunked run says when the graph's state may outlive the warm-up."""
+    from lanegraph.graph.validation import load_graph
+    from lanegraph.run.batch import carried_state
+
+    assert carried_state(load_graph(DEMO, pm=installed_pm)) is None
+    assert "verify.lanes@prev" in carried_state(load_graph(PAPER, pm=installed_pm))

@@ -10,6 +10,23 @@ from ..errors import UsageError
 from ..service import Session
 
 
+class FolderPath(click.Path):
+    """``click.Path`` for a folder option: an empty value (``--out ""``, which would have meant the
+    current folder) is refused, naming the option."""
+
+    def __init__(self) -> None:
+        super().__init__(path_type=Path)
+
+    def convert(self, value, param, ctx):  # noqa: ANN001, D102 - click's signature
+        if isinstance(value, str) and not value.strip():
+            self.fail(f"expected a folder, got {value!r} (for the current folder, give '.')", param, ctx)
+        return super().convert(value, param, ctx)
+
+
+#: the type of ``--out`` and ``--debug-dir``
+FOLDER = FolderPath()
+
+
 def session(quiet: bool = False, warn: bool = True) -> Session:
     """The run service for a command; the plugins that could not be loaded said as warnings
     (``warn``: the commands that load plugins for their own use say so)."""

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import csv
 import io
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -141,6 +142,8 @@ def run_ablation(
     _done: dict[int, Any] = {}
     try:
         runner = runner if runner is not None else InProcessRunner(cache)
+        for w in planner.warnings:  # said before anything runs (and in each run.json)
+            print(f"warning: {w}", file=sys.stderr) if echo is None else echo(f"warning: {w}")
         outcomes = runner.run(planner.tasks, progress=progress, echo=echo, done=_done)
     except KeyboardInterrupt:
         finish_runs(every, _done, partial=True)

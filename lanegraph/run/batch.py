@@ -103,6 +103,7 @@ class RunTask:
     offset: int = 0  # the sequence index of the first reported frame
     record_cache: bool = False  # timings.json gets the cache's hits and misses
     record_extra: dict[str, Any] = field(default_factory=dict)  # what the run service adds to run.json
+    notes: tuple[str, ...] = ()  # warnings for the run's run.json (a chunked run's carried state)
 
     @property
     def label(self) -> str:
@@ -301,7 +302,7 @@ def merge_chunks(tasks: list[RunTask], outcomes: list[TaskOutcome]) -> TaskOutco
     src = chunks_dir(run_dir)
     tmp = _tmp_dir(run_dir)
     tmp.mkdir()
-    merged = RunResult()
+    merged = RunResult(notes=list(first.notes))
     error = None
     for task, out in sorted(zip(tasks, outcomes), key=lambda p: p[0].chunk or 0):
         folder = src / f"{task.chunk:06d}"
@@ -333,6 +334,21 @@ def merge_chunks(tasks: list[RunTask], outcomes: list[TaskOutcome]) -> TaskOutco
 
 
 # --------------------------------------------------------------------------- planning
+def carried_state(g: Any) -> str | None:
+    """What of validated graph ``g`` outlives a frame: its feedback edges (``node.port@prev``) and
+    its stateful nodes other than the source and the sinks, as text; None when nothing does."""
+    feedback = sorted({f"{e.src_node}.{e.src_port}@prev" for e in g.edges if e.previous})
+    stateful = sorted(
+        nid for nid, n in g.nodes.items() if n.type.stateful and not n.type.source and not n.type.sink
+    )
+    parts = []
+    if feedback:
+        parts.append(f"feedback edge(s) {', '.join(feedback)}")
+    if stateful:
+        parts.append(f"stateful node(s) {', '.join(stateful)}")
+    return "; ".join(parts) or None
+
+
 def count_frames(
     graph: ResolvedGraph, input_path: Path | None, frames: slice | None, pm: PluginManager
 ) -> int | None:
@@ -412,6 +428,8 @@ class Planner:
         self.cache = cache
         self.record_extra = dict(record_extra or {})
         self.tasks: list[RunTask] = []
+        #: what the command says before the runs start (a graph whose state outlives the warm-up)
+        self.warnings: list[str] = []
         self._counts: dict[str, int | None] = {}
 
     def _count(self, graph: ResolvedGraph, input_path: Path | None, frames: slice | None) -> int | None:
@@ -420,6 +438,24 @@ class Planner:
         if key not in self._counts:
             self._counts[key] = count_frames(graph, input_path, frames, self.pm)
         return self._counts[key]
+
+    def _carried_state_note(self, graph: ResolvedGraph) -> str | None:
+        """For a chunked run: what the graph carries from frame to frame (feedback edges, stateful
+        nodes between source and sinks), said once before the runs start and in each run.json:
+        a chunk starts from its warm-up frames, not from the sequence's start, so its lanes may
+        differ from a whole run's. None for a graph that carries nothing."""
+        what = carried_state(graph.validate(self.pm))
+        if what is None:
+            return None
+        note = (
+            f"{graph.display}: the graph carries state from frame to frame ({what}); a chunk of "
+            f"{self.chunk_frames} frame(s) starts from {self.warmup} warm-up frame(s), not from the start of "
+            "its sequence, so its lanes may differ from those of a whole run (more --warmup brings them closer; "
+            "benchmarks/bench_distributed.py --chunk-sweep measures it)"
+        )
+        if note not in self.warnings:
+            self.warnings.append(note)
+        return note
 
     def add(
         self,
@@ -462,6 +498,7 @@ class Planner:
                     f"--chunk-frames: the source of {graph.display} cannot tell how many frames {input_path} has"
                 )
             key = None if run_key is None else digest(run_key, "chunks", self.chunk_frames, self.warmup)
+            note = self._carried_state_note(graph)
             for k, (sel, w, start, count) in enumerate(
                 chunk_selections(n_input, frames, self.chunk_frames, self.warmup)
             ):
@@ -474,6 +511,7 @@ class Planner:
                         chunk=k,
                         warmup=w,
                         offset=start,
+                        notes=(note,) if note else (),
                         **common,
                     )
                 )

@@ -190,7 +190,7 @@ class _Cluster:
     """A client on a local cluster it started, or on an existing scheduler; closes what it opened."""
 
     def __init__(self, spec: SchedulerSpec, echo: Callable[[str], None]):
-        check_spec(spec)  # also where --scheduler is parsed (lanegraph.cli): refused before any work
+        check_spec(spec)  # also where --scheduler is parsed (DaskRunner.from_spec): before any work
         distributed = _import_distributed()
         import logging
 

@@ -88,7 +88,12 @@ class DaskRunner:
     @classmethod
     def from_spec(cls, text: str) -> DaskRunner | None:
         spec = parse_scheduler(text)
-        return cls(spec) if spec is not None else None
+        if spec is None:
+            return None
+        from .distributed import check_spec
+
+        check_spec(spec)  # local:N beyond the CPUs, an unknown scheme: refused before anything runs
+        return cls(spec)
 
     def run(self, tasks, progress=True, echo=None, done=None):  # noqa: D102 - Runner.run
         if not tasks:

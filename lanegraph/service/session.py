@@ -372,6 +372,8 @@ class Session:
         out_dir.mkdir(parents=True, exist_ok=True)
         for plan in plans:
             clean_leftovers(plan.run_dir)
+        for w in planner.warnings:  # said before anything runs (and in each run.json)
+            self.err(f"warning: {w}")
         outcomes = runner.run(planner.tasks, progress=self.progress, echo=self.err)
         finish_runs(plans, outcomes)
         summary = []
