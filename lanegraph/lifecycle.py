@@ -184,3 +184,19 @@ def close_all(instances: Iterable[Any]) -> BaseException | None:
         except Exception as exc:  # noqa: BLE001 - the others are still closed
             first = first or exc
     return first
+
+
+def verify_all(instances: dict[str, Any], graph: Any) -> None:
+    """After the last frame: every :class:`Verified` node checks its outputs on disk; one that is
+    no longer what it wrote raises (a :class:`~lanegraph.errors.LanegraphError`, exit 1; anything
+    else it raises becomes a :class:`~lanegraph.errors.NodeError` naming it)."""
+    from .errors import LanegraphError, NodeError
+
+    for nid, inst in instances.items():
+        if isinstance(inst, Verified):
+            try:
+                inst.verify()
+            except LanegraphError:
+                raise
+            except Exception as exc:  # noqa: BLE001 - located
+                raise NodeError(nid, graph.nodes[nid].type.name, None, exc) from exc

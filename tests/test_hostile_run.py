@@ -763,7 +763,6 @@ def test_an_empty_out_and_an_unusable_scheduler_are_refused_at_once(cli, tmp_pat
 def test_what_a_graph_carries_from_frame_to_frame(installed_pm):
     """Issue 31, item 10: a chunked run says when the graph's state may outlive the warm-up."""
     from lanegraph.graph.validation import load_graph
-    from lanegraph.run.batch import carried_state
 
-    assert carried_state(load_graph(DEMO, pm=installed_pm)) is None
-    assert "verify.lanes@prev" in carried_state(load_graph(PAPER, pm=installed_pm))
+    assert load_graph(DEMO, pm=installed_pm).carried_state() is None
+    assert "verify.lanes@prev" in load_graph(PAPER, pm=installed_pm).carried_state()

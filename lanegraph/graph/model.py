@@ -151,6 +151,18 @@ class Graph:
     def source(self) -> GraphNode:
         return next(n for n in self.nodes.values() if n.type.source)
 
+    def carried_state(self) -> str | None:
+        """What outlives a frame, as text: the feedback edges (``node.port@prev``) and the stateful
+        nodes other than the source and the sinks; None when nothing does (a chunked run of such a
+        graph may differ from a whole run: :mod:`lanegraph.run.batch` says so)."""
+        feedback = sorted({f"{e.src_node}.{e.src_port}@prev" for e in self.edges if e.previous})
+        stateful = sorted(
+            nid for nid, n in self.nodes.items() if n.type.stateful and not n.type.source and not n.type.sink
+        )
+        parts = [f"feedback edge(s) {', '.join(feedback)}"] if feedback else []
+        parts += [f"stateful node(s) {', '.join(stateful)}"] if stateful else []
+        return "; ".join(parts) or None
+
     def resolved_dict(self) -> dict[str, Any]:
         """The graph after extends/overrides, as a plain dict with every param spelt out."""
         nodes: dict[str, Any] = {}

@@ -334,21 +334,6 @@ def merge_chunks(tasks: list[RunTask], outcomes: list[TaskOutcome]) -> TaskOutco
 
 
 # --------------------------------------------------------------------------- planning
-def carried_state(g: Any) -> str | None:
-    """What of validated graph ``g`` outlives a frame: its feedback edges (``node.port@prev``) and
-    its stateful nodes other than the source and the sinks, as text; None when nothing does."""
-    feedback = sorted({f"{e.src_node}.{e.src_port}@prev" for e in g.edges if e.previous})
-    stateful = sorted(
-        nid for nid, n in g.nodes.items() if n.type.stateful and not n.type.source and not n.type.sink
-    )
-    parts = []
-    if feedback:
-        parts.append(f"feedback edge(s) {', '.join(feedback)}")
-    if stateful:
-        parts.append(f"stateful node(s) {', '.join(stateful)}")
-    return "; ".join(parts) or None
-
-
 def count_frames(
     graph: ResolvedGraph, input_path: Path | None, frames: slice | None, pm: PluginManager
 ) -> int | None:
@@ -444,7 +429,7 @@ class Planner:
         nodes between source and sinks), said once before the runs start and in each run.json:
         a chunk starts from its warm-up frames, not from the sequence's start, so its lanes may
         differ from a whole run's. None for a graph that carries nothing."""
-        what = carried_state(graph.validate(self.pm))
+        what = graph.validate(self.pm).carried_state()
         if what is None:
             return None
         note = (

@@ -35,9 +35,9 @@ from ..lifecycle import (
     Sink,
     Sized,
     SkipsFrames,
-    Verified,
     close_all,
     constants_of,
+    verify_all,
 )
 from ..nodes import RunContext
 from ..plugins import PluginManager, call_hook, get_plugin_manager
@@ -157,17 +157,11 @@ class Executor:
         result: RunResult,
         key: str | None = None,
     ) -> dict:
-        # every hook guarded (:func:`lanegraph.plugins.call_hook`): a raising one is a HookError
-        call_hook(
-            self.pm,
-            "lanegraph_before_node",
-            node_id=node.id,
-            node_type=node.type.name,
-            frame=frame,
-            inputs=inputs,
+        self._hook(
+            "lanegraph_before_node", node_id=node.id, node_type=node.type.name, frame=frame, inputs=inputs
         )
         after = functools.partial(
-            call_hook, self.pm, "lanegraph_after_node", node_id=node.id, node_type=node.type.name, frame=frame
+            self._hook, "lanegraph_after_node", node_id=node.id, node_type=node.type.name, frame=frame
         )
         use_cache = self.cache is not None and key is not None and node.id in self.cache_nodes
         if use_cache:
@@ -316,12 +310,12 @@ class Executor:
         at = self._start()
         failed: BaseException | None = None
         try:
-            call_hook(self.pm, "lanegraph_run_start", graph=g, context=self.context)
+            self._hook("lanegraph_run_start", graph=g, context=self.context)
             values, keys = self._run_constants()
             if self.checkpoint is not None:
                 self._write_checkpoint(at.position, at.last_frame, at.previous, at.prev_keys)
             self._stream(values, keys, at, on_frame)
-            self._verify()
+            verify_all(self.instances, g)  # the lanes file on disk is still the one written
             if self.checkpoint is not None:
                 self._write_checkpoint(at.position, at.last_frame, at.previous, at.prev_keys, complete=True)
         except BaseException as exc:
@@ -330,26 +324,17 @@ class Executor:
         finally:
             self.close()  # an error of a close must not hide the run's own
             try:
-                call_hook(self.pm, "lanegraph_run_end", graph=g, context=self.context, frames=result.frames)
+                self._hook("lanegraph_run_end", graph=g, context=self.context, frames=result.frames)
             except HookError as exc:
                 if failed is None:
                     raise  # the run's record says so (the session writes run.json, exit 1)
                 result.notes.append(str(exc))  # the run's own error comes first
         return result
 
-    def _verify(self) -> None:
-        """After the last frame: every node that can tell (:class:`lanegraph.lifecycle.Verified`)
-        checks that its outputs on disk are still the ones it wrote (the lanes file was not
-        replaced during the run); a :class:`LanegraphError` (exit 1) when one is not."""
-        for nid, inst in self.instances.items():
-            if isinstance(inst, Verified):
-                try:
-                    inst.verify()
-                except LanegraphError:
-                    raise
-                except Exception as exc:  # noqa: BLE001
-                    n = self.graph.nodes[nid]
-                    raise NodeError(nid, n.type.name, None, exc) from exc
+    def _hook(self, name: str, **kwargs: Any) -> Any:
+        """Hook ``name`` called guarded (:func:`lanegraph.plugins.call_hook`): a hook implementation
+        that raises or misbehaves is a :class:`~lanegraph.errors.HookError` naming its plugin."""
+        return call_hook(self.pm, name, **kwargs)
 
     def _start(self) -> _Position:
         """Where the stream starts: the beginning, or where a resumed checkpoint left off (its
@@ -383,8 +368,7 @@ class Executor:
                 else None
             )
         if consts:
-            call_hook(
-                self.pm,
+            self._hook(
                 "lanegraph_after_node",
                 node_id=src.id,
                 node_type=src.type.name,
@@ -415,51 +399,37 @@ class Executor:
         drop = max(self.context.skip - self._skipped, 0)  # frames done that the source did not leave out
         frames = self._frames(source, g.source.id, result, at.position, drop)
         try:
-            self._each_frame(frames, values, keys, at, on_frame, feedback, warm)
+            for index, frame_out in frames:
+                at.position = index + 1
+                if frame_out is None:  # the source could not read this frame (recorded as a failure)
+                    at.previous, at.prev_keys = {}, {}
+                    self._consumed(at)
+                    continue
+                warming = index < self.warmup
+                frame = frame_out.get("frame")
+                t_frame = time.perf_counter()
+                try:
+                    cur, cur_keys = self._run_frame(
+                        frame_out, values, keys, at.prev_keys, at.previous, index, warm if warming else result
+                    )
+                except _SkipFrame:
+                    at.previous, at.prev_keys, at.last_frame = {}, {}, frame
+                    self._consumed(at)
+                    if on_frame and not warming:
+                        on_frame(index, frame)
+                    continue
+                at.previous = {k: cur[k] for k in feedback if k in cur}
+                at.prev_keys = {k: cur_keys.get(k) for k in feedback}
+                if warming:
+                    continue
+                result.frames += 1
+                at.last_frame = frame
+                self._consumed(at)
+                result.frame_ms.append((time.perf_counter() - t_frame) * 1000.0)
+                if on_frame:
+                    on_frame(index, frame)
         finally:
             frames.close()  # the read-ahead thread stops and is joined on every path (no abort at exit)
-
-    def _each_frame(
-        self,
-        frames: Iterator[tuple[int, dict[str, Any] | None]],
-        values: dict,
-        keys: dict,
-        at: _Position,
-        on_frame: Callable[[int, str | None], None] | None,
-        feedback: set[tuple[str, str]],
-        warm: RunResult,
-    ) -> None:
-        result = self.result
-        assert result is not None
-        for index, frame_out in frames:
-            at.position = index + 1
-            if frame_out is None:  # the source could not read this frame (recorded as a failure)
-                at.previous, at.prev_keys = {}, {}
-                self._consumed(at)
-                continue
-            warming = index < self.warmup
-            frame = frame_out.get("frame")
-            t_frame = time.perf_counter()
-            try:
-                cur, cur_keys = self._run_frame(
-                    frame_out, values, keys, at.prev_keys, at.previous, index, warm if warming else result
-                )
-            except _SkipFrame:
-                at.previous, at.prev_keys, at.last_frame = {}, {}, frame
-                self._consumed(at)
-                if on_frame and not warming:
-                    on_frame(index, frame)
-                continue
-            at.previous = {k: cur[k] for k in feedback if k in cur}
-            at.prev_keys = {k: cur_keys.get(k) for k in feedback}
-            if warming:
-                continue
-            result.frames += 1
-            at.last_frame = frame
-            self._consumed(at)
-            result.frame_ms.append((time.perf_counter() - t_frame) * 1000.0)
-            if on_frame:
-                on_frame(index, frame)
 
     def _consumed(self, at: _Position) -> None:
         if self.checkpoint is not None:
@@ -496,8 +466,7 @@ class Executor:
             )
         # the source is an iterator read ahead, so it fires only the after-node hook
         src_ms = (self.result.timings_ms.get(src_id) or [0.0])[-1]
-        call_hook(
-            self.pm,
+        self._hook(
             "lanegraph_after_node",
             node_id=src_id,
             node_type=g.source.type.name,
@@ -550,52 +519,40 @@ class Executor:
         node = self.graph.nodes[src_id]
         items = prefetched(iter(source), self.prefetch) if self.prefetch > 0 else timed(iter(source))
         try:
-            yield from self._read(items, node, src_id, result, start, drop)
+            index = start
+            scratch = RunResult()  # what warm-up frames record
+            for kind, item, elapsed in items:
+                if drop > 0:
+                    drop -= 1
+                    if kind == "error" and not isinstance(item, LanegraphError):
+                        raise NodeError(src_id, node.type.name, None, item) from item
+                    continue
+                rec = scratch if index < self.warmup else result
+                if kind == "error":
+                    exc = item
+                    frame = getattr(exc, "frame", None)
+                    self._hook(
+                        "lanegraph_after_node",
+                        node_id=src_id,
+                        node_type=node.type.name,
+                        frame=frame,
+                        outputs=None,
+                        elapsed_ms=0.0,
+                        error=exc,
+                    )
+                    if not isinstance(exc, LanegraphError):
+                        raise NodeError(src_id, node.type.name, None, exc) from exc
+                    if node.on_error == "fail":
+                        raise NodeError(src_id, node.type.name, frame, exc) from exc
+                    rec.failures.append(FrameFailure(frame, index, src_id, node.type.name, str(exc)))
+                    index += 1
+                    yield index - 1, None
+                    continue
+                rec.timings_ms.setdefault(src_id, []).append(elapsed)
+                index += 1
+                yield index - 1, item
         finally:
             items.close()  # stop the read-ahead thread and join it, whatever ended the stream
-
-    def _read(
-        self,
-        items: Iterator[tuple[str, Any, float]],
-        node: GraphNode,
-        src_id: str,
-        result: RunResult,
-        start: int,
-        drop: int,
-    ) -> Iterator[tuple[int, dict[str, Any] | None]]:
-        index = start
-        scratch = RunResult()  # what warm-up frames record
-        for kind, item, elapsed in items:
-            if drop > 0:
-                drop -= 1
-                if kind == "error" and not isinstance(item, LanegraphError):
-                    raise NodeError(src_id, node.type.name, None, item) from item
-                continue
-            rec = scratch if index < self.warmup else result
-            if kind == "error":
-                exc = item
-                frame = getattr(exc, "frame", None)
-                call_hook(
-                    self.pm,
-                    "lanegraph_after_node",
-                    node_id=src_id,
-                    node_type=node.type.name,
-                    frame=frame,
-                    outputs=None,
-                    elapsed_ms=0.0,
-                    error=exc,
-                )
-                if not isinstance(exc, LanegraphError):
-                    raise NodeError(src_id, node.type.name, None, exc) from exc
-                if node.on_error == "fail":
-                    raise NodeError(src_id, node.type.name, frame, exc) from exc
-                rec.failures.append(FrameFailure(frame, index, src_id, node.type.name, str(exc)))
-                index += 1
-                yield index - 1, None
-                continue
-            rec.timings_ms.setdefault(src_id, []).append(elapsed)
-            index += 1
-            yield index - 1, item
 
     def __len__(self) -> int:
         src = self.instances.get(self.graph.source.id)
