@@ -365,6 +365,10 @@ HOOK_RESULTS: dict[str, tuple[Any, str]] = {
     "lanegraph_render": (_is_image, "an image (an HxW or HxWx3 array) or None"),
     "lanegraph_detect_source": (lambda v: isinstance(v, str), "a source node type name (str) or None"),
     "lanegraph_read_calibration": (_is_calibration, "a lanegraph.types.Calibration or None"),
+    "lanegraph_runners": (
+        lambda v: isinstance(v, (list, tuple)) and all(isinstance(t, type) for t in v),
+        "a list of runner classes",
+    ),
 }
 
 
