@@ -66,6 +66,8 @@ def _tamper(ckpt: dict, how: str) -> dict:
             "cols": empty,
             "values": None,
         }
+    elif how == "a string where lanes belong":
+        ckpt["feedback"][0]["value"] = "lanes"
     elif how == "invalid counts":
         ckpt["invalid_outputs"] = {"profile.road": [5, 3]}
     return ckpt
@@ -88,6 +90,10 @@ TAMPERED = [
     ("a negative product", ["feedback[0] (verify.lanes)", "do not make an array of shape"]),
     ("a huge feature map", ["feedback[0] (verify.lanes)", "expected [rows, cols] of at most"]),
     ("invalid counts", ["invalid_outputs.profile.road", "[5, 3]"]),
+    (
+        "a string where lanes belong",
+        ["feedback (verify.lanes): expected a value of port type 'lanes', got a str"],
+    ),
 ]
 
 
