@@ -450,9 +450,14 @@ def _call_wrapped(
 
 
 def _plugin_name(pm: pluggy.PluginManager, plugin: Any) -> str:
+    """The name a plugin was registered under; for one registered without a name (pluggy names it
+    by its id), its module's or class's name."""
     if plugin is None:
         return "?"
-    return pm.get_name(plugin) or getattr(plugin, "__name__", None) or type(plugin).__name__
+    name = pm.get_name(plugin)
+    if name and not name.isdigit():
+        return name
+    return getattr(plugin, "__name__", None) or type(plugin).__name__
 
 
 _default: PluginManager | None = None

@@ -772,3 +772,13 @@ def test_what_a_graph_carries_from_frame_to_frame(installed_pm):
 
     assert load_graph(DEMO, pm=installed_pm).carried_state() is None
     assert "verify.lanes@prev" in load_graph(PAPER, pm=installed_pm).carried_state()
+
+
+def test_a_plugin_registered_without_a_name_is_named_by_its_class():
+    from lanegraph.errors import HookError
+    from lanegraph.plugins import PluginManager, call_hook
+
+    pm = PluginManager()
+    pm.register(_Renders(ValueError("x")))  # pluggy names it by its id
+    with pytest.raises(HookError, match=r"^plugin '_Renders': hook lanegraph_render: raised ValueError: x$"):
+        call_hook(pm, "lanegraph_render", node_type="t", port="p", value=1)
