@@ -83,7 +83,7 @@ class RoadSgbmParams(SgbmParams):
     )
 
     band_rows: int = Field(
-        32,
+        48,
         ge=8,
         le=1024,
         description="rows per band, pixels of the computing resolution; the split starts at the first "
@@ -118,7 +118,7 @@ class RoadSgbmParams(SgbmParams):
         "(where the road itself is nearer, its band reaches further)",
     )
     obstacle_height_m: float = Field(
-        1.0,
+        0.5,
         gt=0.0,
         le=100.0,
         description="height above the road up to which an obstacle's disparity is searched, metres; a "
