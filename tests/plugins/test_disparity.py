@@ -604,7 +604,7 @@ def test_road_range_holds_the_road_kerbs_and_obstacles_and_skips_beyond_the_far_
     lo_c, hi_c, _ = _road.road_range(
         road, calib, rows, calib.width, p.model_copy(update={"obstacles": "coarse"})
     )
-    assert np.all(hi_c[used] <= hi[used]) and np.any(hi_c[used] < hi[used] - 10)
+    assert np.all(hi_c[used] <= hi[used]) and np.any(hi_c[used] < hi[used] - 0.1)
 
 
 def test_road_range_covers_a_rolled_row_end_to_end():
