@@ -407,18 +407,22 @@ class _PairSource:
         pending: deque = deque()
         pairs = iter(self.pairs)
 
-        def submit() -> None:
+        def submit() -> bool:
             for stem, lp, rp in pairs:
                 fl = pool.submit(read_image, lp, stem, self.gray, mpx)
                 pending.append((stem, lp, rp, fl, pool.submit(read_image, rp, stem, self.gray, mpx)))
-                return
+                return True
+            return False
 
         try:
-            for _ in range(ahead + 1):
-                submit()
-            while pending:
+            while True:
+                # this frame and ``ahead`` more in flight; the next is submitted only when the
+                # run asks for it (read_ahead 0: nothing decodes while the nodes compute)
+                while len(pending) < ahead + 1 and submit():
+                    pass
+                if not pending:
+                    return
                 stem, lp, rp, fl, fr = pending.popleft()
-                submit()
                 try:
                     item = self._pair(stem, lp, rp, fl.result(), fr.result())
                 except InputError as exc:

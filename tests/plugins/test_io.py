@@ -291,3 +291,23 @@ def test_auto_read_ahead_follows_the_free_cpus(tmp_path, monkeypatch):
     monkeypatch.setattr(_sources, "available_cpus", lambda: 4)
     assert src.reading_plan() == (2, 4)
     assert [i["frame"] for i in src] == ["0000000000", "0000000001"]
+
+
+@pytest.mark.parametrize("read_ahead", [0, 2])
+def test_read_ahead_decodes_that_many_frames_beyond_the_one_asked_for(tmp_path, monkeypatch, read_ahead):
+    from lanegraph_io import _sources
+
+    drive = kitti_raw(tmp_path, n=8)
+    src = open_source(KittiRawSource, {"read_ahead": read_ahead}, drive)
+    asked: list[str] = []
+    real = _sources.read_image
+    monkeypatch.setattr(
+        _sources, "read_image", lambda path, *a, **k: asked.append(path.name) or real(path, *a, **k)
+    )
+    it = iter(src)
+    next(it)
+    import time
+
+    time.sleep(0.2)  # let the threads take what was submitted
+    assert len(set(asked)) == 1 + read_ahead  # this frame's pair and read_ahead more
+    it.close()
