@@ -423,10 +423,11 @@ def test_every_param_is_documented_and_bounded(model):
             assert {"Ge", "Le"} <= bounds, f"{model.__name__}.{name} lacks ge/le bounds"
 
 
-def test_plugin_registers_the_five_backends():
+def test_plugin_registers_the_six_backends():
     types = {t.name: t for t in map(node_type_of, ld.lanegraph_node_types())}
     assert set(types) == {
         "disparity.sgbm",
+        "disparity.road_sgbm",
         "disparity.bm",
         "disparity.sgm",
         "disparity.file",
