@@ -47,7 +47,23 @@ from ._fit import irls_fit
 
 @jit
 def _follow_kernel(
-    t, c, theta, row_start, t0, c0, psi0, step, half_w, cos_max, max_gap, max_kappa, min_count, owner, track
+    t,
+    c,
+    theta,
+    row_start,
+    t0,
+    c0,
+    psi0,
+    step,
+    half_w,
+    cos_max,
+    max_gap,
+    max_kappa,
+    min_count,
+    sin_turn,
+    widen,
+    owner,
+    track,
 ):
     """Follow one line from ``(c0, t0)`` (BEV column, BEV rows above the bottom row) with heading
     ``psi0`` (radians from +column towards +t; ``pi`` added: downwards) through windows.
@@ -56,7 +72,7 @@ def _follow_kernel(
     orientation (radians in [0, pi), -1 unknown); ``row_start``: index of the first feature of each
     BEV row (length rows + 1). Features taken by the track get ``owner[i] = track`` where ``owner``
     was -1. Returns ``(windows with features, features taken, lowest and highest t taken, t where
-    the heading first leaves 60 degrees of straight ahead)``."""
+    the heading first turns further from straight ahead than ``asin(sin_turn)``)``."""
     n_rows = row_start.shape[0] - 1
     ncols_hi = 1e9
     x = c0
@@ -75,13 +91,15 @@ def _follow_kernel(
         steps += 1
         cp = math.cos(psi)
         sp = math.sin(psi)
-        # window: along u in [0, step] from (x, y), across v within half_w of the predicted arc
+        # window: along u in [0, step] from (x, y), across v within hw of the predicted arc; after
+        # a gap the prediction is less sure: the window widens with the gap's length
+        hw = half_w + widen * gap
         xe = x + step * cp
         ye = y + step * sp
-        y_lo = min(y, ye) - half_w
-        y_hi = max(y, ye) + half_w
-        x_lo = min(x, xe) - half_w
-        x_hi = max(x, xe) + half_w
+        y_lo = min(y, ye) - hw
+        y_hi = max(y, ye) + hw
+        x_lo = min(x, xe) - hw
+        x_hi = max(x, xe) + hw
         # BEV rows: row = n_rows - 1 - t
         r_lo = int(math.floor(n_rows - 1 - y_hi))
         r_hi = int(math.ceil(n_rows - 1 - y_lo))
@@ -106,7 +124,7 @@ def _follow_kernel(
             if u < 0.0 or u > step:
                 continue
             v = -dx * sp + dy * cp - 0.5 * kappa * u * u
-            if v > half_w or v < -half_w:
+            if v > hw or v < -hw:
                 continue
             th = theta[i]
             if th >= 0.0 and abs(math.cos(th - psi)) < cos_max:
@@ -132,7 +150,7 @@ def _follow_kernel(
             v_end = a + b * step + 0.5 * kappa * step * step
             new_psi = psi + math.atan(b) + kappa * step
             k_meas = (new_psi - prev_psi) / step
-            kappa = 0.5 * kappa + 0.5 * k_meas
+            kappa = 0.7 * kappa + 0.3 * k_meas
             if kappa > max_kappa:
                 kappa = max_kappa
             elif kappa < -max_kappa:
@@ -175,7 +193,7 @@ def _follow_kernel(
             gap += step
             if gap > max_gap:
                 break
-        if abs(math.cos(psi)) > 0.866 and t_turn > 1e8:
+        if abs(math.cos(psi)) > sin_turn and t_turn > 1e8:
             t_turn = y
         if y < 0.0 or y > n_rows - 1:
             break
@@ -208,6 +226,13 @@ class FollowParams(NodeParams):
         le=100.0,
         description="a line is followed over windows without features (dashes' gaps, occlusions) up to this, metres",
     )
+    gap_heading_deg: float = Field(
+        6.0,
+        ge=0.0,
+        le=45.0,
+        description="after a gap a window widens by the lateral drift of a heading this far off over the gap's length "
+        "(the uncertainty of a heading measured on a dash), degrees",
+    )
     min_radius_m: float = Field(
         20.0,
         gt=0.0,
@@ -239,19 +264,6 @@ class FollowParams(NodeParams):
     )
     max_offset_m: float = Field(
         5.0, gt=0.0, le=50.0, description="farthest plausible lateral distance of a lane boundary, metres"
-    )
-    replace_gap_m: float = Field(
-        0.5,
-        gt=0.0,
-        le=20.0,
-        description="with `lanes`: a lane is replaced by the followed line on its side when they lie this far apart on "
-        "average and the followed line has more features, metres",
-    )
-    min_lane_width_m: float = Field(
-        2.0,
-        gt=0.0,
-        le=20.0,
-        description="with `lanes`: a followed lane added beside one of them must be this far from it at the BEV's bottom row, metres",
     )
     max_curvature: float = Field(
         0.1,
@@ -307,49 +319,106 @@ def _seeds(t, c, theta, row_start, rows, cols, p: FollowParams, res: float):
 
 @node_type(
     "lanes.follow",
-    inputs={
-        "features": "features",
-        "geometry": Port("bev_geometry"),
-        "lanes": Port(
-            "lanes",
-            "lanes found already (the Hough lines' fit, verified): merged with the followed lines (see merge)",
-            optional=True,
-        ),
-    },
+    inputs={"features": "features", "geometry": Port("bev_geometry")},
     outputs={"lanes": "lanes"},
 )
-def follow(
-    params: FollowParams, features: FeatureMap, geometry: BevGeometry, lanes: list[Lane] | None = None
-) -> dict:
+def follow(params: FollowParams, features: FeatureMap, geometry: BevGeometry) -> dict:
     """Lane lines followed through windows along their own heading and curvature from seeds in the
     BEV's near part; hatching bars dropped; a parabola on each line's seen part; the nearest line
     each side. Needs no previous frame."""
-    p = params
     rows, cols = features.shape
-    have = list(lanes or [])
     r, c = features.points()
-    found = follow_lanes(r, c, features.point_orientations(), rows, cols, geometry, p)
-    if lanes is None:
-        return {"lanes": found}
-    return {"lanes": merge(have, found, geometry, p)}
+    return {"lanes": follow_lanes(r, c, features.point_orientations(), rows, cols, geometry, params)}
 
 
-def _mean_gap_px(a: Lane, b: Lane, rows: int) -> float:
-    """Mean column distance of two lanes over the BEV rows both cover (inf when none)."""
+class MergeParams(NodeParams):
+    """Params of ``lanes.merge``."""
+
+    replace_gap_m: float = Field(
+        0.5,
+        gt=0.0,
+        le=20.0,
+        description="a lane is replaced by the followed line on its side when they lie this far apart on average over "
+        "the BEV rows both cover, metres",
+    )
+    meet_m: float = Field(
+        0.15,
+        gt=0.0,
+        le=5.0,
+        description="a lane and a followed line on its side are one marking where they come this close on some BEV row "
+        "(a marking's width), metres",
+    )
+    min_support_ratio: float = Field(
+        1.2,
+        ge=0.0,
+        le=100.0,
+        description="a lane is replaced only when the followed line has this many times its features (within meet_m, "
+        "on the rows both cover) (unitless)",
+    )
+    min_lane_width_m: float = Field(
+        2.0,
+        gt=0.0,
+        le=20.0,
+        description="a followed lane added beside a lane must be this far from it at the BEV's bottom row, metres",
+    )
+
+
+@node_type(
+    "lanes.merge",
+    inputs={
+        "lanes": Port("lanes", "lanes of one method (the Hough lines' fit, verified)"),
+        "followed": Port("lanes", "lanes of another (lanes.follow's, verified)"),
+        "features": Port("features", "the features both were found on: which lane they support"),
+        "geometry": Port("bev_geometry"),
+    },
+    outputs={"lanes": "lanes"},
+)
+def merge_node(
+    params: MergeParams, lanes: list[Lane], followed: list[Lane], features: FeatureMap, geometry: BevGeometry
+) -> dict:
+    """At most one lane each side from two lists: a side without a lane takes the followed one; a
+    lane that the features support less than the followed line on its side is replaced by it."""
+    return {"lanes": merge(list(lanes or []), list(followed or []), geometry, params, features)}
+
+
+def _gaps_px(a: Lane, b: Lane, rows: int) -> tuple[float, float]:
+    """Mean and smallest column distance of two lanes over the BEV rows both cover (inf when none)."""
     lo = max(a.bev_rows[0], b.bev_rows[0])
     hi = min(a.bev_rows[1], b.bev_rows[1])
     if hi <= lo:
-        return math.inf
+        return math.inf, math.inf
     t = rows - 1 - np.arange(lo, hi + 1, dtype=np.float64)
     ca = a.coeffs[0] + a.coeffs[1] * t + a.coeffs[2] * t * t
     cb = b.coeffs[0] + b.coeffs[1] * t + b.coeffs[2] * t * t
-    return float(np.mean(np.abs(ca - cb)))
+    d = np.abs(ca - cb)
+    return float(d.mean()), float(d.min())
 
 
-def merge(have: list[Lane], found: list[Lane], geometry: BevGeometry, p: FollowParams) -> list[Lane]:
+def _support(features: FeatureMap | None, lane: Lane, lo: int, hi: int, half_px: float) -> int:
+    """How many features lie within ``half_px`` columns of ``lane`` on BEV rows ``lo..hi``."""
+    if features is None:
+        return 0
+    r, c = features.points()
+    i0, i1 = np.searchsorted(r, [lo, hi + 1])
+    rr, cc = r[i0:i1], c[i0:i1]
+    rows = features.shape[0]
+    t = (rows - 1 - rr).astype(np.float64)
+    a, b, q = lane.coeffs
+    return int(np.count_nonzero(np.abs(cc - (a + b * t + q * t * t)) <= half_px))
+
+
+def merge(
+    have: list[Lane],
+    found: list[Lane],
+    geometry: BevGeometry,
+    p: MergeParams,
+    features: FeatureMap | None = None,
+) -> list[Lane]:
     """The lanes ``have`` (a straight Hough line's fit, verified) with the followed lanes ``found``:
-    a side without a lane takes the followed one; a side whose lane runs elsewhere than the followed
-    line there (``replace_gap_m`` apart on average over the rows both cover) takes the followed one:
+    a side without a lane takes the followed one; a side whose lane meets the followed line there
+    (within ``meet_m`` on some row: the same marking) but runs elsewhere (``replace_gap_m`` apart
+    on average over the rows both cover) takes the followed one when more features lie on it
+    (``min_support_ratio`` times, within ``meet_m``, on those rows); a parallel line is another marking:
     one orientation and a straight Hough line misplace a lane in a bend, while a followed line keeps
     to its features window by window (asking the followed line for more features as well lost
     one ramp frame in 16 and changed nothing on the other sequences)."""
@@ -360,8 +429,14 @@ def merge(have: list[Lane], found: list[Lane], geometry: BevGeometry, p: FollowP
         same = [o for o in out if o.side == ln.side]
         if same:
             o = same[0]
-            gap = _mean_gap_px(o, ln, rows) * res
-            if gap > p.replace_gap_m:  # whatever its support: see merge()
+            mean_gap, min_gap = _gaps_px(o, ln, rows)
+            if mean_gap * res <= p.replace_gap_m or min_gap * res >= p.meet_m:
+                continue  # the same line where both are, or another marking beside it
+            lo, hi = max(o.bev_rows[0], ln.bev_rows[0]), min(o.bev_rows[1], ln.bev_rows[1])
+            half = p.meet_m / res
+            if _support(features, ln, lo, hi, half) > p.min_support_ratio * _support(
+                features, o, lo, hi, half
+            ):
                 out[out.index(o)] = ln
             continue
         if any(abs(ln.coeffs[0] - o.coeffs[0]) * res < p.min_lane_width_m for o in out):
@@ -394,7 +469,20 @@ def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None):
         if idx.size and np.mean(owner[idx] >= 0) > 0.3:
             continue
         k = len(tracks)
-        args = (step, half_w, cos_max, max_gap, max_kappa, float(p.min_window_features), owner, k)
+        sin_turn = math.sin(math.radians(p.max_heading_deg))
+        widen = math.tan(math.radians(p.gap_heading_deg))
+        args = (
+            step,
+            half_w,
+            cos_max,
+            max_gap,
+            max_kappa,
+            float(p.min_window_features),
+            sin_turn,
+            widen,
+            owner,
+            k,
+        )
         w_up, n_up, lo_up, hi_up, turn_up = _follow_kernel(t, cf, th, row_start, t0, c0, psi0, *args)
         w_dn, n_dn, lo_dn, hi_dn, _ = _follow_kernel(t, cf, th, row_start, t0, c0, psi0 + math.pi, *args)
         n = n_up + n_dn
