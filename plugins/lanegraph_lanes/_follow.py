@@ -13,8 +13,9 @@ locks onto the bars. ``lanes.follow`` finds each line from where it is seen and 
 2. **Following** (``_follow_kernel``, numba). From a seed, windows ``step_m`` long and
    ``2 half_width_m`` wide step along the line, up the BEV and back down, predicted by the current
    heading and curvature (a circle arc). A window takes the features whose orientation is within
-   ``max_angle_deg`` of the line's heading, fits a straight line across them and corrects the
-   position, the heading and (smoothed) the curvature. Windows without features (a dashed line's
+   ``max_angle_deg`` of the line's heading and fits a straight line across them, which corrects
+   the position; the heading and the curvature come from a circle through the centres of the
+   windows over the last ``base_m`` (a window's own slope over 1 m of a dash is too noisy). Windows without features (a dashed line's
    gaps, a parked car) continue on the prediction up to ``max_gap_m``. A line that leaves the BEV
    through its side stops there: it is fitted on the part that is seen.
 3. **Hatching is not a lane.** A hatched area's bars are short tracks, at an angle to the road,
@@ -62,6 +63,7 @@ def _follow_kernel(
     min_count,
     sin_turn,
     widen,
+    base,
     owner,
     track,
 ):
@@ -71,7 +73,7 @@ def _follow_kernel(
     ``t``, ``c``, ``theta``: the features' t (descending: row-major order of the BEV), column and
     orientation (radians in [0, pi), -1 unknown); ``row_start``: index of the first feature of each
     BEV row (length rows + 1). Features taken by the track get ``owner[i] = track`` where ``owner``
-    was -1. Returns ``(windows with features, features taken, lowest and highest t taken, t where
+    was -1; features of other tracks (``owner[i]`` >= 0, not ``track``) are not looked at. Returns ``(windows with features, features taken, lowest and highest t taken, t where
     the heading first turns further from straight ahead than ``asin(sin_turn)``)``."""
     n_rows = row_start.shape[0] - 1
     ncols_hi = 1e9
@@ -87,6 +89,9 @@ def _follow_kernel(
     t_turn = 1e9
     prev_psi = psi0
     steps = 0
+    hx = np.empty(401)
+    hy = np.empty(401)
+    nh = 0
     while steps < 400:
         steps += 1
         cp = math.cos(psi)
@@ -129,6 +134,8 @@ def _follow_kernel(
             th = theta[i]
             if th >= 0.0 and abs(math.cos(th - psi)) < cos_max:
                 continue
+            if owner[i] >= 0 and owner[i] != track:  # another line's, followed already
+                continue
             sw += 1.0
             su += u
             sv += v
@@ -149,12 +156,45 @@ def _follow_kernel(
             # the end of the window on the fitted line (plus the predicted bend)
             v_end = a + b * step + 0.5 * kappa * step * step
             new_psi = psi + math.atan(b) + kappa * step
-            k_meas = (new_psi - prev_psi) / step
-            kappa = 0.7 * kappa + 0.3 * k_meas
-            if kappa > max_kappa:
-                kappa = max_kappa
-            elif kappa < -max_kappa:
-                kappa = -max_kappa
+            # the window's centre on the line, kept: heading and curvature over a longer base
+            vc = a + b * mu + 0.5 * kappa * mu * mu
+            hx[nh] = x + mu * cp - vc * sp
+            hy[nh] = y + mu * sp + vc * cp
+            nh += 1
+            last = nh - 1
+            j = last
+            while j > 0 and math.hypot(hx[last] - hx[j - 1], hy[last] - hy[j - 1]) <= base:
+                j -= 1
+            m = (j + last) // 2
+            used = False
+            if last - j >= 2:
+                ax = hx[m] - hx[j]
+                ay = hy[m] - hy[j]
+                bx = hx[last] - hx[m]
+                by = hy[last] - hy[m]
+                la = math.hypot(ax, ay)
+                lb = math.hypot(bx, by)
+                lc = math.hypot(hx[last] - hx[j], hy[last] - hy[j])
+                if la > 0.5 * step and lb > 0.5 * step:
+                    # a circle through three window centres (Menger curvature), its tangent at
+                    # the window's end
+                    kappa = 2.0 * (ax * by - ay * bx) / (la * lb * lc)
+                    if kappa > max_kappa:
+                        kappa = max_kappa
+                    elif kappa < -max_kappa:
+                        kappa = -max_kappa
+                    h = math.atan2(by, bx) + kappa * (0.5 * lb + step - mu)
+                    d = h - psi
+                    d = d - 2.0 * math.pi * math.floor((d + math.pi) / (2.0 * math.pi))
+                    new_psi = psi + d
+                    used = True
+            if not used:
+                k_meas = (new_psi - prev_psi) / step
+                kappa = 0.7 * kappa + 0.3 * k_meas
+                if kappa > max_kappa:
+                    kappa = max_kappa
+                elif kappa < -max_kappa:
+                    kappa = -max_kappa
             # mark the features taken (a second pass over the window)
             for i in range(row_start[r_lo], row_start[r_hi + 1]):
                 ci = c[i]
@@ -233,6 +273,13 @@ class FollowParams(NodeParams):
         description="after a gap a window widens by the lateral drift of a heading this far off over the gap's length "
         "(the uncertainty of a heading measured on a dash), degrees",
     )
+    base_m: float = Field(
+        10.0,
+        gt=0.0,
+        le=100.0,
+        description="heading and curvature from a circle through the centres of the windows with features over the "
+        "last this much of the line (three or more, dashes across their gaps), metres",
+    )
     min_radius_m: float = Field(
         20.0,
         gt=0.0,
@@ -240,7 +287,7 @@ class FollowParams(NodeParams):
         description="tightest bend followed (the curvature is clamped to 1 / this), metres",
     )
     min_window_features: int = Field(
-        6, ge=1, le=100000, description="a window with fewer features counts as a gap"
+        12, ge=1, le=100000, description="a window with fewer features counts as a gap"
     )
     max_bar_m: float = Field(
         5.0,
@@ -254,6 +301,19 @@ class FollowParams(NodeParams):
         gt=0.0,
         le=89.0,
         description="the parabola is fitted where the line is within this of straight ahead, degrees",
+    )
+    min_inlier_fraction: float = Field(
+        0.8,
+        ge=0.0,
+        le=1.0,
+        description="a track is a lane when its parabola keeps this fraction of its features (unitless)",
+    )
+    max_start_m: float = Field(
+        12.0,
+        ge=0.0,
+        le=100.0,
+        description="a lane's nearest feature lies at most this far beyond the BEV's near end (a lane boundary is seen "
+        "near the car, after at most a dashed line's gap), metres",
     )
     min_inliers: int = Field(80, ge=3, le=1000000, description="a lane needs at least this many features")
     min_extent_m: float = Field(
@@ -334,12 +394,12 @@ def follow(params: FollowParams, features: FeatureMap, geometry: BevGeometry) ->
 class MergeParams(NodeParams):
     """Params of ``lanes.merge``."""
 
-    replace_gap_m: float = Field(
+    parallel_m: float = Field(
         0.5,
         gt=0.0,
         le=20.0,
-        description="a lane is replaced by the followed line on its side when they lie this far apart on average over "
-        "the BEV rows both cover, metres",
+        description="a lane and a followed line on its side that never meet and whose distance changes by at most this "
+        "over the BEV rows both cover are two parallel markings, metres",
     )
     meet_m: float = Field(
         0.15,
@@ -381,17 +441,18 @@ def merge_node(
     return {"lanes": merge(list(lanes or []), list(followed or []), geometry, params, features)}
 
 
-def _gaps_px(a: Lane, b: Lane, rows: int) -> tuple[float, float]:
-    """Mean and smallest column distance of two lanes over the BEV rows both cover (inf when none)."""
+def _gaps_px(a: Lane, b: Lane, rows: int) -> tuple[float, float, float]:
+    """Mean and smallest column distance of two lanes over the BEV rows both cover, and how much it
+    changes there (largest minus smallest signed distance); inf when they share no row."""
     lo = max(a.bev_rows[0], b.bev_rows[0])
     hi = min(a.bev_rows[1], b.bev_rows[1])
     if hi <= lo:
-        return math.inf, math.inf
+        return math.inf, math.inf, 0.0
     t = rows - 1 - np.arange(lo, hi + 1, dtype=np.float64)
     ca = a.coeffs[0] + a.coeffs[1] * t + a.coeffs[2] * t * t
     cb = b.coeffs[0] + b.coeffs[1] * t + b.coeffs[2] * t * t
-    d = np.abs(ca - cb)
-    return float(d.mean()), float(d.min())
+    d = ca - cb
+    return float(np.abs(d).mean()), float(np.abs(d).min()), float(d.max() - d.min())
 
 
 def _support(features: FeatureMap | None, lane: Lane, lo: int, hi: int, half_px: float) -> int:
@@ -415,9 +476,10 @@ def merge(
     features: FeatureMap | None = None,
 ) -> list[Lane]:
     """The lanes ``have`` (a straight Hough line's fit, verified) with the followed lanes ``found``:
-    a side without a lane takes the followed one; a side whose lane meets the followed line there
-    (within ``meet_m`` on some row: the same marking) but runs elsewhere (``replace_gap_m`` apart
-    on average over the rows both cover) takes the followed one when more features lie on it
+    a side without a lane takes the followed one; a side whose lane runs elsewhere than the followed
+    line there (more than ``meet_m``, a marking's width, apart on average over the rows both cover)
+    and either meets it (within ``meet_m`` on some row) or is not parallel to it (their distance
+    changes by more than ``parallel_m``) takes the followed one when more features lie on it
     (``min_support_ratio`` times, within ``meet_m``, on those rows); a parallel line is another marking:
     one orientation and a straight Hough line misplace a lane in a bend, while a followed line keeps
     to its features window by window (asking the followed line for more features as well lost
@@ -429,9 +491,11 @@ def merge(
         same = [o for o in out if o.side == ln.side]
         if same:
             o = same[0]
-            mean_gap, min_gap = _gaps_px(o, ln, rows)
-            if mean_gap * res <= p.replace_gap_m or min_gap * res >= p.meet_m:
-                continue  # the same line where both are, or another marking beside it
+            mean_gap, min_gap, spread = _gaps_px(o, ln, rows)
+            if mean_gap * res <= p.meet_m:
+                continue  # the same line where both are
+            if min_gap * res >= p.meet_m and spread * res <= p.parallel_m:
+                continue  # another marking beside it, parallel
             lo, hi = max(o.bev_rows[0], ln.bev_rows[0]), min(o.bev_rows[1], ln.bev_rows[1])
             half = p.meet_m / res
             if _support(features, ln, lo, hi, half) > p.min_support_ratio * _support(
@@ -462,7 +526,10 @@ def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None):
     cos_max = math.cos(math.radians(p.max_angle_deg))
     max_gap = p.max_gap_m / res
     max_kappa = res / p.min_radius_m
-    for t0, c0, psi0, _votes in _seeds(t, cf, th, row_start, rows, cols, p, res):
+    # the strongest seeds first: a solid line is followed before a dashed one beside it, whose
+    # windows then leave its features alone
+    seeds = sorted(_seeds(t, cf, th, row_start, rows, cols, p, res), key=lambda sd: -sd[3])
+    for t0, c0, psi0, _votes in seeds:
         # a seed on a line already followed: its band's features there are taken
         near = np.abs(cf[row_start[max(0, rows - 1 - int(t0) - 5)] : row_start[rows - int(t0)]] - c0) < half_w
         idx = np.arange(row_start[max(0, rows - 1 - int(t0) - 5)], row_start[rows - int(t0)])[near]
@@ -480,6 +547,7 @@ def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None):
             float(p.min_window_features),
             sin_turn,
             widen,
+            p.base_m / res,
             owner,
             k,
         )
@@ -531,10 +599,10 @@ def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None):
             continue
         coef, w = irls_fit(tt, cc, 2)
         inl = w > 0.5
-        if inl.sum() < p.min_inliers:
-            continue
+        if inl.sum() < max(p.min_inliers, p.min_inlier_fraction * tt.size):
+            continue  # one parabola does not describe the track: it strayed onto other features
         extent = (tt[inl].max() - tt[inl].min()) * res
-        if extent < p.min_extent_m:
+        if extent < p.min_extent_m or tt[inl].min() * res > p.max_start_m:
             continue
         # the path's curvature where it is seen nearest (x(z)'s second derivative over (1 + x'^2)^1.5)
         t_near = float(tt[inl].min())

@@ -11,7 +11,7 @@ from lanegraph_lanes._features import EsltParams, eslt
 from lanegraph_lanes._follow import FollowParams, MergeParams, _follow_kernel, follow, merge, merge_node
 
 from lanegraph.testing import check_node_type
-from lanegraph.types import BevGeometry, Lane
+from lanegraph.types import BevGeometry, FeatureMap, Lane
 
 RES = 0.05
 
@@ -60,6 +60,7 @@ def follow_twin(
     min_count,
     sin_turn,
     widen,
+    base,
     owner,
     track,
     rows,
@@ -69,6 +70,7 @@ def follow_twin(
     x, y, psi, kappa, gap = c0, t0, psi0, 0.0, 0.0
     windows = taken = 0
     t_lo, t_hi, t_turn, prev_psi = 1e9, -1e9, 1e9, psi0
+    centres = []  # the centres of the windows with features, in order
     has_theta = theta >= 0
     for _ in range(400):
         cp, sp = math.cos(psi), math.sin(psi)
@@ -76,6 +78,7 @@ def follow_twin(
         u = dx * cp + dy * sp
         v = -dx * sp + dy * cp
         ok_theta = ~has_theta | (np.abs(np.cos(theta - psi)) >= cos_max)
+        ok_theta &= (owner < 0) | (owner == track)
         hw = half_w + widen * gap
         sel = (u >= 0) & (u <= step) & (np.abs(v - 0.5 * kappa * u * u) <= hw) & ok_theta
         # the kernel looks only at the rows of the window's bounding box (the same features)
@@ -87,7 +90,23 @@ def follow_twin(
             a = np.mean(vv) - b * np.mean(uu)
             v_end = a + b * step + 0.5 * kappa * step * step
             new_psi = psi + math.atan(b) + kappa * step
-            kappa = min(max(0.7 * kappa + 0.3 * (new_psi - prev_psi) / step, -max_kappa), max_kappa)
+            mu = np.mean(uu)
+            vc = a + b * mu + 0.5 * kappa * mu * mu
+            centres.append((x + mu * cp - vc * sp, y + mu * sp + vc * cp))
+            h = np.array(centres)
+            near = np.hypot(*(h[-1] - h).T) <= base
+            j = len(h) - 1  # the oldest centre of the run within base of the last
+            while j > 0 and near[j - 1]:
+                j -= 1
+            last, m = len(h) - 1, (j + len(h) - 1) // 2
+            A, B, C = h[m] - h[j], h[last] - h[m], h[last] - h[j]
+            la, lb, lc = np.linalg.norm(A), np.linalg.norm(B), np.linalg.norm(C)
+            if last - j >= 2 and la > 0.5 * step and lb > 0.5 * step:
+                kappa = min(max(2.0 * (A[0] * B[1] - A[1] * B[0]) / (la * lb * lc), -max_kappa), max_kappa)
+                d = math.atan2(B[1], B[0]) + kappa * (0.5 * lb + step - mu) - psi
+                new_psi = psi + (d + math.pi) % (2 * math.pi) - math.pi
+            else:
+                kappa = min(max(0.7 * kappa + 0.3 * (new_psi - prev_psi) / step, -max_kappa), max_kappa)
             mark = (u >= 0) & (u <= step) & (np.abs(v - a - b * u) <= half_w) & ok_theta & (owner < 0)
             owner[mark] = track
             taken += int(mark.sum())
@@ -128,10 +147,21 @@ def test_follow_kernel_matches_numpy_twin(radius_m):
     tt = (rows - 1 - r).astype(np.float64)
     cf = cc.astype(np.float64)
     row_start = np.searchsorted(r, np.arange(rows + 1)).astype(np.int64)
-    args = (20.0, 5.0, math.cos(math.radians(25)), 280.0, RES / 20.0, 6.0, math.sin(math.radians(60)), 0.1)
+    args = (
+        20.0,
+        5.0,
+        math.cos(math.radians(25)),
+        280.0,
+        RES / 20.0,
+        12.0,
+        math.sin(math.radians(60)),
+        0.1,
+        200.0,
+    )
     for psi0 in (math.pi / 2, math.pi / 2 + math.pi):
         o1 = np.full(r.shape, -1, np.int32)
-        o2 = np.full(r.shape, -1, np.int32)
+        o1[::7] = 1  # another track's features
+        o2 = o1.copy()
         got = _follow_kernel(tt, cf, th, row_start, 0.0, 100.0, psi0, *args, o1, 0)
         exp = follow_twin(tt, cf, th, 0.0, 100.0, psi0, *args, o2, 0, rows)
         assert got[:2] == exp[:2]
@@ -211,7 +241,9 @@ def test_follow_on_no_features_and_node_contract():
     assert follow(FollowParams(), features=f, geometry=geometry(200, 160))["lanes"] == []
     check_node_type(follow, {"features": f, "geometry": geometry(200, 160)})
     lanes = [_lane(165.0, 0.0, "left")]
-    check_node_type(merge_node, {"lanes": lanes, "followed": [], "geometry": geometry()})
+    check_node_type(
+        merge_node, {"lanes": lanes, "followed": [], "features": f, "geometry": geometry(200, 160)}
+    )
 
 
 def _lane(c0: float, c1: float, side: str, support: int = 100) -> Lane:
@@ -221,13 +253,22 @@ def _lane(c0: float, c1: float, side: str, support: int = 100) -> Lane:
 def test_merge_adds_a_missing_side_and_replaces_a_misplaced_lane():
     g = geometry()
     p = MergeParams()
+    rows = np.arange(800)
+    # features on a line at column 165 and on a solid line at 100
+    f = FeatureMap.from_points((800, 400), np.repeat(rows, 2), np.tile([100, 165], 800))
     hough = [_lane(165.0, 0.0, "left")]
     followed = [_lane(166.0, 0.0, "left", 50), _lane(240.0, 0.1, "right")]
-    out = merge(hough, followed, g, p)
+    out = merge(hough, followed, g, p, f)
     assert [ln.coeffs[0] for ln in out] == [165.0, 240.0]  # the left kept (the same line), right added
-    # a straight Hough lane 1 m off the followed line on its side: replaced
-    out = merge([_lane(165.0, 0.05, "left")], [_lane(165.0, 0.0, "left", 10)], g, p)
+    # a straight lane that leaves the line the followed one keeps to: replaced
+    out = merge([_lane(165.0, 0.05, "left")], [_lane(165.0, 0.0, "left", 10)], g, p, f)
     assert out[0].coeffs[1] == 0.0
-    # a followed lane on the other side nearer than a lane's width to a Hough lane: not added
-    out = merge([_lane(195.0, 0.0, "left")], [_lane(215.0, 0.0, "right")], g, p)
+    # ... but not by a followed line with fewer features on it
+    out = merge([_lane(165.0, 0.0, "left")], [_lane(165.0, 0.05, "left")], g, p, f)
+    assert out[0].coeffs[1] == 0.0
+    # a parallel marking beside the lane (the followed line has more features): another marking
+    out = merge([_lane(165.0, 0.0, "left")], [_lane(100.0, 0.0, "left")], g, p, f)
+    assert out[0].coeffs[0] == 165.0
+    # a followed lane on the other side nearer than a lane's width to a lane: not added
+    out = merge([_lane(195.0, 0.0, "left")], [_lane(215.0, 0.0, "right")], g, p, f)
     assert len(out) == 1
