@@ -302,6 +302,20 @@ class FollowParams(NodeParams):
         le=89.0,
         description="the parabola is fitted where the line is within this of straight ahead, degrees",
     )
+    near_fit_m: float | None = Field(
+        20.0,
+        gt=0.0,
+        le=1000.0,
+        description="a line seen over at least half of the BEV's near this many metres is fitted there only (as "
+        "fit.irls's near_fit_m), metres; null: the whole line",
+    )
+    extend_px: float = Field(
+        3.0,
+        ge=0.0,
+        le=100.0,
+        description="a lane fitted on the near part reaches up to the farthest feature of its line within this of the "
+        "parabola, BEV pixels (3: 15 cm, a marking's width)",
+    )
     min_inlier_fraction: float = Field(
         0.8,
         ge=0.0,
@@ -419,7 +433,8 @@ class MergeParams(NodeParams):
         2.0,
         gt=0.0,
         le=20.0,
-        description="a followed lane added beside a lane must be this far from it at the BEV's bottom row, metres",
+        description="a followed lane added beside a lane must be this far from it on every BEV row both cover (a lane's "
+        "width), metres",
     )
 
 
@@ -503,7 +518,11 @@ def merge(
             ):
                 out[out.index(o)] = ln
             continue
-        if any(abs(ln.coeffs[0] - o.coeffs[0]) * res < p.min_lane_width_m for o in out):
+        # a lane beside the others: a lane's width from each on every BEV row both cover
+        if any(
+            min(abs(ln.coeffs[0] - o.coeffs[0]), _gaps_px(o, ln, rows)[1]) * res < p.min_lane_width_m
+            for o in out
+        ):
             continue
         out.append(ln)
     out.sort(key=lambda ln: ln.coeffs[0])
@@ -595,6 +614,13 @@ def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None):
         if tr["t_turn"] < 1e8:
             keep = tt <= tr["t_turn"]
             tt, cc = tt[keep], cc[keep]
+        t_all, c_all = tt, cc
+        if p.near_fit_m is not None:
+            # a road's curvature changes (entering a bend, an S-bend), a parabola's does not: the
+            # near part, where the image shows the line largest, when it is seen over half of it
+            near = tt * res <= p.near_fit_m
+            if near.any() and (tt[near].max() - tt[near].min()) * res >= 0.5 * p.near_fit_m:
+                tt, cc = tt[near], cc[near]
         if tt.size < p.min_inliers:
             continue
         coef, w = irls_fit(tt, cc, 2)
@@ -611,8 +637,10 @@ def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None):
             coef, w = irls_fit(tt, cc, 1)
             coef = np.array([coef[0], coef[1], 0.0])
             inl = w > 0.5
+        # the lane reaches as far as the line's features stay on the parabola (a marking's width)
+        on = np.abs(coef[0] + coef[1] * t_all + coef[2] * t_all * t_all - c_all) <= p.extend_px
+        t_top = float(max(tt[inl].max(), t_all[on].max() if on.any() else 0.0))
         # the parabola's slope must stay within max_heading_deg over its fitted rows
-        t_top = float(tt[inl].max())
         if abs(coef[1] + 2 * coef[2] * t_top) > tan_max and abs(coef[1]) > tan_max:
             continue
         lateral = geometry.lateral_m(float(coef[0]))
