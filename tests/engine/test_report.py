@@ -141,11 +141,14 @@ def test_run_report_files(scene, run_out):
         "ipm",
         "features",
         "tmask",
+        "follow",
         "masked",
+        "verify_followed",
         "orientation",
         "hough",
         "fit",
         "verify",
+        "merge",
         "project",
     ]
     ranks = [order.index(c.split(".")[0]) for c in caps]
