@@ -248,7 +248,7 @@ class FollowParams(NodeParams):
     )
     seed_bands: int = Field(4, ge=1, le=50, description="number of seed bands from the BEV's near end")
     min_seed_votes: int = Field(
-        20, ge=1, le=100000, description="a seed needs this many features in one 25 cm column of its band"
+        30, ge=1, le=100000, description="a seed needs this many features in one 25 cm column of its band"
     )
     step_m: float = Field(1.0, gt=0.0, le=10.0, description="length of a window along the line, metres")
     half_width_m: float = Field(
