@@ -1,6 +1,14 @@
 """A graph on synthetic scenes it was not tuned on: curves with hatching, no markings, noise, odd rigs, rough verges.
 
-    python benchmarks/sweep_synthetic.py [GRAPH] [--frames 30] [--scenes noisy,narrow] [--set NODE.PARAM=V ...]
+    python benchmarks/sweep_synthetic.py [GRAPH] [--frames 30] [--scenes noisy,narrow] [--kinds bends,gore]
+                                         [--set NODE.PARAM=V ...]
+
+The scenes of issue 28 come in kinds (``--kinds``; the table ends with each kind's frames pooled):
+``bends`` (radius 30-250 m, entering a bend, S-bends), ``gore`` (a ramp beside a chevron- or
+stripe-hatched gore area between two solid lines), ``shade`` (dappled tree shade; a shaded road
+with saturated sun patches), ``worn`` (low contrast, gaps, repair strips), ``parked`` (a dashed line
+partly hidden by parked cars) and ``single`` (a folder of unrelated single pairs: nothing before
+the first frame).
 
 Renders each scene (``lanegraph_synthetic``, exact lane ground truth) into ``--work`` (a temporary
 folder by default), runs ``lanegraph run GRAPH`` on it and prints the lane metric of the data
@@ -25,7 +33,7 @@ from _sweep import (  # benchmarks/ (the script's folder)
     metric_row,
     run_graph,
 )
-from lanegraph_synthetic import Marking, preset, write_sequence
+from lanegraph_synthetic import Marking, preset, write_pairs, write_sequence
 
 from lanegraph.evaluation.metrics import evaluate, read_jsonl
 
@@ -80,6 +88,94 @@ SCENES: dict[str, tuple[str, dict]] = {
     ),
 }
 
+#: issue 28's kinds: name -> (kind, preset, overrides)
+KIND_SCENES: dict[str, tuple[str, str, dict]] = {
+    "bend_r30": ("bends", "straight", dict(curvature=1 / 30, n_lanes=2, speed=6.0, seed=101)),
+    "bend_r60_left": ("bends", "straight", dict(curvature=-1 / 60, n_lanes=2, speed=8.0, seed=102)),
+    "bend_r120": ("bends", "straight", dict(curvature=1 / 120, n_lanes=3, speed=12.0, seed=103)),
+    "bend_r250_left": ("bends", "straight", dict(curvature=-1 / 250, n_lanes=3, speed=20.0, seed=104)),
+    # entering a bend: straight at the car, 1/60 m^-1 50 m ahead (a clothoid), the car drives into it
+    "entering_bend": (
+        "bends",
+        "clothoid",
+        dict(curvature=0.0, curvature_rate=1 / 3000, n_lanes=2, speed=8.0, seed=105),
+    ),
+    # an S-bend: 1/80 m^-1 right at the car, straight 20 m ahead, then left
+    "s_bend": (
+        "bends",
+        "straight",
+        dict(curvature=1 / 80, curvature_rate=-1 / 1600, n_lanes=2, speed=8.0, seed=106),
+    ),
+    "ramp_gore_chevron": (
+        "gore",
+        "straight",
+        dict(n_lanes=1, gore_width=3.0, curvature=1 / 100, speed=10.0, outer_kind="solid", seed=111),
+    ),
+    "ramp_gore_stripes": (
+        "gore",
+        "straight",
+        dict(n_lanes=1, gore_width=2.5, gore_pattern="stripes", curvature=-1 / 150, speed=12.0, seed=112),
+    ),
+    "highway_gore_chevron": (
+        "gore",
+        "straight",
+        dict(n_lanes=2, ego_lane=0, gore_width=4.0, gore_step=3.0, speed=20.0, seed=113),
+    ),
+    "dappled_shade": (
+        "shade",
+        "straight",
+        dict(n_lanes=2, dappled=0.3, shadow_strength=0.6, speed=8.0, seed=121),
+    ),
+    "dappled_curve": (
+        "shade",
+        "straight",
+        dict(n_lanes=2, dappled=0.4, shadow_strength=0.65, curvature=-1 / 150, speed=8.0, seed=122),
+    ),
+    "shade_saturated_sun": (
+        "shade",
+        "straight",
+        dict(
+            n_lanes=2,
+            dappled=0.15,
+            shadow_strength=0.8,
+            overexposed_every=1,
+            exposure_gain=1.7,
+            speed=8.0,
+            seed=123,
+        ),
+    ),
+    "worn_paint": ("worn", "straight", dict(n_lanes=2, paint_wear=0.6, paint_gaps=0.3, seed=131)),
+    "worn_repair_strips": ("worn", "straight", dict(n_lanes=2, paint_wear=0.4, repair_strips=15.0, seed=132)),
+    "worn_curve_shade": (
+        "worn",
+        "straight",
+        dict(n_lanes=2, paint_wear=0.5, paint_gaps=0.2, curvature=1 / 200, shadows=10.0, trees=6.0, seed=133),
+    ),
+    # a two-lane street, the right line dashed, cars parked on its right half a metre from it
+    "dashed_behind_parked_cars": (
+        "parked",
+        "straight",
+        dict(n_lanes=2, outer_kind="dashed", shoulder=2.3, parked_cars=14.0, speed=8.0, seed=141),
+    ),
+}
+
+#: single pairs (kind ``single``): frame 0 of each, one folder
+SINGLE_PAIRS: list[tuple[str, dict]] = [
+    ("straight", dict(seed=151)),
+    ("straight", dict(curvature=1 / 60, n_lanes=2, seed=152)),
+    ("straight", dict(n_lanes=1, gore_width=3.0, curvature=1 / 100, seed=153)),
+    ("straight", dict(n_lanes=2, dappled=0.3, shadow_strength=0.6, seed=154)),
+    ("straight", dict(n_lanes=2, paint_wear=0.5, paint_gaps=0.2, seed=155)),
+    ("straight", dict(n_lanes=2, outer_kind="dashed", shoulder=2.3, parked_cars=14.0, seed=156)),
+    ("urban", dict(seed=157)),
+    ("no_markings", dict(seed=158)),
+]
+
+for _name, (_kind, _base, _over) in KIND_SCENES.items():
+    SCENES[_name] = (_base, _over)
+SCENES["single_pairs"] = ("straight", {})  # rendered by write_pairs from SINGLE_PAIRS
+KIND_OF = {name: kind for name, (kind, _b, _o) in KIND_SCENES.items()} | {"single_pairs": "single"}
+
 #: scenes whose rendered ground truth lists the crossing's bars as markings (the README's metric
 #: does not annotate crossings): only the number of lanes reported counts, and the right one is 0
 LANE_COUNT_ONLY = {"no_lines_crossing"}
@@ -91,22 +187,31 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=30)
     ap.add_argument("--scenes", default="", help="comma-separated subset of: " + ", ".join(SCENES))
     ap.add_argument(
+        "--kinds", default="", help="comma-separated issue-28 kinds: bends, gore, shade, worn, parked, single"
+    )
+    ap.add_argument(
         "--set", action="append", default=[], metavar="NODE.PARAM=VALUE", help="passed to lanegraph run"
     )
     ap.add_argument("--work", default="", help="folder for the rendered scenes and the runs (kept)")
     args = ap.parse_args()
-    names = [s for s in args.scenes.split(",") if s] or list(SCENES)
+    kinds = [k for k in args.kinds.split(",") if k]
+    names = [s for s in args.scenes.split(",") if s] + [n for n, k in KIND_OF.items() if k in kinds]
+    names = names or list(SCENES)
     unknown = [s for s in names if s not in SCENES]
     if unknown:
         ap.error(f"--scenes: unknown scene(s) {unknown}; expected some of {list(SCENES)}")
     work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="lanegraph-sweep-"))
     print(f"{args.graph} on {len(names)} synthetic scenes, {args.frames} frames each (work: {work})")
     print(f"{'scene':32s} {HEADER}")
+    per_kind: dict[str, list[int]] = {}
     for name in names:
         base, over = SCENES[name]
         seq = work / "scenes" / name
         if not (seq / "lanes_gt.jsonl").is_file():
-            write_sequence(preset(base, **over), seq, args.frames)
+            if name == "single_pairs":
+                write_pairs([preset(b, **o) for b, o in SINGLE_PAIRS], seq)
+            else:
+                write_sequence(preset(base, **over), seq, args.frames)
         out = work / "runs" / name
         failed = run_graph(args.graph, seq, out, args.set)
         if failed:
@@ -114,9 +219,16 @@ def main() -> int:
             continue
         pred, gt = read_jsonl(lanes_file(out)), read_jsonl(seq / "lanes_gt.jsonl")
         n_lanes = lanes_reported(pred)
+        if name in KIND_OF:
+            res = evaluate(pred, gt)
+            pooled = per_kind.setdefault(KIND_OF[name], [0, 0])
+            pooled[0] += round(res["detection_ratio"] * len(gt))
+            pooled[1] += len(gt)
         print(
             f"{name:32s} {metric_row(evaluate(pred, gt), n_lanes, blank=name in LANE_COUNT_ONLY)}", flush=True
         )
+    for kind, (ok, n) in per_kind.items():
+        print(f"kind {kind:27s} {100 * ok / n:8.1f} % of {n} frames", flush=True)
     (work / "sweep.json").write_text(
         json.dumps({"graph": args.graph, "frames": args.frames, "set": args.set, "scenes": names})
     )

@@ -428,6 +428,7 @@ def test_the_developer_sequences_open_and_mirror(tmp_path):
         "drive_0001": ("io.kitti_raw", "image_02/data", 54),
         "seq1": ("io.kitti_odometry", "image_0", 26),
         "seq2": ("io.kitti_odometry", "image_0", 19),
+        "seq2_ramp": ("io.kitti_odometry", "image_0", 16),
     }
     seq, gt = opened["seq2"]
     out = sweep_kitti.write_variant(seq, tmp_path, "mirror", None, gt[:2])

@@ -7,6 +7,7 @@ from lanegraph import hookimpl
 
 from ._features import eslt, mask_features, slt
 from ._fit import fit_irls, fit_ransac, irls_fit, ransac_fit
+from ._follow import follow, merge_node
 from ._hough import line1d, line2d, orientation
 from ._temporal import temporal_mask, to_image
 from ._verify import verify
@@ -25,6 +26,8 @@ def lanegraph_node_types():
         line2d,
         fit_irls,
         fit_ransac,
+        follow,
+        merge_node,
         temporal_mask,
         verify,
         to_image,

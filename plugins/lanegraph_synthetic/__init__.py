@@ -22,7 +22,7 @@ from lanegraph.types import calibration_problems
 
 from .objects import Box, Pole, car
 from .scene import KITTI_CALIB, PRESETS, Frame, Marking, SceneRenderer, SceneSpec, preset
-from .sequence import disparity_to_png16, write_sequence
+from .sequence import disparity_to_png16, write_pairs, write_sequence
 
 __all__ = [
     "KITTI_CALIB",
@@ -38,6 +38,7 @@ __all__ = [
     "car",
     "disparity_to_png16",
     "preset",
+    "write_pairs",
     "write_sequence",
 ]
 

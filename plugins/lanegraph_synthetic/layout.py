@@ -20,6 +20,7 @@ from .objects import Box, Pole, car
 LATERAL_HALF = 20.0
 PAINT_RES = 0.05  # metres per paint-map pixel
 SHADOW_RES = 0.10  # metres per shadow-map pixel
+WEAR_RES = 0.05  # metres per sample of a marking's worn-through gaps
 
 CAR_COLOURS = [(60, 60, 170), (170, 90, 40), (200, 200, 205), (40, 40, 45), (60, 130, 60), (30, 160, 200)]
 
@@ -37,6 +38,10 @@ class Tile:
     paint: np.ndarray
     shadow: np.ndarray
     objects: list = field(default_factory=list)
+    #: (markings, length / WEAR_RES) float32, 0 where a marking is worn through; None: no gaps
+    wear: np.ndarray | None = None
+    #: darker repair asphalt (SHADOW_RES, 255 = repaired) or None
+    repair: np.ndarray | None = None
 
 
 def _to_px(lat, s, res):
@@ -81,6 +86,21 @@ def _hatch(
     phase = np.mod(s[:, None] + lat[None, :], spacing)
     on = phase < width * math.sqrt(2.0)
     block = paint[r0:r1, c0:c1]
+    np.maximum(block, (on * 255).astype(np.uint8), out=block)
+
+
+def _gore(
+    paint: np.ndarray, lat0: float, lat1: float, L: float, pattern: str, step: float, width=0.45
+) -> None:
+    """Hatch the gore area lateral [lat0, lat1] over the whole tile: V-shaped bars at 45 degrees to
+    the road ("chevron") or parallel diagonal ones ("stripes"), ``width`` metres wide, one every
+    ``step`` metres along the road."""
+    c0, c1 = int((lat0 + LATERAL_HALF) / PAINT_RES), int(math.ceil((lat1 + LATERAL_HALF) / PAINT_RES))
+    lat = (np.arange(c0, c1) + 0.5) * PAINT_RES - LATERAL_HALF
+    s = (np.arange(paint.shape[0]) + 0.5) * PAINT_RES
+    across = np.abs(lat - 0.5 * (lat0 + lat1)) if pattern == "chevron" else lat - lat0
+    on = np.mod(s[:, None] + across[None, :], step) < width * math.sqrt(2.0)
+    block = paint[:, c0:c1]
     np.maximum(block, (on * 255).astype(np.uint8), out=block)
 
 
@@ -199,6 +219,59 @@ def build_tile(
             for s in np.arange(2.5, L, 5.0):
                 objects.append(Box(float(s), lat, 4.98, 0.2, spec.kerb_height, 0.0, (185.0, 190.0, 195.0)))
 
+    # ---- a ramp's gore area: hatched between the two leftmost markings (the gore's far border
+    # and the ego lane's left line)
+    if spec.gore_width > 0 and len(offsets) >= 2:
+        a, b = sorted(offsets)[:2]
+        _gore(paint, a + 0.3, b - 0.3, L, spec.gore_pattern, spec.gore_step)
+
+    # ---- dappled shade: a canopy over the road, sun patches (0.2-1.2 m, hard-edged) through it
+    if spec.dappled > 0:
+        c0 = int((left_edge - 2.0 + LATERAL_HALF) / SHADOW_RES)
+        c1 = int((right_edge + 2.0 + LATERAL_HALF) / SHADOW_RES)
+        shadow[:, max(c0, 0) : c1] = 255
+        area = (right_edge - left_edge + 4.0) * L * spec.dappled
+        n = int(area / (math.pi * 0.55**2))
+        cs = rng.uniform(left_edge - 2.0, right_edge + 2.0, n)
+        ss = rng.uniform(0.0, L, n)
+        ra = rng.uniform(0.2, 0.9, n)
+        rb = ra * rng.uniform(0.5, 1.0, n)
+        ang = rng.uniform(0.0, 180.0, n)
+        for x, s_, a_, b_, g in zip(cs, ss, ra, rb, ang, strict=True):
+            centre = (int(round((x + LATERAL_HALF) / SHADOW_RES * 4)), int(round(s_ / SHADOW_RES * 4)))
+            axes = (max(1, int(a_ / SHADOW_RES * 4)), max(1, int(b_ / SHADOW_RES * 4)))
+            cv2.ellipse(shadow, centre, axes, float(g), 0, 360, 0, -1, cv2.LINE_AA, 2)
+
+    # ---- worn paint: gaps along each marking; repair strips of darker asphalt across the road
+    wear = None
+    if spec.paint_gaps > 0:
+        n_s = int(round(L / WEAR_RES))
+        wear = np.ones((max(len(offsets), 1), n_s), np.float32)
+        for row in wear:
+            done = 0.0
+            while done < spec.paint_gaps * L:
+                g = float(rng.uniform(0.2, 1.5))
+                s0 = float(rng.uniform(0.0, L - g))
+                row[int(s0 / WEAR_RES) : int((s0 + g) / WEAR_RES)] = 0.0
+                done += g
+    repair = None
+    if spec.repair_strips > 0:
+        repair = np.zeros_like(shadow)
+        for _ in range(count(spec.repair_strips)):
+            s0 = float(rng.uniform(0.0, L - 4.0))
+            length = float(rng.uniform(1.0, 3.0))
+            skew = float(rng.uniform(-0.5, 0.5))
+            poly = np.array(
+                [
+                    [left_edge, s0],
+                    [right_edge, s0 + skew],
+                    [right_edge, s0 + skew + length],
+                    [left_edge, s0 + length],
+                ]
+            )
+            _fill(repair, poly, SHADOW_RES)
+
     paint = cv2.GaussianBlur(paint, (0, 0), 0.7)
-    shadow = cv2.GaussianBlur(shadow, (0, 0), 2.5)
-    return Tile(L, paint, shadow, objects)
+    # canopy shade is hard-edged (sun patches through leaves); soft shadows of trees out of view
+    shadow = cv2.GaussianBlur(shadow, (0, 0), 0.6 if spec.dappled > 0 else 2.5)
+    return Tile(L, paint, shadow, objects, wear, repair)

@@ -37,7 +37,7 @@ import numpy as np
 
 from lanegraph.types import Calibration
 
-from .layout import LATERAL_HALF, PAINT_RES, SHADOW_RES, build_tile
+from .layout import LATERAL_HALF, PAINT_RES, SHADOW_RES, WEAR_RES, build_tile
 from .objects import Box, Placed, Pole, intersect, place
 
 #: the KITTI colour pair's calibration (1242 x 375), the default rig
@@ -47,6 +47,7 @@ FINE_TEXEL = 0.04  # metres per texel of the fine asphalt texture (512 x 512, re
 RIP_LEVELS = 7  # levels of the fine texture's rip-map: footprints of 1 .. 64 texels along the road
 COARSE_TEXEL = 0.40  # metres per texel of the coarse (patchy) asphalt texture (256 x 256)
 ASPHALT = 92.0  # grey level of the asphalt
+REPAIR_DARKEN = 0.3  # repair asphalt is this much darker than the road's
 PAINT = 210.0  # grey level of white paint
 VERGE = 100.0  # grey level of the ground beyond the paved road
 ASPHALT_TINT = np.array([1.03, 1.0, 0.97], np.float32)  # BGR
@@ -120,6 +121,20 @@ class SceneSpec:
     kerb_height: float = 0.0  # > 0: a concrete kerb this high (metres) along both road edges
     arrows: float = 0.0
     hatching: float = 0.0
+    # a ramp's gore area: > 0 paints a second solid line this far left of the leftmost marking and
+    # hatches the area between them (bars 0.45 m wide every gore_step metres along the road)
+    gore_width: float = 0.0
+    gore_pattern: str = "chevron"  # "chevron" (V-shaped bars) or "stripes" (parallel diagonal bars)
+    gore_step: float = 2.0
+    # dappled tree shade: the road under a canopy in shade (shadow_strength), with hard-edged sun
+    # patches covering this fraction of it (0: no canopy)
+    dappled: float = 0.0
+    # worn paint: the fraction of the paint's contrast worn away, the fraction of each marking's
+    # length worn through (gaps of 0.2-1.5 m), and strips of darker repair asphalt (per 100 m of
+    # road, 1-3 m long, across the road, without paint)
+    paint_wear: float = 0.0
+    paint_gaps: float = 0.0
+    repair_strips: float = 0.0
     objects: list[Box | Pole] = field(default_factory=list)  # extra objects, road coordinates
     # --- exposure
     overexposed_frames: tuple[int, ...] = ()
@@ -149,6 +164,17 @@ class SceneSpec:
             raise ValueError("SceneSpec: height, fps must be > 0 and z_far > 5 m")
         if self.tile_length < self.z_far + 80:
             raise ValueError(f"SceneSpec.tile_length: expected >= z_far + 80 m, got {self.tile_length}")
+        if self.gore_pattern not in ("chevron", "stripes"):
+            raise ValueError(
+                f"SceneSpec.gore_pattern: expected 'chevron' or 'stripes', got {self.gore_pattern!r}"
+            )
+        for name in ("dappled", "paint_wear", "paint_gaps"):
+            if not 0.0 <= getattr(self, name) < 1.0:
+                raise ValueError(
+                    f"SceneSpec.{name}: expected a fraction in [0, 1), got {getattr(self, name)}"
+                )
+        if self.gore_width < 0 or self.gore_step <= 0 or self.repair_strips < 0:
+            raise ValueError("SceneSpec: gore_width and repair_strips must be >= 0, gore_step > 0")
         if self.calib.width <= 0 or self.calib.height <= 0:
             raise ValueError("SceneSpec.calib: width and height (pixels) must be set")
 
@@ -325,11 +351,13 @@ class SceneRenderer:
         left = -(ego + 0.5) * s.lane_width
         offsets = [left + i * s.lane_width for i in range(s.n_lanes + 1)]
         centres = [o + s.lane_width / 2 for o in offsets[:-1]]
-        edges = (offsets[0] - s.shoulder, offsets[-1] + s.shoulder)
+        edges = (offsets[0] - s.shoulder - s.gore_width, offsets[-1] + s.shoulder)
         if s.markings is not None:
             return [replace(m) for m in s.markings], centres, edges
         period = s.dash_length + s.gap_length
         marks = []
+        if s.gore_width > 0:  # the gore area's far border (the hatching is drawn in the tile)
+            marks.append(Marking(offsets[0] - s.gore_width, "solid", s.marking_width))
         for i, o in enumerate(offsets):
             kind = s.outer_kind if i in (0, s.n_lanes) else s.inner_kind
             phase = float(rng.uniform(0, period))
@@ -489,13 +517,19 @@ class SceneRenderer:
         lum = base + tc * (fine + np.float32(0.7) * coarse)
         # lane markings: exact coverage of the pixel footprint (a box filter) across and along
         paint = np.zeros_like(lum)
-        for m in self.markings:
+        L = s.tile_length
+        s_tile_w = Z + np.float32(math.fmod(st.s, L))
+        s_tile_w = np.where(s_tile_w >= L, s_tile_w - np.float32(L), s_tile_w)
+        for i_m, m in enumerate(self.markings):
             cov = (
                 np.float32(m.width / 2) + view.fp_lat / 2 - np.abs(lat - np.float32(m.offset))
             ) / view.fp_lat
             np.clip(cov, 0.0, 1.0, out=cov)
             if m.kind == "dashed":
                 cov *= _dash_cover(Z, st.s - m.phase, m.dash, m.gap, view.fp_long)
+            if self.tile.wear is not None:  # worn through: gaps along the marking
+                gaps = self.tile.wear[min(i_m, self.tile.wear.shape[0] - 1)]
+                cov *= gaps[np.clip((s_tile_w / np.float32(WEAR_RES)).astype(np.int32), 0, gaps.size - 1)]
             np.maximum(paint, cov, out=paint)
         # arrows and hatching from the tile's paint map, shadows from its shadow map
         L = s.tile_length
@@ -510,8 +544,15 @@ class SceneRenderer:
                           borderMode=cv2.BORDER_CONSTANT)  # fmt: skip
         pmf = (pm + view.blend_lo * (pm_lo.astype(np.float32) - pm)) * np.float32(1 / 255)
         np.maximum(paint, pmf, out=paint)
-        lum += paint * (np.float32(PAINT) + np.float32(0.4 * s.texture_contrast) * fine - lum)
         r = PAINT_RES / SHADOW_RES
+        if self.tile.repair is not None:  # darker repair asphalt, laid over the paint
+            rep = cv2.remap(self.tile.repair, (col + 0.5) * r - 0.5, (row + 0.5) * r - 0.5, cv2.INTER_LINEAR,
+                            borderMode=cv2.BORDER_CONSTANT) * np.float32(1 / 255)  # fmt: skip
+            lum *= 1.0 - np.float32(REPAIR_DARKEN) * rep
+            paint *= 1.0 - rep
+        if s.paint_wear > 0:
+            paint *= np.float32(1.0 - s.paint_wear)
+        lum += paint * (np.float32(PAINT) + np.float32(0.4 * s.texture_contrast) * fine - lum)
         sh = cv2.remap(self.tile.shadow, (col + 0.5) * r - 0.5, (row + 0.5) * r - 0.5, cv2.INTER_LINEAR,
                        borderMode=cv2.BORDER_CONSTANT)  # fmt: skip
         lum *= 1.0 - np.float32(s.shadow_strength / 255) * sh

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import asdict
 from pathlib import Path
 
@@ -75,4 +76,33 @@ def write_sequence(spec: SceneSpec, folder: str | Path, n: int, start: int = 0) 
         "overexposed": [k for k in range(start, start + n) if spec.is_overexposed(k)],
     }
     (folder / "scene.json").write_text(json.dumps(info, indent=2) + "\n")
+    return folder
+
+
+def write_pairs(specs: list[SceneSpec], folder: str | Path) -> Path:
+    """Render frame 0 of each of ``specs`` (unrelated scenes: a folder of single stereo pairs, as a
+    collection of photographs) into ``folder`` in the layout of :func:`write_sequence`, pair ``i``
+    as stem ``i``; every spec must have the same calibration. Returns the folder."""
+    if not specs:
+        raise ValueError("write_pairs: specs: expected at least one SceneSpec")
+    if any(sp.calib != specs[0].calib for sp in specs):
+        raise ValueError(
+            "write_pairs: specs: expected one calibration for every pair (a folder has one calib.yaml)"
+        )
+    folder = Path(folder)
+    lines = []
+    for i, spec in enumerate(specs):
+        sub = write_sequence(spec, folder / "_pair", 1)
+        stem = f"{i:010d}"
+        for d in ("left", "right", "disparity", "labels"):
+            (folder / d).mkdir(parents=True, exist_ok=True)
+            (sub / d / "0000000000.png").replace(folder / d / f"{stem}.png")
+        gt = json.loads((sub / "lanes_gt.jsonl").read_text().splitlines()[0])
+        gt["frame"] = stem
+        lines.append(json.dumps(gt))
+        (sub / "calib.yaml").replace(folder / "calib.yaml")
+    (folder / "lanes_gt.jsonl").write_text("\n".join(lines) + "\n")
+    info = {"pairs": [{"preset": sp.preset, "seed": sp.seed} for sp in specs]}
+    (folder / "scene.json").write_text(json.dumps(info, indent=2) + "\n")
+    shutil.rmtree(folder / "_pair")
     return folder

@@ -1,0 +1,667 @@
+"""Lane lines followed along their own curvature (``lanes.follow``), from the first frame.
+
+The paper's 1D Hough transform (``hough.line1d``) takes one orientation for every line of the BEV
+and a straight line for each: in a tight bend the lines turn through tens of degrees inside the BEV
+and leave its side within a few metres, and near a hatched gore area the orientation histogram
+locks onto the bars. ``lanes.follow`` finds each line from where it is seen and follows it:
+
+1. **Seeds.** The BEV's near part is cut into bands ``seed_band_m`` tall; in each band every
+   feature is moved along its own orientation to the band's lower edge (over at most a band's
+   height: a bend of 30 m radius moves a line by 7 cm over 2 m) and the columns are histogrammed.
+   A peak with ``min_seed_votes`` features is a seed: a column, a row and the features' mean
+   orientation.
+2. **Following** (``_follow_kernel``, numba). From a seed, windows ``step_m`` long and
+   ``2 half_width_m`` wide step along the line, up the BEV and back down, predicted by the current
+   heading and curvature (a circle arc). A window takes the features whose orientation is within
+   ``max_angle_deg`` of the line's heading and fits a straight line across them, which corrects
+   the position; the heading and the curvature come from a circle through the centres of the
+   windows over the last ``base_m`` (a window's own slope over 1 m of a dash is too noisy). Windows without features (a dashed line's
+   gaps, a parked car) continue on the prediction up to ``max_gap_m``. A line that leaves the BEV
+   through its side stops there: it is fitted on the part that is seen.
+3. **Hatching is not a lane.** A hatched area's bars are short tracks, at an angle to the road,
+   repeated at a regular step: a track shorter than ``max_bar_m`` with two or more short tracks
+   beside it that are parallel to it (within ``max_angle_deg``) is a bar, and so is a short track
+   at more than ``max_angle_deg`` to every long track (the road's direction). A gore area's border
+   line is long: it stays, and its window's orientation test leaves the bars touching it out.
+4. **Lanes.** Each track's features are fitted with a parabola (robust IRLS, as ``fit.irls``) on
+   the part of the track within ``max_heading_deg`` of straight ahead (where ``x(z)`` can describe
+   it); its offset at the BEV's bottom row gives its side, and on each side the nearest track
+   ``min_offset_m``..``max_offset_m`` from the vehicle with ``min_inliers`` features over
+   ``min_extent_m`` is reported.
+
+Nothing here needs a previous frame: the first frame of a sequence and a single stereo pair are
+handled like every other frame.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from pydantic import Field
+
+from lanegraph import NodeParams, Port, jit, node_type
+from lanegraph.types import BevGeometry, FeatureMap, Lane
+
+from ._fit import irls_fit
+
+
+@jit
+def _follow_kernel(
+    t,
+    c,
+    theta,
+    row_start,
+    t0,
+    c0,
+    psi0,
+    step,
+    half_w,
+    cos_max,
+    max_gap,
+    max_kappa,
+    min_count,
+    sin_turn,
+    widen,
+    base,
+    owner,
+    track,
+):
+    """Follow one line from ``(c0, t0)`` (BEV column, BEV rows above the bottom row) with heading
+    ``psi0`` (radians from +column towards +t; ``pi`` added: downwards) through windows.
+
+    ``t``, ``c``, ``theta``: the features' t (descending: row-major order of the BEV), column and
+    orientation (radians in [0, pi), -1 unknown); ``row_start``: index of the first feature of each
+    BEV row (length rows + 1). Features taken by the track get ``owner[i] = track`` where ``owner``
+    was -1; features of other tracks (``owner[i]`` >= 0, not ``track``) are not looked at. Returns ``(windows with features, features taken, lowest and highest t taken, t where
+    the heading first turns further from straight ahead than ``asin(sin_turn)``)``."""
+    n_rows = row_start.shape[0] - 1
+    ncols_hi = 1e9
+    x = c0
+    y = t0
+    psi = psi0
+    kappa = 0.0
+    gap = 0.0
+    windows = 0
+    taken = 0
+    t_lo = 1e9
+    t_hi = -1e9
+    t_turn = 1e9
+    prev_psi = psi0
+    steps = 0
+    hx = np.empty(401)
+    hy = np.empty(401)
+    nh = 0
+    while steps < 400:
+        steps += 1
+        cp = math.cos(psi)
+        sp = math.sin(psi)
+        # window: along u in [0, step] from (x, y), across v within hw of the predicted arc; after
+        # a gap the prediction is less sure: the window widens with the gap's length
+        hw = half_w + widen * gap
+        xe = x + step * cp
+        ye = y + step * sp
+        y_lo = min(y, ye) - hw
+        y_hi = max(y, ye) + hw
+        x_lo = min(x, xe) - hw
+        x_hi = max(x, xe) + hw
+        # BEV rows: row = n_rows - 1 - t
+        r_lo = int(math.floor(n_rows - 1 - y_hi))
+        r_hi = int(math.ceil(n_rows - 1 - y_lo))
+        if r_lo < 0:
+            r_lo = 0
+        if r_hi > n_rows - 1:
+            r_hi = n_rows - 1
+        if r_lo > r_hi or x_hi < 0 or x_lo > ncols_hi:
+            break
+        sw = 0.0
+        su = 0.0
+        sv = 0.0
+        suu = 0.0
+        suv = 0.0
+        for i in range(row_start[r_lo], row_start[r_hi + 1]):
+            ci = c[i]
+            if ci < x_lo or ci > x_hi:
+                continue
+            dx = ci - x
+            dy = t[i] - y
+            u = dx * cp + dy * sp
+            if u < 0.0 or u > step:
+                continue
+            v = -dx * sp + dy * cp - 0.5 * kappa * u * u
+            if v > hw or v < -hw:
+                continue
+            th = theta[i]
+            if th >= 0.0 and abs(math.cos(th - psi)) < cos_max:
+                continue
+            if owner[i] >= 0 and owner[i] != track:  # another line's, followed already
+                continue
+            sw += 1.0
+            su += u
+            sv += v
+            suu += u * u
+            suv += u * v
+        if sw >= min_count:
+            mu = su / sw
+            mv = sv / sw
+            var = suu / sw - mu * mu
+            b = 0.0
+            if var > 1.0:
+                b = (suv / sw - mu * mv) / var
+            if b > 1.0:
+                b = 1.0
+            elif b < -1.0:
+                b = -1.0
+            a = mv - b * mu
+            # the end of the window on the fitted line (plus the predicted bend)
+            v_end = a + b * step + 0.5 * kappa * step * step
+            new_psi = psi + math.atan(b) + kappa * step
+            # the window's centre on the line, kept: heading and curvature over a longer base
+            vc = a + b * mu + 0.5 * kappa * mu * mu
+            hx[nh] = x + mu * cp - vc * sp
+            hy[nh] = y + mu * sp + vc * cp
+            nh += 1
+            last = nh - 1
+            j = last
+            while j > 0 and math.hypot(hx[last] - hx[j - 1], hy[last] - hy[j - 1]) <= base:
+                j -= 1
+            m = (j + last) // 2
+            used = False
+            if last - j >= 2:
+                ax = hx[m] - hx[j]
+                ay = hy[m] - hy[j]
+                bx = hx[last] - hx[m]
+                by = hy[last] - hy[m]
+                la = math.hypot(ax, ay)
+                lb = math.hypot(bx, by)
+                lc = math.hypot(hx[last] - hx[j], hy[last] - hy[j])
+                if la > 0.5 * step and lb > 0.5 * step:
+                    # a circle through three window centres (Menger curvature), its tangent at
+                    # the window's end
+                    kappa = 2.0 * (ax * by - ay * bx) / (la * lb * lc)
+                    if kappa > max_kappa:
+                        kappa = max_kappa
+                    elif kappa < -max_kappa:
+                        kappa = -max_kappa
+                    h = math.atan2(by, bx) + kappa * (0.5 * lb + step - mu)
+                    d = h - psi
+                    d = d - 2.0 * math.pi * math.floor((d + math.pi) / (2.0 * math.pi))
+                    new_psi = psi + d
+                    used = True
+            if not used:
+                k_meas = (new_psi - prev_psi) / step
+                kappa = 0.7 * kappa + 0.3 * k_meas
+                if kappa > max_kappa:
+                    kappa = max_kappa
+                elif kappa < -max_kappa:
+                    kappa = -max_kappa
+            # mark the features taken (a second pass over the window)
+            for i in range(row_start[r_lo], row_start[r_hi + 1]):
+                ci = c[i]
+                if ci < x_lo or ci > x_hi:
+                    continue
+                dx = ci - x
+                dy = t[i] - y
+                u = dx * cp + dy * sp
+                if u < 0.0 or u > step:
+                    continue
+                v = -dx * sp + dy * cp - a - b * u
+                if v > half_w or v < -half_w:
+                    continue
+                th = theta[i]
+                if th >= 0.0 and abs(math.cos(th - psi)) < cos_max:
+                    continue
+                if owner[i] < 0:
+                    owner[i] = track
+                    taken += 1
+                    if t[i] < t_lo:
+                        t_lo = t[i]
+                    if t[i] > t_hi:
+                        t_hi = t[i]
+            x = x + step * cp - v_end * sp
+            y = y + step * sp + v_end * cp
+            prev_psi = psi
+            psi = new_psi
+            windows += 1
+            gap = 0.0
+        else:
+            half = psi + 0.5 * kappa * step
+            x = x + step * math.cos(half)
+            y = y + step * math.sin(half)
+            prev_psi = psi
+            psi = psi + kappa * step
+            gap += step
+            if gap > max_gap:
+                break
+        if abs(math.cos(psi)) > sin_turn and t_turn > 1e8:
+            t_turn = y
+        if y < 0.0 or y > n_rows - 1:
+            break
+    return windows, taken, t_lo, t_hi, t_turn
+
+
+class FollowParams(NodeParams):
+    """Params of ``lanes.follow``."""
+
+    seed_band_m: float = Field(
+        2.0, gt=0.0, le=20.0, description="height of the near bands in which seeds are found, metres"
+    )
+    seed_bands: int = Field(4, ge=1, le=50, description="number of seed bands from the BEV's near end")
+    min_seed_votes: int = Field(
+        30, ge=1, le=100000, description="a seed needs this many features in one 25 cm column of its band"
+    )
+    step_m: float = Field(1.0, gt=0.0, le=10.0, description="length of a window along the line, metres")
+    half_width_m: float = Field(
+        0.25, gt=0.0, le=5.0, description="a window takes features this far across the predicted line, metres"
+    )
+    max_angle_deg: float = Field(
+        25.0,
+        gt=0.0,
+        le=90.0,
+        description="a window takes features whose orientation is within this of the line's heading, degrees",
+    )
+    max_gap_m: float = Field(
+        14.0,
+        ge=0.0,
+        le=100.0,
+        description="a line is followed over windows without features (dashes' gaps, occlusions) up to this, metres",
+    )
+    gap_heading_deg: float = Field(
+        6.0,
+        ge=0.0,
+        le=45.0,
+        description="after a gap a window widens by the lateral drift of a heading this far off over the gap's length "
+        "(the uncertainty of a heading measured on a dash), degrees",
+    )
+    base_m: float = Field(
+        10.0,
+        gt=0.0,
+        le=100.0,
+        description="heading and curvature from a circle through the centres of the windows with features over the "
+        "last this much of the line (three or more, dashes across their gaps), metres",
+    )
+    min_radius_m: float = Field(
+        20.0,
+        gt=0.0,
+        le=1e6,
+        description="tightest bend followed (the curvature is clamped to 1 / this), metres",
+    )
+    min_window_features: int = Field(
+        12, ge=1, le=100000, description="a window with fewer features counts as a gap"
+    )
+    max_bar_m: float = Field(
+        5.0,
+        ge=0.0,
+        le=100.0,
+        description="a track with features over less than this (along the BEV rows) is short: a hatching bar when two "
+        "short tracks run parallel beside it or it crosses the road's direction, metres",
+    )
+    max_heading_deg: float = Field(
+        60.0,
+        gt=0.0,
+        le=89.0,
+        description="the parabola is fitted where the line is within this of straight ahead, degrees",
+    )
+    near_fit_m: float | None = Field(
+        20.0,
+        gt=0.0,
+        le=1000.0,
+        description="a line seen over at least half of the BEV's near this many metres is fitted there only (as "
+        "fit.irls's near_fit_m), metres; null: the whole line",
+    )
+    extend_px: float = Field(
+        3.0,
+        ge=0.0,
+        le=100.0,
+        description="a lane fitted on the near part reaches up to the farthest feature of its line within this of the "
+        "parabola, BEV pixels (3: 15 cm, a marking's width)",
+    )
+    min_inlier_fraction: float = Field(
+        0.8,
+        ge=0.0,
+        le=1.0,
+        description="a track is a lane when its parabola keeps this fraction of its features (unitless)",
+    )
+    max_start_m: float = Field(
+        12.0,
+        ge=0.0,
+        le=100.0,
+        description="a lane's nearest feature lies at most this far beyond the BEV's near end (a lane boundary is seen "
+        "near the car, after at most a dashed line's gap), metres",
+    )
+    min_inliers: int = Field(80, ge=3, le=1000000, description="a lane needs at least this many features")
+    min_extent_m: float = Field(
+        4.0, ge=0.0, le=500.0, description="its features must span this much road, metres"
+    )
+    min_offset_m: float = Field(
+        0.6, ge=0.0, le=20.0, description="closest plausible lateral distance of a lane boundary, metres"
+    )
+    max_offset_m: float = Field(
+        5.0, gt=0.0, le=50.0, description="farthest plausible lateral distance of a lane boundary, metres"
+    )
+    max_curvature: float = Field(
+        0.1,
+        gt=0.0,
+        le=1.0,
+        description="largest curvature of a fitted line's path where it is seen nearest, 1/metres (else a straight refit)",
+    )
+
+
+def _seeds(t, c, theta, row_start, rows, cols, p: FollowParams, res: float):
+    """(t, column, orientation, votes) of the seeds, nearest band first."""
+    band = max(1, int(round(p.seed_band_m / res)))
+    bin_px = max(1, int(round(0.25 / res)))
+    n_bins = cols // bin_px + 2
+    out = []
+    for j in range(p.seed_bands):
+        t_b = j * band
+        if t_b >= rows:
+            break
+        r_hi = rows - 1 - t_b  # BEV rows of the band: (r_hi - band, r_hi]
+        r_lo = max(0, r_hi - band + 1)
+        i0, i1 = row_start[r_lo], row_start[r_hi + 1]
+        if i1 - i0 < p.min_seed_votes:
+            continue
+        tt, cc, th = t[i0:i1], c[i0:i1], theta[i0:i1]
+        ok = th > math.radians(20.0)
+        ok &= th < math.radians(160.0)
+        tt, cc, th = tt[ok], cc[ok], th[ok]
+        col_b = cc - (tt - t_b) * np.cos(th) / np.sin(th)
+        b = np.floor(col_b / bin_px).astype(np.int64)
+        keep = (b >= 0) & (b < n_bins)
+        b, th = b[keep], th[keep]
+        if b.size < p.min_seed_votes:
+            continue
+        hist = np.bincount(b, minlength=n_bins).astype(np.float64)
+        s2 = np.bincount(b, weights=np.sin(2 * th), minlength=n_bins)
+        c2 = np.bincount(b, weights=np.cos(2 * th), minlength=n_bins)
+        h3 = hist.copy()
+        h3[1:] += hist[:-1]
+        h3[:-1] += hist[1:]
+        for k in np.flatnonzero(h3 >= p.min_seed_votes):
+            if h3[k] < h3[max(0, k - 1)] or h3[k] < h3[min(n_bins - 1, k + 1)]:
+                continue
+            if k > 0 and h3[k] == h3[k - 1]:
+                continue  # a plateau: its first bin
+            lo, hi = max(0, k - 1), min(n_bins, k + 2)
+            psi = 0.5 * math.atan2(float(s2[lo:hi].sum()), float(c2[lo:hi].sum()))
+            if psi < 0:
+                psi += math.pi
+            out.append((float(t_b), (k + 0.5) * bin_px, psi, float(h3[k])))
+    return out
+
+
+@node_type(
+    "lanes.follow",
+    inputs={"features": "features", "geometry": Port("bev_geometry")},
+    outputs={"lanes": "lanes"},
+)
+def follow(params: FollowParams, features: FeatureMap, geometry: BevGeometry) -> dict:
+    """Lane lines followed through windows along their own heading and curvature from seeds in the
+    BEV's near part; hatching bars dropped; a parabola on each line's seen part; the nearest line
+    each side. Needs no previous frame."""
+    rows, cols = features.shape
+    r, c = features.points()
+    return {"lanes": follow_lanes(r, c, features.point_orientations(), rows, cols, geometry, params)}
+
+
+class MergeParams(NodeParams):
+    """Params of ``lanes.merge``."""
+
+    parallel_m: float = Field(
+        0.5,
+        gt=0.0,
+        le=20.0,
+        description="a lane and a followed line on its side that never meet and whose distance changes by at most this "
+        "over the BEV rows both cover are two parallel markings, metres",
+    )
+    meet_m: float = Field(
+        0.15,
+        gt=0.0,
+        le=5.0,
+        description="a lane and a followed line on its side are one marking where they come this close on some BEV row "
+        "(a marking's width), metres",
+    )
+    min_support_ratio: float = Field(
+        1.2,
+        ge=0.0,
+        le=100.0,
+        description="a lane is replaced only when the followed line has this many times its features (within meet_m, "
+        "on the rows both cover) (unitless)",
+    )
+    min_lane_width_m: float = Field(
+        2.0,
+        gt=0.0,
+        le=20.0,
+        description="a followed lane added beside a lane must be this far from it on every BEV row both cover (a lane's "
+        "width), metres",
+    )
+
+
+@node_type(
+    "lanes.merge",
+    inputs={
+        "lanes": Port("lanes", "lanes of one method (the Hough lines' fit, verified)"),
+        "followed": Port("lanes", "lanes of another (lanes.follow's, verified)"),
+        "features": Port("features", "the features both were found on: which lane they support"),
+        "geometry": Port("bev_geometry"),
+    },
+    outputs={"lanes": "lanes"},
+)
+def merge_node(
+    params: MergeParams, lanes: list[Lane], followed: list[Lane], features: FeatureMap, geometry: BevGeometry
+) -> dict:
+    """At most one lane each side from two lists: a side without a lane takes the followed one; a
+    lane that the features support less than the followed line on its side is replaced by it."""
+    return {"lanes": merge(list(lanes or []), list(followed or []), geometry, params, features)}
+
+
+def _gaps_px(a: Lane, b: Lane, rows: int) -> tuple[float, float, float]:
+    """Mean and smallest column distance of two lanes over the BEV rows both cover, and how much it
+    changes there (largest minus smallest signed distance); inf when they share no row."""
+    lo = max(a.bev_rows[0], b.bev_rows[0])
+    hi = min(a.bev_rows[1], b.bev_rows[1])
+    if hi <= lo:
+        return math.inf, math.inf, 0.0
+    t = rows - 1 - np.arange(lo, hi + 1, dtype=np.float64)
+    ca = a.coeffs[0] + a.coeffs[1] * t + a.coeffs[2] * t * t
+    cb = b.coeffs[0] + b.coeffs[1] * t + b.coeffs[2] * t * t
+    d = ca - cb
+    return float(np.abs(d).mean()), float(np.abs(d).min()), float(d.max() - d.min())
+
+
+def _support(features: FeatureMap | None, lane: Lane, lo: int, hi: int, half_px: float) -> int:
+    """How many features lie within ``half_px`` columns of ``lane`` on BEV rows ``lo..hi``."""
+    if features is None:
+        return 0
+    r, c = features.points()
+    i0, i1 = np.searchsorted(r, [lo, hi + 1])
+    rr, cc = r[i0:i1], c[i0:i1]
+    rows = features.shape[0]
+    t = (rows - 1 - rr).astype(np.float64)
+    a, b, q = lane.coeffs
+    return int(np.count_nonzero(np.abs(cc - (a + b * t + q * t * t)) <= half_px))
+
+
+def merge(
+    have: list[Lane],
+    found: list[Lane],
+    geometry: BevGeometry,
+    p: MergeParams,
+    features: FeatureMap | None = None,
+) -> list[Lane]:
+    """The lanes ``have`` (a straight Hough line's fit, verified) with the followed lanes ``found``:
+    a side without a lane takes the followed one; a side whose lane runs elsewhere than the followed
+    line there (more than ``meet_m``, a marking's width, apart on average over the rows both cover)
+    and either meets it (within ``meet_m`` on some row) or is not parallel to it (their distance
+    changes by more than ``parallel_m``) takes the followed one when more features lie on it
+    (``min_support_ratio`` times, within ``meet_m``, on those rows); a parallel line is another marking:
+    one orientation and a straight Hough line misplace a lane in a bend, while a followed line keeps
+    to its features window by window (asking the followed line for more features as well lost
+    one ramp frame in 16 and changed nothing on the other sequences)."""
+    rows = geometry.rows
+    res = geometry.resolution
+    out = list(have)
+    for ln in found:
+        same = [o for o in out if o.side == ln.side]
+        if same:
+            o = same[0]
+            mean_gap, min_gap, spread = _gaps_px(o, ln, rows)
+            if mean_gap * res <= p.meet_m:
+                continue  # the same line where both are
+            if min_gap * res >= p.meet_m and spread * res <= p.parallel_m:
+                continue  # another marking beside it, parallel
+            lo, hi = max(o.bev_rows[0], ln.bev_rows[0]), min(o.bev_rows[1], ln.bev_rows[1])
+            half = p.meet_m / res
+            if _support(features, ln, lo, hi, half) > p.min_support_ratio * _support(
+                features, o, lo, hi, half
+            ):
+                out[out.index(o)] = ln
+            continue
+        # a lane beside the others: a lane's width from each on every BEV row both cover
+        if any(
+            min(abs(ln.coeffs[0] - o.coeffs[0]), _gaps_px(o, ln, rows)[1]) * res < p.min_lane_width_m
+            for o in out
+        ):
+            continue
+        out.append(ln)
+    out.sort(key=lambda ln: ln.coeffs[0])
+    return out
+
+
+def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None):
+    """The lanes of ``lanes.follow`` from the feature points ``(r, c)`` and orientations."""
+    res = geometry.resolution
+    if theta is None:
+        theta = np.full(r.shape, -1.0)
+    t = (rows - 1 - r).astype(np.float64)
+    cf = c.astype(np.float64)
+    th = np.ascontiguousarray(theta, dtype=np.float64)
+    row_start = np.searchsorted(r, np.arange(rows + 1)).astype(np.int64)
+    owner = np.full(r.shape, -1, np.int32)
+    tracks = []
+    step = p.step_m / res
+    half_w = p.half_width_m / res
+    cos_max = math.cos(math.radians(p.max_angle_deg))
+    max_gap = p.max_gap_m / res
+    max_kappa = res / p.min_radius_m
+    # the strongest seeds first: a solid line is followed before a dashed one beside it, whose
+    # windows then leave its features alone
+    seeds = sorted(_seeds(t, cf, th, row_start, rows, cols, p, res), key=lambda sd: -sd[3])
+    for t0, c0, psi0, _votes in seeds:
+        # a seed on a line already followed: its band's features there are taken
+        near = np.abs(cf[row_start[max(0, rows - 1 - int(t0) - 5)] : row_start[rows - int(t0)]] - c0) < half_w
+        idx = np.arange(row_start[max(0, rows - 1 - int(t0) - 5)], row_start[rows - int(t0)])[near]
+        if idx.size and np.mean(owner[idx] >= 0) > 0.3:
+            continue
+        k = len(tracks)
+        sin_turn = math.sin(math.radians(p.max_heading_deg))
+        widen = math.tan(math.radians(p.gap_heading_deg))
+        args = (
+            step,
+            half_w,
+            cos_max,
+            max_gap,
+            max_kappa,
+            float(p.min_window_features),
+            sin_turn,
+            widen,
+            p.base_m / res,
+            owner,
+            k,
+        )
+        w_up, n_up, lo_up, hi_up, turn_up = _follow_kernel(t, cf, th, row_start, t0, c0, psi0, *args)
+        w_dn, n_dn, lo_dn, hi_dn, _ = _follow_kernel(t, cf, th, row_start, t0, c0, psi0 + math.pi, *args)
+        n = n_up + n_dn
+        if n == 0:
+            continue
+        tracks.append(
+            {
+                "id": k,
+                "n": n,
+                "windows": w_up + w_dn,
+                "t_lo": min(lo_up, lo_dn),
+                "t_hi": max(hi_up, hi_dn),
+                "t_turn": turn_up,
+                "psi": psi0,
+            }
+        )
+    if debug is not None:
+        debug.update(tracks=tracks, owner=owner, t=t, c=cf)
+    if not tracks:
+        return []
+    # hatching: short tracks parallel to two or more short tracks, or across the long tracks
+    short_px = p.max_bar_m / res
+    for tr in tracks:
+        tr["short"] = (tr["t_hi"] - tr["t_lo"]) < short_px
+    long_psi = [tr["psi"] for tr in tracks if not tr["short"]]
+    for tr in tracks:
+        tr["bar"] = False
+        if not tr["short"]:
+            continue
+        parallel = sum(
+            1 for o in tracks if o is not tr and o["short"] and abs(math.cos(o["psi"] - tr["psi"])) >= cos_max
+        )
+        across = bool(long_psi) and all(abs(math.cos(lp - tr["psi"])) < cos_max for lp in long_psi)
+        tr["bar"] = parallel >= 2 or across
+    lanes = []
+    tan_max = math.tan(math.radians(p.max_heading_deg))
+    for tr in tracks:
+        if tr["bar"] or tr["n"] < p.min_inliers:
+            continue
+        sel = owner == tr["id"]
+        tt, cc = t[sel], cf[sel]
+        if tr["t_turn"] < 1e8:
+            keep = tt <= tr["t_turn"]
+            tt, cc = tt[keep], cc[keep]
+        t_all, c_all = tt, cc
+        if p.near_fit_m is not None:
+            # a road's curvature changes (entering a bend, an S-bend), a parabola's does not: the
+            # near part, where the image shows the line largest, when it is seen over half of it
+            near = tt * res <= p.near_fit_m
+            if near.any() and (tt[near].max() - tt[near].min()) * res >= 0.5 * p.near_fit_m:
+                tt, cc = tt[near], cc[near]
+        if tt.size < p.min_inliers:
+            continue
+        coef, w = irls_fit(tt, cc, 2)
+        inl = w > 0.5
+        if inl.sum() < max(p.min_inliers, p.min_inlier_fraction * tt.size):
+            continue  # one parabola does not describe the track: it strayed onto other features
+        extent = (tt[inl].max() - tt[inl].min()) * res
+        if extent < p.min_extent_m or tt[inl].min() * res > p.max_start_m:
+            continue
+        # the path's curvature where it is seen nearest (x(z)'s second derivative over (1 + x'^2)^1.5)
+        t_near = float(tt[inl].min())
+        slope = coef[1] + 2 * coef[2] * t_near
+        if abs(2 * coef[2] / res) / (1 + slope * slope) ** 1.5 > p.max_curvature:
+            coef, w = irls_fit(tt, cc, 1)
+            coef = np.array([coef[0], coef[1], 0.0])
+            inl = w > 0.5
+        # the lane reaches as far as the line's features stay on the parabola (a marking's width)
+        on = np.abs(coef[0] + coef[1] * t_all + coef[2] * t_all * t_all - c_all) <= p.extend_px
+        t_top = float(max(tt[inl].max(), t_all[on].max() if on.any() else 0.0))
+        # the parabola's slope must stay within max_heading_deg over its fitted rows
+        if abs(coef[1] + 2 * coef[2] * t_top) > tan_max and abs(coef[1]) > tan_max:
+            continue
+        lateral = geometry.lateral_m(float(coef[0]))
+        if not p.min_offset_m <= abs(lateral) <= p.max_offset_m:
+            continue
+        lanes.append(
+            (
+                abs(lateral),
+                Lane(
+                    coeffs=(float(coef[0]), float(coef[1]), float(coef[2])),
+                    bev_rows=(rows - 1 - int(t_top), rows - 1),
+                    side="left" if lateral < 0 else "right",
+                    score=float(min(1.0, inl.sum() / max(1.0, (t_top + 1) * 2.0))),
+                    extra={"support": int(inl.sum()), "extent_m": round(float(extent), 2), "followed": True},
+                ),
+            )
+        )
+    out = []
+    for side in ("left", "right"):
+        cand = [ln for d, ln in sorted(lanes, key=lambda x: x[0]) if ln.side == side]
+        if cand:
+            out.append(cand[0])
+    out.sort(key=lambda ln: ln.coeffs[0])
+    return out

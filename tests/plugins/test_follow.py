@@ -1,0 +1,274 @@
+"""lanes.follow: its window kernel against a NumPy twin; bends, lines leaving the BEV's side,
+hatching bars, dashed lines and the merge with the Hough lanes, on BEVs with known answers."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from lanegraph_lanes._features import EsltParams, eslt
+from lanegraph_lanes._follow import FollowParams, MergeParams, _follow_kernel, follow, merge, merge_node
+
+from lanegraph.testing import check_node_type
+from lanegraph.types import BevGeometry, FeatureMap, Lane
+
+RES = 0.05
+
+
+def geometry(rows: int = 800, cols: int = 400) -> BevGeometry:
+    return BevGeometry(-cols * RES / 2, cols * RES / 2, 5.0, 5.0 + rows * RES, RES, np.eye(3))
+
+
+def draw(bev: np.ndarray, cols: np.ndarray, ts: np.ndarray, half: float = 1.5, value: int = 220) -> None:
+    """Paint a line through the (column, t) samples, about ``2 half`` pixels wide across it."""
+    rows = bev.shape[0]
+    for c, t in zip(cols, ts, strict=True):
+        r = int(round(rows - 1 - t))
+        if 0 <= r < rows:
+            lo, hi = int(round(c - half)), int(round(c + half))
+            bev[r, max(lo, 0) : max(min(hi + 1, bev.shape[1]), 0)] = value
+
+
+def arc(c0: float, radius_m: float, s_max_m: float = 60.0):
+    """Samples (column, t) every 0.2 px of arc length of a circle starting straight ahead at column
+    ``c0`` of the bottom row and bending right (``radius_m`` > 0) or left, up to where it runs
+    across the BEV."""
+    R = abs(radius_m) / RES
+    ang = np.arange(0.0, s_max_m / RES, 0.2) / R
+    ang = ang[ang < math.pi / 2]
+    return c0 + math.copysign(1.0, radius_m) * R * (1 - np.cos(ang)), R * np.sin(ang)
+
+
+def features_of(bev: np.ndarray):
+    return eslt(EsltParams(), image=bev)["features"]
+
+
+# ----------------------------------------------------------------------------- the kernel's twin
+def follow_twin(
+    t,
+    c,
+    theta,
+    t0,
+    c0,
+    psi0,
+    step,
+    half_w,
+    cos_max,
+    max_gap,
+    max_kappa,
+    min_count,
+    sin_turn,
+    widen,
+    base,
+    owner,
+    track,
+    rows,
+):
+    """NumPy twin of ``_follow_kernel``: every window's features selected with array operations over
+    all the features, the same updates."""
+    x, y, psi, kappa, gap = c0, t0, psi0, 0.0, 0.0
+    windows = taken = 0
+    t_lo, t_hi, t_turn, prev_psi = 1e9, -1e9, 1e9, psi0
+    centres = []  # the centres of the windows with features, in order
+    has_theta = theta >= 0
+    for _ in range(400):
+        cp, sp = math.cos(psi), math.sin(psi)
+        dx, dy = c - x, t - y
+        u = dx * cp + dy * sp
+        v = -dx * sp + dy * cp
+        ok_theta = ~has_theta | (np.abs(np.cos(theta - psi)) >= cos_max)
+        ok_theta &= (owner < 0) | (owner == track)
+        hw = half_w + widen * gap
+        sel = (u >= 0) & (u <= step) & (np.abs(v - 0.5 * kappa * u * u) <= hw) & ok_theta
+        # the kernel looks only at the rows of the window's bounding box (the same features)
+        if sel.sum() >= min_count:
+            uu, vv = u[sel], v[sel] - 0.5 * kappa * u[sel] ** 2
+            var = np.mean(uu * uu) - np.mean(uu) ** 2
+            b = (np.mean(uu * vv) - np.mean(uu) * np.mean(vv)) / var if var > 1.0 else 0.0
+            b = min(max(b, -1.0), 1.0)
+            a = np.mean(vv) - b * np.mean(uu)
+            v_end = a + b * step + 0.5 * kappa * step * step
+            new_psi = psi + math.atan(b) + kappa * step
+            mu = np.mean(uu)
+            vc = a + b * mu + 0.5 * kappa * mu * mu
+            centres.append((x + mu * cp - vc * sp, y + mu * sp + vc * cp))
+            h = np.array(centres)
+            near = np.hypot(*(h[-1] - h).T) <= base
+            j = len(h) - 1  # the oldest centre of the run within base of the last
+            while j > 0 and near[j - 1]:
+                j -= 1
+            last, m = len(h) - 1, (j + len(h) - 1) // 2
+            A, B, C = h[m] - h[j], h[last] - h[m], h[last] - h[j]
+            la, lb, lc = np.linalg.norm(A), np.linalg.norm(B), np.linalg.norm(C)
+            if last - j >= 2 and la > 0.5 * step and lb > 0.5 * step:
+                kappa = min(max(2.0 * (A[0] * B[1] - A[1] * B[0]) / (la * lb * lc), -max_kappa), max_kappa)
+                d = math.atan2(B[1], B[0]) + kappa * (0.5 * lb + step - mu) - psi
+                new_psi = psi + (d + math.pi) % (2 * math.pi) - math.pi
+            else:
+                kappa = min(max(0.7 * kappa + 0.3 * (new_psi - prev_psi) / step, -max_kappa), max_kappa)
+            mark = (u >= 0) & (u <= step) & (np.abs(v - a - b * u) <= half_w) & ok_theta & (owner < 0)
+            owner[mark] = track
+            taken += int(mark.sum())
+            if mark.any():
+                t_lo, t_hi = min(t_lo, t[mark].min()), max(t_hi, t[mark].max())
+            x, y = x + step * cp - v_end * sp, y + step * sp + v_end * cp
+            prev_psi, psi = psi, new_psi
+            windows += 1
+            gap = 0.0
+        else:
+            half = psi + 0.5 * kappa * step
+            x, y = x + step * math.cos(half), y + step * math.sin(half)
+            prev_psi, psi = psi, psi + kappa * step
+            gap += step
+            if gap > max_gap:
+                break
+        if abs(math.cos(psi)) > sin_turn and t_turn > 1e8:
+            t_turn = y
+        if y < 0.0 or y > rows - 1:
+            break
+    return windows, taken, t_lo, t_hi, t_turn
+
+
+@pytest.mark.parametrize("radius_m", [30.0, -80.0, 1e6])
+def test_follow_kernel_matches_numpy_twin(radius_m):
+    rows, cols = 400, 300
+    bev = np.full((rows, cols), 80, np.uint8)
+    c, t = arc(100.0, radius_m)
+    draw(bev, c, t)
+    # hatching bars beside it and noise features
+    for k in range(6):
+        draw(bev, 220 + np.arange(0, 40, 0.5), 60 + 30 * k + np.arange(0, 40, 0.5))
+    rng = np.random.default_rng(3)
+    bev[rng.integers(0, rows, 300), rng.integers(0, cols, 300)] = 200
+    f = features_of(bev)
+    r, cc = f.points()
+    th = np.ascontiguousarray(f.point_orientations(), dtype=np.float64)
+    tt = (rows - 1 - r).astype(np.float64)
+    cf = cc.astype(np.float64)
+    row_start = np.searchsorted(r, np.arange(rows + 1)).astype(np.int64)
+    args = (
+        20.0,
+        5.0,
+        math.cos(math.radians(25)),
+        280.0,
+        RES / 20.0,
+        12.0,
+        math.sin(math.radians(60)),
+        0.1,
+        200.0,
+    )
+    for psi0 in (math.pi / 2, math.pi / 2 + math.pi):
+        o1 = np.full(r.shape, -1, np.int32)
+        o1[::7] = 1  # another track's features
+        o2 = o1.copy()
+        got = _follow_kernel(tt, cf, th, row_start, 0.0, 100.0, psi0, *args, o1, 0)
+        exp = follow_twin(tt, cf, th, 0.0, 100.0, psi0, *args, o2, 0, rows)
+        assert got[:2] == exp[:2]
+        np.testing.assert_allclose(got[2:], exp[2:], atol=1e-6)
+        np.testing.assert_array_equal(o1, o2)
+    assert got[0] >= 0
+
+
+# ----------------------------------------------------------------------------- the node
+def lane_cols(lane: Lane, t: np.ndarray) -> np.ndarray:
+    a, b, c = lane.coeffs
+    return a + b * t + c * t * t
+
+
+@pytest.mark.parametrize("radius_m", [30.0, 60.0, -60.0, 250.0])
+def test_follow_keeps_both_lines_of_a_bend_on_the_part_that_is_seen(radius_m):
+    """Two lines 3.5 m apart on a bend: both found, on their sides, where they are within 60 degrees
+    of straight ahead, also where they leave the BEV's side within metres. A parabola fitted on the
+    near 20 m of a circle of 30-60 m radius and followed beyond is off by up to 30 cm (6 px) where
+    the line is far: 11 image pixels at 20 m, under the lane metric's 20 px."""
+    rows, cols = 800, 400
+    bev = np.full((rows, cols), 80, np.uint8)
+    truth = []
+    for c0 in (165.0, 235.0):  # 1.75 m left and right of the vehicle
+        c, t = arc(c0, radius_m - (c0 - 200.0) * RES)  # concentric: one centre of curvature
+        draw(bev, c, t)
+        truth.append((c, t))
+    lanes = follow(FollowParams(), features=features_of(bev), geometry=geometry(rows, cols))["lanes"]
+    assert [ln.side for ln in lanes] == ["left", "right"]
+    for ln, (c, t) in zip(lanes, truth, strict=True):
+        slope = np.gradient(c, t)
+        seen = (
+            (t <= rows - 1 - ln.bev_rows[0]) & (np.abs(slope) < math.tan(math.radians(60))) & (t < rows - 1)
+        )
+        assert seen.sum() > 40 / RES * 0.1  # at least 4 m of the line fitted
+        assert np.abs(lane_cols(ln, t[seen]) - c[seen]).max() < (6.0 if abs(radius_m) < 100 else 2.5)
+        assert np.abs(lane_cols(ln, t[seen]) - c[seen]).mean() < 3.0
+        assert ln.extra["followed"]
+
+
+def test_follow_drops_hatching_bars_and_keeps_the_gore_border_line():
+    """A solid line with a chevron-hatched area on its left (bars 45 degrees to it, every 2 m,
+    touching it): the line is the left lane; no bar is a lane."""
+    rows, cols = 800, 400
+    bev = np.full((rows, cols), 80, np.uint8)
+    t = np.arange(0.0, rows, 0.5)
+    draw(bev, 170.0 + 0 * t, t)  # the gore's right border (ego left), 1.5 m left
+    draw(bev, 100.0 + 0 * t, t)  # its left border
+    draw(bev, 240.0 + 0 * t, t)  # the ego lane's right line
+    for k in range(0, rows, 40):  # chevron bars between the borders, 45 degrees
+        s = np.arange(0.0, 30.0, 0.5)
+        draw(bev, 105.0 + s, k + s)
+        draw(bev, 165.0 - s, k + s)
+    lanes = follow(FollowParams(), features=features_of(bev), geometry=geometry(rows, cols))["lanes"]
+    assert [ln.side for ln in lanes] == ["left", "right"]
+    tt = np.arange(0, rows, 10.0)
+    assert np.abs(lane_cols(lanes[0], tt) - 170.0).max() < 1.5
+    assert np.abs(lane_cols(lanes[1], tt) - 240.0).max() < 1.5
+
+
+def test_follow_bridges_a_dashed_lines_gaps_and_needs_support():
+    rows, cols = 800, 400
+    bev = np.full((rows, cols), 80, np.uint8)
+    t = np.arange(0.0, rows, 0.5)
+    dashed = (t // 60) % 3 == 0  # 3 m dashes, 6 m gaps
+    draw(bev, (170.0 + 0.05 * t)[dashed], t[dashed])
+    draw(bev, 240.0 + 0 * t[:40], t[:40])  # 1 m of a line on the right: too little for a lane
+    lanes = follow(FollowParams(), features=features_of(bev), geometry=geometry(rows, cols))["lanes"]
+    assert [ln.side for ln in lanes] == ["left"]
+    assert np.abs(lane_cols(lanes[0], t) - (170.0 + 0.05 * t)).max() < 2.0
+    assert lanes[0].bev_rows[0] < 100  # followed across the gaps to the far end
+
+
+def test_follow_on_no_features_and_node_contract():
+    bev = np.full((200, 160), 80, np.uint8)
+    f = features_of(bev)
+    assert follow(FollowParams(), features=f, geometry=geometry(200, 160))["lanes"] == []
+    check_node_type(follow, {"features": f, "geometry": geometry(200, 160)})
+    lanes = [_lane(165.0, 0.0, "left")]
+    check_node_type(
+        merge_node, {"lanes": lanes, "followed": [], "features": f, "geometry": geometry(200, 160)}
+    )
+
+
+def _lane(c0: float, c1: float, side: str, support: int = 100) -> Lane:
+    return Lane((c0, c1, 0.0), (0, 799), side, 1.0, extra={"support": support})
+
+
+def test_merge_adds_a_missing_side_and_replaces_a_misplaced_lane():
+    g = geometry()
+    p = MergeParams()
+    rows = np.arange(800)
+    # features on a line at column 165 and on a solid line at 100
+    f = FeatureMap.from_points((800, 400), np.repeat(rows, 2), np.tile([100, 165], 800))
+    hough = [_lane(165.0, 0.0, "left")]
+    followed = [_lane(166.0, 0.0, "left", 50), _lane(240.0, 0.1, "right")]
+    out = merge(hough, followed, g, p, f)
+    assert [ln.coeffs[0] for ln in out] == [165.0, 240.0]  # the left kept (the same line), right added
+    # a straight lane that leaves the line the followed one keeps to: replaced
+    out = merge([_lane(165.0, 0.05, "left")], [_lane(165.0, 0.0, "left", 10)], g, p, f)
+    assert out[0].coeffs[1] == 0.0
+    # ... but not by a followed line with fewer features on it
+    out = merge([_lane(165.0, 0.0, "left")], [_lane(165.0, 0.05, "left")], g, p, f)
+    assert out[0].coeffs[1] == 0.0
+    # a parallel marking beside the lane (the followed line has more features): another marking
+    out = merge([_lane(165.0, 0.0, "left")], [_lane(100.0, 0.0, "left")], g, p, f)
+    assert out[0].coeffs[0] == 165.0
+    # a followed lane on the other side nearer than a lane's width to a lane: not added
+    out = merge([_lane(195.0, 0.0, "left")], [_lane(215.0, 0.0, "right")], g, p, f)
+    assert len(out) == 1
