@@ -33,7 +33,8 @@ from .batch import Planned, Planner, ResolvedGraph, SchedulerSpec, clean_leftove
 from .cache import ResultCache, digest
 from .dataset import POOLED, Dataset, evaluate_sequences, read_gt
 from .metrics import evaluate, read_predictions
-from .paths import inside, safe_name, write_bytes_atomic, write_text_atomic
+from .paths import inside, safe_name, write_text_atomic
+from .plots import write_ablation_plots
 from .plugins import get_plugin_manager
 from .results import LANES, find_result
 from .resume import input_identity
@@ -275,7 +276,7 @@ def write_reports(rows: list[dict[str, Any]], out_dir: Path) -> None:
     stages = list(dict.fromkeys(s for r in rows for s in r.get("stage_ms", {})))
     _write_csv(rows, stages, out_dir / "results.csv")
     write_text_atomic(out_dir / "results.md", _results_md(rows, stages))
-    _plots([r for r in rows if r.get("sequence") == POOLED], out_dir)
+    write_ablation_plots([r for r in rows if r.get("sequence") == POOLED], out_dir)
 
 
 def _write_csv(rows: list[dict[str, Any]], stages: list[str], path: Path) -> None:
@@ -361,48 +362,3 @@ def _results_md(rows: list[dict[str, Any]], stages: list[str]) -> str:
             )
             lines.append(f"- {r['variant']} / {r['sequence']}: {what}")
     return "\n".join(lines) + "\n"
-
-
-def _save(fig: Any, path: Path) -> None:
-    buf = io.BytesIO()
-    fig.savefig(buf, dpi=110, format="png")
-    write_bytes_atomic(path, buf.getvalue())
-
-
-def _plots(rows: list[dict[str, Any]], out_dir: Path) -> None:
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:  # pragma: no cover - matplotlib is a dependency
-        return
-    names = [r["variant"] for r in rows]
-    acc = [r.get("detection_ratio") or 0.0 for r in rows]
-    prec = [r.get("precision") or 0.0 for r in rows]
-    fig, ax = plt.subplots(figsize=(max(6, 0.8 * len(rows) + 2), 4))
-    xs = range(len(rows))
-    ax.bar([x - 0.2 for x in xs], acc, width=0.4, label="detection ratio")
-    ax.bar([x + 0.2 for x in xs], prec, width=0.4, label="precision")
-    ax.set_xticks(list(xs), names, rotation=35, ha="right")
-    ax.set_ylim(0, 1.05)
-    ax.set_ylabel("fraction")
-    ax.set_title("accuracy per variant")
-    ax.legend(loc="lower right")
-    fig.tight_layout()
-    _save(fig, out_dir / "accuracy.png")
-    plt.close(fig)
-    fig, ax = plt.subplots(figsize=(6, 4.5))
-    for r, a in zip(rows, acc):
-        ms = r.get("ms_per_frame")
-        if ms is None:
-            continue
-        ax.scatter(ms, a)
-        ax.annotate(r["variant"], (ms, a), fontsize=7, xytext=(3, 3), textcoords="offset points")
-    ax.set_xlabel("median ms per frame (all nodes)")
-    ax.set_ylabel("detection ratio")
-    ax.set_ylim(-0.02, 1.05)
-    ax.set_title("accuracy against time")
-    fig.tight_layout()
-    _save(fig, out_dir / "accuracy_vs_ms.png")
-    plt.close(fig)
