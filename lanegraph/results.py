@@ -52,6 +52,22 @@ def recorded_result_files(folder: Path) -> dict[str, str]:
     return {str(k): v for k, v in results.items() if isinstance(v, str) and v}
 
 
+def recorded_selection(folder: Path) -> tuple[str | None, list[str]] | None:
+    """The frames the run in ``folder`` selected, as its ``run.json`` records them
+    (``"selection": {"frames": "0:20", "ids": [frame ids]}``): ``(the --frames text, the ids)``;
+    None when it records none (a run of an older lanegraph: every frame of the ground truth is
+    scored). ``eval`` and ``report`` score exactly these frames."""
+    try:
+        record = json.loads((Path(folder) / "run.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    sel = record.get("selection") if isinstance(record, dict) else None
+    if not isinstance(sel, dict) or not isinstance(sel.get("ids"), list):
+        return None
+    frames = sel.get("frames")
+    return (frames if isinstance(frames, str) else None), [str(i) for i in sel["ids"]]
+
+
 def default_names(kind: str, pm: PluginManager | None = None) -> list[str]:
     """The files installed sink types write for ``kind`` with their default params."""
     pm = pm or get_plugin_manager()
