@@ -15,9 +15,9 @@ import time
 from pydantic import Field
 
 from lanegraph import NodeParams, RunContext, hookimpl, node_type
-from lanegraph.executor import Executor
-from lanegraph.graph import validate_raw
+from lanegraph.graph.validation import validate_raw
 from lanegraph.plugins import PluginManager
+from lanegraph.run.executor import Executor
 
 
 class SrcParams(NodeParams):

@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from lanegraph.executor import Executor
-from lanegraph.graph import load_graph
+from lanegraph.graph.validation import load_graph
 from lanegraph.nodes import RunContext
+from lanegraph.run.executor import Executor
 
 ROOT = Path(__file__).resolve().parents[1]
 DRIVE = ROOT.parent / "shared/data/kitti_raw/2011_09_26/2011_09_26_drive_0001_sync"

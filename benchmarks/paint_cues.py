@@ -25,8 +25,8 @@ from pathlib import Path
 import numpy as np
 from _sweep import lanes_file, run_graph  # benchmarks/ (the script's folder)
 
-from lanegraph.dataset import load_dataset, read_gt
-from lanegraph.metrics import match_frame, read_jsonl
+from lanegraph.evaluation.dataset import load_dataset, read_gt
+from lanegraph.evaluation.metrics import match_frame, read_jsonl
 
 ROOT = Path(__file__).resolve().parents[1]
 OPEN = [

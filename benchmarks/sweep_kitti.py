@@ -8,7 +8,7 @@ or the colour ``image_2``/``image_3``, ``calib.txt`` with their ``P0``/``P1`` or
 with its ``lanes_gt.jsonl``, recognised and read as ``lanegraph run`` does (``lanegraph_io``'s
 ``detect_source`` and sources: the pair it reads is the pair changed). ``--input`` names one (default:
 drive 0001 of ``../shared/data``); ``--dataset FILE`` names several, each with its ground truth and
-optional frame selection (a dataset file, ``lanegraph.dataset``; ``graphs/datasets/dev.yaml``).
+optional frame selection (a dataset file, ``lanegraph.evaluation.dataset``; ``graphs/datasets/dev.yaml``).
 
 Each variant of each sequence is written into ``--work`` (a temporary folder by default) in the
 input's own layout (KITTI raw: ``<date>/calib_cam_to_cam.txt`` and ``image_0X/data``; KITTI odometry:
@@ -16,7 +16,7 @@ input's own layout (KITTI raw: ``<date>/calib_cam_to_cam.txt`` and ``image_0X/da
 ground truth carried over, then ``lanegraph run GRAPH`` runs on it and the lane metric of the data
 README is printed (detection ratio, precision, ego recall, lanes reported): a row per sequence and,
 with several sequences, a pooled row ``all`` per variant (every frame of every sequence as one set,
-``lanegraph.dataset.evaluate_sequences``, as ``lanegraph ablate --dataset`` pools). The figures are
+``lanegraph.evaluation.dataset.evaluate_sequences``, as ``lanegraph ablate --dataset`` pools). The figures are
 also written to ``WORK/sweep.json``. The variants:
 
 - ``recorded``: the sequence as it is;
@@ -73,10 +73,17 @@ from lanegraph_io._calib import projection, read_key_rows
 from lanegraph_io._sources import KittiOdometrySource, KittiRawSource, read_image
 from tqdm import tqdm
 
-from lanegraph.dataset import POOLED, Dataset, evaluate_sequences, load_dataset, read_gt, single_sequence
 from lanegraph.errors import InputError
+from lanegraph.evaluation.dataset import (
+    POOLED,
+    Dataset,
+    evaluate_sequences,
+    load_dataset,
+    read_gt,
+    single_sequence,
+)
+from lanegraph.evaluation.metrics import evaluate, read_ground_truth, read_predictions
 from lanegraph.frames import selection_text
-from lanegraph.metrics import evaluate, read_ground_truth, read_predictions
 from lanegraph.nodes import RunContext, node_type_of
 from lanegraph.types import Calibration
 

@@ -27,7 +27,7 @@ from _sweep import (  # benchmarks/ (the script's folder)
 )
 from lanegraph_synthetic import Marking, preset, write_sequence
 
-from lanegraph.metrics import evaluate, read_jsonl
+from lanegraph.evaluation.metrics import evaluate, read_jsonl
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -10,12 +10,11 @@ from __future__ import annotations
 
 from typing import Any
 
+from ._version import __version__ as __version__
 from .errors import GraphError, InputError, LanegraphError, NodeError, Problem, UsageError
 from .hookspecs import hookimpl, hookspec
 from .nodes import NodeParams, NodeType, NoParams, Port, RunContext, node_type, node_type_of
 from .types import BevGeometry, Calibration, FeatureMap, Lane, Line, PortType, RoadModel
-
-__version__ = "0.1.0"
 
 __all__ = [
     "BevGeometry",

@@ -7,7 +7,7 @@ about a quarter of the time after disparity on the 2-core reference machine (18.
 frame, measured with ``benchmarks/bench_pipeline.py``). :func:`tune_allocator` makes ``malloc``
 serve blocks below 32 MiB from its heap and keep up to 256 MiB of freed heap memory for reuse.
 
-It changes a process-wide setting, so :class:`lanegraph.executor.Executor` applies it once when a
+It changes a process-wide setting, so :class:`lanegraph.run.executor.Executor` applies it once when a
 run starts; ``LANEGRAPH_MALLOC_TUNING=0`` leaves the allocator alone. Elsewhere than glibc (macOS,
 Windows, musl) it does nothing.
 """

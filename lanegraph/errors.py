@@ -116,3 +116,24 @@ class NodeError(LanegraphError):
         super().__init__(
             f"node '{node_id}' ({node_type}) failed on frame {frame}: {type(cause).__name__}: {cause}"
         )
+
+
+class NotStarted(LanegraphError):
+    """A run that could not start: its input, checkpoint or output folder is unusable before any
+    frame ran (exit 2, like a bad ``--input``). Says what ``cause`` says."""
+
+    exit_code = 2
+
+    def __init__(self, cause: BaseException):
+        super().__init__(str(cause))
+        self.cause = cause
+
+
+class RunStopped(LanegraphError):
+    """A run that started and stopped (``cause``: why); its record says how far it got. Exit 1, or
+    130 when interrupted (Ctrl-C)."""
+
+    def __init__(self, message: str, cause: BaseException | None = None, exit_code: int = 1):
+        super().__init__(message)
+        self.cause = cause
+        self.exit_code = exit_code

@@ -29,6 +29,14 @@ def lanegraph_port_types() -> list[Any]:
 
 
 @hookspec
+def lanegraph_runners() -> list[Any]:
+    """Return the runner types this plugin adds (:mod:`lanegraph.run.runners`): classes with a
+    ``name`` and a class method ``from_spec(text)`` that returns a runner -- an object with
+    ``run(tasks, progress, echo, done)`` -- for a ``--scheduler`` text it understands, or None.
+    ``run --dataset`` and ``ablate`` run their units of work on it."""
+
+
+@hookspec
 def lanegraph_before_node(node_id: str, node_type: str, frame: str | None, inputs: dict[str, Any]) -> None:
     """Called right before a node processes a frame (for tracing and profiling)."""
 

@@ -32,7 +32,7 @@ Capabilities a node class may declare (static methods, called before anything is
     source fits.
 ``result_files(params) -> dict[str, str]``
     a sink: the files it writes that other commands read back, by kind, relative to the output
-    folder (``{"lanes": ...}``: the lanes the metrics read, see :mod:`lanegraph.results`).
+    folder (``{"lanes": ...}``: the lanes the metrics read, see :mod:`lanegraph.run.results`).
 """
 
 from __future__ import annotations
@@ -100,7 +100,7 @@ class Port:
 
     def __post_init__(self) -> None:
         # any name: port types are an open registry (lanegraph_port_types); a graph that wires a
-        # port whose type no installed plugin registers gets a located problem (lanegraph.graph)
+        # port whose type no installed plugin registers gets a located problem (lanegraph.graph.model)
         if not (isinstance(self.type, str) and _PORT_TYPE_NAME.match(self.type)):
             raise ValueError(
                 f"port type must be a lower-case identifier such as 'image' or 'point_cloud', got {self.type!r}"
@@ -199,7 +199,7 @@ def _code_version(module: str) -> str:
     import hashlib
     import importlib.util
 
-    from . import __version__
+    from ._version import __version__
 
     h = hashlib.sha256(__version__.encode())
     top = module.split(".")[0]

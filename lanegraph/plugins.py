@@ -29,10 +29,12 @@ import pluggy
 from . import hookspecs
 from .errors import did_you_mean
 from .nodes import NodeType, node_type_of
-from .types import PORT_TYPES, PortType
+from .types import PortType
 
 ENTRY_POINT_GROUP = "lanegraph.plugins"
 BUILTIN_DISTRIBUTION = "lanegraph"
+#: the name of the plugin that registers lanegraph's own port types
+BUILTIN_PLUGIN = "lanegraph"
 #: the hooks a plugin may implement
 HOOK_NAMES = sorted(n for n in dir(hookspecs) if n.startswith("lanegraph_"))
 _PORT_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
@@ -87,7 +89,11 @@ class PluginManager(pluggy.PluginManager):
         self.plugin_errors: list[PluginError] = []
         self._dists: dict[str, str] = {}
         self._node_types: dict[str, NodeType] | None = None
-        self._port_types: dict[str, PortType] = dict(PORT_TYPES)
+        self._port_types: dict[str, PortType] = {}
+        from .presentation.port_types import BUILTIN_PORT_TYPES
+
+        # lanegraph's own port types come through the same hook as a plugin's, registered first
+        self.register(BUILTIN_PORT_TYPES, name=BUILTIN_PLUGIN)
         if os.environ.get("LANEGRAPH_TRACE_HOOKS"):
             self.trace.root.setwriter(lambda s: sys.stderr.write(s))
             self.enable_tracing()
@@ -182,8 +188,8 @@ class PluginManager(pluggy.PluginManager):
 
     @property
     def port_types(self) -> dict[str, PortType]:
-        """Every port type by name: lanegraph's own (:data:`lanegraph.types.PORT_TYPES`) and those
-        the plugins register through ``lanegraph_port_types``."""
+        """Every port type by name, each registered through ``lanegraph_port_types``: lanegraph's
+        own (:mod:`lanegraph.presentation.port_types`, registered first) and the plugins'."""
         self.node_types  # noqa: B018 - built together
         return self._port_types
 
@@ -216,7 +222,7 @@ class PluginManager(pluggy.PluginManager):
         return list(provided)
 
     def _collect_port_types(self) -> tuple[dict[str, PortType], dict[Any, tuple[str, tuple[str, ...]]]]:
-        ports = dict(PORT_TYPES)
+        ports: dict[str, PortType] = {}
         owner: dict[str, Any] = {}  # port type name -> the plugin that registered it
         bad: dict[Any, tuple[str, tuple[str, ...]]] = {}
         for impl in self.hook.lanegraph_port_types.get_hookimpls():
@@ -236,7 +242,8 @@ class PluginManager(pluggy.PluginManager):
                     )
                     break
                 if pt.name in ports and ports[pt.name] != pt:
-                    by = repr(self.get_name(owner[pt.name])) if pt.name in owner else "lanegraph"
+                    by = self.get_name(owner[pt.name])
+                    by = "lanegraph" if by == BUILTIN_PLUGIN else repr(by)
                     bad[impl.plugin] = (f"port type {pt.name!r} is already registered by {by}", ())
                     break
                 ports[pt.name] = pt

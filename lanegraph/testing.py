@@ -31,6 +31,7 @@ import yaml
 from pydantic import Field
 
 from .hookspecs import hookimpl
+from .lifecycle import closing, constants_of
 from .nodes import NodeParams, NodeType, Port, RunContext, node_type, node_type_of
 from .plugins import PluginManager
 from .types import Calibration, PortType
@@ -88,16 +89,12 @@ def run_node(
     if not nt.stateful:
         return nt.func(p, **ins)
     ctx = context or RunContext(out_dir=Path(tempfile.mkdtemp(prefix="lanegraph-")))
-    obj = nt.func(p, ctx)
-    try:
+    with closing(nt.func(p, ctx)) as obj:  # open, process one frame, close
         if nt.source:
-            out = dict(obj.constants()) if hasattr(obj, "constants") else {}
+            out = constants_of(obj)
             out.update(next(iter(obj)))
             return out
         return obj(**ins) or {}
-    finally:
-        if hasattr(obj, "close"):
-            obj.close()
 
 
 # --------------------------------------------------------------------------- synthetic inputs
@@ -269,9 +266,9 @@ def _round_trip(
 ) -> None:
     """The conformance check's last rule: a graph feeding ``sample_inputs`` to ``node`` validates,
     round-trips through a graph file and runs."""
-    from .executor import Executor
-    from .graph import load_graph
-    from .types import PORT_TYPES as own
+    from .graph.validation import load_graph
+    from .presentation.port_types import PORT_TYPES as own
+    from .run.executor import Executor
 
     types = {k: node.inputs[k].type for k in sample_inputs}
     feed = _feed_source(sample_inputs, types)

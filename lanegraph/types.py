@@ -5,8 +5,9 @@ A port type is a short name (``"disparity"``, ``"bev_image"`` ...). A value of
 a *sub*-type may feed a port of its parent type (a ``gray`` image may feed an
 ``image`` port); ``any`` accepts everything.
 
-The port types below are lanegraph's own; a plugin adds its own through the
-``lanegraph_port_types`` hook (a :class:`PortType` with a parent for compatibility), and
+Every port type, lanegraph's own included, is registered through the ``lanegraph_port_types``
+hook (a :class:`PortType` with a parent for compatibility, its picture and its check; lanegraph's
+own: :mod:`lanegraph.presentation.port_types`), and
 :attr:`lanegraph.plugins.PluginManager.port_types` holds them all.
 
 Coordinates: arrays are indexed ``(row, col)``; points are ``(x, y)`` pixels.
@@ -14,7 +15,7 @@ Coordinates: arrays are indexed ``(row, col)``; points are ``(x, y)`` pixels.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -29,45 +30,23 @@ class PortType:
     name: str
     description: str
     parent: str | None = None
+    #: ``render(value, context) -> BGR uint8 image or None``: its picture (``--debug-dir``, the report)
+    render: Callable[[Any, Mapping[str, Any]], Any] | None = field(default=None, compare=False, repr=False)
+    #: ``check(value) -> str or None``: what is wrong with a value of this type
+    check: Callable[[Any], str | None] | None = field(default=None, compare=False, repr=False)
 
 
-#: lanegraph's own port types, by name
-PORT_TYPES: dict[str, PortType] = {
-    t.name: t
-    for t in (
-        PortType("any", "any value"),
-        PortType("frame_id", "frame identifier: the left image's file stem (str)"),
-        PortType("image", "image, HxW or HxWx3 uint8 (BGR)"),
-        PortType("gray", "gray image, HxW uint8 or float32", "image"),
-        PortType("disparity", "disparity map, HxW float32 pixels; invalid pixels <= 0"),
-        PortType("mask", "binary mask in image pixels, HxW bool"),
-        PortType("calibration", "rectified stereo calibration (lanegraph.types.Calibration)"),
-        PortType("vdisparity", "v-disparity accumulator, H x D float32"),
-        PortType("road_model", "road profile d(v), roll, pitch, height (lanegraph.types.RoadModel)"),
-        PortType("bev_geometry", "bird's-eye-view grid and its mapping (lanegraph.types.BevGeometry)"),
-        PortType("bev_image", "bird's-eye-view image, Hb x Wb uint8"),
-        PortType("bev_mask", "bird's-eye-view binary mask, Hb x Wb bool"),
-        PortType("features", "lane feature map with orientation (lanegraph.types.FeatureMap)"),
-        PortType("orientation", "global lane orientation in the BEV, radians (float)"),
-        PortType("lines", "straight BEV lines (list of lanegraph.types.Line)"),
-        PortType("lanes", "fitted lanes (list of lanegraph.types.Lane)"),
-        PortType("number", "a scalar"),
-    )
-}
+def is_port_type(name: str, types: Mapping[str, PortType]) -> bool:
+    """Whether ``name`` is a port type of ``types`` (a plugin manager's ``port_types``)."""
+    return name in types
 
 
-def is_port_type(name: str, types: Mapping[str, PortType] | None = None) -> bool:
-    """Whether ``name`` is a port type of ``types`` (default: lanegraph's own)."""
-    return name in (PORT_TYPES if types is None else types)
-
-
-def port_compatible(produced: str, expected: str, types: Mapping[str, PortType] | None = None) -> bool:
+def port_compatible(produced: str, expected: str, types: Mapping[str, PortType]) -> bool:
     """Whether a value of port type ``produced`` may feed a port of type ``expected``: the same
-    type, one of its ancestors through ``parent`` (in ``types``, default lanegraph's own), or
+    type, one of its ancestors through ``parent`` (in ``types``: a plugin manager's ``port_types``), or
     ``any`` on either side."""
     if expected == "any" or produced == "any":
         return True
-    types = PORT_TYPES if types is None else types
     t: str | None = produced
     seen: set[str] = set()
     while t is not None and t not in seen:

@@ -17,7 +17,7 @@ from click.testing import CliRunner
 
 from lanegraph import plugins
 from lanegraph.cli import main
-from lanegraph.loader import MAX_FILE_BYTES
+from lanegraph.graph.loader import MAX_FILE_BYTES
 
 CORPUS = Path(__file__).resolve().parent / "corpus" / "graphs"
 EXPECTED: dict = yaml.safe_load((CORPUS / "expected.yaml").read_text())

@@ -30,7 +30,8 @@ import yaml
 
 from lanegraph import hookspecs
 from lanegraph.cli import allowed_roots, builtin_node_types, nodes_markdown
-from lanegraph.graph import GraphSpec, load_graph
+from lanegraph.graph.model import GraphSpec
+from lanegraph.graph.validation import load_graph
 from lanegraph.plugins import PluginManager
 
 ROOT = Path(__file__).resolve().parents[1]

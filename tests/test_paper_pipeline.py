@@ -10,8 +10,8 @@ import pytest
 from click.testing import CliRunner
 
 from lanegraph.cli import main
-from lanegraph.graph import load_graph
-from lanegraph.metrics import evaluate, read_jsonl
+from lanegraph.evaluation.metrics import evaluate, read_jsonl
+from lanegraph.graph.validation import load_graph
 from tests.test_sweep_kitti import sweep_kitti  # benchmarks/sweep_kitti.py, as that test loads it
 
 ROOT = Path(__file__).resolve().parents[1]

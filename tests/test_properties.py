@@ -24,8 +24,9 @@ from hypothesis import strategies as st
 from pydantic import ValidationError
 
 from lanegraph.errors import GraphError, InputError, LanegraphError
-from lanegraph.graph import load_graph, parse_set, validate_raw
-from lanegraph.loader import parse_text
+from lanegraph.graph.loader import parse_text
+from lanegraph.graph.model import parse_set
+from lanegraph.graph.validation import load_graph, validate_raw
 from lanegraph.plugins import PluginManager
 from lanegraph.testing import make_disparity, run_node
 from lanegraph.types import BevGeometry, Calibration, FeatureMap, Lane, Line, RoadModel

@@ -17,8 +17,8 @@ import pytest
 from click.testing import CliRunner
 
 from lanegraph.cli import main
-from lanegraph.metrics import evaluate, read_jsonl
-from lanegraph.metrics_extra import lateral_error_cm
+from lanegraph.evaluation.metrics import evaluate, read_jsonl
+from lanegraph.evaluation.metrics_extra import lateral_error_cm
 from lanegraph.testing import run_node
 
 from .test_paper_pipeline import PAPER

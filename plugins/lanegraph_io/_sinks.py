@@ -21,7 +21,7 @@ from pydantic import Field
 from lanegraph import NodeParams, Port, RunContext, node_type
 from lanegraph.errors import InputError
 from lanegraph.paths import OutputDir, OutputFile, create_new, inside, safe_name, write_bytes_atomic
-from lanegraph.render import draw_lane_points
+from lanegraph.presentation.render import draw_lane_points
 from lanegraph.types import Lane
 
 

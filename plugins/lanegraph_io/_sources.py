@@ -21,10 +21,10 @@ import numpy as np
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from lanegraph import NodeParams, Port, RunContext, node_type
-from lanegraph.cache import digest
 from lanegraph.errors import InputError, UsageError
 from lanegraph.frames import parse_frames as _parse_frames
 from lanegraph.frames import select_frames, selection_text
+from lanegraph.run.cache import digest
 from lanegraph.types import Calibration
 
 from ._calib import (

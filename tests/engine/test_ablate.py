@@ -72,7 +72,7 @@ def test_ablate_on_a_synthetic_sequence(tmp_path):
 def test_ablate_over_a_dataset_reports_each_sequence_and_the_pooled_figures(tmp_path):
     from lanegraph_synthetic import preset, write_sequence
 
-    from lanegraph.metrics import evaluate, read_jsonl
+    from lanegraph.evaluation.metrics import evaluate, read_jsonl
 
     a = write_sequence(preset("straight"), tmp_path / "data" / "a", 2)
     b = write_sequence(preset("curved"), tmp_path / "data" / "b", 3)

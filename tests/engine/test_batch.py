@@ -13,9 +13,9 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from lanegraph.batch import chunk_selections, clean_leftovers, parse_scheduler, place_dir
 from lanegraph.cli import main
 from lanegraph.errors import UsageError
+from lanegraph.run.batch import chunk_selections, clean_leftovers, parse_scheduler, place_dir
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = str(ROOT / "graphs" / "paper.yaml")
@@ -249,7 +249,7 @@ for args in (sys.argv[1:5], sys.argv[5:]):
         main(args, standalone_mode=False)
     except SystemExit as exc:
         assert not exc.code, exc.code
-loaded = sorted(m for m in sys.modules if m.split(".")[0] in ("dask", "distributed") or m == "lanegraph.distributed")
+loaded = sorted(m for m in sys.modules if m.split(".")[0] in ("dask", "distributed") or m == "lanegraph.run.distributed")
 print("LOADED", loaded)
 """
 
@@ -272,7 +272,7 @@ def test_no_dask_without_a_scheduler(tmp_path, synthetic_dataset):
 
 def test_a_plain_run_imports_nothing_new():
     # `lanegraph run` on one input keeps its start-up: neither the batch module nor Dask
-    code = "import sys, lanegraph.cli, lanegraph.executor; print(sorted(m for m in sys.modules if m.split('.')[0] in ('dask', 'distributed') or m in ('lanegraph.batch', 'lanegraph.distributed')))"
+    code = "import sys, lanegraph.cli, lanegraph.run.executor; print(sorted(m for m in sys.modules if m.split('.')[0] in ('dask', 'distributed') or m in ('lanegraph.run.batch', 'lanegraph.run.distributed')))"
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert p.returncode == 0 and p.stdout.strip() == "[]", p.stdout + p.stderr
 

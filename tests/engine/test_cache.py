@@ -6,10 +6,10 @@ import copy
 
 import yaml
 
-from lanegraph.cache import ResultCache
-from lanegraph.executor import Executor
-from lanegraph.graph import load_graph
+from lanegraph.graph.validation import load_graph
 from lanegraph.nodes import RunContext
+from lanegraph.run.cache import ResultCache
+from lanegraph.run.executor import Executor
 
 from . import toyplugin
 from .test_graph import VALID
@@ -114,7 +114,7 @@ def test_a_crafted_entry_runs_nothing_and_is_a_miss(tmp_path):
 
     import pytest
 
-    from lanegraph.cache import CacheWarning
+    from lanegraph.run.cache import CacheWarning
 
     cache = ResultCache(tmp_path / "cache")
     key = "ab" + "0" * 62
@@ -133,7 +133,7 @@ def test_crafted_entries_are_recomputed_and_replaced(tmp_path, pm):
     import pickle
     import warnings
 
-    from lanegraph.cache import CacheWarning
+    from lanegraph.run.cache import CacheWarning
 
     cache = ResultCache(tmp_path / "cache")
     _, out1 = run(tmp_path, pm, cache)
@@ -155,7 +155,7 @@ def test_port_values_round_trip_and_foreign_classes_are_not_stored(tmp_path):
     import numpy as np
     import pytest
 
-    from lanegraph.cache import CacheWarning
+    from lanegraph.run.cache import CacheWarning
     from lanegraph.types import Calibration, FeatureMap, Lane, Line, RoadModel
 
     cache = ResultCache(tmp_path / "c")
@@ -189,7 +189,7 @@ def test_port_values_round_trip_and_foreign_classes_are_not_stored(tmp_path):
 
 _WRITER = """
 import sys
-from lanegraph.cache import ResultCache
+from lanegraph.run.cache import ResultCache
 cache = ResultCache(sys.argv[1], 10**9)
 value = {"outputs": {"y": bytes(range(256)) * 4000}, "ms": float(sys.argv[2])}
 for _ in range(int(sys.argv[3])):

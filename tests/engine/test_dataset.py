@@ -10,9 +10,15 @@ import pytest
 from click.testing import CliRunner
 
 from lanegraph.cli import main
-from lanegraph.dataset import POOLED, evaluate_sequences, load_dataset, parse_selection, single_sequence
 from lanegraph.errors import InputError
-from lanegraph.metrics import evaluate
+from lanegraph.evaluation.dataset import (
+    POOLED,
+    evaluate_sequences,
+    load_dataset,
+    parse_selection,
+    single_sequence,
+)
+from lanegraph.evaluation.metrics import evaluate
 
 ROOT = Path(__file__).resolve().parents[2]
 

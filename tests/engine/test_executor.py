@@ -9,9 +9,9 @@ from pydantic import Field
 
 from lanegraph import NodeParams, Port, hookimpl, node_type
 from lanegraph.errors import GraphError, NodeError
-from lanegraph.executor import Executor
-from lanegraph.graph import load_graph
+from lanegraph.graph.validation import load_graph
 from lanegraph.nodes import RunContext
+from lanegraph.run.executor import Executor
 
 from . import toyplugin
 from .test_graph import VALID
@@ -320,7 +320,7 @@ class Writer:
 def test_a_run_records_the_result_files_its_sinks_declare(tmp_path, pm):
     import copy
 
-    from lanegraph.results import default_names, find_result, graph_result_files
+    from lanegraph.run.results import default_names, find_result, graph_result_files
 
     class Writers:
         @staticmethod
@@ -351,7 +351,7 @@ def test_a_run_records_the_result_files_its_sinks_declare(tmp_path, pm):
 
 def test_a_run_json_naming_a_result_outside_its_folder_is_refused(tmp_path, pm):
     from lanegraph.errors import UsageError
-    from lanegraph.results import find_result
+    from lanegraph.run.results import find_result
 
     run = tmp_path / "run"
     run.mkdir()

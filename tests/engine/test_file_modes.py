@@ -11,9 +11,9 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from lanegraph.cache import ResultCache
 from lanegraph.cli import main
 from lanegraph.paths import create_new, new_temp_dir, new_temp_file, write_bytes_atomic, write_text_atomic
+from lanegraph.run.cache import ResultCache
 
 ROOT = Path(__file__).resolve().parents[2]
 UMASKS = [0o022, 0o077, 0o002]

@@ -10,7 +10,8 @@ import pytest
 import yaml
 
 from lanegraph.errors import GraphError
-from lanegraph.graph import graph_json_schema, load_graph
+from lanegraph.graph.model import graph_json_schema
+from lanegraph.graph.validation import load_graph
 
 VALID = {
     "name": "toy",

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lanegraph.metrics import evaluate, evaluate_frame, match_score, polyline_x_at
+from lanegraph.evaluation.metrics import evaluate, evaluate_frame, match_score, polyline_x_at
 
 GT_ROWS = [[100.0 + (300 - y) * 0.5, float(y)] for y in range(300, 190, -10)]  # 11 rows, 300..200
 
@@ -74,7 +74,7 @@ def test_aggregate_and_missing_frames():
 
 
 def test_match_frame_exposes_each_lane_and_marking_outcome():
-    from lanegraph.metrics import match_frame
+    from lanegraph.evaluation.metrics import match_frame
 
     gt = {
         "frame": "a",
@@ -116,7 +116,7 @@ def _gt_frames(n: int) -> list[dict]:
 
 def test_only_the_frames_a_run_selected_are_scored():
     """After a run of frames 0:3 of 8, the 5 frames not run are not failures: they are counted apart."""
-    from lanegraph.metrics import select_frames
+    from lanegraph.evaluation.metrics import select_frames
 
     gt = _gt_frames(8)
     pred = [{"frame": f"{i:04d}", "lanes": [{"points": shifted(1)}]} for i in range(3)]
@@ -137,7 +137,7 @@ def test_only_the_frames_a_run_selected_are_scored():
 
 
 def test_evaluate_sequences_with_the_frames_of_each_run():
-    from lanegraph.dataset import POOLED, evaluate_sequences
+    from lanegraph.evaluation.dataset import POOLED, evaluate_sequences
 
     gt_a, gt_b = _gt_frames(6), _gt_frames(4)
     pred_a = [{"frame": f"{i:04d}", "lanes": [{"points": shifted(0)}]} for i in range(2)]

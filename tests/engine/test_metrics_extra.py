@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lanegraph.metrics_extra import (
+from lanegraph.evaluation.metrics_extra import (
     culane_metrics,
     image_to_road_x,
     lateral_error_cm,

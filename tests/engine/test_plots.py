@@ -11,8 +11,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lanegraph.plots import accuracy_vs_ms_figure, place_labels, text_width
-from lanegraph.report import _svg
+from lanegraph.presentation.plots import accuracy_vs_ms_figure, place_labels, text_width
+from lanegraph.presentation.report import _svg
 
 #: thirteen variants, as an ablation of the paper graph gives them: all between 100 and 140 ms,
 #: ten of them at a detection ratio of 100 %

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from lanegraph import GraphError, NodeParams, Port, PortType, RunContext, hookimpl, node_type
-from lanegraph.executor import Executor
-from lanegraph.graph import validate_raw
+from lanegraph.graph.validation import validate_raw
 from lanegraph.plugins import PluginManager
+from lanegraph.run.executor import Executor
 from lanegraph.testing import check_node_type
 
 from . import toyplugin

@@ -12,15 +12,15 @@ from click.testing import CliRunner
 
 from lanegraph import hookimpl, plugins
 from lanegraph.cli import main
-from lanegraph.render import (
-    DebugRecorder,
+from lanegraph.presentation.debug import DebugRecorder
+from lanegraph.presentation.port_types import check_value, render_value
+from lanegraph.presentation.render import (
     hough_1d,
     lane_columns,
     line_columns,
     mosaic,
     render_disparity,
     render_features,
-    render_value,
     render_vdisparity,
     to_bgr,
 )
@@ -184,9 +184,9 @@ def test_debug_dir_writes_every_output_and_a_mosaic(cli, pm, tmp_path):
 
 
 def test_plugin_render_hook_is_used(pm, tmp_path):
-    from lanegraph.executor import Executor
-    from lanegraph.graph import load_graph
+    from lanegraph.graph.validation import load_graph
     from lanegraph.nodes import RunContext
+    from lanegraph.run.executor import Executor
 
     marker = np.full((7, 9, 3), (1, 2, 3), np.uint8)
 
@@ -205,3 +205,40 @@ def test_plugin_render_hook_is_used(pm, tmp_path):
     assert frames and all((tmp_path / "dbg" / f / "mosaic.png").exists() for f in frames)
     saved = cv2.imread(str(tmp_path / "dbg" / frames[0] / "double.y.png"))
     assert np.array_equal(saved, marker)
+
+
+def test_every_builtin_port_type_comes_through_the_hook_with_its_picture_and_check():
+    from lanegraph.plugins import PluginManager
+    from lanegraph.presentation.port_types import PORT_TYPES
+
+    pm = PluginManager()  # no plugin loaded: lanegraph's own port types only, through the hook
+    assert set(pm.port_types) == set(PORT_TYPES)
+    assert pm.get_plugin("lanegraph").lanegraph_port_types() == list(PORT_TYPES.values())
+    drawn = {n for n, t in PORT_TYPES.items() if t.render is not None}
+    assert {
+        "image",
+        "disparity",
+        "mask",
+        "bev_mask",
+        "vdisparity",
+        "road_model",
+        "features",
+        "lanes",
+    } <= drawn
+    assert check_value("disparity", np.zeros((4, 5), np.float32)) is None
+    assert "float32" in check_value("disparity", np.zeros((4, 5), np.float64))
+    assert check_value("mask", np.zeros((4, 5), bool)) is None and check_value("mask", [1]) is not None
+    assert check_value("lanes", []) is None and "Lane" in check_value("lanes", [object()])
+
+
+def test_a_plugins_port_type_draws_its_own_values():
+    from lanegraph.types import PortType
+
+    seen = []
+    blob = PortType(
+        "blob", "a test value", render=lambda v, ctx: seen.append(v) or np.zeros((3, 4, 3), np.uint8)
+    )
+    out = render_value("blob", 7, {}, {"blob": blob})
+    assert seen == [7] and out.shape == (3, 4, 3)
+    # a value its type does not draw is drawn by what it is: a number as a card
+    assert render_value("blob", 7, {}, {"blob": PortType("blob", "no picture")}).ndim == 3

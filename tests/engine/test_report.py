@@ -26,7 +26,7 @@ import pytest
 from click.testing import CliRunner
 
 from lanegraph.cli import main
-from lanegraph.metrics import match_frame, read_jsonl
+from lanegraph.evaluation.metrics import match_frame, read_jsonl
 
 ROOT = Path(__file__).resolve().parents[2]
 N_FRAMES = 4
@@ -271,7 +271,7 @@ def test_nothing_planted_in_the_report_folder_is_followed(run_out, tmp_path):
 
 
 def test_a_report_that_fails_leaves_the_earlier_one_whole(run_out, tmp_path, monkeypatch):
-    from lanegraph.report import _page
+    from lanegraph.presentation.report import _page
 
     out, _ = run_out
     target = tmp_path / "r"
@@ -433,7 +433,7 @@ def test_open_shows_the_report_in_the_browser(run_out, tmp_path, monkeypatch):
 
 
 def test_data_cannot_close_the_script_element():
-    from lanegraph.report._build import dumps_for_html
+    from lanegraph.presentation.report._build import dumps_for_html
 
     text = dumps_for_html({"frame": "</script><script>alert(1)</script>&"})
     assert "<" not in text and ">" not in text and "&" not in text
@@ -610,7 +610,7 @@ def test_ablation_report_in_chromium(browser, ablation_out, tmp_path):
 
 
 def test_svg_drawings_escape_their_text_and_draw_every_node_and_edge():
-    from lanegraph.report import _svg
+    from lanegraph.presentation.report import _svg
 
     edges = [
         ("a", "x", "b", "in", False),

@@ -159,7 +159,7 @@ def test_interrupted_again_and_again_equals_uninterrupted(tmp_path, uninterrupte
 def _toy_graph(tmp_path, pm, extra: dict | None = None):
     import yaml
 
-    from lanegraph.graph import load_graph
+    from lanegraph.graph.validation import load_graph
 
     from .test_graph import VALID
 
@@ -172,9 +172,9 @@ def _toy_graph(tmp_path, pm, extra: dict | None = None):
 def test_a_source_that_cannot_skip_is_read_past_the_frames_done(tmp_path, pm):
     """toy.count ignores context.skip: the executor drops the frames done itself, and the feedback
     value (a running sum) continues where the checkpoint left it."""
-    from lanegraph.executor import Executor
     from lanegraph.nodes import RunContext
-    from lanegraph.resume import load_checkpoint
+    from lanegraph.run.executor import Executor
+    from lanegraph.run.resume import load_checkpoint
 
     from . import toyplugin
 
@@ -212,9 +212,9 @@ def test_a_feedback_value_a_checkpoint_cannot_hold(tmp_path, pm):
     --resume then refuses, saying why."""
     from lanegraph import NodeParams, Port, hookimpl, node_type
     from lanegraph.errors import UsageError
-    from lanegraph.executor import Executor
     from lanegraph.nodes import RunContext
-    from lanegraph.resume import load_checkpoint
+    from lanegraph.run.executor import Executor
+    from lanegraph.run.resume import load_checkpoint
 
     class Opaque:
         pass

@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from lanegraph.errors import UsageError
-from lanegraph.runfolder import claim, command_identity, run_identity
+from lanegraph.run.folder import claim, command_identity, run_identity
 
 RESOLVED = {"name": "g", "nodes": {"fit": {"type": "fit.irls", "params": {"roi_width": 40}}}}
 ME = run_identity("a" * 64, "/data/drive", "0:20")

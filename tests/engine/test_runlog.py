@@ -11,8 +11,8 @@ import warnings
 
 import pytest
 
-from lanegraph.executor import Executor
 from lanegraph.nodes import RunContext
+from lanegraph.run.executor import Executor
 from lanegraph.runlog import RunLog, configure_console, console_level, get_logger
 
 from .test_executor import load

@@ -41,7 +41,7 @@ def test_applied_once_on_glibc():
 
 def test_a_run_applies_it(tmp_path, pm, monkeypatch):
     """The executor calls it when a run starts."""
-    from lanegraph import executor
+    from lanegraph.run import executor
 
     from .test_executor import load
 

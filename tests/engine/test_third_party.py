@@ -8,10 +8,10 @@ import textwrap
 
 import yaml
 
-from lanegraph.executor import Executor
-from lanegraph.graph import load_graph
+from lanegraph.graph.validation import load_graph
 from lanegraph.nodes import RunContext
 from lanegraph.plugins import PluginManager
+from lanegraph.run.executor import Executor
 
 PLUGIN = textwrap.dedent(
     '''

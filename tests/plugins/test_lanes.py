@@ -152,7 +152,7 @@ def test_eslt_even_sobel_aperture_is_refused_where_it_is_set(tmp_path, ksize):
     # an even aperture was once replaced by 3 without a word; now the graph does not load, and the
     # error names the file, the node and the param
     from lanegraph.errors import GraphError
-    from lanegraph.graph import load_graph
+    from lanegraph.graph.validation import load_graph
 
     g = tmp_path / "g.yaml"
     g.write_text(f"nodes:\n  feat: {{type: features.eslt, params: {{sobel_ksize: {ksize}}}}}\n")

@@ -1,0 +1,37 @@
+"""The ``lanegraph`` command line: a package of thin command modules.
+
+Each command parses its options, calls the run service (:class:`lanegraph.service.Session`) and
+exits with the status it returns, or with the exit code of the typed error it raised
+(:mod:`lanegraph.cli._errors`, the one place errors become exit codes).
+
+Exit codes: 0 ok, 1 failure while running (or frames that failed), 2 invalid graph or usage, or an
+input that is unusable before any frame runs (no images, no calibration, an empty frame selection).
+"""
+
+from __future__ import annotations
+
+import click
+
+from .._version import __version__
+from ..graph.files import allowed_roots, resolve_graph_path
+from .ablate import ablate
+from .evaluate import eval_cmd
+from .nodes import builtin_node_types, nodes, nodes_markdown, schema, show, validate
+from .report import report
+from .run import run
+
+__all__ = ["allowed_roots", "builtin_node_types", "main", "nodes_markdown", "resolve_graph_path"]
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="lanegraph")
+def main() -> None:
+    """lanegraph: stereo lane-marking detection as validated, plugin-based processing graphs."""
+
+
+for _command in (run, validate, nodes, schema, show, ablate, eval_cmd, report):
+    main.add_command(_command)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

@@ -1,0 +1,87 @@
+"""What the commands share: the run service they call, options and their parsing."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from ..errors import UsageError
+from ..service import Session
+
+
+def session(quiet: bool = False, warn: bool = True) -> Session:
+    """The run service for a command; the plugins that could not be loaded said as warnings
+    (``warn``: the commands that load plugins for their own use say so)."""
+    s = Session(out=click.echo, err=lambda msg: click.echo(msg, err=True), progress=not quiet)
+    if warn:
+        s.warn_plugins()
+    return s
+
+
+def parse_frames(text: str | None) -> slice | None:
+    """``A:B`` or ``A:B:S`` (Python slice semantics over the frame list) or a single index ``A``
+    (:func:`lanegraph.frames.parse_frames`); a bad selection is a usage error naming ``--frames``."""
+    from ..frames import parse_frames as parse
+
+    try:
+        return parse(text)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--frames") from None
+
+
+def scale_out_options(scope: str = ""):
+    """The options ``run --dataset`` and ``ablate`` share: a Dask scheduler, chunks and their
+    warm-up, the report at the end (``scope``: what they need, said before each help text)."""
+    options = [
+        click.option(
+            "--scheduler",
+            metavar="SPEC",
+            help=f"{scope}run the sequences on a Dask cluster: local, local:N (N worker processes) "
+            "or a scheduler address tcp://HOST:PORT",
+        ),
+        click.option(
+            "--chunk-frames",
+            type=int,
+            metavar="K",
+            help=f"{scope}split sequences into chunks of K frames run as separate tasks",
+        ),
+        click.option(
+            "--warmup",
+            type=int,
+            default=0,
+            show_default=True,
+            metavar="W",
+            help="with --chunk-frames: run W frames before each chunk and discard their outputs",
+        ),
+        click.option(
+            "--report",
+            "make_report",
+            is_flag=True,
+            help="write OUT/report/index.html at the end (see `lanegraph report`)",
+        ),
+    ]
+
+    def decorate(command):
+        for option in reversed(options):
+            command = option(command)
+        return command
+
+    return decorate
+
+
+def dataset_option(dataset_path: Path | None, input_path: Path | None, gt_path: Path | None):
+    """The dataset of ``--dataset``, or the one sequence of ``--input`` / ``--gt``."""
+    from ..evaluation.dataset import load_dataset, single_sequence
+
+    if dataset_path is not None:
+        if input_path is not None or gt_path is not None:
+            raise UsageError(
+                "--dataset lists the inputs and ground truths: give it instead of --input/--gt, not with them"
+            )
+        return load_dataset(dataset_path)
+    if input_path is not None and not input_path.exists():
+        raise UsageError(f"--input {input_path}: no such file or folder")
+    if gt_path is not None and not gt_path.is_file():
+        raise UsageError(f"--gt {gt_path}: no such file")
+    return single_sequence(input_path, gt_path)

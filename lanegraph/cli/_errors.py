@@ -1,0 +1,54 @@
+"""The one place where errors become exit codes.
+
+Every command is wrapped by :func:`handled`: the run service and the loaders raise typed errors
+(:class:`~lanegraph.errors.LanegraphError` and its kinds, each with its ``exit_code``: 2 for a graph,
+usage or an input unusable before anything ran, 1 for a failure while running, 130 for Ctrl-C),
+and the command prints ``error: ...`` on stderr and exits with that code -- never a traceback. A
+command returns its status (0, 1 when frames or runs failed) and exits with it.
+
+Exit codes: 0 ok, 1 failure while running (or frames that failed), 2 invalid graph or usage, or an
+input that is unusable before any frame runs (no images, no calibration, an empty frame selection).
+"""
+
+from __future__ import annotations
+
+import functools
+import sys
+from collections.abc import Callable
+from typing import Any
+
+import click
+
+from ..errors import GraphError, InputError, LanegraphError, UsageError
+
+
+def exit_code(exc: LanegraphError, input_exit: int | None = None, every_exit: int | None = None) -> int:
+    """The exit code of ``exc``: its own, unless the command says otherwise for its inputs
+    (``input_exit``: for an :class:`InputError`) or for every error (``every_exit``)."""
+    if every_exit is not None:
+        return every_exit
+    if input_exit is not None and isinstance(exc, (InputError, UsageError, GraphError)):
+        return input_exit
+    return exc.exit_code
+
+
+def handled(
+    *, input_exit: int | None = None, every_exit: int | None = None
+) -> Callable[[Callable], Callable]:
+    """Wrap a command: its :class:`LanegraphError` printed as one line and turned into its exit
+    code (:func:`exit_code`); an int it returns is its exit status."""
+
+    def wrap(command: Callable[..., Any]) -> Callable[..., Any]:
+        @functools.wraps(command)
+        def run(*args: Any, **kwargs: Any) -> None:
+            try:
+                status = command(*args, **kwargs)
+            except LanegraphError as exc:
+                click.echo(f"error: {exc}", err=True)
+                sys.exit(exit_code(exc, input_exit, every_exit))
+            if status is not None:
+                sys.exit(status)
+
+        return run
+
+    return wrap

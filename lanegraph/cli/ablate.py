@@ -1,0 +1,89 @@
+"""``lanegraph ablate``: variants of a graph over the same input or dataset, evaluated side by side."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from ._common import dataset_option, parse_frames, scale_out_options, session
+from ._errors import handled
+
+
+@click.command()
+@click.argument("base", type=click.Path(path_type=Path))
+@click.argument("variants", nargs=-1, type=click.Path(path_type=Path))
+@click.option(
+    "--input",
+    "input_path",
+    type=click.Path(path_type=Path),
+    help="input folder; default: the built-in synthetic scene",
+)
+@click.option(
+    "--gt", "gt_path", type=click.Path(path_type=Path), help="ground truth lanes_gt.jsonl to evaluate against"
+)
+@click.option(
+    "--dataset",
+    "dataset_path",
+    type=click.Path(path_type=Path),
+    help="a dataset file (YAML list of sequences, each an input and a ground truth) in place of --input/--gt",
+)
+@click.option(
+    "--sweep",
+    "sweeps",
+    multiple=True,
+    metavar="NODE.PARAM=V1,V2,...",
+    help="also run BASE once per value (repeatable)",
+)
+@click.option(
+    "--out", "out_dir", type=click.Path(path_type=Path), default=Path("out/ablation"), show_default=True
+)
+@click.option(
+    "--frames", help="frame selection A:B or A:B:S (for every sequence that does not choose its own)"
+)
+@click.option(
+    "--no-cache", is_flag=True, help="recompute everything (no shared results, no reuse of unchanged runs)"
+)
+@click.option(
+    "--cache-dir",
+    type=click.Path(path_type=Path),
+    help="result cache folder (default: ~/.cache/lanegraph/results)",
+)
+@click.option(
+    "--cache-max-gb", type=float, default=2.0, show_default=True, help="size bound of the result cache, GiB"
+)
+@click.option("--quiet", is_flag=True, help="no progress bars")
+@scale_out_options()
+@handled()
+def ablate(
+    base,
+    variants,
+    input_path,
+    gt_path,
+    dataset_path,
+    sweeps,
+    out_dir,
+    frames,
+    no_cache,
+    cache_dir,
+    cache_max_gb,
+    quiet,
+    scheduler,
+    chunk_frames,
+    warmup,
+    make_report=False,
+):
+    """Run BASE and every VARIANT (and every --sweep point) over the same input or dataset, evaluate
+    each and write OUT/results.csv (per sequence and pooled), OUT/results.md and plots; runs go to
+    OUT/runs/<variant>/<sequence>/; work shared between variants is computed once. A run that
+    fails gets its row with the error and the others go on (exit 1)."""
+    from ..service.ablation import ablation_variants
+
+    s = session(quiet)
+    runner = s.runner(scheduler)
+    runs = ablation_variants(base, variants, sweeps)
+    dataset = dataset_option(dataset_path, input_path, gt_path)
+    return s.ablate(
+        runs, dataset, out_dir, frames=parse_frames(frames), cache_dir=cache_dir, cache_max_gb=cache_max_gb,
+        no_cache=no_cache, runner=runner, chunk_frames=chunk_frames, warmup=warmup, make_report=make_report,
+    )  # fmt: skip

@@ -1,0 +1,224 @@
+"""``lanegraph eval``: a run's lanes against the ground truth."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import click
+
+from ..errors import InputError, UsageError
+from ..plugins import get_plugin_manager
+from ._common import session
+from ._errors import handled
+
+
+def _scene_pose(scene: Path) -> tuple[float, float]:
+    """``(pitch in radians, camera height in metres)`` of a synthetic sequence's ``scene.json``."""
+    import math
+
+    try:
+        info = json.loads(scene.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"cannot read the scene description: {exc}", path=str(scene)) from None
+    if not isinstance(info, dict):
+        raise InputError("expected a JSON object with height and pitch_rad (or pitch_deg)", path=str(scene))
+    pitch = info.get(
+        "pitch_rad", math.radians(info["pitch_deg"]) if _is_number(info.get("pitch_deg")) else 0.0
+    )
+    height = info.get("height")
+    for key, v in (("pitch_rad", pitch), ("height", height)):
+        if not _is_number(v) or not math.isfinite(v):
+            raise InputError(f"key {key!r}: expected a finite number, got {v!r}", path=str(scene))
+    if height <= 0:
+        raise InputError(f"key 'height': the camera height must be > 0 m, got {height}", path=str(scene))
+    return float(pitch), float(height)
+
+
+def _is_number(v: object) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+@click.command(name="eval")
+@click.argument("pred", type=click.Path(path_type=Path))
+@click.argument("gt", type=click.Path(path_type=Path), required=False)
+@click.option(
+    "--dataset",
+    "dataset_path",
+    type=click.Path(path_type=Path),
+    help="a dataset file: PRED is then a folder with a run folder PRED/<sequence>/ per sequence (as `run --dataset` writes)",
+)
+@click.option("--json", "as_json", is_flag=True, help="print one JSON object")
+@click.option(
+    "--metrics",
+    default="readme,culane,tusimple",
+    show_default=True,
+    help="readme, culane, tusimple, lateral (comma-separated)",
+)
+@click.option(
+    "--scene",
+    type=click.Path(path_type=Path),
+    help="scene.json of a synthetic sequence (pitch, height) for the lateral error",
+)
+@click.option(
+    "--calib",
+    type=click.Path(path_type=Path),
+    help="the calibration for the lateral error: a calibration file, or an input folder (default: the folder of --scene)",
+)
+@handled(every_exit=2)  # whatever is wrong is the input's or the options': exit 2
+def eval_cmd(
+    pred: Path,
+    gt: Path | None,
+    dataset_path: Path | None,
+    as_json: bool,
+    metrics: str,
+    scene: Path | None,
+    calib: Path | None,
+) -> None:
+    """Evaluate PRED (a run's lanes file, or its run folder) against GT lanes_gt.jsonl: the lane
+    metric of the data README, plus
+    CULane-style F1, TuSimple-style accuracy and, for synthetic scenes, the lateral error in cm.
+    With --dataset, every sequence of the dataset and all of them pooled."""
+    wanted = {m.strip() for m in metrics.split(",") if m.strip()}
+    unknown = wanted - {"readme", "culane", "tusimple", "lateral"}
+    if unknown:
+        raise UsageError(
+            f"--metrics: unknown metric(s) {sorted(unknown)}; expected readme, culane, tusimple, lateral"
+        )
+    if scene is not None:
+        wanted.add("lateral")
+    if dataset_path is not None:
+        if gt is not None:
+            raise UsageError(
+                "--dataset names every sequence's ground truth: give PRED (a folder) and --dataset, not GT"
+            )
+        _eval_dataset(pred, dataset_path, as_json)
+        return
+    if gt is None:
+        raise UsageError(
+            "missing GT (a lanes_gt.jsonl), or --dataset FILE with PRED a folder of <sequence>/ run folders"
+        )
+    res = _eval_one(pred, gt, wanted, scene, calib)
+    if as_json:
+        click.echo(json.dumps(res))
+        return
+    _print_eval(res)
+
+
+def _eval_one(
+    pred: Path, gt: Path, wanted: set[str], scene: Path | None, calib: Path | None
+) -> dict[str, Any]:
+    from ..evaluation.metrics import evaluate, read_ground_truth, read_predictions
+    from ..evaluation.metrics_extra import culane_metrics, lateral_error_cm, tusimple_metrics
+
+    if pred.is_dir():  # a run folder: the lanes its sinks recorded
+        pred = _run_lanes(pred)
+    pred_recs, gt_recs = read_predictions(pred), read_ground_truth(gt)
+    pred_frames, gt_frames = {str(r["frame"]) for r in pred_recs}, {str(r["frame"]) for r in gt_recs}
+    if pred_frames and gt_frames and not pred_frames & gt_frames:
+        raise InputError(
+            f"no frame of {pred} is in {gt} (e.g. {sorted(pred_frames)[0]!r} against {sorted(gt_frames)[0]!r}): "
+            "predictions and ground truth of different sequences?",
+            path=str(pred),
+        )
+    res = evaluate(pred_recs, gt_recs)
+    res.pop("per_frame")
+    if "culane" in wanted:
+        res["culane"] = culane_metrics(pred_recs, gt_recs)
+    if "tusimple" in wanted:
+        res["tusimple"] = tusimple_metrics(pred_recs, gt_recs)
+    if "lateral" in wanted:
+        if scene is None:
+            raise UsageError(
+                "--metrics lateral needs --scene scene.json (and --calib, default: the calibration of the input folder holding it)"
+            )
+        from ..run.sources import read_calibration
+
+        cal = read_calibration(session().pm, calib or Path(scene).parent)
+        pitch, height = _scene_pose(Path(scene))
+        res["lateral_error_cm"] = lateral_error_cm(pred_recs, gt_recs, cal, pitch, height)
+    return res
+
+
+def _run_lanes(folder: Path, what: str = "") -> Path:
+    """The lanes file of run folder ``folder`` (the one its run.json records; :mod:`lanegraph.run.results`)."""
+    from ..run.results import LANES, describe, find_result
+
+    lanes = find_result(folder, LANES, get_plugin_manager())
+    if lanes is None:
+        raise UsageError(
+            f"{folder}: no predictions{' for ' + what if what else ''} (expected {describe(folder, LANES)})"
+        )
+    return lanes
+
+
+def _pct(x: float | None) -> str:
+    return "n/a" if x is None else f"{100 * x:.1f} %"
+
+
+def _print_eval(res: dict[str, Any]) -> None:
+    click.echo(f"frames:          {res['frames']}")
+    click.echo(f"detection ratio: {_pct(res['detection_ratio'])}")
+    click.echo(f"precision:       {_pct(res['precision'])}")
+    click.echo(f"ego recall:      {_pct(res['ego_recall'])}")
+    dx = res["mean_abs_dx_px"]
+    click.echo(f"mean |dx|:       {'n/a' if dx is None else f'{dx:.2f} px'}")
+    if "culane" in res:
+        c = res["culane"]
+        click.echo(
+            f"CULane F1:       {_pct(c['f1'])} (precision {_pct(c['precision'])}, recall {_pct(c['recall'])}; TP {c['tp']} FP {c['fp']} FN {c['fn']})"
+        )
+    if "tusimple" in res:
+        t = res["tusimple"]
+        click.echo(f"TuSimple:        accuracy {_pct(t['accuracy'])}, FP {_pct(t['fp'])}, FN {_pct(t['fn'])}")
+    if "lateral_error_cm" in res:
+        lat = ", ".join(
+            f"{k} m: {'n/a' if v is None else f'{v:.1f} cm'}" for k, v in res["lateral_error_cm"].items()
+        )
+        click.echo(f"lateral error:   {lat}")
+    if res["failed_frames"]:
+        click.echo(f"failed frames ({len(res['failed_frames'])}):")
+        for f in res["failed_frames"]:
+            click.echo(f"  {f['frame']}: {'; '.join(f['reasons'])}")
+
+
+def _eval_dataset(pred_dir: Path, dataset_path: Path, as_json: bool) -> None:
+    """``eval PRED --dataset FILE``: each sequence's figures and the pooled ones (the README metric)."""
+    from ..evaluation.dataset import POOLED, load_dataset, read_gt
+    from ..evaluation.metrics import read_predictions
+
+    ds = load_dataset(dataset_path)
+    if not pred_dir.is_dir():
+        raise UsageError(
+            f"{pred_dir}: expected a folder with a run folder <sequence>/ for each sequence of {dataset_path}"
+        )
+    pairs = []
+    for seq in ds:
+        gt = read_gt(seq, seq.frames)
+        if gt is None:
+            continue
+        lanes = _run_lanes(pred_dir / seq.name, f"sequence {seq.name!r} of {dataset_path}")
+        pairs.append((seq.name, read_predictions(lanes), gt))
+    if not pairs:
+        raise UsageError(f"{dataset_path}: no sequence has a ground truth ('gt') to evaluate against")
+    from ..evaluation.dataset import evaluate_sequences
+
+    res = evaluate_sequences(pairs)
+    if as_json:
+        click.echo(json.dumps({"dataset": ds.name, "sequences": res}))
+        return
+    click.echo("| sequence | frames | detection ratio | precision | ego recall | mean abs dx (px) |")
+    click.echo("|---|---|---|---|---|---|")
+    for name, r in res.items():
+        dx = r["mean_abs_dx_px"]
+        label = f"**{name}** (pooled)" if name == POOLED else name
+        click.echo(
+            f"| {label} | {r['frames']} | {_pct(r['detection_ratio'])} | {_pct(r['precision'])} | "
+            f"{_pct(r['ego_recall'])} | {'n/a' if dx is None else f'{dx:.2f}'} |"
+        )
+    failed = res[POOLED]["failed_frames"]
+    if failed:
+        click.echo(f"failed frames ({len(failed)}):")
+        for f in failed:
+            click.echo(f"  {f['frame']}: {'; '.join(f['reasons'])}")

@@ -1,0 +1,107 @@
+"""``lanegraph run``: a graph on one input, or on every sequence of a dataset."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from ..errors import UsageError
+from ._common import parse_frames, scale_out_options, session
+from ._errors import handled
+
+
+@click.command()
+@click.argument("graph", default="paper")
+@click.option(
+    "--input",
+    "input_path",
+    type=click.Path(path_type=Path),
+    help="input folder (KITTI raw drive, KITTI odometry sequence, folder of pairs); default: the built-in synthetic scene",
+)
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(path_type=Path),
+    default=Path("out"),
+    show_default=True,
+    help="output folder (one run at a time: it is locked while a run writes it)",
+)
+@click.option(
+    "--set", "sets", multiple=True, metavar="NODE.PARAM=VALUE", help="override a param (repeatable)"
+)
+@click.option(
+    "--frames", help="frame selection A:B, A:B:S or A (indices into the input's frames; -1 is the last)"
+)
+@click.option("--quiet", is_flag=True, help="no progress bar")
+@click.option(
+    "--resume",
+    is_flag=True,
+    help="continue an interrupted run in OUT after its last frame done (same graph, params, input and --frames)",
+)
+@click.option(
+    "--debug-dir",
+    type=click.Path(path_type=Path),
+    help="save every node's output of the chosen frames as pictures, and a mosaic",
+)
+@click.option("--debug-frames", help="frames for --debug-dir: ids or indices, comma-separated (default: all)")
+@click.option(
+    "--dataset",
+    "dataset_path",
+    type=click.Path(path_type=Path),
+    help="a dataset file (YAML list of sequences) in place of --input: writes each sequence's run into OUT/<sequence>/",
+)
+@scale_out_options("with --dataset: ")
+@handled()
+def run(
+    graph: str,
+    input_path: Path | None,
+    out_dir: Path,
+    sets: tuple[str, ...],
+    frames: str | None,
+    quiet: bool,
+    resume: bool,
+    debug_dir: Path | None,
+    debug_frames: str | None,
+    dataset_path: Path | None,
+    scheduler: str | None,
+    chunk_frames: int | None,
+    warmup: int,
+    make_report: bool = False,
+) -> int:
+    """Run GRAPH (a file or a name under graphs/, default: paper): its sinks write into OUT (the
+    lanes, overlays), with OUT/timings.json and OUT/run.json; with --dataset, every sequence into
+    OUT/<sequence>/ (in this process, or on a Dask cluster with --scheduler)."""
+    if dataset_path is not None:
+        for flag, given in (
+            ("--input", input_path),
+            ("--resume", resume or None),
+            ("--debug-dir", debug_dir),
+            ("--report", make_report or None),
+        ):
+            if given is not None:
+                raise UsageError(
+                    f"{flag} is for a run on one input; --dataset names the inputs (give one or the other)"
+                )
+        from ..evaluation.dataset import load_dataset
+
+        s = session(quiet)
+        runner = s.runner(scheduler)
+        dataset = load_dataset(dataset_path)
+        graph_ = s.open_graph(graph, sets)
+        return s.run_dataset(
+            graph_, dataset, out_dir, frames=parse_frames(frames), runner=runner,
+            chunk_frames=chunk_frames, warmup=warmup,
+        )  # fmt: skip
+    for flag, given in (
+        ("--scheduler", scheduler),
+        ("--chunk-frames", chunk_frames),
+        ("--warmup", warmup or None),
+    ):
+        if given is not None:
+            raise UsageError(f"{flag} runs the sequences of a --dataset: give --dataset FILE")
+    s = session(quiet)
+    return s.run(
+        s.open_graph(graph, sets), input_path=input_path, out_dir=out_dir, frames=parse_frames(frames),
+        resume=resume, debug_dir=debug_dir, debug_frames=debug_frames, make_report=make_report,
+    )  # fmt: skip

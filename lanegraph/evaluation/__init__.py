@@ -1,0 +1,1 @@
+"""Evaluation: the lane metrics, datasets of sequences, ablations."""

@@ -1,0 +1,366 @@
+"""Ablation runs: several graph variants (and param sweeps) over the same input, evaluated and
+tabulated, with the work the variants share computed once (:mod:`lanegraph.run.cache`).
+
+The input is a :class:`~lanegraph.evaluation.dataset.Dataset` (one or more sequences). Writes
+``OUT/runs/<variant>/<sequence>/`` per run (what its sinks write, ``timings.json``, ``run.json``;
+its lanes are found through :mod:`lanegraph.run.results`), and ``OUT/results.csv``
+(one row per variant and sequence, and a pooled row per variant with ``sequence`` = ``all``),
+``OUT/results.md``, ``OUT/accuracy.png`` (pooled accuracy per variant) and ``OUT/accuracy_vs_ms.png``.
+A run whose resolved graph, input files and frame selection are unchanged since the last ablation
+(same output folder) is not run again: its recorded results are reused.
+
+The runs are the units of work of :mod:`lanegraph.run.batch`: one after another in this process, or on
+a Dask cluster (``--scheduler``, :mod:`lanegraph.run.distributed`) with the same outputs byte for byte.
+
+A run that fails (a node raising under ``on_error: fail``, an input a variant cannot read) does not
+end the ablation: every run is made, the failed one gets its row with its ``error`` (and no
+figures), its ``run.json`` says what happened, and :func:`run_ablation` returns all rows; the
+command exits 1 at the end. Frames that failed under ``on_error: skip`` are counted in
+``failed_frames``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..graph.files import ResolvedGraph
+from ..paths import inside, safe_name, write_text_atomic
+from ..plugins import get_plugin_manager
+from ..presentation.plots import write_ablation_plots
+from ..run.batch import Planned, Planner, clean_leftovers, finish_runs
+from ..run.cache import ResultCache, digest
+from ..run.record import RunRecord, read_record
+from ..run.results import LANES, find_result
+from ..run.resume import input_identity
+from ..run.runners import InProcessRunner, Runner
+from .dataset import POOLED, Dataset, evaluate_sequences, read_gt
+from .metrics import evaluate, read_predictions
+
+
+@dataclass
+class Variant:
+    """One run of an ablation: a graph file plus ``--set`` overrides."""
+
+    name: str
+    graph: Path
+    sets: list[str] = field(default_factory=list)
+
+
+def expand_sweeps(base: Path, sweeps: list[str]) -> list[Variant]:
+    """``node.param=v1,v2,...`` -> one variant of ``base`` per value."""
+    out = []
+    for sw in sweeps:
+        key, _, values = sw.partition("=")
+        if not values:
+            raise ValueError(f"--sweep {sw!r}: expected node.param=v1,v2,...")
+        for v in values.split(","):
+            out.append(Variant(f"{base.stem}[{key}={v}]", base, [f"{key}={v}"]))
+    return out
+
+
+def _input_identity(input_path: Path | None) -> str:
+    return input_identity(input_path)
+
+
+def _extra_metrics(pred: list[dict], gt: list[dict]) -> dict[str, Any]:
+    """CULane F1 when the extra metrics module is available."""
+    try:
+        from . import metrics_extra  # noqa: PLC0415
+    except ImportError:
+        return {}
+    try:
+        res = metrics_extra.culane_metrics(pred, gt)
+    except Exception:  # noqa: BLE001 - a missing extra metric must not lose the ablation
+        return {}
+    return {"culane_f1": res.get("f1") if isinstance(res, dict) else None}
+
+
+def run_ablation(
+    variants: list[Variant],
+    dataset: Dataset,
+    out_dir: Path,
+    frames: slice | None = None,
+    cache: ResultCache | None = None,
+    progress: bool = True,
+    runner: Runner | None = None,
+    chunk_frames: int | None = None,
+    warmup: int = 0,
+    echo: Callable[[str], None] | None = None,
+) -> list[dict[str, Any]]:
+    """Run every variant on every sequence of ``dataset``, evaluate and tabulate; returns the rows
+    (one per variant and sequence, then the variant's pooled row, ``sequence`` = ``all``).
+
+    Outputs: ``OUT/runs/<variant>/<sequence>/`` (the sinks' files, ``timings.json``, ``run.json``),
+    ``OUT/results.csv``, ``OUT/results.md`` and the plots. ``frames`` (``--frames``) applies to
+    sequences that do not choose their own. The runs are the tasks of :mod:`lanegraph.run.batch`: in
+    this process one after another, or on another ``runner`` (a Dask cluster, :mod:`lanegraph.run.runners`), with the same outputs;
+    ``chunk_frames`` / ``warmup`` split sequences into chunks.
+    """
+    out_dir.mkdir(parents=True, exist_ok=True)
+    pm = get_plugin_manager()
+    seq_frames = {s.name: s.frames if s.frames is not None else frames for s in dataset}
+    gts = {s.name: read_gt(s, seq_frames[s.name]) for s in dataset}  # a malformed one is found before any run
+    idents = {s.name: _input_identity(s.input) for s in dataset}
+    planner = Planner(pm, chunk_frames, warmup, cache)
+    plans: list[tuple[Variant, list[Planned]]] = []
+    for var in variants:
+        graph = ResolvedGraph.load(var.graph, var.sets)
+        g = graph.validate(pm)
+        code = sorted({n.type.code_version for n in g.nodes.values()})  # an edited plugin runs again
+        var_plans = []
+        for seq in dataset:
+            sel = seq_frames[seq.name]
+            run_dir = inside(
+                out_dir, f"runs/{_safe(var.name)}/{safe_name(seq.name)}", "ablate --out"
+            )  # links out of OUT refused
+            run_key = digest(g.resolved_dict(), idents[seq.name], str(sel), code)
+            if chunk_frames is not None:
+                run_key = digest(run_key, "chunks", chunk_frames, warmup)
+            stamp = run_dir / "run_key.txt"
+            if (
+                cache is not None
+                and stamp.is_file()
+                and stamp.read_text() == run_key
+                and _read_record(run_dir) is not None
+            ):
+                var_plans.append(Planned(var.name, seq.name, run_dir, reused=True))
+                continue
+            var_plans.append(planner.add(var.name, seq.name, graph, seq.input, sel, run_dir, run_key))
+        plans.append((var, var_plans))
+    every = [p for _, ps in plans for p in ps]
+    for plan in every:
+        if not plan.reused:
+            clean_leftovers(plan.run_dir)
+    rows: list[dict[str, Any]] = []
+    _done: dict[int, Any] = {}
+    try:
+        runner = runner if runner is not None else InProcessRunner(cache)
+        outcomes = runner.run(planner.tasks, progress=progress, echo=echo, done=_done)
+    except KeyboardInterrupt:
+        finish_runs(every, _done, partial=True)
+        rows = _rows(plans, gts, finished_only=True)
+        if rows:
+            write_reports(rows, out_dir)  # the finished variants keep their report
+        raise
+    finish_runs(every, outcomes)
+    if cache is not None and not isinstance(
+        runner, InProcessRunner
+    ):  # the workers' counts, for the summary line
+        for out in outcomes.values():
+            cache.hits += sum(out.result.cache_hits.values())
+            cache.misses += sum(out.result.cache_misses.values())
+    rows = _rows(plans, gts)
+    write_reports(rows, out_dir)
+    return rows
+
+
+def _rows(
+    plans: list[tuple[Variant, list[Planned]]], gts: dict[str, Any], finished_only: bool = False
+) -> list[dict[str, Any]]:
+    """The rows of the planned runs, from their folders' run.json and lanes (``finished_only``: of
+    the variants whose every run ended)."""
+    rows: list[dict[str, Any]] = []
+    for var, var_plans in plans:
+        if finished_only and any(p.record is None and not p.reused for p in var_plans):
+            continue
+        var_rows: list[dict[str, Any]] = []
+        evals: list[tuple[str, list, list]] = []
+        for plan in var_plans:
+            run_dir = plan.run_dir
+            record = plan.record if plan.record is not None else (_read_record(run_dir) or RunRecord())
+            timings = record.timings or {}
+            row: dict[str, Any] = {
+                "variant": var.name,
+                "sequence": plan.sequence,
+                "graph": str(var.graph),
+                "sets": " ".join(var.sets),
+            }
+            row["error"] = record.error
+            row["failed_frames"] = len(record.failures)
+            row["before_any_frame"] = record.before_any_frame
+            gt = gts[plan.sequence]
+            lanes_file = find_result(run_dir, LANES) if gt is not None and not row["error"] else None
+            if lanes_file is not None:
+                pred = read_predictions(lanes_file)
+                ev = evaluate(pred, gt)
+                row.update(
+                    {
+                        k: ev[k]
+                        for k in ("frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px")
+                    }
+                )
+                row.update(_extra_metrics(pred, gt))
+                evals.append((plan.sequence, pred, gt))
+            nodes = timings.get("nodes", {})
+            # the sum of the stages' median compute times (a cached stage counts with the time it took)
+            row["ms_per_frame"] = (
+                round(sum(v["median_ms"] or 0.0 for v in nodes.values()), 2) if nodes else None
+            )
+            row["stage_ms"] = {nid: v["median_ms"] for nid, v in nodes.items()}
+            row["frames_run"] = timings.get("frames", 0)
+            row["wall_s"] = round(plan.outcome.wall_s, 2) if plan.outcome is not None else 0.0
+            row["reused"] = plan.reused
+            row["cache_hits"] = sum(timings.get("cache", {}).get("hits", {}).values())
+            var_rows.append(row)
+        rows += var_rows
+        rows.append(_pooled_row(var, var_rows, evals))
+    return rows
+
+
+def _read_record(run_dir: Path) -> RunRecord | None:
+    """A reused run's ``run.json`` (None when it is missing or not one of ours: run again)."""
+    record = read_record(run_dir)
+    return record if record is not None and record.timings is not None else None
+
+
+def _pooled_row(
+    var: Variant, var_rows: list[dict[str, Any]], evals: list[tuple[str, list, list]]
+) -> dict[str, Any]:
+    """The variant's row over all sequences: metrics over every frame as one set; times are the
+    sequences' medians weighted by their frame counts. No figures when a sequence's run failed (they
+    would be over other frames than the other variants')."""
+    row: dict[str, Any] = {
+        "variant": var.name,
+        "sequence": POOLED,
+        "graph": str(var.graph),
+        "sets": " ".join(var.sets),
+    }
+    failed = [r["sequence"] for r in var_rows if r.get("error")]
+    row["error"] = f"failed on sequence(s) {', '.join(failed)}" if failed else None
+    row["failed_frames"] = sum(int(r.get("failed_frames") or 0) for r in var_rows)
+    row["before_any_frame"] = all(r.get("before_any_frame") for r in var_rows)
+    if evals and not failed:
+        ev = evaluate_sequences(evals)[POOLED]
+        row.update(
+            {k: ev[k] for k in ("frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px")}
+        )
+        pred = [{**p, "frame": f"{n}/{p.get('frame')}"} for n, ps, _ in evals for p in ps]
+        gt = [{**g, "frame": f"{n}/{g.get('frame')}"} for n, _, gs in evals for g in gs]
+        row.update(_extra_metrics(pred, gt))
+    weights = [max(int(r.get("frames_run") or 0), 1) for r in var_rows]
+
+    def weighted(values: list[float | None]) -> float | None:
+        pairs = [(v, w) for v, w in zip(values, weights) if v is not None]
+        return round(sum(v * w for v, w in pairs) / sum(w for _, w in pairs), 2) if pairs else None
+
+    row["ms_per_frame"] = weighted([r.get("ms_per_frame") for r in var_rows])
+    stages = list(dict.fromkeys(s for r in var_rows for s in r["stage_ms"]))
+    row["stage_ms"] = {s: weighted([r["stage_ms"].get(s) for r in var_rows]) for s in stages}
+    row["frames_run"] = sum(int(r.get("frames_run") or 0) for r in var_rows)
+    row["wall_s"] = round(sum(r["wall_s"] for r in var_rows), 2)
+    row["reused"] = all(r["reused"] for r in var_rows)
+    row["cache_hits"] = sum(r["cache_hits"] for r in var_rows)
+    return row
+
+
+def _safe(name: str) -> str:
+    """A variant's folder name: one plain name (never '..' or hidden), whatever the variant is called."""
+    out = "".join(ch if ch.isalnum() or ch in "-_.=[]" else "_" for ch in name)[:200]
+    return out if out and not out.startswith(".") else "_" + out
+
+
+def _fmt(x: Any, pct: bool = False) -> str:
+    if x is None:
+        return "n/a"
+    if isinstance(x, float):
+        return f"{100 * x:.1f} %" if pct else f"{x:.2f}"
+    return str(x)
+
+
+def write_reports(rows: list[dict[str, Any]], out_dir: Path) -> None:
+    """``results.csv`` (every row), ``results.md`` (the pooled table, then each sequence's) and the
+    two plots (pooled rows)."""
+    stages = list(dict.fromkeys(s for r in rows for s in r.get("stage_ms", {})))
+    _write_csv(rows, stages, out_dir / "results.csv")
+    write_text_atomic(out_dir / "results.md", _results_md(rows, stages))
+    write_ablation_plots([r for r in rows if r.get("sequence") == POOLED], out_dir)
+
+
+def _write_csv(rows: list[dict[str, Any]], stages: list[str], path: Path) -> None:
+    cols = [
+        "variant",
+        "sequence",
+        "frames",
+        "detection_ratio",
+        "precision",
+        "ego_recall",
+        "mean_abs_dx_px",
+        "culane_f1",
+        "ms_per_frame",
+    ]
+    buf = io.StringIO(newline="")
+    w = csv.writer(buf)
+    w.writerow(
+        cols + [f"ms_{s}" for s in stages] + ["wall_s", "reused", "cache_hits", "failed_frames", "error"]
+    )
+    for r in rows:
+        w.writerow(
+            [r.get(c) for c in cols]
+            + [r["stage_ms"].get(s) for s in stages]
+            + [r["wall_s"], r["reused"], r["cache_hits"], r.get("failed_frames", 0), r.get("error") or ""]
+        )
+    write_text_atomic(path, buf.getvalue())
+
+
+def _results_md(rows: list[dict[str, Any]], stages: list[str]) -> str:
+    pooled = [r for r in rows if r.get("sequence") == POOLED]
+    sequences = list(dict.fromkeys(r["sequence"] for r in rows if r.get("sequence") != POOLED))
+    head = [
+        "| variant | detection ratio | precision | ego recall | mean abs dx (px) | CULane F1 | ms/frame |",
+        "|---|---|---|---|---|---|---|",
+    ]
+
+    def table(sel: list[dict[str, Any]]) -> list[str]:
+        return head + [
+            f"| {r['variant']} | {_fmt(r.get('detection_ratio'), True)} | {_fmt(r.get('precision'), True)} | "
+            f"{_fmt(r.get('ego_recall'), True)} | {_fmt(r.get('mean_abs_dx_px'))} | {_fmt(r.get('culane_f1'))} | "
+            f"{_fmt(r.get('ms_per_frame'))} |"
+            for r in sel
+        ]
+
+    frames: dict[str, int] = {}
+    for r in rows:  # a failed run has fewer (or no) frames: the sequence's count is the largest
+        frames[r["sequence"]] = max(
+            frames.get(r["sequence"], 0), int(r.get("frames") or r.get("frames_run") or 0)
+        )
+    lines = [
+        f"All sequences pooled ({', '.join(sequences)}; {frames.get(POOLED) or 0} frames):",
+        "",
+        *table(pooled),
+    ]
+    if len(sequences) > 1:
+        for name in sequences:
+            lines += [
+                "",
+                f"Sequence {name} ({frames.get(name) or 0} frames):",
+                "",
+                *table([r for r in rows if r.get("sequence") == name]),
+            ]
+    lines += [
+        "",
+        "Median ms per frame per stage (pooled):",
+        "",
+        "| variant | " + " | ".join(stages) + " |",
+        "|---|" + "---|" * len(stages),
+    ]
+    for r in pooled:
+        lines.append(f"| {r['variant']} | " + " | ".join(_fmt(r["stage_ms"].get(s)) for s in stages) + " |")
+    failed = [r for r in rows if r.get("sequence") != POOLED and (r.get("error") or r.get("failed_frames"))]
+    if failed:
+        lines += [
+            "",
+            "Failed runs (no figures for a run that stopped; see its runs/<variant>/<sequence>/run.json):",
+            "",
+        ]
+        for r in failed:
+            what = (
+                r.get("error")
+                or f"{r['failed_frames']} frame(s) failed (on_error skip), figures over the others"
+            )
+            lines.append(f"- {r['variant']} / {r['sequence']}: {what}")
+    return "\n".join(lines) + "\n"

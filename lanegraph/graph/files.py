@@ -1,0 +1,100 @@
+"""Finding and loading a graph file: the one way every command loads a graph.
+
+A graph argument is a file or a name under ``graphs/`` (:func:`resolve_graph_path`); ``extends``
+may only point into the folders of :func:`allowed_roots`; :func:`open_graph` gives the
+:class:`ResolvedGraph` (``extends`` and ``--set`` applied), which validates into a fresh
+:class:`~lanegraph.graph.model.Graph` each time it is asked (what a run, or a task sent to a
+worker, carries).
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ..errors import GraphError, Problem
+from ..plugins import PluginManager
+from .model import Graph, load_raw
+from .validation import validate_raw
+
+REPO_GRAPHS = Path(__file__).resolve().parents[2] / "graphs"
+
+
+def resolve_graph_path(name: str) -> Path:
+    """A graph argument is a file path, or the name of a graph under ``graphs/`` (``paper``,
+    ``ablations/slt``), looked up in the current folder and then beside the installed package."""
+    p = Path(name)
+    if p.is_file():
+        return p
+    for base in (Path("graphs"), REPO_GRAPHS):
+        for cand in (base / name, base / f"{name}.yaml"):
+            if cand.is_file():
+                return cand
+    return p  # reported as "graph file not found" by the loader
+
+
+def allowed_roots(graph_path: Path) -> list[Path]:
+    """Where ``extends`` may point: the graph's own folder, the current folder, lanegraph's
+    ``graphs/`` and the folders listed in ``LANEGRAPH_GRAPH_ROOTS`` (os.pathsep-separated)."""
+
+    def resolved(p: Path, where: str, field: str | None = None) -> Path:
+        try:
+            return p.resolve()
+        except (OSError, RuntimeError) as exc:  # a symbolic link loop
+            raise GraphError(
+                [
+                    Problem(
+                        f"cannot resolve {str(p)!r}: {exc} (a symbolic link loop?)", file=where, field=field
+                    )
+                ]
+            ) from None
+
+    roots = [
+        resolved(graph_path, str(graph_path)).parent,
+        resolved(Path.cwd(), "the current folder"),
+        REPO_GRAPHS.resolve(),
+    ]
+    roots += [
+        resolved(Path(p), "LANEGRAPH_GRAPH_ROOTS", p)
+        for p in os.environ.get("LANEGRAPH_GRAPH_ROOTS", "").split(os.pathsep)
+        if p
+    ]
+    return roots
+
+
+@dataclass(frozen=True)
+class ResolvedGraph:
+    """A graph file with ``extends`` and ``--set`` applied, not yet validated (see
+    :func:`lanegraph.graph.model.load_raw`): what a task carries to a worker."""
+
+    raw: dict[str, Any]
+    origin: dict[str, str]
+    display: str
+
+    @classmethod
+    def load(
+        cls, path: str | Path, sets: Iterable[str] = (), roots: list[Path] | None = None
+    ) -> ResolvedGraph:
+        raw, origin, display = load_raw(path, list(sets), roots)
+        return cls(raw, origin, display)
+
+    def validate(self, pm: PluginManager | None = None) -> Graph:
+        """A fresh :class:`~lanegraph.graph.model.Graph` (the executor replaces a selecting source in
+        place, so every run validates its own copy)."""
+        return validate_raw(copy.deepcopy(self.raw), dict(self.origin), self.display, pm)
+
+
+def open_graph(name: str | Path, sets: Iterable[str] = ()) -> ResolvedGraph:
+    """The graph ``name`` (a file, or a name under ``graphs/``) with ``sets`` applied; raises a
+    :class:`~lanegraph.errors.GraphError` saying where it is wrong."""
+    path = resolve_graph_path(str(name))
+    return ResolvedGraph.load(path, sets, allowed_roots(path))
+
+
+def load_graph_named(name: str | Path, sets: Iterable[str] = (), pm: PluginManager | None = None) -> Graph:
+    """:func:`open_graph`, validated."""
+    return open_graph(name, sets).validate(pm)

@@ -1,0 +1,1 @@
+"""Presentation: pictures of values (:mod:`.render`) and the HTML report (:mod:`.report`)."""

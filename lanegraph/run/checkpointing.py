@@ -1,0 +1,167 @@
+"""The checkpoint piece of a run: what ``lanegraph run`` keeps after every frame and what
+``--resume`` continues from (the file format and its checks: :mod:`lanegraph.run.resume`).
+
+A :class:`Checkpointer` is handed to the executor (its ``checkpoint=`` / ``resume=`` arguments make
+one): it checks a checkpoint to resume against the graph, params, input and frame selection before
+anything opens, against the opened source and hands the stateful nodes their states after the
+nodes open (:meth:`Checkpointer.resume_nodes`), and writes the checkpoint after every frame
+consumed (:meth:`Checkpointer.write`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ..errors import InputError, LanegraphError, UsageError
+from ..frames import selection_text
+from ..lifecycle import Resumable
+from .resume import (
+    _HINT,
+    FORMAT,
+    VERSION,
+    Checkpoint,
+    CheckpointValueError,
+    check_identity,
+    decode_feedback,
+    feedback_entries,
+    graph_identity,
+    resolved_input,
+    save_checkpoint,
+)
+
+
+@dataclass(frozen=True)
+class OpenedInput:
+    """What the opened source says about its input: its identity and how many frames it holds."""
+
+    identity: str
+    total: int | None
+
+
+def run_identity(graph: Any, context: Any) -> dict[str, Any]:
+    """What a checkpoint's run is: its graph (resolved, with its digest), input and frame selection;
+    taken before a selecting source is replaced: what the user's graph says."""
+    resolved = graph.resolved_dict()
+    return {
+        "graph": graph.file,
+        "graph_digest": graph_identity(resolved),
+        "resolved": resolved,
+        "input": resolved_input(context.input_path),
+        "frames": selection_text(context.frames),
+    }
+
+
+class Checkpointer:
+    """Keeps the checkpoint of one run in ``path`` (``None``: none kept), resuming ``resume``."""
+
+    def __init__(
+        self,
+        graph: Any,
+        context: Any,
+        path: Path | None,
+        resume: Checkpoint | None = None,
+        identity: dict[str, Any] | None = None,
+    ):
+        self.path = path
+        self.resume = resume
+        self.unresumable: str | None = None
+        self.identity = identity if identity is not None else run_identity(graph, context)
+        self.resumed_feedback: tuple[dict, dict] = ({}, {})
+        if resume is not None:
+            where = self.where
+            check_identity(resume, where, **{k: v for k, v in self.identity.items() if k != "graph"})
+            if context.skip != resume.position:
+                raise UsageError(
+                    f"{where}: the run context skips {context.skip} frame(s), the checkpoint has done {resume.position}"
+                )
+            sources = {(e.src_node, e.src_port) for e in graph.edges if e.previous}
+            for i, fb in enumerate(resume.feedback):
+                if (fb.node, fb.port) not in sources:
+                    raise UsageError(
+                        f"{where}: feedback[{i}]: no feedback edge of the graph comes from {fb.node}.{fb.port}{_HINT}"
+                    )
+            self.resumed_feedback = decode_feedback(
+                resume, where
+            )  # a malformed value: refused before anything opens
+
+    @property
+    def where(self) -> Path:
+        return self.path or Path("checkpoint")
+
+    def resume_nodes(self, graph: Any, instances: dict[str, Any], opened: OpenedInput) -> None:
+        """Resuming: the input checked against the checkpoint's, and every :class:`Resumable` node
+        handed its checkpointed state (a :class:`UsageError` or the node's
+        :class:`InputError` when that is not possible)."""
+        ck = self.resume
+        if ck is None:
+            return
+        where = self.where
+        if ck.input_identity != opened.identity:
+            raise UsageError(
+                f"{where}: the input files changed since the checkpoint (another file, size or modification time){_HINT}"
+            )
+        if ck.total is not None and opened.total is not None and opened.total != ck.total:
+            raise UsageError(
+                f"{where}: the frame selection now has {opened.total} frame(s), the checkpoint's run had {ck.total}{_HINT}"
+            )
+        for nid, inst in instances.items():
+            if isinstance(inst, Resumable):
+                try:
+                    inst.restore(ck.states.get(nid))
+                except LanegraphError:
+                    raise
+                except Exception as exc:  # noqa: BLE001
+                    n = graph.nodes[nid]
+                    raise InputError(
+                        f"node '{nid}' ({n.type.name}): cannot restore its checkpointed state: {type(exc).__name__}: {exc}",
+                        path=str(where),
+                    ) from exc
+
+    def write(
+        self,
+        result: Any,
+        instances: dict[str, Any],
+        position: int,
+        frame: str | None,
+        previous: dict,
+        prev_keys: dict,
+        opened: OpenedInput,
+        complete: bool = False,
+    ) -> None:
+        """After a frame is consumed (done -- its sinks have written -- or failed): how far the run
+        got, its failures, the values of the feedback edges and the stateful nodes' states, so that
+        a resumed run continues exactly where this one stopped (:mod:`lanegraph.run.resume`)."""
+        assert self.path is not None
+        feedback: list[dict[str, Any]] = []
+        if self.unresumable is None:
+            try:
+                feedback = feedback_entries(previous, prev_keys)
+            except CheckpointValueError as exc:
+                self.unresumable = f"a feedback value cannot be stored ({exc})"
+                result.notes.append(f"--resume will not be possible for this run: {self.unresumable}")
+        states = {nid: inst.state() for nid, inst in instances.items() if isinstance(inst, Resumable)}
+        data = {
+            "format": FORMAT,
+            "version": VERSION,
+            **self.identity,
+            "input_identity": opened.identity,
+            "total": opened.total,
+            "position": position,
+            "frames_ok": result.frames,
+            "last_frame": None if frame is None else str(frame),
+            "complete": complete,
+            "failures": [f.to_json() for f in result.failures],
+            "invalid_outputs": result.invalid_outputs,
+            "feedback": feedback,
+            "states": states,
+            "unresumable": self.unresumable,
+        }
+        try:
+            save_checkpoint(self.path, data)
+        except ValueError as exc:  # a state that JSON cannot hold (a plugin's)
+            self.unresumable = f"a node's state cannot be stored ({exc})"
+            data.update(states={}, feedback=[], unresumable=self.unresumable)
+            result.notes.append(f"--resume will not be possible for this run: {self.unresumable}")
+            save_checkpoint(self.path, data)

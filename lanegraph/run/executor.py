@@ -1,0 +1,555 @@
+"""The streaming executor: validate and compile once, then stream frames through the plan.
+
+- Stateful nodes (sources, sinks, trackers) are instantiated once per run with their params and a
+  :class:`~lanegraph.nodes.RunContext`.
+- Nodes whose inputs are all constant-rate (e.g. computed from the calibration only) run once.
+- Feedback edges (``@prev``) deliver the previous frame's value, ``None`` on the first frame.
+- Every node is timed on every frame; ``lanegraph_before_node`` / ``lanegraph_after_node`` hooks
+  fire around each call (tracing, profiling).
+- A source that cannot read one frame raises (ending the stream) or *yields* an
+  :class:`~lanegraph.errors.InputError` for it and goes on with the next frame.
+- Error policy per node: ``fail`` stops the run, ``skip`` drops the frame (sinks do not see it),
+  ``empty`` passes ``None`` on for the node's outputs. A node that runs once for the whole run
+  (constant inputs) has no frame to drop: under ``skip`` its failure stops the run like ``fail``.
+- A run first tunes glibc's allocator so that the large per-frame arrays reuse memory instead of
+  faulting in fresh pages every frame (:mod:`lanegraph._runtime`; ``LANEGRAPH_MALLOC_TUNING=0``
+  turns it off).
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .._runtime import tune_allocator
+from ..errors import InputError, LanegraphError, NodeError
+from ..graph.model import Graph, GraphNode
+from ..lifecycle import (
+    Identified,
+    KeyedFrames,
+    Sink,
+    Sized,
+    SkipsFrames,
+    close_all,
+    constants_of,
+)
+from ..nodes import RunContext
+from ..plugins import PluginManager, get_plugin_manager
+from .cache import ResultCache, digest
+from .checkpointing import Checkpointer, OpenedInput, run_identity
+from .outcome import FrameFailure, RunResult
+from .prefetch import prefetched, timed
+from .results import graph_result_files
+from .resume import Checkpoint, input_identity
+from .sources import select_source
+
+
+class _SkipFrame(Exception):
+    pass
+
+
+@dataclass
+class _Position:
+    """How far a run's stream got: frames of the selection consumed, the last frame done, and the
+    feedback edges' values (and cache keys) for the next frame."""
+
+    position: int = 0
+    last_frame: str | None = None
+    previous: dict[tuple[str, str], Any] = field(default_factory=dict)
+    prev_keys: dict[tuple[str, str], str | None] = field(default_factory=dict)
+
+
+class Executor:
+    """Runs a validated :class:`~lanegraph.graph.model.Graph` over the frames of its source node."""
+
+    def __init__(
+        self,
+        graph: Graph,
+        context: RunContext | None = None,
+        pm: PluginManager | None = None,
+        prefetch: int = 1,
+        cache: ResultCache | None = None,
+        cache_nodes: set[str] | None = None,
+        checkpoint: Path | None = None,
+        resume: Checkpoint | None = None,
+        warmup: int = 0,
+        checkpointer: Checkpointer | None = None,
+    ):
+        """``cache``: a :class:`~lanegraph.run.cache.ResultCache` for the results of ``cache_nodes``
+        (default: every stateless node); results are keyed by node type, params, upstream keys and
+        the identity of the source's input files. ``checkpoint``: a file rewritten (atomically)
+        before the first frame and after every frame consumed (:mod:`lanegraph.run.resume`); ``resume``:
+        such a checkpoint, validated, to continue its run -- refused (:class:`UsageError`) unless the
+        graph, params, input and frame selection are its own. ``context.skip`` must then be its
+        ``position``. ``warmup``: the first ``warmup`` frames only bring the feedback edges and
+        stateful nodes up to date (a chunk of a longer sequence starts from the frames before it):
+        the sinks do not see them, their times and failures are not recorded, ``on_frame`` is not
+        called for them. ``checkpointer``: the checkpoint piece itself, in place of ``checkpoint`` and
+        ``resume`` (:class:`~lanegraph.run.checkpointing.Checkpointer`)."""
+        self.warmup = max(0, int(warmup))
+        self.graph = graph
+        ctx0 = context or RunContext()
+        # the checkpoint piece (:mod:`lanegraph.run.checkpointing`): identity checked before anything opens
+        self.identity = run_identity(graph, ctx0)
+        if checkpointer is None and (checkpoint is not None or resume is not None):
+            checkpointer = Checkpointer(graph, ctx0, checkpoint, resume, self.identity)
+        self.checkpointer = checkpointer
+        self.checkpoint = checkpointer.path if checkpointer is not None else None
+        self.resume = checkpointer.resume if checkpointer is not None else None
+        self.prefetch = prefetch
+        self.cache = cache
+        self.cache_nodes = (
+            set(cache_nodes)
+            if cache_nodes is not None
+            else {nid for nid, n in graph.nodes.items() if not n.type.stateful}
+        )
+        self.pm = pm or get_plugin_manager()
+        self.context = context or RunContext()
+        self._select_source()
+        self.result_files = graph_result_files(graph)
+        self.instances: dict[str, Any] = {}
+        self.result: RunResult | None = None  # set when the run starts: a caller keeps it if the run stops
+        self._closed = False
+        self.constant_nodes: set[str] = self._constant_nodes()
+
+    # -- compile -------------------------------------------------------------
+    def _select_source(self) -> None:
+        """A source node that stands for others (``select_source``, e.g. ``io.auto``) is replaced
+        by the source type it names for the input path, with that type's default params."""
+        src = self.graph.source
+        nt = select_source(
+            self.pm, src.type, src.params, self.context.input_path, file=self.graph.file, node=src.id
+        )
+        if nt is not src.type:
+            src.type = nt
+            src.params = nt.params()
+
+    def _constant_nodes(self) -> set[str]:
+        const: set[str] = set()
+        for nid in self.graph.order:
+            n = self.graph.nodes[nid]
+            if n.type.stateful or not n.type.outputs:
+                continue
+            ok = True
+            for e in n.inputs.values():
+                src = self.graph.nodes[e.src_node]
+                port_const = src.type.outputs[e.src_port].rate == "constant"
+                if e.previous or not (port_const or e.src_node in const):
+                    ok = False
+                    break
+            if ok:
+                const.add(nid)
+        return const
+
+    # -- run -------------------------------------------------------------------
+    def _call(
+        self,
+        node: GraphNode,
+        inputs: dict[str, Any],
+        frame: str | None,
+        index: int,
+        result: RunResult,
+        key: str | None = None,
+    ) -> dict:
+        hook = self.pm.hook
+        hook.lanegraph_before_node(node_id=node.id, node_type=node.type.name, frame=frame, inputs=inputs)
+        after = functools.partial(
+            hook.lanegraph_after_node, node_id=node.id, node_type=node.type.name, frame=frame
+        )
+        use_cache = self.cache is not None and key is not None and node.id in self.cache_nodes
+        if use_cache:
+            hit = self.cache.get(key)
+            if hit is not self.cache.MISS:
+                result.timings_ms.setdefault(node.id, []).append(hit["ms"])  # the time it took to compute
+                result.cache_hits[node.id] = result.cache_hits.get(node.id, 0) + 1
+                after(outputs=hit["outputs"], elapsed_ms=hit["ms"], error=None)
+                return hit["outputs"]
+        t0 = time.perf_counter()
+        try:
+            if node.type.stateful:
+                out = self.instances[node.id](**inputs)
+            else:
+                out = node.type.func(node.params, **inputs)
+            if out is None:
+                out = {}
+            if not isinstance(out, dict):
+                raise TypeError(
+                    f"node function returned {type(out).__name__}, expected a dict of output ports"
+                )
+            missing = set(node.type.outputs) - set(out)
+            if missing and not node.type.sink:
+                raise TypeError(f"node function did not return output port(s) {sorted(missing)}")
+        except Exception as exc:  # noqa: BLE001 - reported with node id and frame
+            err = exc
+        else:
+            err = None
+        elapsed = (time.perf_counter() - t0) * 1000.0
+        result.timings_ms.setdefault(node.id, []).append(elapsed)
+        if err is not None:
+            after(outputs=None, elapsed_ms=elapsed, error=err)
+            if node.on_error == "fail" or (node.on_error == "skip" and index < 0):  # index -1: runs once
+                raise NodeError(node.id, node.type.name, frame, err) from err
+            result.failures.append(
+                FrameFailure(frame, index, node.id, node.type.name, f"{type(err).__name__}: {err}")
+            )
+            if node.on_error == "skip":
+                raise _SkipFrame()
+            return {p: None for p in node.type.outputs}
+        if use_cache:
+            self.cache.put(key, {"outputs": out, "ms": elapsed})
+            result.cache_misses[node.id] = result.cache_misses.get(node.id, 0) + 1
+        after(outputs=out, elapsed_ms=elapsed, error=None)
+        return out
+
+    def _write_checkpoint(
+        self, position: int, frame: str | None, previous: dict, prev_keys: dict, complete: bool = False
+    ) -> None:
+        """After a frame is consumed: the checkpoint (:meth:`Checkpointer.write`)."""
+        assert self.checkpointer is not None and self.result is not None
+        self.checkpointer.write(
+            self.result, self.instances, position, frame, previous, prev_keys, self._opened, complete
+        )
+
+    @property
+    def unresumable(self) -> str | None:
+        """Why the run cannot be resumed (a value a checkpoint cannot hold), or None."""
+        return self.checkpointer.unresumable if self.checkpointer is not None else None
+
+    def _key(
+        self,
+        node: GraphNode,
+        keys: dict[tuple[str, str], str | None],
+        prev_keys: dict[tuple[str, str], str | None],
+    ) -> str | None:
+        """The content key of ``node``'s result this frame, or None when it is not determined by its
+        inputs (a stateful node, or an input without a key)."""
+        if node.type.stateful:
+            return None
+        parts = []
+        for port in sorted(node.inputs):
+            e = node.inputs[port]
+            if e.previous:
+                k = prev_keys.get((e.src_node, e.src_port), "first-frame") if prev_keys else "first-frame"
+            else:
+                k = keys.get((e.src_node, e.src_port))
+            if k is None:
+                return None
+            parts.append((port, k))
+        return digest(
+            node.type.name,
+            node.type.plugin,
+            node.type.code_version,
+            node.params.model_dump(mode="json"),
+            parts,
+        )
+
+    def open(self) -> None:
+        """Instantiate the stateful nodes (sources, sinks); done by :meth:`run` if not yet done.
+
+        Resuming, it checks the input against the checkpoint's and hands every stateful node with a
+        ``restore`` method its checkpointed state (a :class:`UsageError` or the node's
+        :class:`InputError` when that is not possible)."""
+        if self.instances:
+            return
+        try:
+            self._open()
+        except BaseException:
+            close_all(reversed(list(self.instances.values())))  # the nodes opened before the failing one
+            self.instances.clear()
+            raise
+
+    def _open(self) -> None:
+        g = self.graph
+        for nid in g.order:
+            n = g.nodes[nid]
+            if n.type.stateful:
+                ctx = RunContext(**{**self.context.__dict__, "node_id": nid, "graph_file": g.file})
+                try:
+                    self.instances[nid] = n.type.func(n.params, ctx)
+                except LanegraphError:
+                    raise
+                except OSError as exc:  # an output folder that cannot be written, say
+                    raise InputError(
+                        f"node '{nid}' ({n.type.name}): {exc.strerror or exc}", path=exc.filename
+                    ) from exc
+                except Exception as exc:  # noqa: BLE001
+                    raise NodeError(nid, n.type.name, None, exc) from exc
+        source = self.instances[g.source.id]
+        self._skipped = int(source.skipped or 0) if isinstance(source, SkipsFrames) else 0
+        try:
+            total: int | None = len(source) + self._skipped
+        except TypeError:
+            total = None
+        identity = (
+            str(source.identity())
+            if isinstance(source, Identified)
+            else input_identity(self.context.input_path, self.context.out_dir)
+        )
+        self._opened = OpenedInput(identity, total)
+        if self.checkpointer is not None:
+            self.checkpointer.resume_nodes(g, self.instances, self._opened)
+
+    def run(self, on_frame: Callable[[int, str | None], None] | None = None) -> RunResult:
+        """Stream every frame of the source through the graph."""
+        tune_allocator()  # once per process; see lanegraph._runtime
+        g = self.graph
+        # kept on the executor so that a caller still has the partial result when the run stops
+        self.result = result = RunResult(
+            node_types={nid: n.type.name for nid, n in g.nodes.items()}, results=dict(self.result_files)
+        )
+        self.open()
+        at = self._start()
+        self.pm.hook.lanegraph_run_start(graph=g, context=self.context)
+        try:
+            values, keys = self._run_constants()
+            if self.checkpoint is not None:
+                self._write_checkpoint(at.position, at.last_frame, at.previous, at.prev_keys)
+            self._stream(values, keys, at, on_frame)
+            if self.checkpoint is not None:
+                self._write_checkpoint(at.position, at.last_frame, at.previous, at.prev_keys, complete=True)
+        finally:
+            self.close()  # an error of a close must not hide the run's own
+            self.pm.hook.lanegraph_run_end(graph=g, context=self.context, frames=result.frames)
+        return result
+
+    def _start(self) -> _Position:
+        """Where the stream starts: the beginning, or where a resumed checkpoint left off (its
+        frames, failures and feedback values taken over)."""
+        ck, result = self.resume, self.result
+        if ck is None:
+            return _Position()
+        result.frames = result.resumed_frames = ck.frames_ok
+        result.failures = [FrameFailure(f.frame, f.index, f.node, f.type, f.error) for f in ck.failures]
+        result.invalid_outputs = {k: list(v) for k, v in ck.invalid_outputs.items()}
+        assert self.checkpointer is not None
+        previous, prev_keys = self.checkpointer.resumed_feedback
+        return _Position(ck.position, ck.last_frame, previous, prev_keys)
+
+    def _run_constants(self) -> tuple[dict[tuple[str, str], Any], dict[tuple[str, str], str | None]]:
+        """The source's constants and the outputs of the nodes that run once (constant inputs
+        only), with their cache keys."""
+        g, result = self.graph, self.result
+        src = g.source
+        source = self.instances[src.id]
+        values: dict[tuple[str, str], Any] = {}
+        keys: dict[tuple[str, str], str | None] = {}
+        caching = self.cache is not None
+        src_params = src.params.model_dump(mode="json")
+        consts = constants_of(source)
+        for port, v in consts.items():
+            values[(src.id, port)] = v
+            keys[(src.id, port)] = (
+                digest(src.type.name, src.type.code_version, src_params, "constant", port, repr(v))
+                if caching
+                else None
+            )
+        if consts:
+            self.pm.hook.lanegraph_after_node(
+                node_id=src.id,
+                node_type=src.type.name,
+                frame=None,
+                outputs=dict(consts),
+                elapsed_ms=0.0,
+                error=None,
+            )
+        for nid in g.order:
+            if nid in self.constant_nodes:
+                n = g.nodes[nid]
+                ins = {p: values.get((e.src_node, e.src_port)) for p, e in n.inputs.items()}
+                key = self._key(n, keys, {}) if caching else None
+                out = self._call(n, ins, None, -1, result, key)
+                for port, v in out.items():
+                    values[(nid, port)] = v
+                    keys[(nid, port)] = None if key is None else digest(key, port)
+        return values, keys
+
+    def _stream(
+        self, values: dict, keys: dict, at: _Position, on_frame: Callable[[int, str | None], None] | None
+    ) -> None:
+        """Every frame of the source through the graph, from ``at`` (updated as frames are consumed)."""
+        g, result = self.graph, self.result
+        source = self.instances[g.source.id]
+        feedback = {(e.src_node, e.src_port) for e in g.edges if e.previous}
+        warm = RunResult(node_types=result.node_types) if self.warmup else result
+        drop = max(self.context.skip - self._skipped, 0)  # frames done that the source did not leave out
+        for index, frame_out in self._frames(source, g.source.id, result, at.position, drop):
+            at.position = index + 1
+            if frame_out is None:  # the source could not read this frame (recorded as a failure)
+                at.previous, at.prev_keys = {}, {}
+                self._consumed(at)
+                continue
+            warming = index < self.warmup
+            frame = frame_out.get("frame")
+            t_frame = time.perf_counter()
+            try:
+                cur, cur_keys = self._run_frame(
+                    frame_out, values, keys, at.prev_keys, at.previous, index, warm if warming else result
+                )
+            except _SkipFrame:
+                at.previous, at.prev_keys, at.last_frame = {}, {}, frame
+                self._consumed(at)
+                if on_frame and not warming:
+                    on_frame(index, frame)
+                continue
+            at.previous = {k: cur[k] for k in feedback if k in cur}
+            at.prev_keys = {k: cur_keys.get(k) for k in feedback}
+            if warming:
+                continue
+            result.frames += 1
+            at.last_frame = frame
+            self._consumed(at)
+            result.frame_ms.append((time.perf_counter() - t_frame) * 1000.0)
+            if on_frame:
+                on_frame(index, frame)
+
+    def _consumed(self, at: _Position) -> None:
+        if self.checkpoint is not None:
+            self._write_checkpoint(at.position, at.last_frame, at.previous, at.prev_keys)
+
+    def _run_frame(
+        self,
+        frame_out: dict[str, Any],
+        values: dict,
+        keys: dict,
+        prev_keys: dict,
+        previous: dict,
+        index: int,
+        res: RunResult,
+    ) -> tuple[dict, dict]:
+        """Run the per-frame nodes on one frame of the source; returns every output and its cache
+        key. Raises :class:`_SkipFrame` when a node under ``on_error: skip`` failed."""
+        g = self.graph
+        src_id = g.source.id
+        warming = index < self.warmup
+        frame = frame_out.get("frame")
+        cur = dict(values)
+        cur_keys = dict(keys)
+        src = self.instances[src_id]
+        frame_key = src.frame_key if isinstance(src, KeyedFrames) else None
+        identity = frame_key(frame) if (self.cache is not None and frame_key is not None) else None
+        src_params = g.source.params.model_dump(mode="json") if identity is not None else None
+        for port, v in frame_out.items():
+            cur[(src_id, port)] = v
+            cur_keys[(src_id, port)] = (
+                None
+                if identity is None
+                else digest(g.source.type.name, g.source.type.code_version, src_params, identity, port)
+            )
+        # the source is an iterator read ahead, so it fires only the after-node hook
+        src_ms = (self.result.timings_ms.get(src_id) or [0.0])[-1]
+        self.pm.hook.lanegraph_after_node(
+            node_id=src_id,
+            node_type=g.source.type.name,
+            frame=frame,
+            outputs=frame_out,
+            elapsed_ms=src_ms,
+            error=None,
+        )
+        for nid in g.order:
+            if nid == src_id or nid in self.constant_nodes:
+                continue
+            n = g.nodes[nid]
+            if warming and n.type.sink:
+                continue
+            ins = {
+                p: (
+                    previous.get((e.src_node, e.src_port))
+                    if e.previous
+                    else cur.get((e.src_node, e.src_port))
+                )
+                for p, e in n.inputs.items()
+            }
+            for p, port in n.type.inputs.items():
+                if p not in ins and port.optional:
+                    ins[p] = None
+            key = self._key(n, cur_keys, prev_keys) if self.cache is not None else None
+            out = self._call(n, ins, frame, index, res, key)
+            for port, v in out.items():
+                cur[(nid, port)] = v
+                cur_keys[(nid, port)] = None if key is None else digest(key, port)
+                valid = getattr(v, "valid", None)
+                if isinstance(valid, bool):
+                    counts = res.invalid_outputs.setdefault(f"{nid}.{port}", [0, 0])
+                    counts[0] += not valid
+                    counts[1] += 1
+        return cur, cur_keys
+
+    def _frames(
+        self, source: Any, src_id: str, result: RunResult, start: int = 0, drop: int = 0
+    ) -> Iterator[tuple[int, dict[str, Any] | None]]:
+        """Iterate the source as ``(index, frame outputs)``, recording per-frame read errors
+        according to the source's policy (``None`` for a frame that could not be read). ``index``
+        counts the frames of the selection from ``start``; the first ``drop`` items are consumed
+        unseen (frames a resumed run has done, from a source that cannot leave them out).
+
+        With ``prefetch > 0`` the source is read by a background thread that stays up to
+        ``prefetch`` frames ahead, so decoding the next images overlaps computing this frame
+        (image decoding releases the GIL).
+        """
+        node = self.graph.nodes[src_id]
+        items = prefetched(iter(source), self.prefetch) if self.prefetch > 0 else timed(iter(source))
+        index = start
+        scratch = RunResult()  # what warm-up frames record
+        for kind, item, elapsed in items:
+            if drop > 0:
+                drop -= 1
+                if kind == "error" and not isinstance(item, LanegraphError):
+                    raise NodeError(src_id, node.type.name, None, item) from item
+                continue
+            rec = scratch if index < self.warmup else result
+            if kind == "error":
+                exc = item
+                frame = getattr(exc, "frame", None)
+                self.pm.hook.lanegraph_after_node(
+                    node_id=src_id,
+                    node_type=node.type.name,
+                    frame=frame,
+                    outputs=None,
+                    elapsed_ms=0.0,
+                    error=exc,
+                )
+                if not isinstance(exc, LanegraphError):
+                    raise NodeError(src_id, node.type.name, None, exc) from exc
+                if node.on_error == "fail":
+                    raise NodeError(src_id, node.type.name, frame, exc) from exc
+                rec.failures.append(FrameFailure(frame, index, src_id, node.type.name, str(exc)))
+                index += 1
+                yield index - 1, None
+                continue
+            rec.timings_ms.setdefault(src_id, []).append(elapsed)
+            index += 1
+            yield index - 1, item
+
+    def __len__(self) -> int:
+        src = self.instances.get(self.graph.source.id)
+        return len(src) if isinstance(src, Sized) else 0
+
+    def outputs(self) -> list[Any]:
+        """The files the sinks say they wrote (:class:`lanegraph.lifecycle.Sink`)."""
+        return [p for inst in self.instances.values() if isinstance(inst, Sink) for p in inst.outputs]
+
+    # -- life cycle ------------------------------------------------------------
+    def close(self) -> BaseException | None:
+        """Close every open node instance, once (:func:`lanegraph.lifecycle.close_all`); returns
+        the first error a ``close`` raised."""
+        if self._closed or not self.instances:
+            return None
+        self._closed = True
+        return close_all(self.instances.values())
+
+    def __enter__(self) -> Executor:
+        """Open the nodes; leaving the block closes them, however it is left."""
+        self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def run_graph(graph: Graph, context: RunContext | None = None, pm: PluginManager | None = None) -> RunResult:
+    """Run a validated graph once (convenience wrapper around :class:`Executor`)."""
+    return Executor(graph, context, pm).run()

@@ -1,0 +1,463 @@
+"""Checkpoints and resuming an interrupted run (``lanegraph run ... --resume``).
+
+A run rewrites ``OUT/checkpoint.json`` atomically (a temporary file and a rename) before its first
+frame and after every frame of the selection it has consumed, done or failed. The checkpoint is
+data only -- JSON, arrays as base64 with their dtype and shape, decoded into a fixed set of value
+types; it can never run code -- and holds:
+
+- ``format``/``version``: what the file is (checked before anything else is read);
+- what the run was: the graph file, the SHA-256 of the resolved graph (every param, ``--set``
+  included) and the resolved graph itself (to name the first param that differs), the ``--input``
+  path and the digest of its files (:func:`input_identity`, or the source's own ``identity()``), the
+  ``--frames`` selection and how many frames it selected;
+- how far it got: ``position`` (frames of the selection consumed), ``frames_ok``, the last frame,
+  ``complete``, the failures so far, the per-output invalid counts;
+- what the next frame needs: the values of the feedback edges (``@prev``) with their cache keys,
+  and the ``state()`` of every stateful node that has one (a sink's file length and digest).
+
+``--resume`` reads and validates it (:func:`load_checkpoint`; a malformed one is refused with the
+file and field, exit code 2), refuses it unless the graph, params, input and frame selection are
+those of the checkpoint (:func:`check_identity`), hands each stateful node its state back (the
+lanes writer cuts its file back to the frames done) and continues with the next frame, so that
+the final outputs equal those of an uninterrupted run however often it was interrupted. A
+checkpoint of a complete run is not run again.
+"""
+
+from __future__ import annotations
+
+import base64
+import dataclasses
+import json
+import math
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from ..errors import UsageError
+from ..paths import write_bytes_atomic
+from ..types import BevGeometry, Calibration, FeatureMap, Lane, Line, RoadModel
+from .cache import digest
+
+CHECKPOINT_NAME = "checkpoint.json"
+LEGACY_NAME = "checkpoint.pkl"  # written by lanegraph before 0.1: never read (a pickle can run code)
+FORMAT = "lanegraph-checkpoint"
+VERSION = 1
+MAX_CHECKPOINT_BYTES = 1 << 30
+_HINT = "; cannot resume (run without --resume to start over)"
+
+#: the value types a checkpoint may hold besides JSON scalars, lists, tuples, dicts and numpy arrays
+VALUE_TYPES: dict[str, type] = {t.__name__: t for t in (Calibration, RoadModel, BevGeometry, Line, Lane)}
+
+
+class CheckpointValueError(ValueError):
+    """A value a checkpoint cannot hold (on writing) or a malformed encoded value (on reading)."""
+
+
+# --------------------------------------------------------------------------- values
+def encode_value(value: Any, where: str = "value") -> Any:
+    """A port value as JSON data: scalars as they are (non-finite floats tagged), lists, and
+    ``{"$t": tag, ...}`` for tuples, dicts, numpy arrays and scalars and the types of
+    :data:`VALUE_TYPES` (and :class:`~lanegraph.types.FeatureMap`). Raises
+    :class:`CheckpointValueError` for anything else."""
+    if value is None or isinstance(value, (bool, str)):
+        return value
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind not in "biufc" or value.dtype.hasobject:
+            raise CheckpointValueError(f"{where}: an array of dtype {value.dtype} cannot be stored")
+        arr = np.ascontiguousarray(value)
+        return {
+            "$t": "ndarray",
+            "dtype": arr.dtype.str,
+            "shape": list(arr.shape),
+            "data": base64.b64encode(arr.tobytes()).decode("ascii"),
+        }
+    if isinstance(value, np.generic):
+        if value.dtype.kind not in "biufc":
+            raise CheckpointValueError(f"{where}: a numpy scalar of dtype {value.dtype} cannot be stored")
+        return {
+            "$t": "scalar",
+            "dtype": value.dtype.str,
+            "data": base64.b64encode(value.tobytes()).decode("ascii"),
+        }
+    if isinstance(value, int):
+        return value
+    if isinstance(value, float):
+        return value if math.isfinite(value) else {"$t": "float", "v": repr(value)}
+    if isinstance(value, list):
+        return [encode_value(v, f"{where}[{i}]") for i, v in enumerate(value)]
+    if isinstance(value, tuple):
+        return {"$t": "tuple", "v": [encode_value(v, f"{where}[{i}]") for i, v in enumerate(value)]}
+    if isinstance(value, dict):
+        return {
+            "$t": "dict",
+            "v": [
+                [encode_value(k, f"{where} key"), encode_value(v, f"{where}[{k!r}]")]
+                for k, v in value.items()
+            ],
+        }
+    if isinstance(value, FeatureMap):
+        rows, cols = value.points()
+        return {
+            "$t": "FeatureMap",
+            "shape": list(value.shape),
+            "rows": encode_value(rows, f"{where}.rows"),
+            "cols": encode_value(cols, f"{where}.cols"),
+            "values": encode_value(value.point_orientations(), f"{where}.values"),
+        }
+    name = type(value).__name__
+    if VALUE_TYPES.get(name) is type(value):
+        fields = {
+            f.name: encode_value(getattr(value, f.name), f"{where}.{f.name}")
+            for f in dataclasses.fields(value)
+            if f.init
+        }
+        return {"$t": name, "v": fields}
+    raise CheckpointValueError(
+        f"{where}: a {type(value).__module__}.{type(value).__qualname__} cannot be stored in a checkpoint"
+    )
+
+
+def decode_value(data: Any, where: str = "value") -> Any:
+    """The inverse of :func:`encode_value`; anything it would not have written raises
+    :class:`CheckpointValueError` naming ``where``. Only the fixed types are ever built."""
+    if data is None or isinstance(data, (bool, str, int)):
+        return data
+    if isinstance(data, float):
+        return data
+    if isinstance(data, list):
+        return [decode_value(v, f"{where}[{i}]") for i, v in enumerate(data)]
+    if not isinstance(data, dict) or not isinstance(data.get("$t"), str):
+        raise CheckpointValueError(
+            f"{where}: expected a JSON scalar, a list or a tagged object {{'$t': ...}}, got {str(data)[:80]}"
+        )
+    tag = data["$t"]
+    try:
+        decode = _DECODERS.get(tag, _decode_dataclass)
+        return decode(data, where)
+    except CheckpointValueError:
+        raise
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CheckpointValueError(
+            f"{where}: malformed {tag!r} value ({type(exc).__name__}: {exc})"
+        ) from None
+
+
+def _decode_float(data: dict[str, Any], where: str) -> float:
+    if data["v"] not in ("nan", "inf", "-inf"):
+        raise CheckpointValueError(f"{where}: expected 'nan', 'inf' or '-inf', got {data['v']!r}")
+    return float(data["v"])
+
+
+def _decode_tuple(data: dict[str, Any], where: str) -> tuple:
+    return tuple(decode_value(v, f"{where}[{i}]") for i, v in enumerate(_list(data["v"], where)))
+
+
+def _decode_dict(data: dict[str, Any], where: str) -> dict:
+    out = {}
+    for i, item in enumerate(_list(data["v"], where)):
+        if not (isinstance(item, list) and len(item) == 2):
+            raise CheckpointValueError(f"{where}[{i}]: expected a [key, value] pair")
+        key = decode_value(item[0], f"{where} key")
+        try:
+            hash(key)
+        except TypeError:
+            raise CheckpointValueError(f"{where}: a dict key must be hashable, got {str(key)[:60]}") from None
+        out[key] = decode_value(item[1], f"{where}[{key!r}]")
+    return out
+
+
+def _decode_ndarray(data: dict[str, Any], where: str) -> np.ndarray:
+    dtype = _dtype(data["dtype"], where)
+    shape = data["shape"]
+    if not (
+        isinstance(shape, list)
+        and all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in shape)
+    ):
+        raise CheckpointValueError(f"{where}: shape: expected a list of integers >= 0, got {str(shape)[:60]}")
+    raw = base64.b64decode(data["data"], validate=True)
+    if len(raw) != int(np.prod(shape, dtype=np.int64)) * dtype.itemsize:
+        raise CheckpointValueError(
+            f"{where}: {len(raw)} bytes of data do not make an array of shape {shape} and dtype {dtype}"
+        )
+    return np.frombuffer(raw, dtype=dtype).reshape(shape).copy()
+
+
+def _decode_scalar(data: dict[str, Any], where: str) -> np.generic:
+    dtype = _dtype(data["dtype"], where)
+    raw = base64.b64decode(data["data"], validate=True)
+    if len(raw) != dtype.itemsize:
+        raise CheckpointValueError(f"{where}: {len(raw)} bytes of data are not one {dtype}")
+    return np.frombuffer(raw, dtype=dtype)[0]
+
+
+def _decode_feature_map(data: dict[str, Any], where: str) -> FeatureMap:
+    shape = data["shape"]
+    if not (
+        isinstance(shape, list) and len(shape) == 2 and all(isinstance(n, int) and n >= 0 for n in shape)
+    ):
+        raise CheckpointValueError(f"{where}: shape: expected [rows, cols], got {str(shape)[:60]}")
+    rows, cols = decode_value(data["rows"], f"{where}.rows"), decode_value(data["cols"], f"{where}.cols")
+    values = decode_value(data["values"], f"{where}.values")
+    if not (
+        isinstance(rows, np.ndarray)
+        and isinstance(cols, np.ndarray)
+        and rows.shape == cols.shape
+        and rows.ndim == 1
+    ):
+        raise CheckpointValueError(f"{where}: rows, cols: expected two 1-D arrays of one length")
+    if rows.size and (rows.min() < 0 or cols.min() < 0 or rows.max() >= shape[0] or cols.max() >= shape[1]):
+        raise CheckpointValueError(f"{where}: feature points outside the {shape[0]}x{shape[1]} map")
+    return FeatureMap.from_points(tuple(shape), rows, cols, values)
+
+
+def _decode_dataclass(data: dict[str, Any], where: str) -> Any:
+    """A value of one of :data:`VALUE_TYPES`, from exactly its fields."""
+    tag = data["$t"]
+    cls = VALUE_TYPES.get(tag)
+    if cls is None:
+        raise CheckpointValueError(
+            f"{where}: unknown value type {tag!r} (known: {', '.join(['ndarray', 'FeatureMap', *VALUE_TYPES])})"
+        )
+    fields = data["v"]
+    if not isinstance(fields, dict):
+        raise CheckpointValueError(f"{where}: expected the fields of a {tag}")
+    known = {f.name for f in dataclasses.fields(cls) if f.init}
+    if set(fields) != known:
+        raise CheckpointValueError(f"{where}: a {tag} has the fields {sorted(known)}, got {sorted(fields)}")
+    return cls(**{k: decode_value(v, f"{where}.{k}") for k, v in fields.items()})
+
+
+#: how each tag of :func:`encode_value` is decoded (any other tag: a value type's fields)
+_DECODERS = {
+    "float": _decode_float,
+    "tuple": _decode_tuple,
+    "dict": _decode_dict,
+    "ndarray": _decode_ndarray,
+    "scalar": _decode_scalar,
+    "FeatureMap": _decode_feature_map,
+}
+
+
+def _list(v: Any, where: str) -> list:
+    if not isinstance(v, list):
+        raise CheckpointValueError(f"{where}: expected a list")
+    return v
+
+
+def _dtype(text: Any, where: str) -> np.dtype:
+    if not isinstance(text, str) or len(text) > 8:
+        raise CheckpointValueError(
+            f"{where}: dtype: expected a numpy type string such as '<f4', got {str(text)[:40]}"
+        )
+    try:
+        dt = np.dtype(text)
+    except TypeError:
+        raise CheckpointValueError(f"{where}: dtype: not a numpy type: {text!r}") from None
+    if dt.kind not in "biufc" or dt.hasobject:
+        raise CheckpointValueError(f"{where}: dtype {text!r}: only numbers and booleans are stored")
+    return dt
+
+
+# --------------------------------------------------------------------------- the file
+class FailureRecord(BaseModel):
+    """A failed frame as ``run.json`` lists it."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    frame: str | None
+    index: int = Field(ge=0)
+    node: str
+    type: str
+    error: str
+
+
+class FeedbackValue(BaseModel):
+    """The value of one feedback edge's source port after the last frame done."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    node: str
+    port: str
+    value: Any = None
+    key: str | None = None
+
+
+class Checkpoint(BaseModel):
+    """The schema of ``checkpoint.json`` (see the module docstring)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    format: Literal["lanegraph-checkpoint"]
+    version: Literal[1]
+    graph: str
+    graph_digest: str = Field(pattern=r"^[0-9a-f]{64}$")
+    resolved: dict[str, Any]
+    input: str | None
+    input_identity: str
+    frames: str
+    total: int | None = Field(ge=0)
+    position: int = Field(ge=0)
+    frames_ok: int = Field(ge=0)
+    last_frame: str | None
+    complete: bool
+    failures: list[FailureRecord]
+    invalid_outputs: dict[str, list[int]]
+    feedback: list[FeedbackValue]
+    states: dict[str, Any]
+    unresumable: str | None = None
+
+
+def graph_identity(resolved: dict[str, Any]) -> str:
+    """The digest of a resolved graph (every node, type, param and wire)."""
+    return digest(resolved)
+
+
+def input_identity(input_path: Path | None, exclude: Path | None = None) -> str:
+    """Digest of the files under ``input_path`` (path, size, modification time), ``exclude`` (the
+    output folder, when it lies inside the input) left out; ``"synthetic"`` without an input."""
+    if input_path is None:
+        return "synthetic"
+    root = Path(input_path)
+    ex = exclude.resolve() if exclude is not None else None
+    files = sorted(
+        p for p in root.rglob("*") if p.is_file() and not (ex is not None and p.resolve().is_relative_to(ex))
+    )
+    return digest([(str(p), p.stat().st_size, p.stat().st_mtime_ns) for p in files])
+
+
+def resolved_input(input_path: Path | None) -> str | None:
+    if input_path is None:
+        return None
+    try:
+        return str(Path(input_path).resolve())
+    except (OSError, RuntimeError):
+        return str(input_path)
+
+
+def load_checkpoint(path: Path) -> Checkpoint:
+    """Read and validate a checkpoint; any problem is a :class:`UsageError` (exit code 2) naming the
+    file and the field."""
+    try:
+        size = path.stat().st_size
+        if size > MAX_CHECKPOINT_BYTES:
+            raise UsageError(
+                f"{path}: {size} bytes, more than a checkpoint may hold ({MAX_CHECKPOINT_BYTES}){_HINT}"
+            )
+        text = path.read_text(encoding="utf-8")
+    except UsageError:
+        raise
+    except (OSError, UnicodeDecodeError) as exc:
+        raise UsageError(f"{path}: cannot read the checkpoint ({exc}){_HINT}") from None
+    try:
+        data = json.loads(text)
+    except (json.JSONDecodeError, RecursionError) as exc:
+        where = f" at line {exc.lineno}" if isinstance(exc, json.JSONDecodeError) else ""
+        raise UsageError(f"{path}: not a valid JSON checkpoint{where} ({exc}){_HINT}") from None
+    if not isinstance(data, dict):
+        raise UsageError(
+            f"{path}: expected a JSON object (a lanegraph checkpoint), got {type(data).__name__}{_HINT}"
+        )
+    if data.get("format") != FORMAT:
+        raise UsageError(
+            f"{path}: format: expected {FORMAT!r}, got {str(data.get('format'))[:60]!r}: not a lanegraph checkpoint{_HINT}"
+        )
+    if data.get("version") != VERSION:
+        raise UsageError(
+            f"{path}: version: expected {VERSION}, got {str(data.get('version'))[:20]} (written by another lanegraph version){_HINT}"
+        )
+    try:
+        ckpt = Checkpoint.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        loc = ".".join(str(x) for x in err["loc"]) or "(top level)"
+        more = f" (and {exc.error_count() - 1} more problem(s))" if exc.error_count() > 1 else ""
+        raise UsageError(
+            f"{path}: {loc}: {err['msg']}, got {str(err.get('input'))[:80]}{more}{_HINT}"
+        ) from None
+    if ckpt.frames_ok > ckpt.position or (ckpt.total is not None and ckpt.position > ckpt.total):
+        raise UsageError(
+            f"{path}: position {ckpt.position}, frames_ok {ckpt.frames_ok} and total {ckpt.total} do not fit together{_HINT}"
+        )
+    return ckpt
+
+
+def decode_feedback(
+    ckpt: Checkpoint, path: Path
+) -> tuple[dict[tuple[str, str], Any], dict[tuple[str, str], str | None]]:
+    """The feedback values and their cache keys of a checkpoint, decoded (errors name the entry)."""
+    values, keys = {}, {}
+    for i, fb in enumerate(ckpt.feedback):
+        try:
+            values[(fb.node, fb.port)] = decode_value(fb.value, f"feedback[{i}] ({fb.node}.{fb.port})")
+        except CheckpointValueError as exc:
+            raise UsageError(f"{path}: {exc}{_HINT}") from None
+        except RecursionError:
+            raise UsageError(
+                f"{path}: feedback[{i}] ({fb.node}.{fb.port}): nested too deeply{_HINT}"
+            ) from None
+        keys[(fb.node, fb.port)] = fb.key
+    return values, keys
+
+
+def check_identity(
+    ckpt: Checkpoint,
+    path: Path,
+    *,
+    graph_digest: str,
+    resolved: dict[str, Any],
+    input: str | None,
+    frames: str,
+) -> None:  # noqa: A002
+    """Refuse (:class:`UsageError`) a resume whose graph, params, ``--input`` or ``--frames`` are not
+    the checkpoint's, naming the first difference."""
+    if ckpt.unresumable:
+        raise UsageError(f"{path}: the run in this folder cannot be resumed: {ckpt.unresumable}{_HINT}")
+    if ckpt.graph_digest != graph_digest:
+        what = _first_difference(ckpt.resolved, resolved) or "the resolved graphs differ"
+        raise UsageError(
+            f"{path}: the checkpoint's run used another graph or params ({what}; graph {ckpt.graph!r}){_HINT}"
+        )
+    if ckpt.input != input:
+        raise UsageError(
+            f"{path}: --input differs: the checkpoint's run read {ckpt.input or '(none: the synthetic scene)'}, "
+            f"this one {input or '(none: the synthetic scene)'}{_HINT}"
+        )
+    if ckpt.frames != frames:
+        raise UsageError(
+            f"{path}: --frames differs: the checkpoint's run selected {ckpt.frames or '(all)'!s}, this one {frames or '(all)'}{_HINT}"
+        )
+
+
+def _first_difference(a: Any, b: Any, where: str = "") -> str | None:
+    """``"nodes.fit.params.iterations: 10 in the checkpoint, 3 now"`` for the first difference."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        for k in list(a) + [k for k in b if k not in a]:
+            sub = f"{where}.{k}" if where else str(k)
+            if k not in a:
+                return f"{sub}: absent in the checkpoint, {str(b[k])[:60]} now"
+            if k not in b:
+                return f"{sub}: {str(a[k])[:60]} in the checkpoint, absent now"
+            d = _first_difference(a[k], b[k], sub)
+            if d:
+                return d
+        return None
+    if a != b:
+        return f"{where or 'graph'}: {str(a)[:60]} in the checkpoint, {str(b)[:60]} now"
+    return None
+
+
+def save_checkpoint(path: Path, data: dict[str, Any]) -> None:
+    """Write a checkpoint atomically (a temporary file, then a rename: never half a file)."""
+    write_bytes_atomic(path, json.dumps(data, separators=(",", ":"), allow_nan=False).encode("utf-8"))
+
+
+def feedback_entries(
+    values: dict[tuple[str, str], Any], keys: dict[tuple[str, str], str | None]
+) -> list[dict[str, Any]]:
+    """The ``feedback`` list of a checkpoint (raises :class:`CheckpointValueError` for a value it cannot hold)."""
+    return [
+        {"node": n, "port": p, "value": encode_value(values[(n, p)], f"{n}.{p}"), "key": keys.get((n, p))}
+        for (n, p) in sorted(values)
+    ]

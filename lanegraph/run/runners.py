@@ -1,0 +1,138 @@
+"""Runners: the engines that execute a batch's units of work (:class:`~lanegraph.run.batch.RunTask`).
+
+A runner is an object with a ``run(tasks, progress=..., echo=..., done=...)`` method returning the
+:class:`~lanegraph.run.batch.TaskOutcome` of every task (:class:`Runner`); it runs each task with
+:func:`lanegraph.run.batch.execute_task`, wherever that is, so the outputs are the same byte for
+byte on every runner. Runners are an open set, in the manner of Kedro's ``AbstractRunner`` and
+Hamilton's ``TaskExecutor``: a plugin adds one through the ``lanegraph_runners`` hook, returning
+runner *types* -- classes with a ``name`` and a ``from_spec(text)`` class method that returns a
+runner for a ``--scheduler`` text it understands (``None`` otherwise). lanegraph's own two are
+registered through the same hook by :data:`BUILTIN_RUNNERS`:
+
+``InProcessRunner`` (``inprocess``; no ``--scheduler``)
+    the tasks one after another in this process.
+``DaskRunner`` (``local``, ``local:N``, a scheduler address)
+    the tasks on a Dask cluster (:mod:`lanegraph.run.distributed`, the only module that imports
+    Dask). It takes every text no other runner claims (an address has no fixed form).
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+from typing import Any, Protocol, runtime_checkable
+
+from ..errors import UsageError
+from ..hookspecs import hookimpl
+from .batch import Progress, RunTask, SchedulerSpec, TaskOutcome, execute_task, parse_scheduler
+
+
+@runtime_checkable
+class Runner(Protocol):
+    """What the run service asks of a runner."""
+
+    name: str
+
+    def run(
+        self,
+        tasks: list[RunTask],
+        progress: bool = True,
+        echo: Callable[[str], None] | None = None,
+        done: dict[int, TaskOutcome] | None = None,
+    ) -> dict[int, TaskOutcome]:
+        """Run ``tasks``; the outcome of every task, by its index. ``done``: filled as the tasks
+        end (what finished when the batch is interrupted). A task's failure is in its outcome,
+        never raised."""
+        ...
+
+
+class InProcessRunner:
+    """The tasks one after another in this process (``cache``: the result cache they share)."""
+
+    name = "inprocess"
+
+    def __init__(self, cache: Any = None):
+        self.cache = cache
+
+    @classmethod
+    def from_spec(cls, text: str) -> InProcessRunner | None:
+        return cls() if text.strip() == cls.name else None
+
+    def run(self, tasks, progress=True, echo=None, done=None):  # noqa: D102 - Runner.run
+        outcomes = done if done is not None else {}
+        if not tasks:
+            return outcomes
+        bar = Progress(tasks, progress)
+        try:
+            for task in tasks:
+                bar.bar.set_description_str(task.label, refresh=False)
+                out = execute_task(
+                    task, cache=self.cache, progress=lambda n, i=task.index: bar.update(i, "", n)
+                )
+                bar.finish(task.index, out.result.frames)
+                outcomes[task.index] = out
+        finally:
+            bar.close()
+        return outcomes
+
+
+class DaskRunner:
+    """The tasks on a Dask cluster: ``local``, ``local:N`` or an existing scheduler's address."""
+
+    name = "dask"
+    fallback = True  # takes the texts no other runner claims
+
+    def __init__(self, spec: SchedulerSpec):
+        self.spec = spec
+
+    @classmethod
+    def from_spec(cls, text: str) -> DaskRunner | None:
+        spec = parse_scheduler(text)
+        return cls(spec) if spec is not None else None
+
+    def run(self, tasks, progress=True, echo=None, done=None):  # noqa: D102 - Runner.run
+        if not tasks:
+            return done if done is not None else {}
+        from .distributed import run_tasks
+
+        echo = echo or (lambda msg: print(msg, file=sys.stderr))
+        return run_tasks(tasks, self.spec, progress=progress, echo=echo, done=done)
+
+
+class _BuiltinRunners:
+    """lanegraph's own runners, registered through the public hook like a third party's."""
+
+    @hookimpl
+    def lanegraph_runners(self) -> list[type]:
+        return [InProcessRunner, DaskRunner]
+
+
+BUILTIN_RUNNERS = _BuiltinRunners()
+
+
+def runner_types(pm: Any) -> list[type]:
+    """Every registered runner type; the fallback ones (Dask) last. lanegraph's own are registered
+    on ``pm`` on first use (a plugin manager made by hand has them too)."""
+    if not pm.is_registered(BUILTIN_RUNNERS):
+        pm.register(BUILTIN_RUNNERS, name="lanegraph.runners")
+    found: list[type] = []
+    for provided in pm.hook.lanegraph_runners():
+        for rt in provided or []:
+            if rt not in found:
+                found.append(rt)
+    return sorted(found, key=lambda rt: bool(getattr(rt, "fallback", False)))
+
+
+def select_runner(text: str | None, pm: Any, cache: Any = None) -> Runner:
+    """The runner of ``--scheduler text``: in this process without one (sharing ``cache``), else
+    the first registered runner type whose ``from_spec`` accepts the text."""
+    if text is None:
+        return InProcessRunner(cache)
+    for rt in runner_types(pm):
+        runner = rt.from_spec(text)
+        if runner is not None:
+            if isinstance(runner, InProcessRunner):
+                runner.cache = cache
+            return runner
+    names = ", ".join(rt.name for rt in runner_types(pm))
+    raise UsageError(f"--scheduler {text}: no runner takes it (runners: {names})")

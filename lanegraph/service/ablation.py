@@ -1,0 +1,129 @@
+"""The ablation path of the run service (:meth:`lanegraph.service.Session.ablate`)."""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+from ..errors import InputError, LanegraphError, NotStarted, RunStopped, UsageError
+from ..evaluation.ablate import Variant, expand_sweeps, run_ablation
+from ..graph.files import resolve_graph_path
+from ..run.cache import ResultCache
+from ..run.runners import InProcessRunner, Runner
+
+
+def ablation_variants(base: Path, variants: tuple[Path, ...], sweeps: tuple[str, ...]) -> list[Variant]:
+    """BASE, each VARIANT (named by its file; by folder/file where two files share a name) and a
+    variant of BASE per ``--sweep`` value."""
+    paths = [resolve_graph_path(str(p)) for p in (base, *variants)]
+    runs = [Variant(p.stem, p) for p in paths]
+    names = [r.name for r in runs]
+    for r in runs:  # disambiguate equal file names
+        if names.count(r.name) > 1:
+            r.name = f"{r.graph.parent.name}/{r.name}"
+    try:
+        runs += expand_sweeps(paths[0], list(sweeps))
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    return runs
+
+
+def _cache(cache_dir: Path | None, cache_max_gb: float, no_cache: bool) -> ResultCache | None:
+    try:
+        return None if no_cache else ResultCache(cache_dir, int(cache_max_gb * 1024**3))
+    except OSError as exc:
+        raise UsageError(f"--cache-dir: cannot use the result cache: {exc.strerror or exc}") from None
+
+
+def ablate(
+    session: Any,
+    variants: list[Variant],
+    dataset: Any,
+    out_dir: Path,
+    *,
+    frames: slice | None,
+    cache_dir: Path | None,
+    cache_max_gb: float,
+    no_cache: bool,
+    scheduler: str | None,
+    runner: Runner | None,
+    chunk_frames: int | None,
+    warmup: int,
+    make_report: bool,
+) -> int:
+    """See :meth:`lanegraph.service.Session.ablate`."""
+    runner = runner if runner is not None else session.runner(scheduler)
+    for r in variants:  # validate everything before running anything
+        session.load_graph(r.graph, tuple(r.sets))
+    if not (math.isfinite(cache_max_gb) and cache_max_gb > 0):
+        raise UsageError(f"--cache-max-gb: expected a size in GiB > 0, got {cache_max_gb}")
+    t0 = time.perf_counter()
+    cache_folder = (cache_dir, "--cache-dir") if cache_dir is not None and not no_cache else (None, "")
+    with session.locked(out_dir, "ablate", cache_folder):
+        cache = _cache(cache_dir, cache_max_gb, no_cache)
+        if isinstance(runner, InProcessRunner):
+            runner.cache = cache
+        try:
+            rows = run_ablation(
+                variants, dataset, out_dir, frames, cache, progress=session.progress, runner=runner,
+                chunk_frames=chunk_frames, warmup=warmup, echo=session.err,
+            )  # fmt: skip
+        except (InputError, UsageError) as exc:  # unusable before any run: like `run`, exit 2
+            raise NotStarted(exc) from exc
+        except KeyboardInterrupt:
+            raise RunStopped(
+                f"interrupted (Ctrl-C); the finished runs are in {out_dir}/runs and results.md", exit_code=130
+            ) from None
+        except OSError as exc:
+            raise RunStopped(
+                f"{str(exc.filename) + ': ' if exc.filename else ''}{exc.strerror or exc}", exc
+            ) from None
+    status = _end(session, rows, out_dir, cache, time.perf_counter() - t0)
+    if status:
+        return status
+    if make_report:
+        try:  # the base variant's source reads the left images; its graph is drawn
+            session.report(
+                out_dir,
+                dataset=dataset,
+                frames=frames,
+                graph=session.load_graph(variants[0].graph, tuple(variants[0].sets)),
+            )
+        except LanegraphError as exc:  # the ablation's own outputs are written: they stay
+            raise RunStopped(str(exc), exc) from exc
+    return _failures(session, rows)
+
+
+def _end(session: Any, rows: list[dict[str, Any]], out_dir: Path, cache: Any, seconds: float) -> int:
+    """Say the results table and where it went; 2 when no run could start at all."""
+    runs_rows = [r for r in rows if r.get("sequence") != "all"]
+    failed = [r for r in runs_rows if r.get("error")]
+    if failed and all(r.get("before_any_frame") for r in failed) and len(failed) == len(runs_rows):
+        for r in failed:  # nothing ran at all: the input is unusable (exit 2, as `run` says)
+            session.err(f"error: {r['variant']} / {r['sequence']}: {r['error']}")
+        return 2
+    session.out((out_dir / "results.md").read_text())
+    hits = f", cache {cache.hits} hits / {cache.misses} misses" if cache is not None else ", no cache"
+    session.out(
+        f"{len(rows)} row(s) in {seconds:.1f} s{hits} -> {out_dir}/results.md, results.csv, accuracy.png, accuracy_vs_ms.png"
+    )
+    return 0
+
+
+def _failures(session: Any, rows: list[dict[str, Any]]) -> int:
+    """The runs that failed and the frames that failed in the others: 1 when there are any."""
+    runs_rows = [r for r in rows if r.get("sequence") != "all"]
+    failed = [r for r in runs_rows if r.get("error")]
+    if failed or any(r.get("failed_frames") for r in runs_rows):
+        for r in failed:
+            session.err(f"error: run {r['variant']} / {r['sequence']} failed: {r['error']}")
+        n_frames = sum(int(r.get("failed_frames") or 0) for r in runs_rows if not r.get("error"))
+        if n_frames:
+            session.err(f"{n_frames} frame(s) failed in runs that went on (on_error skip); see results.md")
+        return 1
+    return 0
+
+
+__all__ = ["ablate", "ablation_variants"]
