@@ -22,6 +22,7 @@ from __future__ import annotations
 import io
 import logging
 import os
+import re
 import sys
 import time
 from collections.abc import Callable
@@ -54,6 +55,8 @@ class _ConsoleFormatter(logging.Formatter):
 
     def format(self, record: logging.LogRecord) -> str:
         text = record.getMessage()
+        if getattr(record, "plain", False):  # a line of a listing (failed frames): as it is
+            return text
         if record.name == "py.warnings":  # "file:line: Category: message\n  source line"
             text = text.strip().splitlines()[0]
         if record.exc_info and record.levelno >= logging.ERROR:
@@ -71,6 +74,8 @@ class _ConsoleHandler(logging.Handler):
     """To the current ``sys.stderr`` at every record (a test runner may swap it), through tqdm."""
 
     def emit(self, record: logging.LogRecord) -> None:
+        if getattr(record, "file_only", False):  # for run.log (what a run was), not the terminal
+            return
         try:
             from tqdm import tqdm
 
@@ -195,3 +200,21 @@ class RunLog:
             self._handler.close()
             self._handler.stream.close()  # logging's close() leaves a stream it did not open
             self._handler = None
+
+
+_FAILURE_LINE = re.compile(r"^\s+frame .*|.*\bframe\(s\) failed\b.*")
+
+
+def say(message: str, logger: logging.Logger | None = None) -> None:
+    """One line a command says on stderr, as a log record: ``error: ...`` and ``warning: ...`` at
+    their levels (the prefix is the console's), the lines listing failed frames as warnings shown as
+    they are, any other line a note (INFO: hidden by ``-q``). Everything reaches ``run.log``."""
+    log = logger or get_logger("run")
+    for prefix, level in (("error: ", logging.ERROR), ("warning: ", logging.WARNING)):
+        if message.startswith(prefix):
+            log.log(level, message[len(prefix) :])
+            return
+    if _FAILURE_LINE.match(message):
+        log.warning(message, extra={"plain": True})
+    else:
+        log.info(message)

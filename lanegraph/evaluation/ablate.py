@@ -34,6 +34,7 @@ from ..plugins import get_plugin_manager
 from ..presentation.plots import write_ablation_plots
 from ..run.batch import Planned, Planner, clean_leftovers, finish_runs
 from ..run.cache import ResultCache, digest
+from ..run.provenance import git_commit
 from ..run.record import RunRecord, read_record
 from ..run.results import LANES, find_result
 from ..run.resume import input_identity
@@ -91,6 +92,7 @@ def run_ablation(
     chunk_frames: int | None = None,
     warmup: int = 0,
     echo: Callable[[str], None] | None = None,
+    record_extra: dict[str, Any] | None = None,
 ) -> list[dict[str, Any]]:
     """Run every variant on every sequence of ``dataset``, evaluate and tabulate; returns the rows
     (one per variant and sequence, then the variant's pooled row, ``sequence`` = ``all``).
@@ -109,6 +111,9 @@ def run_ablation(
     planner = Planner(pm, chunk_frames, warmup, cache)
     plans: list[tuple[Variant, list[Planned]]] = []
     for var in variants:
+        planner.record_extra = {  # each run's run.json: its overrides, its graph's checkout
+            **(record_extra or {}), "overrides": list(var.sets), "git": git_commit(Path(var.graph)),
+        }  # fmt: skip
         graph = ResolvedGraph.load(var.graph, var.sets)
         g = graph.validate(pm)
         code = sorted({n.type.code_version for n in g.nodes.values()})  # an edited plugin runs again

@@ -33,11 +33,14 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import GraphError, InputError, LanegraphError, NodeError, UsageError
+from ..frames import selection_text
 from ..graph.files import ResolvedGraph
 from ..nodes import RunContext
 from ..plugins import PluginManager, get_plugin_manager
+from ..runlog import RunLog
 from .cache import ResultCache, digest
 from .executor import Executor, FrameFailure, RunResult
+from .provenance import versions, write_resolved_graph
 from .record import RunRecord, Stopped, read_record, write_run_files
 from .sources import close_source, open_source, select_source
 
@@ -103,6 +106,7 @@ class RunTask:
     offset: int = 0  # the sequence index of the first reported frame
     record_cache: bool = False  # timings.json gets the cache's hits and misses
     record_extra: dict[str, Any] = field(default_factory=dict)  # what the run service adds to run.json
+    selection: str = ""  # the run's --frames text (a chunk's task too: the run's, not the chunk's)
 
     @property
     def label(self) -> str:
@@ -222,8 +226,11 @@ def _write_run_files(
     timings = result.timings_json()
     if task.record_cache:
         timings["cache"] = {"hits": result.cache_hits, "misses": result.cache_misses}
+    extra = dict(task.record_extra)
+    if "versions" in extra:  # at the end: the libraries the run loaded (ONNX Runtime ...)
+        extra["versions"] = versions(get_plugin_manager())
     record = task_record(
-        graph_file, task.input, result, error, timings, sequence=task.sequence, **task.record_extra
+        graph_file, task.input, result, error, timings, sequence=task.sequence, frames=task.selection, **extra
     )
     write_run_files(folder, record, timings)
     if task.run_key is not None and error is None:
@@ -269,8 +276,10 @@ def execute_task(
             frames=task.frames,
             graph_file=g.file,
         )
+        if task.chunk is None:  # the resolved graph beside the run's results (a chunk's: the run's)
+            write_resolved_graph(tmp, g.resolved_dict())
         ex = Executor(g, ctx, pm, cache=cache, warmup=task.warmup)
-        with ex:  # the nodes opened are closed, however the run ends
+        with ex, RunLog(tmp, pm=pm):  # the nodes opened are closed, however the run ends
             started = True
             result = ex.run(on_frame=on_frame)
     except Exception as exc:  # noqa: BLE001 - reported with variant, sequence and frame; the others go on
@@ -317,6 +326,7 @@ def merge_chunks(tasks: list[RunTask], outcomes: list[TaskOutcome]) -> TaskOutco
         for nid, ts in r.timings_ms.items():
             merged.timings_ms.setdefault(nid, []).extend(ts)
         merged.failures += r.failures
+        merged.frame_ids += r.frame_ids
         merged.frame_ms += r.frame_ms
         for src_counts, dst_counts in (
             (r.cache_hits, merged.cache_hits),
@@ -443,6 +453,7 @@ class Planner:
             "cache_max_bytes": cache.max_bytes if cache is not None else 0,
             "record_cache": cache is not None,
             "record_extra": self.record_extra,
+            "selection": selection_text(frames),
         }
         plan = Planned(variant, sequence, run_dir)
         try:

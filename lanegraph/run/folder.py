@@ -174,6 +174,41 @@ def _checkpoint_identity(ckpt: dict[str, Any]) -> dict[str, Any]:
     return run_identity(str(ckpt.get("graph_digest")), ckpt.get("input"), ckpt.get("frames"))
 
 
+def check(
+    folder: Path,
+    identity: dict[str, Any],
+    *,
+    resume: bool = False,
+    overwrite: bool = False,
+    resolved: dict[str, Any] | None = None,
+    option: str = "--out",
+) -> None:
+    """Refuse (:class:`UsageError`, exit 2) a folder that may not take the run of ``identity`` (see
+    the module's doc); reads only, writes nothing. With ``overwrite`` every folder may."""
+    folder = Path(folder)
+    if overwrite or not holds_results(folder):
+        return
+    record, ckpt = read_state(folder)
+    recorded = record.get("identity") if record is not None else None
+    if not isinstance(recorded, dict) and ckpt is not None and identity.get("kind") == "run":
+        recorded = _checkpoint_identity(ckpt)  # killed before its record, or an older record
+    if not isinstance(recorded, dict):
+        raise UsageError(
+            f"{option} {folder}: holds results lanegraph cannot tell the origin of (no identity in its "
+            f"{RECORD if (folder / RECORD).exists() else 'files'}: an older lanegraph's?); {_HINT_OTHER}"
+        )
+    diff = difference(recorded, identity, folder, resolved)
+    if diff is not None:
+        raise UsageError(
+            f"{option} {folder}: holds the results of another {_kind(recorded).split()[-1]}: {diff}; its files "
+            f"would be mixed with this one's; {_HINT_OTHER}"
+        )
+    if identity.get("kind") == "run" and not resume:
+        unfinished = _unfinished(record, ckpt)
+        if unfinished is not None:
+            raise UsageError(f"{option} {folder}: holds this run, unfinished ({unfinished}); {HINT}")
+
+
 def claim(
     folder: Path,
     identity: dict[str, Any],
@@ -183,33 +218,9 @@ def claim(
     resolved: dict[str, Any] | None = None,
     option: str = "--out",
 ) -> list[Path]:
-    """Check that ``folder`` may take the run of ``identity`` (see the module's doc); returns what
-    ``--overwrite`` removed. Raises :class:`UsageError` (exit 2) before anything is written."""
-    folder = Path(folder)
-    if not holds_results(folder):
-        return []
-    record, ckpt = read_state(folder)
-    recorded = record.get("identity") if record is not None else None
-    if not isinstance(recorded, dict) and ckpt is not None and identity.get("kind") == "run":
-        recorded = _checkpoint_identity(ckpt)  # killed before its record, or an older record
-    if overwrite:
-        return clear(folder, record)
-    if not isinstance(recorded, dict):
-        raise UsageError(
-            f"{option} {folder}: holds results lanegraph cannot tell the origin of (no identity in its "
-            f"{RECORD if (folder / RECORD).exists() else 'files'}: an older lanegraph's?); {_HINT_OTHER}"
-        )
-    diff = difference(recorded, identity, folder, resolved)
-    if diff is not None:
-        raise UsageError(
-            f"{option} {folder}: holds the results of another {_kind(recorded).split()[-1]} ({diff}); its files "
-            f"would be mixed with this one's; {_HINT_OTHER}"
-        )
-    if identity.get("kind") == "run" and not resume:
-        unfinished = _unfinished(record, ckpt)
-        if unfinished is not None:
-            raise UsageError(f"{option} {folder}: holds this run, unfinished ({unfinished}); {HINT}")
-    return []
+    """:func:`check`, then with ``overwrite`` :func:`clear`: returns what was removed."""
+    check(folder, identity, resume=resume, overwrite=overwrite, resolved=resolved, option=option)
+    return clear(folder) if overwrite and holds_results(folder) else []
 
 
 def _unfinished(record: dict[str, Any] | None, ckpt: dict[str, Any] | None) -> str | None:

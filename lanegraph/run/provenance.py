@@ -110,9 +110,20 @@ def versions(pm: Any = None) -> dict[str, Any]:
     return out
 
 
+#: the command line the ``lanegraph`` command was given (set by it: ``sys.argv`` is not it when the
+#: command is invoked from Python, by a test runner say)
+_INVOKED: list[str] | None = None
+
+
+def set_command_line(args: list[str]) -> None:
+    """Record the arguments the ``lanegraph`` command was invoked with (its first argument on)."""
+    global _INVOKED
+    _INVOKED = ["lanegraph", *args]
+
+
 def command_line(argv: list[str] | None = None) -> list[str]:
     """The command as typed: ``lanegraph`` and its arguments (the program's path shortened)."""
-    args = list(sys.argv if argv is None else argv)
+    args = list((_INVOKED or sys.argv) if argv is None else argv)
     if args:
         prog = Path(args[0]).name
         args[0] = "lanegraph" if prog in ("lanegraph", "__main__.py", "-m") else prog

@@ -52,11 +52,9 @@ def recorded_selection(folder: Path) -> tuple[str | None, list[str]] | None:
     None when it records none (a run of an older lanegraph: every frame of the ground truth is
     scored). ``eval`` and ``report`` score exactly these frames."""
     record = read_record(Path(folder))
-    sel = (record.model_extra or {}).get("selection") if record is not None else None
-    if not isinstance(sel, dict) or not isinstance(sel.get("ids"), list):
+    if record is None or record.selection is None:
         return None
-    frames = sel.get("frames")
-    return (frames if isinstance(frames, str) else None), [str(i) for i in sel["ids"]]
+    return record.selection.frames or None, list(record.selection.ids)
 
 
 def default_names(kind: str, pm: PluginManager | None = None) -> list[str]:

@@ -67,7 +67,7 @@ def test_another_runs_results_are_refused_and_left_as_they_are(tmp_path, identit
     with pytest.raises(UsageError) as info:
         claim(out, identity, resolved=resolved)
     msg = str(info.value)
-    assert msg.startswith(f"--out {out}: holds the results of another run (") and words in msg, msg
+    assert msg.startswith(f"--out {out}: holds the results of another run: ") and words in msg, msg
     assert "--overwrite" in msg and "another output folder" in msg
     assert snapshot(out) == before
 
