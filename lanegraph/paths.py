@@ -225,6 +225,31 @@ class OutputLock:
         self._fh = fh
         return self
 
+    def probe(self) -> None:
+        """Raise the :class:`UsageError` of :meth:`acquire` when another process holds the lock,
+        without creating or writing anything (a folder refused for another reason stays as it was)."""
+        try:
+            import fcntl
+        except ImportError:  # pragma: no cover - not a POSIX system: no lock
+            return
+        try:
+            fd = os.open(self.path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
+        except FileNotFoundError:
+            return  # no lock file: nobody holds it
+        except OSError as exc:  # a link planted at its name, say: what acquire() would say
+            raise UsageError(f"{self.path}: cannot create the lock file: {exc.strerror or exc}") from None
+        with os.fdopen(fd, "r", encoding="utf-8", errors="replace") as fh:
+            try:
+                fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError as exc:
+                if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                    raise UsageError(
+                        f"{self.path.parent}: in use by another lanegraph {_holder(fh.read(4096))}; "
+                        "wait for it to finish or choose another output folder"
+                    ) from None
+                return
+            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+
     def release(self) -> None:
         if self._fh is not None:
             self._fh.close()  # closing releases the flock

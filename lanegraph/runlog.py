@@ -45,9 +45,11 @@ def get_logger(name: str = "") -> logging.Logger:
 
 def console_level(verbose: int = 0, quiet: int = 0) -> int:
     """The console's level for ``-v`` given ``verbose`` times and ``-q`` given ``quiet`` times:
-    INFO by default, DEBUG with ``-v``, WARNING with ``-q``, ERROR with ``-qq``."""
-    steps = [logging.ERROR, logging.WARNING, logging.INFO, logging.DEBUG]
-    return steps[max(0, min(len(steps) - 1, 2 + verbose - quiet))]
+    INFO by default and with ``-q`` (which only turns the progress bars off: a long wait still says
+    what it is doing), DEBUG with ``-v``, WARNING with ``-qq``, ERROR with ``-qqq``."""
+    if verbose > 0:
+        return logging.DEBUG
+    return {0: logging.INFO, 1: logging.INFO, 2: logging.WARNING}.get(quiet, logging.ERROR)
 
 
 class _ConsoleFormatter(logging.Formatter):

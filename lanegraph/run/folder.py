@@ -27,6 +27,10 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import UsageError
+from ..paths import OutputLock
+from ..runlog import get_logger
+
+log = get_logger("run")
 
 RECORD = "run.json"
 COMMAND_RECORD = "command.json"
@@ -73,9 +77,12 @@ def command_identity(
 
 
 def _read_json(path: Path) -> dict[str, Any] | None:
+    """A record lanegraph wrote: a plain file (a link planted at its name is not one) of JSON."""
+    if path.is_symlink() or not path.is_file():
+        return None
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         return None
     return data if isinstance(data, dict) else None
 
@@ -182,21 +189,29 @@ def check(
     overwrite: bool = False,
     resolved: dict[str, Any] | None = None,
     option: str = "--out",
+    locked: bool = False,
 ) -> None:
     """Refuse (:class:`UsageError`, exit 2) a folder that may not take the run of ``identity`` (see
-    the module's doc); reads only, writes nothing. With ``overwrite`` every folder may."""
+    the module's doc); reads only, writes nothing. With ``overwrite`` every folder may. ``locked``:
+    the caller holds the folder's lock (else a run writing there now is said first)."""
     folder = Path(folder)
-    if overwrite or not holds_results(folder):
+    if not locked:
+        OutputLock(folder).probe()  # a run writing there now is said first, as the lock says it
+    if overwrite or not folder.is_dir():
         return
+    if resume and any((folder / n).exists() for n in (CHECKPOINT, "checkpoint.pkl")):
+        return  # --resume checks its checkpoint against this run itself, naming what differs
     record, ckpt = read_state(folder)
     recorded = record.get("identity") if record is not None else None
     if not isinstance(recorded, dict) and ckpt is not None and identity.get("kind") == "run":
         recorded = _checkpoint_identity(ckpt)  # killed before its record, or an older record
     if not isinstance(recorded, dict):
-        raise UsageError(
-            f"{option} {folder}: holds results lanegraph cannot tell the origin of (no identity in its "
-            f"{RECORD if (folder / RECORD).exists() else 'files'}: an older lanegraph's?); {_HINT_OTHER}"
-        )
+        if record is not None:  # an older lanegraph's run: no identity to compare; replaced
+            log.warning(
+                "%s %s: holds a run of an older lanegraph (its %s records no identity): this run replaces its results",
+                option, folder, RECORD if (folder / RECORD).is_file() else COMMAND_RECORD,
+            )  # fmt: skip
+        return
     diff = difference(recorded, identity, folder, resolved)
     if diff is not None:
         raise UsageError(
@@ -218,8 +233,9 @@ def claim(
     resolved: dict[str, Any] | None = None,
     option: str = "--out",
 ) -> list[Path]:
-    """:func:`check`, then with ``overwrite`` :func:`clear`: returns what was removed."""
-    check(folder, identity, resume=resume, overwrite=overwrite, resolved=resolved, option=option)
+    """:func:`check` (the caller holding the folder's lock), then with ``overwrite`` :func:`clear`:
+    returns what was removed."""
+    check(folder, identity, resume=resume, overwrite=overwrite, resolved=resolved, option=option, locked=True)
     return clear(folder) if overwrite and holds_results(folder) else []
 
 

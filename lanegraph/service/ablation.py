@@ -138,7 +138,7 @@ def ablation_kept(
         **provenance(session.pm, variants[0].graph, []),
         "variants": [{"name": r.name, "graph": str(r.graph), "sets": list(r.sets)} for r in variants],
         "identity": identity,
-        "written": ["results.csv", "results.md", "accuracy.png", "accuracy_vs_ms.png", "runs", "report"],
+        "written": ["results.csv", "results.md", "accuracy.png", "accuracy_vs_ms.png", "runs"],
     }
     out_dir.mkdir(parents=True, exist_ok=True)
     write_command_record(out_dir, fields)

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -95,6 +95,9 @@ class Session:
         self._resumed_ids: list[str] = []
         self._frames: slice | None = None
         self._ex: Executor | None = None
+        #: what a run does once its input is open (before that, nothing is written into OUT)
+        self._on_open: Callable[[], None] | None = None
+        self._stack = ExitStack()
 
     # -- graphs, folders, runners ------------------------------------------------
     def warn_plugins(self) -> None:
@@ -168,20 +171,28 @@ class Session:
             "debug_dir": relative_inside(debug_dir, out_dir),
         }
         tracked = "interrupted"
-        with self.locked(out_dir, "run", (debug_dir, "--debug-dir")):
-            claim_folder(out_dir, identity, resume=resume, overwrite=self.overwrite, resolved=resolved)
-            write_resolved_graph(out_dir, resolved)
-            self.tracking.start(
-                CommandRecord("run", f"run {g.name} -> {out_dir}", out_dir, command_line(),
-                              {"graph": str(g.file), "input": str(input_path or "synthetic"), "frames": selection_text(frames) or "all"})
-            )  # fmt: skip
+
+        def opened() -> None:  # the input and nodes opened: the run will start; nothing written before
             try:
-                with RunLog(out_dir, append=resume, verbose=self.verbose > 0, pm=self.pm):
-                    get_logger("run").info(
-                        "run of %s on %s into %s: %s", g.file, input_path or "the synthetic scene", out_dir,
-                        " ".join(command_line()), extra={"file_only": True},
-                    )  # fmt: skip
-                    status = self._run_locked(g, input_path, out_dir, frames, resume, debug_dir, chosen)
+                self.tracking.start(
+                    CommandRecord("run", f"run {g.name} -> {out_dir}", out_dir, command_line(),
+                                  {"graph": str(g.file), "input": str(input_path or "synthetic"),
+                                   "frames": selection_text(frames) or "all"})
+                )  # fmt: skip
+            except UsageError as exc:  # a tracker that cannot start: exit 2 before any frame
+                raise NotStarted(exc) from exc
+            write_resolved_graph(out_dir, resolved)
+            self._stack.enter_context(RunLog(out_dir, append=resume, verbose=self.verbose > 0, pm=self.pm))
+            get_logger("run").info(
+                "run of %s on %s into %s: %s", g.file, input_path or "the synthetic scene", out_dir,
+                " ".join(command_line()), extra={"file_only": True},
+            )  # fmt: skip
+
+        self._on_open = opened
+        with self.locked(out_dir, "run", (debug_dir, "--debug-dir")), self._stack:
+            claim_folder(out_dir, identity, resume=resume, overwrite=self.overwrite, resolved=resolved)
+            try:
+                status = self._run_locked(g, input_path, out_dir, frames, resume, debug_dir, chosen)
                 tracked = "ok" if status == 0 else "failed"
             finally:
                 if tracked == "interrupted":
@@ -280,6 +291,8 @@ class Session:
                 ex.open()
             except (InputError, UsageError) as exc:  # unusable input found before any frame ran
                 raise NotStarted(exc) from exc
+            if self._on_open is not None:
+                self._on_open()
             bar = tqdm(
                 total=(len(ex) or None),
                 unit="frame",

@@ -151,7 +151,7 @@ def test_the_frames_a_run_selected_are_read_from_its_record(tmp_path):
     assert recorded_selection(tmp_path) is None
     (tmp_path / "run.json").write_text(json.dumps({"status": "ok"}))
     assert recorded_selection(tmp_path) is None  # an older record: every ground-truth frame is scored
-    (tmp_path / "run.json").write_text(json.dumps({"selection": {"frames": "0:2", "ids": ["0000", 1]}}))
-    assert recorded_selection(tmp_path) == ("0:2", ["0000", "1"])
-    (tmp_path / "run.json").write_text(json.dumps({"selection": {"frames": None, "ids": "x"}}))
-    assert recorded_selection(tmp_path) is None
+    (tmp_path / "run.json").write_text(json.dumps({"selection": {"frames": "0:2", "ids": ["0000", "0001"]}}))
+    assert recorded_selection(tmp_path) == ("0:2", ["0000", "0001"])
+    (tmp_path / "run.json").write_text(json.dumps({"selection": {"frames": "", "ids": []}}))
+    assert recorded_selection(tmp_path) == (None, [])

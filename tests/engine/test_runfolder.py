@@ -101,9 +101,9 @@ def test_an_unfinished_run_is_refused_without_resume(tmp_path):
         match=r"17 of 20 frame\(s\) done; stopped: interrupted \(Ctrl-C\)\); continue it with --resume",
     ):
         claim(out, ME)
-    # a different run into it is refused as another run's, even unfinished
+    # a different run into it is refused as another run's (with --resume its checkpoint says so)
     with pytest.raises(UsageError, match="another input"):
-        claim(out, run_identity("a" * 64, "/data/other", "0:20"), resume=True)
+        claim(out, run_identity("a" * 64, "/data/other", "0:20"))
 
 
 def test_overwrite_removes_only_what_lanegraph_wrote(tmp_path):
@@ -141,15 +141,42 @@ def test_overwrite_never_follows_a_link_nor_leaves_the_folder(tmp_path):
     assert (victim / "precious.txt").read_text() == "keep" and not (out / "runs").exists()
 
 
-def test_a_folder_of_an_older_lanegraph_needs_overwrite(tmp_path):
+def test_a_folder_of_an_older_lanegraph_is_replaced_with_a_warning(tmp_path, caplog):
     out = tmp_path / "out"
     out.mkdir()
     (out / "run.json").write_text(json.dumps({"status": "ok", "results": {"lanes": "lanes.jsonl"}}))
     (out / "lanes.jsonl").write_text("{}\n")
-    with pytest.raises(UsageError, match="cannot tell the origin of"):
-        claim(out, ME)
+    with caplog.at_level("WARNING", logger="lanegraph.run"):
+        assert claim(out, ME) == []
+    assert "holds a run of an older lanegraph" in caplog.text
     claim(out, ME, overwrite=True)
     assert list(out.iterdir()) == []
+
+
+def test_loose_files_and_planted_links_are_not_a_run(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "lanes.jsonl").write_text("the user's\n")  # no record: not a run's
+    other = a_run(tmp_path / "other")
+    (out / "run.json").symlink_to(other / "run.json")  # a link is never lanegraph's record
+    assert claim(out, run_identity("z" * 64, None, None)) == []
+
+
+def test_a_run_writing_the_folder_now_is_said_first(tmp_path):
+    from lanegraph.paths import OutputLock
+    from lanegraph.run.folder import check
+
+    out = a_run(tmp_path / "out")
+    with OutputLock(out, "ablate"):
+        with pytest.raises(UsageError, match=r"in use by another lanegraph ablate \(pid"):
+            check(out, run_identity("z" * 64, None, None))
+    check(out, ME)  # released: the same run may go on
+
+
+def test_resume_is_left_to_the_checkpoint(tmp_path):
+    out = a_run(tmp_path / "out")
+    (out / "checkpoint.json").write_text("not json")  # --resume says what is wrong with it
+    assert claim(out, run_identity("z" * 64, None, None), resume=True) == []
 
 
 def test_an_ablation_folder_holds_one_ablation(tmp_path):

@@ -20,10 +20,9 @@ from .test_graph import VALID
 
 
 def test_console_levels():
-    assert console_level() == logging.INFO
+    assert console_level() == logging.INFO and console_level(quiet=1) == logging.INFO  # -q: no bars
     assert console_level(verbose=1) == logging.DEBUG and console_level(verbose=3) == logging.DEBUG
-    assert console_level(quiet=1) == logging.WARNING and console_level(quiet=2) == logging.ERROR
-    assert console_level(verbose=1, quiet=1) == logging.INFO
+    assert console_level(quiet=2) == logging.WARNING and console_level(quiet=3) == logging.ERROR
 
 
 @pytest.mark.parametrize(
@@ -31,7 +30,7 @@ def test_console_levels():
     [
         (0, 0, ["a note", "warning: a doubt", "error: a failure"]),
         (1, 0, ["debug: a detail", "a note", "warning: a doubt", "error: a failure"]),
-        (0, 1, ["warning: a doubt", "error: a failure"]),
+        (0, 2, ["warning: a doubt", "error: a failure"]),
     ],
 )
 def test_console_prints_each_level_as_a_line(capsys, verbose, quiet, shown):
