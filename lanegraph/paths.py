@@ -234,10 +234,14 @@ class OutputLock:
             return
         try:
             fd = os.open(self.path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
-        except FileNotFoundError:
-            return  # no lock file: nobody holds it
-        except OSError as exc:  # a link planted at its name, say: what acquire() would say
-            raise UsageError(f"{self.path}: cannot create the lock file: {exc.strerror or exc}") from None
+        except OSError as exc:
+            try:
+                planted = self.path.is_symlink()
+            except OSError:
+                planted = False
+            if planted:  # a link planted at its name: what acquire() would say
+                raise UsageError(f"{self.path}: cannot create the lock file: {exc.strerror or exc}") from None
+            return  # no lock file (nobody holds it), or no folder: prepare_dir says why
         with os.fdopen(fd, "r", encoding="utf-8", errors="replace") as fh:
             try:
                 fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)

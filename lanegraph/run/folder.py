@@ -4,11 +4,13 @@ run), and a command refuses, before any frame and without touching it, a folder 
 What a folder holds is read from what lanegraph wrote there: the record (``run.json`` of a run,
 ``command.json`` of an ablation or a dataset run) with its ``identity`` (:func:`run_identity`,
 :func:`command_identity`) and the list of what it ``wrote``, and ``checkpoint.json`` (an unfinished
-run, killed before it could write its record). :func:`claim` compares that with the command about
-to run:
+run, killed before it could write its record); a link planted at one of these names is not a
+record. :func:`check` (before anything is written) and :func:`claim` (under the folder's lock)
+compare that with the command about to run:
 
-- an empty folder, or one holding none of lanegraph's files: the run goes on (files of the user's
-  beside are left alone);
+- an empty folder, or one holding no record of lanegraph's: the run goes on (files of the user's
+  beside are left alone); a record of an older lanegraph, without an identity: replaced, with a
+  warning;
 - the same run (same graph and params, input and frames), finished: it is run again into the folder;
 - the same run, unfinished (interrupted, killed, stopped): refused unless ``--resume`` continues it;
 - another run's results (another graph, params, input or frames; another ablation's variants):

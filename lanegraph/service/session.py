@@ -301,9 +301,12 @@ class Session:
                 file=sys.stderr,
             )
 
+            log = get_logger("run")
+
             def tick(index: int, frame: str | None) -> None:
                 bar.update(1)
                 bar.set_postfix_str(str(frame))
+                log.debug("frame %s (#%d) done", frame, index)  # -v: on the terminal and in run.log
 
             return ex.run(on_frame=tick)
         except NotStarted:

@@ -142,7 +142,10 @@ def test_run_log_holds_warnings_and_every_frame_error(pm, monkeypatch, tmp_path)
     assert "run of" not in r.output  # -q: warnings and errors only on the terminal
     assert "1 frame(s) failed" in r.output
     r = CliRunner().invoke(main, ["run", str(g), "--out", str(tmp_path / "v"), "-v"])
-    assert r.exit_code == 0 and (tmp_path / "v" / "run.log").is_file()
+    assert r.exit_code == 0 and "debug: frame 0001 (#1) done" in r.output
+    assert "DEBUG lanegraph.run: frame 0001 (#1) done" in (tmp_path / "v" / "run.log").read_text()
+    r = CliRunner().invoke(main, ["run", str(g), "--out", str(tmp_path / "qq"), "-qq"])
+    assert r.exit_code == 0 and r.output.strip().startswith("4 frame(s) processed")  # no notes, no bar
 
 
 def test_an_ablation_folder_lists_only_its_own_variants(seq, tmp_path):
