@@ -20,7 +20,7 @@ from .. import paths
 from ..errors import InputError
 
 #: the version of the record this lanegraph writes (a record without one is version 0)
-RECORD_VERSION = 1
+RECORD_VERSION = 2  # 2: command, overrides, selection, versions, git, identity, written (issue 30)
 RECORD_NAME = "run.json"
 TIMINGS_NAME = "timings.json"
 
