@@ -6,11 +6,19 @@ For each graph prints, over the selected frames (after one warm-up frame; each f
 best of ``--repeat`` runs, default 3: the machines are shared and the best run is the least
 disturbed one):
 - median ms per node (a run whose source reads each frame before the nodes run: no read-ahead
-  thread decoding beside them);
+  thread decoding beside them, the source's own ``read_ahead`` set to 0);
 - "after disparity": the median per-frame sum of every node downstream of the disparity node;
 - frames/s counting every node but image reading (the source), from the same run;
 - frames/s end to end, image reading included: a second run as ``lanegraph run`` does it (the
-  executor reads the next frame while this one is computed);
+  executor reads the next frame while this one is computed, the source decodes ahead as its
+  ``read_ahead`` says: ``--read-ahead N`` sets it);
+- the graph's compute per frame (the sum of the node medians, every node but ``io.*``: what a
+  run's ``timings.json`` gives) over one plain full-frame ``cv2.StereoSGBM`` call with the disparity
+  node's matching params (number of disparities, block size, uniqueness, penalties, mode), timed
+  in the same process right after the runs (median of ``--sgbm-calls`` calls on the frames' grey
+  pairs): the ratio the speed target is stated in;
+- the load average beside the figures (the machines are shared: a figure taken under load is
+  not an idle machine's);
 - with --cold-start: the wall time of a fresh `lanegraph run --frames 0:1` process, twice (the
   second one must find the numba kernels in the on-disk cache).
 """
@@ -18,12 +26,14 @@ disturbed one):
 from __future__ import annotations
 
 import argparse
+import os
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from lanegraph.graph.validation import load_graph
@@ -43,9 +53,55 @@ def downstream_of(graph, start: str) -> set[str]:
     return out
 
 
-def bench(graph_path: str, drive: Path, frames: str, repeat: int = 3) -> None:
+def load() -> str:
+    """The 1, 5 and 15 minute load averages, as ``uptime`` prints them."""
+    try:
+        return "load average " + ", ".join(f"{x:.2f}" for x in os.getloadavg())
+    except OSError:  # pragma: no cover - not on every platform
+        return "load average unknown"
+
+
+def plain_sgbm_ms(graph, drive: Path, sel: slice, calls: int) -> tuple[float, str]:
+    """Median ms of one plain full-frame ``cv2.StereoSGBM`` call (one call, the whole grey frame,
+    no crop, no strips) with the graph's disparity node's matching params, and a description."""
+    from lanegraph_disparity import SgbmParams
+    from lanegraph_disparity._opencv import _sgbm_matcher
+
+    disp = [nd for nd in graph.nodes.values() if nd.type.family == "disparity"]
+    values = disp[0].params.model_dump() if disp else {}
+    keys = ("num_disparities", "min_disparity", "block_size", "uniqueness_ratio", "mode", "p1", "p2")
+    keys += ("speckle_window_size", "speckle_range", "disp12_max_diff", "prefilter_cap")
+    params = SgbmParams(**{k: values[k] for k in keys if k in values})
+    lefts = sorted((drive / "image_02" / "data").glob("*.png"))[sel][:calls]
+    pairs = []
+    for lp in lefts:
+        rp = lp.parents[2] / "image_03" / "data" / lp.name
+        pairs.append(tuple(cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2GRAY) for p in (lp, rp)))
+    matcher = _sgbm_matcher(params, params.num_disparities, params.min_disparity)
+    matcher.compute(*pairs[0])  # warm-up
+    times = []
+    for left, right in pairs:
+        t0 = time.perf_counter()
+        matcher.compute(left, right)
+        times.append((time.perf_counter() - t0) * 1000.0)
+    what = (
+        f"{params.num_disparities} disparities, block {params.block_size}, uniqueness {params.uniqueness_ratio}, "
+        f"mode {params.mode}"
+    )
+    return float(np.median(times)), what
+
+
+def bench(
+    graph_path: str,
+    drive: Path,
+    frames: str,
+    repeat: int = 3,
+    sgbm_calls: int = 10,
+    read_ahead: int | None = None,
+) -> None:
     a, _, b = frames.partition(":")
     sel = slice(int(a or 0), int(b) if b else None)
+    start_load = load()
     out_dir = Path(tempfile.mkdtemp())
     # warm-up: compile kernels, fill caches
     Executor(load_graph(graph_path), RunContext(input_path=drive, out_dir=out_dir, frames=slice(0, 1))).run()
@@ -69,25 +125,30 @@ def bench(graph_path: str, drive: Path, frames: str, repeat: int = 3) -> None:
     #    (no prefetch thread decoding PNGs beside them on the 2 cores). The machines are shared:
     #    of `repeat` runs the one with the lowest median per-frame time is kept (the least
     #    disturbed one, as timeit's best of N)
-    runs = [
-        Executor(
+    def no_read_ahead() -> Executor:
+        ex = Executor(
             load_graph(graph_path), RunContext(input_path=drive, out_dir=out_dir, frames=sel), prefetch=0
-        ).run()
-        for _ in range(repeat)
-    ]
+        )
+        src_node = ex.graph.source
+        if "read_ahead" in type(src_node.params).model_fields:  # the source decodes no frame ahead either
+            src_node.params = src_node.params.model_copy(update={"read_ahead": 0})
+        return ex
+
+    runs = [no_read_ahead().run() for _ in range(repeat)]
     res = min(runs, key=lambda r: float(np.median(per_frame(r, [i for i in g.nodes if i != src]))))
     # 2. end to end, as `lanegraph run` does it: the next frame is read while this one is
     #    computed; best of `repeat` runs
     walls = []
     for _ in range(repeat):
+        ex = Executor(load_graph(graph_path), RunContext(input_path=drive, out_dir=out_dir, frames=sel))
+        if read_ahead is not None and "read_ahead" in type(ex.graph.source.params).model_fields:
+            ex.graph.source.params = ex.graph.source.params.model_copy(update={"read_ahead": read_ahead})
         t0 = time.perf_counter()
-        e2e = Executor(
-            load_graph(graph_path), RunContext(input_path=drive, out_dir=out_dir, frames=sel)
-        ).run()
+        e2e = ex.run()
         walls.append(time.perf_counter() - t0)
     wall = min(walls)
     n = res.frames
-    print(f"\n== {graph_path}: {n} frames of {drive.name} (best of {repeat} runs)")
+    print(f"\n== {graph_path}: {n} frames of {drive.name} (best of {repeat} runs; {start_load} at the start)")
     for nid in g.order:
         ts = res.timings_ms.get(nid)
         if ts:
@@ -101,7 +162,19 @@ def bench(graph_path: str, drive: Path, frames: str, repeat: int = 3) -> None:
     )
     print(
         f"  end to end, reading included: {e2e.frames / wall:.1f} frames/s ({1000 * wall / e2e.frames:.1f} ms/frame, next frame read ahead)"
+        f"; runs {', '.join(f'{e2e.frames / w:.1f}' for w in walls)}"
     )
+    compute = sum(
+        float(np.median(ts))
+        for nid, ts in res.timings_ms.items()
+        if ts and not g.nodes[nid].type.name.startswith("io.")
+    )
+    sgbm_ms, what = plain_sgbm_ms(g, drive, sel, sgbm_calls)
+    print(
+        f"  graph compute per frame (sum of node medians, io.* left out): {compute:.1f} ms; one plain "
+        f"full-frame cv2.StereoSGBM call ({what}): {sgbm_ms:.1f} ms; ratio {compute / sgbm_ms:.2f}"
+    )
+    print(f"  {load()}")
 
 
 def cold_start(graph_path: str, drive: Path) -> None:
@@ -143,13 +216,22 @@ def main() -> None:
     ap.add_argument("--frames", default="0:54")
     ap.add_argument("--cold-start", action="store_true")
     ap.add_argument(
+        "--read-ahead",
+        type=int,
+        default=None,
+        help="the source's read_ahead in the end-to-end runs (default: the source's own, auto)",
+    )
+    ap.add_argument(
+        "--sgbm-calls", type=int, default=10, help="plain SGBM calls timed for the ratio (default 10)"
+    )
+    ap.add_argument(
         "--repeat", type=int, default=3, help="runs per figure; the best one is reported (default 3)"
     )
     a = ap.parse_args()
     if not a.input.is_dir():
         sys.exit(f"input folder not found: {a.input}")
     for gp in a.graphs:
-        bench(gp, a.input, a.frames, a.repeat)
+        bench(gp, a.input, a.frames, a.repeat, a.sgbm_calls, a.read_ahead)
         if a.cold_start:
             cold_start(gp, a.input)
 

@@ -10,12 +10,16 @@ serve blocks below 32 MiB from its heap and keep up to 256 MiB of freed heap mem
 It changes a process-wide setting, so :class:`lanegraph.run.executor.Executor` applies it once when a
 run starts; ``LANEGRAPH_MALLOC_TUNING=0`` leaves the allocator alone. Elsewhere than glibc (macOS,
 Windows, musl) it does nothing.
+
+:func:`available_cpus` tells the nodes that run work on threads how many CPUs the process may use
+at once (its affinity mask and cgroup CPU quota), instead of assuming the machine's count.
 """
 
 from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import math
 import os
 import sys
 
@@ -47,3 +51,38 @@ def tune_allocator() -> bool:
         mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD)
     )
     return _applied
+
+
+def _cgroup_cpu_limit(root: str = "/sys/fs/cgroup") -> float | None:
+    """The CPU quota of the process's cgroup in CPUs (cgroup v2 ``cpu.max``, or v1
+    ``cpu.cfs_quota_us`` / ``cpu.cfs_period_us``); None when there is none or it cannot be read."""
+    try:
+        with open(os.path.join(root, "cpu.max")) as fh:
+            quota, _, period = fh.read().strip().partition(" ")
+        if quota != "max":
+            return int(quota) / int(period or 100000)
+        return None
+    except (OSError, ValueError):
+        pass
+    try:
+        with open(os.path.join(root, "cpu", "cpu.cfs_quota_us")) as fh:
+            quota_us = int(fh.read().strip())
+        with open(os.path.join(root, "cpu", "cpu.cfs_period_us")) as fh:
+            period_us = int(fh.read().strip())
+    except (OSError, ValueError):
+        return None
+    return quota_us / period_us if quota_us > 0 and period_us > 0 else None
+
+
+def available_cpus(root: str = "/sys/fs/cgroup") -> int:
+    """How many CPUs this process may run on at once: the CPUs of its affinity mask
+    (``sched_getaffinity``; ``os.cpu_count()`` where there is none), capped by its cgroup's CPU
+    quota rounded up (a quota of 1.5 CPUs lets two threads make progress). At least 1."""
+    try:
+        n = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        n = os.cpu_count() or 1
+    limit = _cgroup_cpu_limit(root)
+    if limit is not None and limit > 0:
+        n = min(n, max(1, math.ceil(limit - 1e-9)))
+    return max(1, n)

@@ -118,6 +118,20 @@ class NodeError(LanegraphError):
         )
 
 
+class HookError(LanegraphError):
+    """A plugin's hook implementation raised (any ``BaseException`` but the user's interruption:
+    ``SystemExit`` and ``KeyboardInterrupt`` included) or returned what its hook does not allow.
+
+    ``plugin``, ``hook``: whose and which; ``cause``: what it raised, or None for a wrong return
+    value. Exit code 1: a failure while running, as a node's."""
+
+    def __init__(self, plugin: str, hook: str, message: str, cause: BaseException | None = None):
+        self.plugin = plugin
+        self.hook = hook
+        self.cause = cause
+        super().__init__(f"plugin {plugin!r}: hook {hook}: {message}")
+
+
 class NotStarted(LanegraphError):
     """A run that could not start: its input, checkpoint or output folder is unusable before any
     frame ran (exit 2, like a bad ``--input``). Says what ``cause`` says."""

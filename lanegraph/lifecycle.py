@@ -32,6 +32,8 @@ Capabilities around the life cycle, each its own protocol:
     content key for the result cache.
 :class:`Sink`
     ``outputs``: the files it wrote (printed at the end of ``lanegraph run``).
+:class:`Verified`
+    ``verify()`` after the last frame: raises when its output on disk is no longer the one it wrote.
 
 Declarations made on the class itself, read before anything is instantiated (static methods; see
 :mod:`lanegraph.nodes`): ``select_source(params, input_path, detect)`` (a source that stands for
@@ -104,6 +106,15 @@ class SkipsFrames(Protocol):
 
 
 @runtime_checkable
+class Verified(Protocol):
+    """A node that can tell, after the last frame and before close, whether its outputs on disk
+    are still those it wrote (``verify()`` raises when not: the lanes file was replaced during the
+    run)."""
+
+    def verify(self) -> None: ...
+
+
+@runtime_checkable
 class KeyedFrames(Protocol):
     """A source that names each frame's content for the result cache (``None``: not cacheable)."""
 
@@ -173,3 +184,19 @@ def close_all(instances: Iterable[Any]) -> BaseException | None:
         except Exception as exc:  # noqa: BLE001 - the others are still closed
             first = first or exc
     return first
+
+
+def verify_all(instances: dict[str, Any], graph: Any) -> None:
+    """After the last frame: every :class:`Verified` node checks its outputs on disk; one that is
+    no longer what it wrote raises (a :class:`~lanegraph.errors.LanegraphError`, exit 1; anything
+    else it raises becomes a :class:`~lanegraph.errors.NodeError` naming it)."""
+    from .errors import LanegraphError, NodeError
+
+    for nid, inst in instances.items():
+        if isinstance(inst, Verified):
+            try:
+                inst.verify()
+            except LanegraphError:
+                raise
+            except Exception as exc:  # noqa: BLE001 - located
+                raise NodeError(nid, graph.nodes[nid].type.name, None, exc) from exc

@@ -177,22 +177,53 @@ def prepare_dir(path: Path, what: str) -> Path:
 
 
 class OutputLock:
-    """An exclusive lock on an output folder (``DIR/.lanegraph.lock``, ``flock``), held for one run.
+    """An exclusive lock on an output folder, held for one run (or ablation).
 
-    A second run into the same folder gets a :class:`UsageError` saying which process holds it. The
-    lock dies with its process (a killed run leaves no stale lock); the file stays in place.
+    The lock is an advisory ``flock`` held on the folder itself (an open descriptor of the
+    directory), so it does not depend on any file name staying in place: deleting or replacing
+    ``DIR/.lanegraph.lock`` (or any other file) does not let a second run in. The lock file is
+    only where the holder says who it is (pid, command, start), and is locked too, for runs of an
+    older lanegraph that lock only it; it stays after the run and is harmless to leave or delete.
+    Where a file system cannot lock a directory (some network file systems), the lock file alone
+    is locked. A second run into the folder gets a :class:`UsageError` saying which process holds
+    it. The lock dies with its process: a killed run leaves no stale lock.
     """
 
     def __init__(self, folder: Path, command: str = "run"):
-        self.path = folder / LOCK_NAME
+        self.folder = Path(folder)
+        self.path = self.folder / LOCK_NAME
         self.command = command
         self._fh: Any = None
+        self._dir_fd: int | None = None
 
     def acquire(self) -> OutputLock:
         try:
             import fcntl
         except ImportError:  # pragma: no cover - not a POSIX system: no lock
             return self
+        try:
+            self._lock_folder(fcntl)
+            self._lock_file(fcntl)
+        except BaseException:
+            self.release()
+            raise
+        return self
+
+    def _lock_folder(self, fcntl: Any) -> None:
+        try:
+            fd = os.open(self.folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+        except OSError as exc:
+            raise UsageError(f"{self.folder}: cannot open the output folder: {exc.strerror or exc}") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            os.close(fd)
+            if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                raise self._busy() from None
+            return  # a file system that cannot lock a folder: the lock file alone
+        self._dir_fd = fd
+
+    def _lock_file(self, fcntl: Any) -> None:
         try:  # never through a link planted at the lock's name (it would be truncated)
             fd = os.open(self.path, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), _FILE_MODE)
             fh = os.fdopen(fd, "r+", encoding="utf-8")
@@ -201,18 +232,12 @@ class OutputLock:
         try:
             fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as exc:
+            fh.close()
             if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
-                fh.close()
                 raise UsageError(
                     f"{self.path}: cannot lock the output folder: {exc.strerror or exc}"
                 ) from None
-            fh.seek(0)
-            holder = _holder(fh.read(4096))
-            fh.close()
-            raise UsageError(
-                f"{self.path.parent}: in use by another lanegraph {holder}; "
-                "wait for it to finish or choose another output folder"
-            ) from None
+            raise self._busy() from None
         fh.seek(0)
         fh.truncate()
         fh.write(
@@ -223,7 +248,19 @@ class OutputLock:
         )
         fh.flush()
         self._fh = fh
-        return self
+
+    def _busy(self) -> UsageError:
+        """The error for a folder another run holds, naming it from the lock file (if still there)."""
+        try:
+            fd = os.open(self.path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
+            with os.fdopen(fd, "r", encoding="utf-8", errors="replace") as fh:
+                holder = _holder(fh.read(4096))
+        except OSError:
+            holder = "run (holder unknown: its lock file was removed)"
+        return UsageError(
+            f"{self.folder}: in use by another lanegraph {holder}; "
+            "wait for it to finish or choose another output folder"
+        )
 
     def probe(self) -> None:
         """Raise the :class:`UsageError` of :meth:`acquire` when another process holds the lock,
@@ -258,6 +295,9 @@ class OutputLock:
         if self._fh is not None:
             self._fh.close()  # closing releases the flock
             self._fh = None
+        if self._dir_fd is not None:
+            os.close(self._dir_fd)
+            self._dir_fd = None
 
     def __enter__(self) -> OutputLock:
         return self.acquire()

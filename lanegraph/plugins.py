@@ -16,6 +16,7 @@ Environment variables
 
 from __future__ import annotations
 
+import contextlib
 import inspect
 import os
 import re
@@ -26,8 +27,8 @@ from typing import Any
 
 import pluggy
 
-from . import hookspecs
-from .errors import did_you_mean
+from . import hookspecs, interrupts
+from .errors import HookError, did_you_mean
 from .nodes import NodeType, node_type_of
 from .types import PortType
 
@@ -157,25 +158,27 @@ class PluginManager(pluggy.PluginManager):
             return ep.dist.name if ep.dist is not None else "?"
 
         eps = metadata.entry_points(group=group)
-        for ep in sorted(eps, key=lambda e: (dist_of(e) != BUILTIN_DISTRIBUTION, e.name)):
-            dist = dist_of(ep)
-            builtin = dist == BUILTIN_DISTRIBUTION
-            if not builtin and (no_autoload or (allow and ep.name not in allow and dist not in allow)):
-                continue
-            if self.get_plugin(ep.name) is not None or self.is_blocked(ep.name):
-                continue
-            self._dists[ep.name] = dist
-            try:
-                plugin = ep.load()
-                self.register(plugin, name=ep.name)
-            except Exception as exc:  # a broken plugin must not crash the host
-                error = " ".join(f"{type(exc).__name__}: {exc}".split())  # pluggy's messages span lines
-                hint = (
-                    f"run `python -c 'import {ep.name}'` to see the full traceback, or set "
-                    "LANEGRAPH_PLUGINS to load only the plugins you need"
-                )
-                self._reject(ep.name, f"failed to load: {error}", hint)
-        self.node_types  # noqa: B018 - build the registries now: their errors are discovery's
+        # a plugin's prints go to stderr (stdout may be a command's JSON); a real Ctrl-C still stops
+        # the command, a plugin's own SystemExit or KeyboardInterrupt only unloads that plugin
+        with interrupts.handling(("SIGINT",)), contextlib.redirect_stdout(sys.stderr):
+            for ep in sorted(eps, key=lambda e: (dist_of(e) != BUILTIN_DISTRIBUTION, e.name)):
+                dist = dist_of(ep)
+                builtin = dist == BUILTIN_DISTRIBUTION
+                if not builtin and (no_autoload or (allow and ep.name not in allow and dist not in allow)):
+                    continue
+                if self.get_plugin(ep.name) is not None or self.is_blocked(ep.name):
+                    continue
+                self._dists[ep.name] = dist
+                try:
+                    plugin = ep.load()
+                    self.register(plugin, name=ep.name)
+                except BaseException as exc:  # a broken plugin must not crash (or end) the host
+                    if interrupts.is_interruption(exc):
+                        raise
+                    if self.get_plugin(ep.name) is not None:
+                        super().unregister(name=ep.name)
+                    self._reject(ep.name, f"failed to load: {_describe(exc)}", _load_hint(ep.name))
+            self.node_types  # noqa: B018 - build the registries now: their errors are discovery's
 
     # -- registries -------------------------------------------------------------
     @property
@@ -195,7 +198,12 @@ class PluginManager(pluggy.PluginManager):
 
     def _build(self) -> None:
         """Collect the registries; a plugin whose registration hooks raise or clash is unregistered
-        (and recorded), then the registries are collected again without it."""
+        (and recorded), then the registries are collected again without it. What the hooks print
+        goes to stderr."""
+        with contextlib.redirect_stdout(sys.stderr):
+            self._build_registries()
+
+    def _build_registries(self) -> None:
         while True:
             ports, port_bad = self._collect_port_types()
             nodes, node_bad = self._collect_node_types(port_bad)
@@ -228,8 +236,10 @@ class PluginManager(pluggy.PluginManager):
         for impl in self.hook.lanegraph_port_types.get_hookimpls():
             try:
                 provided = self._provided(impl)
-            except Exception as exc:  # noqa: BLE001 - a plugin's bug: reported, the host goes on
-                bad[impl.plugin] = (f"its lanegraph_port_types hook raised {type(exc).__name__}: {exc}", ())
+            except BaseException as exc:  # a plugin's bug (sys.exit included): reported, the host goes on
+                if interrupts.is_interruption(exc):
+                    raise
+                bad[impl.plugin] = (f"its lanegraph_port_types hook raised {_describe(exc)}", ())
                 continue
             for pt in provided:
                 if not isinstance(pt, PortType) or not (
@@ -273,8 +283,10 @@ class PluginManager(pluggy.PluginManager):
             pname = self.get_name(impl.plugin) or "?"
             try:
                 provided = self._provided(impl)
-            except Exception as exc:  # noqa: BLE001 - a plugin's bug: reported, the host goes on
-                bad[impl.plugin] = (f"its lanegraph_node_types hook raised {type(exc).__name__}: {exc}", ())
+            except BaseException as exc:  # a plugin's bug (sys.exit included): reported, the host goes on
+                if interrupts.is_interruption(exc):
+                    raise
+                bad[impl.plugin] = (f"its lanegraph_node_types hook raised {_describe(exc)}", ())
                 continue
             records = [node_type_of(item) for item in provided]
             wrong = next((item for item, nt in zip(provided, records) if nt is None), None)
@@ -317,6 +329,135 @@ class PluginManager(pluggy.PluginManager):
             names = ", ".join(repr(e.plugin) for e in self.plugin_errors)
             return f"plugin(s) {names} could not be loaded (see the warnings): one may provide it"
         return None
+
+
+def _describe(exc: BaseException) -> str:
+    """``Type: message`` on one line (pluggy's messages span lines; ``SystemExit(0)`` says so)."""
+    if isinstance(exc, SystemExit):
+        return f"SystemExit: it called sys.exit({exc.code!r})"
+    text = " ".join(f"{type(exc).__name__}: {exc}".split()).removesuffix(":")
+    return text[:300]
+
+
+def _load_hint(name: str) -> str:
+    return (
+        f"run `python -c 'import {name}'` to see the full traceback, or set "
+        "LANEGRAPH_PLUGINS to load only the plugins you need"
+    )
+
+
+# --------------------------------------------------------------------------- guarded hook calls
+def _is_image(value: Any) -> bool:
+    import numpy as np
+
+    return isinstance(value, np.ndarray) and value.ndim in (2, 3) and value.size > 0
+
+
+def _is_calibration(value: Any) -> bool:
+    from .types import Calibration
+
+    return isinstance(value, Calibration)
+
+
+#: what each hook may return besides None: (check, what the error says was expected); the
+#: results of the other hooks are not used
+HOOK_RESULTS: dict[str, tuple[Any, str]] = {
+    "lanegraph_render": (_is_image, "an image (an HxW or HxWx3 array) or None"),
+    "lanegraph_detect_source": (lambda v: isinstance(v, str), "a source node type name (str) or None"),
+    "lanegraph_read_calibration": (_is_calibration, "a lanegraph.types.Calibration or None"),
+    "lanegraph_runners": (
+        lambda v: isinstance(v, (list, tuple)) and all(isinstance(t, type) for t in v),
+        "a list of runner classes",
+    ),
+}
+
+
+def call_hook(pm: pluggy.PluginManager, name: str, /, **kwargs: Any) -> Any:
+    """Call hook ``name`` as pluggy would (the same implementations in the same order; the first
+    result for a ``firstresult`` hook, else the list of results), with every implementation
+    guarded: one that raises -- ``SystemExit``, ``KeyboardInterrupt`` and any ``BaseException``
+    included -- or returns what the hook does not allow (:data:`HOOK_RESULTS`) is a
+    :class:`~lanegraph.errors.HookError` naming the plugin and the hook. The user's interruption
+    (:func:`lanegraph.interrupts.is_interruption`) and a :class:`HookError` raised by a nested call
+    pass through unchanged."""
+    hook = getattr(pm.hook, name)
+    impls = hook.get_hookimpls()
+    firstresult = bool(hook.spec is not None and hook.spec.opts.get("firstresult"))
+    check = HOOK_RESULTS.get(name)
+    if any(impl.hookwrapper or impl.wrapper for impl in impls):
+        return _call_wrapped(pm, hook, name, impls, firstresult, check, kwargs)
+    exec_ = getattr(pm, "_hookexec", None)  # pluggy's own call path: tracing and monitoring stay
+    results = []
+    for impl in reversed(impls):
+        try:
+            if exec_ is not None:
+                out = exec_(name, [impl], kwargs, False)
+                res = out[0] if out else None
+            else:  # pragma: no cover - a pluggy without _hookexec
+                res = impl.function(*(kwargs[a] for a in impl.argnames))
+        except HookError:
+            raise
+        except BaseException as exc:
+            if interrupts.is_interruption(exc):
+                raise
+            raise HookError(_plugin_name(pm, impl.plugin), name, f"raised {_describe(exc)}", exc) from exc
+        if res is None:
+            continue
+        if check is not None and not check[0](res):
+            raise HookError(
+                _plugin_name(pm, impl.plugin),
+                name,
+                f"returned {type(res).__name__} {str(res)[:40]!r}, expected {check[1]}",
+            )
+        if firstresult:
+            return res
+        results.append(res)
+    return None if firstresult else results
+
+
+def _call_wrapped(
+    pm: pluggy.PluginManager,
+    hook: Any,
+    name: str,
+    impls: list[Any],
+    firstresult: bool,
+    check: tuple[Any, str] | None,
+    kwargs: dict[str, Any],
+) -> Any:
+    """:func:`call_hook` when a plugin wraps the hook (a hookwrapper must wrap the whole call): the
+    raising plugin is found in the traceback."""
+    try:
+        out = hook(**kwargs)
+    except HookError:
+        raise
+    except BaseException as exc:
+        if interrupts.is_interruption(exc):
+            raise
+        codes = {getattr(impl.function, "__code__", None): impl.plugin for impl in impls}
+        culprit = None
+        tb = exc.__traceback__
+        while tb is not None:
+            culprit = codes.get(tb.tb_frame.f_code, culprit)
+            tb = tb.tb_next
+        raise HookError(_plugin_name(pm, culprit), name, f"raised {_describe(exc)}", exc) from exc
+    values = [out] if firstresult else list(out or [])
+    for res in values:
+        if res is not None and check is not None and not check[0](res):
+            raise HookError(
+                "?", name, f"returned {type(res).__name__} {str(res)[:40]!r}, expected {check[1]}"
+            )
+    return out
+
+
+def _plugin_name(pm: pluggy.PluginManager, plugin: Any) -> str:
+    """The name a plugin was registered under; for one registered without a name (pluggy names it
+    by its id), its module's or class's name."""
+    if plugin is None:
+        return "?"
+    name = pm.get_name(plugin)
+    if name and not name.isdigit():
+        return name
+    return getattr(plugin, "__name__", None) or type(plugin).__name__
 
 
 _default: PluginManager | None = None

@@ -102,14 +102,19 @@ def make_stereo_pair(
     height: int = 60, width: int = 96, disparity: int = 6, seed: int = 0
 ) -> tuple[np.ndarray, np.ndarray, Calibration]:
     """A random-texture rectified pair whose true disparity is ``disparity`` px everywhere
-    (except the ``disparity`` leftmost columns), and a matching calibration."""
+    (except the ``disparity`` leftmost columns, which the right camera does not see), and a
+    matching calibration.
+
+    Disparity is positive as in every rectified pair: the pixel ``(row, x)`` of the left image is
+    the pixel ``(row, x - disparity)`` of the right one (``left[:, d:] == right[:, :-d]``), so a
+    block matcher such as ``cv2.StereoSGBM`` finds ``+disparity``."""
     rng = np.random.default_rng(seed)
     base = rng.integers(0, 256, (height, width + disparity), dtype=np.uint8)
     import cv2
 
     base = cv2.GaussianBlur(base, (3, 3), 0)
-    left = base[:, disparity:].copy()
-    right = base[:, :width].copy()
+    left = base[:, :width].copy()
+    right = base[:, disparity:].copy()
     calib = Calibration(f=width * 0.8, cx=width / 2, cy=height / 2, baseline=0.5, width=width, height=height)
     return left, right, calib
 

@@ -24,6 +24,7 @@ import json
 import os
 import pickle
 import shutil
+import signal
 from pathlib import Path
 
 import cv2
@@ -71,7 +72,9 @@ def _interrupted_run(cli, out: Path, installed_pm, at: int = 2, graph: str = DEM
         @hookimpl
         def lanegraph_before_node(self, node_id, frame):
             if node_id == "write" and frame is not None and int(frame) == at:
-                raise KeyboardInterrupt
+                os.kill(
+                    os.getpid(), signal.SIGINT
+                )  # Ctrl-C (a plugin raising KeyboardInterrupt is its own failure)
 
     installed_pm.register(CtrlC(), name="ctrl-c")
     try:
@@ -104,7 +107,7 @@ def test_a_crafted_pickle_in_out_never_runs(cli, tmp_path, installed_pm):
     [
         ("[]", ["expected a JSON object", "got list"]),
         ("{}", ["format: expected 'lanegraph-checkpoint'"]),
-        ('{"format": "lanegraph-checkpoint", "version": 7}', ["version: expected 1, got 7"]),
+        ('{"format": "lanegraph-checkpoint", "version": 7}', ["version: expected 2, got 7"]),
         ("not json at all", ["not a valid JSON checkpoint", "line 1"]),
         ("[" * 100000, ["not a valid JSON checkpoint"]),
         (b"\xff\xfe\x00garbage", ["cannot read the checkpoint"]),
@@ -124,7 +127,8 @@ def test_a_malformed_checkpoint_is_refused_and_located(cli, tmp_path, content, w
     assert lines(out / "lanes.jsonl") == ['{"frame":"x","lanes":[]}'], "nothing already written is lost"
 
 
-def _mutate(ckpt: dict, how: str) -> dict:
+def _mutate(ckpt: dict, how: str, i: int = 0) -> dict:
+    """``ckpt`` broken as ``how`` says; ``i``: the feedback entry that carries lanes."""
     if how == "position":
         ckpt["position"] = -3
     elif how == "missing key":
@@ -132,20 +136,20 @@ def _mutate(ckpt: dict, how: str) -> dict:
     elif how == "unknown key":
         ckpt["exec"] = "os.system('x')"
     elif how == "unknown value type":
-        ckpt["feedback"][0]["value"] = {"$t": "os.system", "v": {}}
+        ckpt["feedback"][i]["value"] = {"$t": "os.system", "v": {}}
     elif how == "object array":
-        ckpt["feedback"][0]["value"] = {"$t": "ndarray", "dtype": "|O", "shape": [1], "data": "AA=="}
+        ckpt["feedback"][i]["value"] = {"$t": "ndarray", "dtype": "|O", "shape": [1], "data": "AA=="}
     elif how == "array of the wrong size":
-        ckpt["feedback"][0]["value"] = {
+        ckpt["feedback"][i]["value"] = {
             "$t": "ndarray",
             "dtype": "<f4",
             "shape": [10**6, 10**6],
             "data": "AAAAAA==",
         }
     elif how == "a lane with another field":
-        ckpt["feedback"][0]["value"] = [{"$t": "Lane", "v": {"coeffs": [1, 2, 3], "__class__": "x"}}]
+        ckpt["feedback"][i]["value"] = [{"$t": "Lane", "v": {"coeffs": [1, 2, 3], "__class__": "x"}}]
     elif how == "feedback from another node":
-        ckpt["feedback"][0]["node"] = "disp"
+        ckpt["feedback"][i]["node"] = "disp"
     elif how == "failures not a list":
         ckpt["failures"] = {"frame": 1}
     elif how == "position beyond total":
@@ -177,8 +181,11 @@ def test_a_tampered_checkpoint_is_refused(cli, tmp_path, installed_pm, how, word
     before = (out / "lanes.jsonl").read_bytes()
     path = out / "checkpoint.json"
     ckpt = json.loads(path.read_text())
-    assert [(f["node"], f["port"]) for f in ckpt["feedback"]] == [("verify", "lanes")]
-    path.write_text(json.dumps(_mutate(ckpt, how)))
+    edges = [(f["node"], f["port"]) for f in ckpt["feedback"]]
+    assert edges == [("road", "road"), ("verify", "lanes")]  # the disparity's road profile, the lanes
+    i = edges.index(("verify", "lanes"))
+    words = [w.replace("feedback[0]", f"feedback[{i}]") for w in words]
+    path.write_text(json.dumps(_mutate(ckpt, how, i)))
     code, output = cli(
         "run", PAPER, "--out", out, "--quiet", *SYNTH, "--set", "disp.num_disparities=32", "--resume"
     )
@@ -373,7 +380,9 @@ def test_resume_with_another_input_or_deleted_lanes_is_refused(cli, tmp_path, in
         @hookimpl
         def lanegraph_after_node(self, node_id, frame):
             if node_id == "write" and frame == "000001":
-                raise KeyboardInterrupt
+                os.kill(
+                    os.getpid(), signal.SIGINT
+                )  # Ctrl-C (a plugin raising KeyboardInterrupt is its own failure)
 
     installed_pm.register(CtrlC(), name="ctrl-c")
     try:
@@ -434,7 +443,9 @@ def test_failures_accumulate_over_resumes(cli, tmp_path, installed_pm):
         @hookimpl
         def lanegraph_after_node(self, node_id, frame):
             if node_id == "write" and frame == "000003":
-                raise KeyboardInterrupt
+                os.kill(
+                    os.getpid(), signal.SIGINT
+                )  # Ctrl-C (a plugin raising KeyboardInterrupt is its own failure)
 
     installed_pm.register(CtrlC(), name="ctrl-c")
     try:
@@ -962,7 +973,9 @@ def test_ablate_interrupted_keeps_the_finished_variants(cli, tmp_path, installed
         @hookimpl
         def lanegraph_before_node(self, node_id, node_type, frame):
             if node_type == "disparity.sgbm" and frame == "000001" and CtrlC.armed:
-                raise KeyboardInterrupt
+                os.kill(
+                    os.getpid(), signal.SIGINT
+                )  # Ctrl-C (a plugin raising KeyboardInterrupt is its own failure)
 
     CtrlC.armed = False
     runs = {"n": 0}

@@ -37,7 +37,7 @@ def test_paper_graph_on_kitti_reaches_the_target(kitti_drive, tmp_path):
             assert all(abs(a - b) <= 10 for a, b in zip(ys, ys[1:]))
             assert all(0 <= p[0] < 1242 and 0 <= p[1] < 375 for p in lane["points"])
     t = json.loads((tmp_path / "timings.json").read_text())
-    assert t["nodes"]["disp"]["type"] == "disparity.sgbm" and t["frames"] == 54
+    assert t["nodes"]["disp"]["type"] == "disparity.road_sgbm" and t["frames"] == 54
 
 
 @pytest.mark.kitti

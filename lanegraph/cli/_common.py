@@ -10,6 +10,23 @@ from ..errors import UsageError
 from ..service import Session
 
 
+class FolderPath(click.Path):
+    """``click.Path`` for a folder option: an empty value (``--out ""``, which would have meant the
+    current folder) is refused, naming the option."""
+
+    def __init__(self) -> None:
+        super().__init__(path_type=Path)
+
+    def convert(self, value, param, ctx):  # noqa: ANN001, D102 - click's signature
+        if isinstance(value, str) and not value.strip():
+            self.fail(f"expected a folder, got {value!r} (for the current folder, give '.')", param, ctx)
+        return super().convert(value, param, ctx)
+
+
+#: the type of ``--out`` and ``--debug-dir``
+FOLDER = FolderPath()
+
+
 def session(
     quiet: int = 0, verbose: int = 0, overwrite: bool = False, track: str | None = None, warn: bool = True
 ) -> Session:
@@ -43,7 +60,7 @@ def keeping_options(command):
             "-q",
             "--quiet",
             count=True,
-            help="no progress bar and no notes: warnings and errors only (-qq: errors only)",
+            help="no progress bar (-qq: warnings and errors only, -qqq: errors only)",
         ),
         click.option(
             "--overwrite",

@@ -2,7 +2,8 @@
 
 Every command is wrapped by :func:`handled`: the run service and the loaders raise typed errors
 (:class:`~lanegraph.errors.LanegraphError` and its kinds, each with its ``exit_code``: 2 for a graph,
-usage or an input unusable before anything ran, 1 for a failure while running, 130 for Ctrl-C),
+usage or an input unusable before anything ran, 1 for a failure while running, 130 for Ctrl-C,
+143 for SIGTERM, 129 for SIGHUP),
 and the command prints ``error: ...`` on stderr and exits with that code -- never a traceback. A
 command returns its status (0, 1 when frames or runs failed) and exits with it.
 
@@ -19,6 +20,7 @@ from typing import Any
 
 import click
 
+from .. import interrupts
 from ..errors import GraphError, InputError, LanegraphError, UsageError
 
 
@@ -42,10 +44,16 @@ def handled(
         @functools.wraps(command)
         def run(*args: Any, **kwargs: Any) -> None:
             try:
-                status = command(*args, **kwargs)
+                # Ctrl-C, SIGTERM and SIGHUP raise lanegraph.interrupts.Interrupted while it runs
+                with interrupts.handling():
+                    status = command(*args, **kwargs)
             except LanegraphError as exc:
                 click.echo(f"error: {exc}", err=True)
                 sys.exit(exit_code(exc, input_exit, every_exit))
+            except KeyboardInterrupt as exc:  # stopped outside a run (which says more itself)
+                label, code = interrupts.label_and_code(exc)
+                click.echo(f"error: interrupted ({label})", err=True)
+                sys.exit(code)
             if status is not None:
                 sys.exit(status)
 

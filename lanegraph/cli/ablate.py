@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from ._common import dataset_option, keeping_options, parse_frames, scale_out_options, session
+from ._common import FOLDER, dataset_option, keeping_options, parse_frames, scale_out_options, session
 from ._errors import handled
 
 
@@ -35,9 +35,7 @@ from ._errors import handled
     metavar="NODE.PARAM=V1,V2,...",
     help="also run BASE once per value (repeatable)",
 )
-@click.option(
-    "--out", "out_dir", type=click.Path(path_type=Path), default=Path("out/ablation"), show_default=True
-)
+@click.option("--out", "out_dir", type=FOLDER, default=Path("out/ablation"), show_default=True)
 @click.option(
     "--frames", help="frame selection A:B or A:B:S (for every sequence that does not choose its own)"
 )

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from ._common import parse_frames, session
+from ._common import FOLDER, parse_frames, session
 from ._errors import handled
 
 
@@ -42,12 +42,10 @@ from ._errors import handled
 )
 @click.option(
     "--debug-dir",
-    type=click.Path(path_type=Path),
+    type=FOLDER,
     help="the run's --debug-dir (default: one found inside RUN_DIR)",
 )
-@click.option(
-    "--out", "out_dir", type=click.Path(path_type=Path), help="report folder  [default: RUN_DIR/report]"
-)
+@click.option("--out", "out_dir", type=FOLDER, help="report folder  [default: RUN_DIR/report]")
 @click.option("--open", "open_browser", is_flag=True, help="open the report in the web browser")
 @click.option("--quiet", is_flag=True, help="no progress messages")
 @handled(input_exit=2)  # a folder, option or file that does not fit: 2; failing to write: 1

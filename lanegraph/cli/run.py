@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from ..errors import UsageError
-from ._common import keeping_options, parse_frames, scale_out_options, session
+from ._common import FOLDER, keeping_options, parse_frames, scale_out_options, session
 from ._errors import handled
 
 
@@ -22,7 +22,7 @@ from ._errors import handled
 @click.option(
     "--out",
     "out_dir",
-    type=click.Path(path_type=Path),
+    type=FOLDER,
     default=Path("out"),
     show_default=True,
     help="output folder (one run at a time: it is locked while a run writes it)",
@@ -40,7 +40,7 @@ from ._errors import handled
 )
 @click.option(
     "--debug-dir",
-    type=click.Path(path_type=Path),
+    type=FOLDER,
     help="save every node's output of the chosen frames as pictures, and a mosaic",
 )
 @click.option("--debug-frames", help="frames for --debug-dir: ids or indices, comma-separated (default: all)")

@@ -23,11 +23,13 @@ from __future__ import annotations
 
 import csv
 import io
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ..errors import UsageError
 from ..graph.files import ResolvedGraph
 from ..paths import inside, safe_name, write_text_atomic
 from ..plugins import get_plugin_manager
@@ -103,6 +105,7 @@ def run_ablation(
     this process one after another, or on another ``runner`` (a Dask cluster, :mod:`lanegraph.run.runners`), with the same outputs;
     ``chunk_frames`` / ``warmup`` split sequences into chunks.
     """
+    distinct_folders(variants)
     out_dir.mkdir(parents=True, exist_ok=True)
     pm = get_plugin_manager()
     seq_frames = {s.name: s.frames if s.frames is not None else frames for s in dataset}
@@ -145,6 +148,8 @@ def run_ablation(
     _done: dict[int, Any] = {}
     try:
         runner = runner if runner is not None else InProcessRunner(cache)
+        for w in planner.warnings:  # said before anything runs (and in each run.json)
+            print(f"warning: {w}", file=sys.stderr) if echo is None else echo(f"warning: {w}")
         outcomes = runner.run(planner.tasks, progress=progress, echo=echo, done=_done)
     except KeyboardInterrupt:
         finish_runs(every, _done, partial=True)
@@ -261,6 +266,30 @@ def _pooled_row(
     row["reused"] = all(r["reused"] for r in var_rows)
     row["cache_hits"] = sum(r["cache_hits"] for r in var_rows)
     return row
+
+
+def distinct_folders(variants: list[Variant]) -> None:
+    """Give every variant a folder of its own (``runs/<variant>/``): a variant given twice (the
+    same graph file and ``--set``) is refused (:class:`UsageError`); two different variants whose
+    names (or folder names) are equal get ``-2``, ``-3`` ... after the name of the later one, so
+    that no run overwrites another's and no two rows are one run's."""
+    seen: dict[tuple[str, tuple[str, ...]], str] = {}
+    folders: set[str] = set()
+    for var in variants:
+        ident = (str(Path(var.graph).resolve()), tuple(var.sets))
+        if ident in seen:
+            sets = f" with --set {' '.join(var.sets)}" if var.sets else ""
+            raise UsageError(
+                f"variant {var.name!r} ({var.graph}{sets}) is given twice (first as {seen[ident]!r}): "
+                "one run of it is enough"
+            )
+        name, k = var.name, 1
+        while _safe(name).lower() in folders:  # case-insensitive file systems too
+            k += 1
+            name = f"{var.name}-{k}"
+        var.name = name
+        seen[ident] = name
+        folders.add(_safe(name).lower())
 
 
 def _safe(name: str) -> str:

@@ -43,6 +43,8 @@ from .loader import read_graph_file
 
 #: a node's error policy: ``fail`` stops the run, ``skip`` drops the frame, ``empty`` passes None on
 ON_ERROR_CHOICES = ("fail", "skip", "empty")
+#: the most graph files one ``extends`` chain may hold (the graph itself included)
+MAX_EXTENDS = 32
 OnError = Annotated[str, StringConstraints(pattern=f"^({'|'.join(ON_ERROR_CHOICES)})$")]
 
 _REF = re.compile(r"^(?P<node>[A-Za-z_][\w-]*)\.(?P<port>[A-Za-z_]\w*)(?P<prev>@prev)?$")
@@ -149,6 +151,18 @@ class Graph:
     def source(self) -> GraphNode:
         return next(n for n in self.nodes.values() if n.type.source)
 
+    def carried_state(self) -> str | None:
+        """What outlives a frame, as text: the feedback edges (``node.port@prev``) and the stateful
+        nodes other than the source and the sinks; None when nothing does (a chunked run of such a
+        graph may differ from a whole run: :mod:`lanegraph.run.batch` says so)."""
+        feedback = sorted({f"{e.src_node}.{e.src_port}@prev" for e in self.edges if e.previous})
+        stateful = sorted(
+            nid for nid, n in self.nodes.items() if n.type.stateful and not n.type.source and not n.type.sink
+        )
+        parts = [f"feedback edge(s) {', '.join(feedback)}"] if feedback else []
+        parts += [f"stateful node(s) {', '.join(stateful)}"] if stateful else []
+        return "; ".join(parts) or None
+
     def resolved_dict(self) -> dict[str, Any]:
         """The graph after extends/overrides, as a plain dict with every param spelt out."""
         nodes: dict[str, Any] = {}
@@ -253,6 +267,13 @@ def _base_file(
         raise problem(f"invalid path {_short(ext)}: {exc}") from None
     if base_path in chain or base_path == path.resolve():
         raise problem("extends cycle: " + " -> ".join(str(p) for p in (*chain, path.resolve(), base_path)))
+    if len(chain) + 1 >= MAX_EXTENDS:
+        files = [*chain, path.resolve(), base_path]
+        shown = [*map(str, files[:2]), "...", *map(str, files[-2:])]
+        raise problem(
+            f"an extends chain of more than {MAX_EXTENDS} files ({' -> '.join(shown)}): "
+            "extend a graph that extends fewer"
+        )
     if roots is not None and not any(base_path.is_relative_to(r) for r in roots):
         raise problem(
             f"{ext!r} resolves to {base_path}, outside the allowed roots ({', '.join(map(str, roots))})"

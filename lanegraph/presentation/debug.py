@@ -17,6 +17,7 @@ import numpy as np
 from ..errors import UsageError
 from ..hookspecs import hookimpl
 from ..paths import inside, safe_name, write_bytes_atomic
+from ..plugins import call_hook
 from .port_types import render_value
 from .render import mosaic, to_bgr
 
@@ -83,7 +84,7 @@ class DebugRecorder:
 
     def _render(self, node_type: str, port: str, port_type: str, value: Any) -> np.ndarray | None:
         if self.pm is not None:
-            img = self.pm.hook.lanegraph_render(node_type=node_type, port=port, value=value)
+            img = call_hook(self.pm, "lanegraph_render", node_type=node_type, port=port, value=value)
             if img is not None:
                 return to_bgr(img)
         types = self.pm.port_types if self.pm is not None else None

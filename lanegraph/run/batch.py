@@ -40,7 +40,7 @@ from ..plugins import PluginManager, get_plugin_manager
 from ..runlog import RunLog
 from .cache import ResultCache, digest
 from .executor import Executor, FrameFailure, RunResult
-from .provenance import versions, write_resolved_graph
+from .provenance import refreshed, write_resolved_graph
 from .record import RunRecord, Stopped, read_record, write_run_files
 from .sources import close_source, open_source, select_source
 
@@ -106,6 +106,7 @@ class RunTask:
     offset: int = 0  # the sequence index of the first reported frame
     record_cache: bool = False  # timings.json gets the cache's hits and misses
     record_extra: dict[str, Any] = field(default_factory=dict)  # what the run service adds to run.json
+    notes: tuple[str, ...] = ()  # warnings for the run's run.json (a chunked run's carried state)
     selection: str = ""  # the run's --frames text (a chunk's task too: the run's, not the chunk's)
 
     @property
@@ -206,18 +207,10 @@ def task_record(
 ) -> RunRecord:
     """The :class:`~lanegraph.run.record.RunRecord` of a task's run (``error``: the task's error
     record, when it stopped)."""
-    stopped = None
-    if error is not None:
-        stopped = Stopped(error=error["message"], node=error["node"], frame=error["frame"])
-    return RunRecord.of(
-        result,
-        graph=graph_file,
-        input=input_path,
-        stopped=stopped,
-        timings=timings,
-        before_any_frame=bool(error.get("before_any_frame")) if error is not None else False,
-        **extra,
-    )
+    stop = Stopped(error=error["message"], node=error["node"], frame=error["frame"]) if error else None
+    before = bool(error.get("before_any_frame")) if error is not None else False
+    return RunRecord.of(result, graph=graph_file, input=input_path, stopped=stop, timings=timings,
+                        before_any_frame=before, **extra)  # fmt: skip
 
 
 def _write_run_files(
@@ -226,9 +219,7 @@ def _write_run_files(
     timings = result.timings_json()
     if task.record_cache:
         timings["cache"] = {"hits": result.cache_hits, "misses": result.cache_misses}
-    extra = dict(task.record_extra)
-    if "versions" in extra:  # at the end: the libraries the run loaded (ONNX Runtime ...)
-        extra["versions"] = versions(get_plugin_manager())
+    extra = refreshed(task.record_extra, get_plugin_manager())  # the versions of what the run loaded
     record = task_record(
         graph_file, task.input, result, error, timings, sequence=task.sequence, frames=task.selection, **extra
     )
@@ -310,7 +301,7 @@ def merge_chunks(tasks: list[RunTask], outcomes: list[TaskOutcome]) -> TaskOutco
     src = chunks_dir(run_dir)
     tmp = _tmp_dir(run_dir)
     tmp.mkdir()
-    merged = RunResult()
+    merged = RunResult(notes=list(first.notes))
     error = None
     for task, out in sorted(zip(tasks, outcomes), key=lambda p: p[0].chunk or 0):
         folder = src / f"{task.chunk:06d}"
@@ -422,6 +413,8 @@ class Planner:
         self.cache = cache
         self.record_extra = dict(record_extra or {})
         self.tasks: list[RunTask] = []
+        #: what the command says before the runs start (a graph whose state outlives the warm-up)
+        self.warnings: list[str] = []
         self._counts: dict[str, int | None] = {}
 
     def _count(self, graph: ResolvedGraph, input_path: Path | None, frames: slice | None) -> int | None:
@@ -430,6 +423,24 @@ class Planner:
         if key not in self._counts:
             self._counts[key] = count_frames(graph, input_path, frames, self.pm)
         return self._counts[key]
+
+    def _carried_state_note(self, graph: ResolvedGraph) -> str | None:
+        """For a chunked run: what the graph carries from frame to frame (feedback edges, stateful
+        nodes between source and sinks), said once before the runs start and in each run.json:
+        a chunk starts from its warm-up frames, not from the sequence's start, so its lanes may
+        differ from a whole run's. None for a graph that carries nothing."""
+        what = graph.validate(self.pm).carried_state()
+        if what is None:
+            return None
+        note = (
+            f"{graph.display}: the graph carries state from frame to frame ({what}); a chunk of "
+            f"{self.chunk_frames} frame(s) starts from {self.warmup} warm-up frame(s), not from the start of "
+            "its sequence, so its lanes may differ from those of a whole run (more --warmup brings them closer; "
+            "benchmarks/bench_distributed.py --chunk-sweep measures it)"
+        )
+        if note not in self.warnings:
+            self.warnings.append(note)
+        return note
 
     def add(
         self,
@@ -473,6 +484,7 @@ class Planner:
                     f"--chunk-frames: the source of {graph.display} cannot tell how many frames {input_path} has"
                 )
             key = None if run_key is None else digest(run_key, "chunks", self.chunk_frames, self.warmup)
+            note = self._carried_state_note(graph)
             for k, (sel, w, start, count) in enumerate(
                 chunk_selections(n_input, frames, self.chunk_frames, self.warmup)
             ):
@@ -485,6 +497,7 @@ class Planner:
                         chunk=k,
                         warmup=w,
                         offset=start,
+                        notes=(note,) if note else (),
                         **common,
                     )
                 )

@@ -23,6 +23,7 @@ from .resume import (
     VERSION,
     Checkpoint,
     CheckpointValueError,
+    check_feedback_types,
     check_identity,
     decode_feedback,
     feedback_entries,
@@ -85,6 +86,7 @@ class Checkpointer:
             self.resumed_feedback = decode_feedback(
                 resume, where
             )  # a malformed value: refused before anything opens
+            check_feedback_types(self.resumed_feedback[0], graph, where)  # lanes are lanes, not a string
 
     @property
     def where(self) -> Path:

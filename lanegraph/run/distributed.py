@@ -158,10 +158,39 @@ def thread_shares(workers: dict[str, dict[str, Any]], cpus: dict[str, list[int]]
     return shares
 
 
+#: the address schemes a Dask client speaks (``HOST:PORT`` without one is tcp)
+SCHEMES = ("tcp", "tls", "ws", "wss", "ucx", "inproc")
+
+
+def check_spec(spec: SchedulerSpec) -> None:
+    """Refuse at once (:class:`UsageError`) a ``--scheduler`` that cannot work: ``local:N`` with more
+    worker processes than the CPUs this process may use (each worker runs one task on one core:
+    more only add start-up time and memory), or an address of a scheme Dask does not speak
+    (``ftp://x``). Called where ``--scheduler`` is parsed and again before a cluster is started or
+    reached."""
+    if spec.local:
+        cores = _cores()
+        if spec.workers is not None and spec.workers > cores:
+            raise UsageError(
+                f"--scheduler {spec.text}: {spec.workers} worker processes, but this process may use "
+                f"{cores} CPU(s): expected local:N with N <= {cores} (local alone starts one per CPU)"
+            )
+        return
+    address = spec.address or ""
+    if "://" in address:
+        scheme = address.split("://", 1)[0].lower()
+        if scheme not in SCHEMES:
+            raise UsageError(
+                f"--scheduler {address}: unknown scheme {scheme!r}: expected local, local:N, a scheduler "
+                f"address such as tcp://HOST:8786 (schemes: {', '.join(SCHEMES)}) or a scheduler file *.json"
+            )
+
+
 class _Cluster:
     """A client on a local cluster it started, or on an existing scheduler; closes what it opened."""
 
     def __init__(self, spec: SchedulerSpec, echo: Callable[[str], None]):
+        check_spec(spec)  # also where --scheduler is parsed (DaskRunner.from_spec): before any work
         distributed = _import_distributed()
         import logging
 

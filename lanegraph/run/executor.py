@@ -25,8 +25,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from .. import interrupts
 from .._runtime import tune_allocator
-from ..errors import InputError, LanegraphError, NodeError
+from ..errors import HookError, InputError, LanegraphError, NodeError
 from ..graph.model import Graph, GraphNode
 from ..lifecycle import (
     Identified,
@@ -36,9 +37,10 @@ from ..lifecycle import (
     SkipsFrames,
     close_all,
     constants_of,
+    verify_all,
 )
 from ..nodes import RunContext
-from ..plugins import PluginManager, get_plugin_manager
+from ..plugins import PluginManager, call_hook, get_plugin_manager
 from .cache import ResultCache, digest
 from .checkpointing import Checkpointer, OpenedInput, run_identity
 from .outcome import FrameFailure, RunResult
@@ -155,10 +157,11 @@ class Executor:
         result: RunResult,
         key: str | None = None,
     ) -> dict:
-        hook = self.pm.hook
-        hook.lanegraph_before_node(node_id=node.id, node_type=node.type.name, frame=frame, inputs=inputs)
+        self._hook(
+            "lanegraph_before_node", node_id=node.id, node_type=node.type.name, frame=frame, inputs=inputs
+        )
         after = functools.partial(
-            hook.lanegraph_after_node, node_id=node.id, node_type=node.type.name, frame=frame
+            self._hook, "lanegraph_after_node", node_id=node.id, node_type=node.type.name, frame=frame
         )
         use_cache = self.cache is not None and key is not None and node.id in self.cache_nodes
         if use_cache:
@@ -183,7 +186,9 @@ class Executor:
             missing = set(node.type.outputs) - set(out)
             if missing and not node.type.sink:
                 raise TypeError(f"node function did not return output port(s) {sorted(missing)}")
-        except Exception as exc:  # noqa: BLE001 - reported with node id and frame
+        except BaseException as exc:  # SystemExit, KeyboardInterrupt too: the node's failure, located
+            if interrupts.is_interruption(exc):
+                raise
             err = exc
         else:
             err = None
@@ -303,18 +308,33 @@ class Executor:
         )
         self.open()
         at = self._start()
-        self.pm.hook.lanegraph_run_start(graph=g, context=self.context)
+        failed: BaseException | None = None
         try:
+            self._hook("lanegraph_run_start", graph=g, context=self.context)
             values, keys = self._run_constants()
             if self.checkpoint is not None:
                 self._write_checkpoint(at.position, at.last_frame, at.previous, at.prev_keys)
             self._stream(values, keys, at, on_frame)
+            verify_all(self.instances, g)  # the lanes file on disk is still the one written
             if self.checkpoint is not None:
                 self._write_checkpoint(at.position, at.last_frame, at.previous, at.prev_keys, complete=True)
+        except BaseException as exc:
+            failed = exc
+            raise
         finally:
             self.close()  # an error of a close must not hide the run's own
-            self.pm.hook.lanegraph_run_end(graph=g, context=self.context, frames=result.frames)
+            try:
+                self._hook("lanegraph_run_end", graph=g, context=self.context, frames=result.frames)
+            except HookError as exc:
+                if failed is None:
+                    raise  # the run's record says so (the session writes run.json, exit 1)
+                result.notes.append(str(exc))  # the run's own error comes first
         return result
+
+    def _hook(self, name: str, **kwargs: Any) -> Any:
+        """Hook ``name`` called guarded (:func:`lanegraph.plugins.call_hook`): a hook implementation
+        that raises or misbehaves is a :class:`~lanegraph.errors.HookError` naming its plugin."""
+        return call_hook(self.pm, name, **kwargs)
 
     def _start(self) -> _Position:
         """Where the stream starts: the beginning, or where a resumed checkpoint left off (its
@@ -348,7 +368,8 @@ class Executor:
                 else None
             )
         if consts:
-            self.pm.hook.lanegraph_after_node(
+            self._hook(
+                "lanegraph_after_node",
                 node_id=src.id,
                 node_type=src.type.name,
                 frame=None,
@@ -376,39 +397,43 @@ class Executor:
         feedback = {(e.src_node, e.src_port) for e in g.edges if e.previous}
         warm = RunResult(node_types=result.node_types) if self.warmup else result
         drop = max(self.context.skip - self._skipped, 0)  # frames done that the source did not leave out
-        for index, frame_out in self._frames(source, g.source.id, result, at.position, drop):
-            at.position = index + 1
-            if frame_out is None:  # the source could not read this frame (recorded as a failure)
-                at.previous, at.prev_keys = {}, {}
-                if index >= self.warmup and result.failures and result.failures[-1].index == index:
-                    result.frame_ids.append(str(result.failures[-1].frame))
+        frames = self._frames(source, g.source.id, result, at.position, drop)
+        try:
+            for index, frame_out in frames:
+                at.position = index + 1
+                if frame_out is None:  # the source could not read this frame (recorded as a failure)
+                    at.previous, at.prev_keys = {}, {}
+                    if index >= self.warmup and result.failures and result.failures[-1].index == index:
+                        result.frame_ids.append(str(result.failures[-1].frame))
+                    self._consumed(at)
+                    continue
+                warming = index < self.warmup
+                frame = frame_out.get("frame")
+                if not warming:
+                    result.frame_ids.append(str(frame))
+                t_frame = time.perf_counter()
+                try:
+                    cur, cur_keys = self._run_frame(
+                        frame_out, values, keys, at.prev_keys, at.previous, index, warm if warming else result
+                    )
+                except _SkipFrame:
+                    at.previous, at.prev_keys, at.last_frame = {}, {}, frame
+                    self._consumed(at)
+                    if on_frame and not warming:
+                        on_frame(index, frame)
+                    continue
+                at.previous = {k: cur[k] for k in feedback if k in cur}
+                at.prev_keys = {k: cur_keys.get(k) for k in feedback}
+                if warming:
+                    continue
+                result.frames += 1
+                at.last_frame = frame
                 self._consumed(at)
-                continue
-            warming = index < self.warmup
-            frame = frame_out.get("frame")
-            if not warming:
-                result.frame_ids.append(str(frame))
-            t_frame = time.perf_counter()
-            try:
-                cur, cur_keys = self._run_frame(
-                    frame_out, values, keys, at.prev_keys, at.previous, index, warm if warming else result
-                )
-            except _SkipFrame:
-                at.previous, at.prev_keys, at.last_frame = {}, {}, frame
-                self._consumed(at)
-                if on_frame and not warming:
+                result.frame_ms.append((time.perf_counter() - t_frame) * 1000.0)
+                if on_frame:
                     on_frame(index, frame)
-                continue
-            at.previous = {k: cur[k] for k in feedback if k in cur}
-            at.prev_keys = {k: cur_keys.get(k) for k in feedback}
-            if warming:
-                continue
-            result.frames += 1
-            at.last_frame = frame
-            self._consumed(at)
-            result.frame_ms.append((time.perf_counter() - t_frame) * 1000.0)
-            if on_frame:
-                on_frame(index, frame)
+        finally:
+            frames.close()  # the read-ahead thread stops and is joined on every path (no abort at exit)
 
     def _consumed(self, at: _Position) -> None:
         if self.checkpoint is not None:
@@ -445,7 +470,8 @@ class Executor:
             )
         # the source is an iterator read ahead, so it fires only the after-node hook
         src_ms = (self.result.timings_ms.get(src_id) or [0.0])[-1]
-        self.pm.hook.lanegraph_after_node(
+        self._hook(
+            "lanegraph_after_node",
             node_id=src_id,
             node_type=g.source.type.name,
             frame=frame,
@@ -496,37 +522,41 @@ class Executor:
         """
         node = self.graph.nodes[src_id]
         items = prefetched(iter(source), self.prefetch) if self.prefetch > 0 else timed(iter(source))
-        index = start
-        scratch = RunResult()  # what warm-up frames record
-        for kind, item, elapsed in items:
-            if drop > 0:
-                drop -= 1
-                if kind == "error" and not isinstance(item, LanegraphError):
-                    raise NodeError(src_id, node.type.name, None, item) from item
-                continue
-            rec = scratch if index < self.warmup else result
-            if kind == "error":
-                exc = item
-                frame = getattr(exc, "frame", None)
-                self.pm.hook.lanegraph_after_node(
-                    node_id=src_id,
-                    node_type=node.type.name,
-                    frame=frame,
-                    outputs=None,
-                    elapsed_ms=0.0,
-                    error=exc,
-                )
-                if not isinstance(exc, LanegraphError):
-                    raise NodeError(src_id, node.type.name, None, exc) from exc
-                if node.on_error == "fail":
-                    raise NodeError(src_id, node.type.name, frame, exc) from exc
-                rec.failures.append(FrameFailure(frame, index, src_id, node.type.name, str(exc)))
+        try:
+            index = start
+            scratch = RunResult()  # what warm-up frames record
+            for kind, item, elapsed in items:
+                if drop > 0:
+                    drop -= 1
+                    if kind == "error" and not isinstance(item, LanegraphError):
+                        raise NodeError(src_id, node.type.name, None, item) from item
+                    continue
+                rec = scratch if index < self.warmup else result
+                if kind == "error":
+                    exc = item
+                    frame = getattr(exc, "frame", None)
+                    self._hook(
+                        "lanegraph_after_node",
+                        node_id=src_id,
+                        node_type=node.type.name,
+                        frame=frame,
+                        outputs=None,
+                        elapsed_ms=0.0,
+                        error=exc,
+                    )
+                    if not isinstance(exc, LanegraphError):
+                        raise NodeError(src_id, node.type.name, None, exc) from exc
+                    if node.on_error == "fail":
+                        raise NodeError(src_id, node.type.name, frame, exc) from exc
+                    rec.failures.append(FrameFailure(frame, index, src_id, node.type.name, str(exc)))
+                    index += 1
+                    yield index - 1, None
+                    continue
+                rec.timings_ms.setdefault(src_id, []).append(elapsed)
                 index += 1
-                yield index - 1, None
-                continue
-            rec.timings_ms.setdefault(src_id, []).append(elapsed)
-            index += 1
-            yield index - 1, item
+                yield index - 1, item
+        finally:
+            items.close()  # stop the read-ahead thread and join it, whatever ended the stream
 
     def __len__(self) -> int:
         src = self.instances.get(self.graph.source.id)

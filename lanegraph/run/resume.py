@@ -43,8 +43,11 @@ from .cache import digest
 CHECKPOINT_NAME = "checkpoint.json"
 LEGACY_NAME = "checkpoint.pkl"  # written by lanegraph before 0.1: never read (a pickle can run code)
 FORMAT = "lanegraph-checkpoint"
-VERSION = 1
+VERSION = 2  # 2: the lanes writer's state counts its frames (checked against frames_ok)
 MAX_CHECKPOINT_BYTES = 1 << 30
+MAX_NDIM = 32  #: numpy's own limit on dimensions
+MAX_DIM = 1 << 31  #: the longest side of an array a checkpoint may hold
+MAX_FEATURE_MAP_PIXELS = 1 << 24  #: a FeatureMap's grid (8x the largest BEV grid bev.ipm allows)
 _HINT = "; cannot resume (run without --resume to start over)"
 
 #: the value types a checkpoint may hold besides JSON scalars, lists, tuples, dicts and numpy arrays
@@ -170,18 +173,35 @@ def _decode_dict(data: dict[str, Any], where: str) -> dict:
 
 def _decode_ndarray(data: dict[str, Any], where: str) -> np.ndarray:
     dtype = _dtype(data["dtype"], where)
-    shape = data["shape"]
-    if not (
-        isinstance(shape, list)
-        and all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in shape)
-    ):
-        raise CheckpointValueError(f"{where}: shape: expected a list of integers >= 0, got {str(shape)[:60]}")
-    raw = base64.b64decode(data["data"], validate=True)
-    if len(raw) != int(np.prod(shape, dtype=np.int64)) * dtype.itemsize:
+    shape = _shape(data["shape"], where)
+    size = math.prod(shape) * dtype.itemsize  # Python integers: no overflow, nothing allocated yet
+    text = data["data"]
+    if not isinstance(text, str):
+        raise CheckpointValueError(f"{where}: data: expected a base64 string")
+    if size > MAX_CHECKPOINT_BYTES or len(text) != 4 * ((size + 2) // 3):
+        raise CheckpointValueError(
+            f"{where}: {len(text)} base64 characters of data do not make an array of shape {shape} and dtype {dtype}"
+        )
+    raw = base64.b64decode(text, validate=True)
+    if len(raw) != size:
         raise CheckpointValueError(
             f"{where}: {len(raw)} bytes of data do not make an array of shape {shape} and dtype {dtype}"
         )
     return np.frombuffer(raw, dtype=dtype).reshape(shape).copy()
+
+
+def _shape(shape: Any, where: str) -> list[int]:
+    """An array shape read from a checkpoint: at most :data:`MAX_NDIM` integers in
+    ``[0, MAX_DIM]``, checked before anything is allocated."""
+    if not (
+        isinstance(shape, list)
+        and len(shape) <= MAX_NDIM
+        and all(isinstance(n, int) and not isinstance(n, bool) and 0 <= n <= MAX_DIM for n in shape)
+    ):
+        raise CheckpointValueError(
+            f"{where}: shape: expected a list of at most {MAX_NDIM} integers in 0..{MAX_DIM}, got {str(shape)[:60]}"
+        )
+    return shape
 
 
 def _decode_scalar(data: dict[str, Any], where: str) -> np.generic:
@@ -195,9 +215,14 @@ def _decode_scalar(data: dict[str, Any], where: str) -> np.generic:
 def _decode_feature_map(data: dict[str, Any], where: str) -> FeatureMap:
     shape = data["shape"]
     if not (
-        isinstance(shape, list) and len(shape) == 2 and all(isinstance(n, int) and n >= 0 for n in shape)
+        isinstance(shape, list)
+        and len(shape) == 2
+        and all(isinstance(n, int) and not isinstance(n, bool) and 0 <= n <= MAX_DIM for n in shape)
+        and shape[0] * shape[1] <= MAX_FEATURE_MAP_PIXELS
     ):
-        raise CheckpointValueError(f"{where}: shape: expected [rows, cols], got {str(shape)[:60]}")
+        raise CheckpointValueError(
+            f"{where}: shape: expected [rows, cols] of at most {MAX_FEATURE_MAP_PIXELS} pixels, got {str(shape)[:60]}"
+        )
     rows, cols = decode_value(data["rows"], f"{where}.rows"), decode_value(data["cols"], f"{where}.cols")
     values = decode_value(data["values"], f"{where}.values")
     if not (
@@ -290,7 +315,7 @@ class Checkpoint(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     format: Literal["lanegraph-checkpoint"]
-    version: Literal[1]
+    version: Literal[2]
     graph: str
     graph_digest: str = Field(pattern=r"^[0-9a-f]{64}$")
     resolved: dict[str, Any]
@@ -380,7 +405,43 @@ def load_checkpoint(path: Path) -> Checkpoint:
         raise UsageError(
             f"{path}: position {ckpt.position}, frames_ok {ckpt.frames_ok} and total {ckpt.total} do not fit together{_HINT}"
         )
+    problem = checkpoint_problem(ckpt)
+    if problem is not None:
+        raise UsageError(f"{path}: {problem}: the checkpoint does not agree with itself{_HINT}")
     return ckpt
+
+
+def checkpoint_problem(ckpt: Checkpoint) -> str | None:
+    """The first way the fields of ``ckpt`` contradict each other, or None.
+
+    A run writes its checkpoint after every frame it consumes, so that: a complete run consumed
+    every frame of its selection; a frame consumed and not done failed (``failures`` lists at
+    least one entry per such frame), at an index before ``position``; a run that did a frame
+    knows the last one; an output counted invalid on at most the frames that ran; and a stateful
+    node whose state counts its ``frames`` (the lanes writer: one line per frame done) saw
+    exactly the frames done. The lanes writer then checks its file against its state (length,
+    SHA-256, lines) when it is handed back."""
+    if ckpt.complete and ckpt.total is not None and ckpt.position != ckpt.total:
+        return f"complete: true, but position {ckpt.position} of {ckpt.total} frame(s)"
+    if ckpt.position - ckpt.frames_ok > len(ckpt.failures):
+        return (
+            f"position {ckpt.position} and frames_ok {ckpt.frames_ok}: {ckpt.position - ckpt.frames_ok} "
+            f"frame(s) not done, but {len(ckpt.failures)} failure(s) recorded"
+        )
+    late = next((f for f in ckpt.failures if f.index >= ckpt.position), None)
+    if late is not None:
+        return f"failures: frame index {late.index} is not before position {ckpt.position}"
+    if ckpt.frames_ok and ckpt.last_frame is None:
+        return f"frames_ok {ckpt.frames_ok} but no last_frame"
+    for name, counts in ckpt.invalid_outputs.items():
+        if not (len(counts) == 2 and 0 <= counts[0] <= counts[1] <= ckpt.position):
+            return f"invalid_outputs.{name}: expected [invalid, of frames] with 0 <= invalid <= frames <= position {ckpt.position}, got {counts}"
+    for nid, state in ckpt.states.items():
+        if isinstance(state, dict) and "frames" in state:
+            n = state["frames"]
+            if not isinstance(n, int) or isinstance(n, bool) or n != ckpt.frames_ok:
+                return f"states.{nid}.frames: {str(n)[:20]}, but frames_ok {ckpt.frames_ok}"
+    return None
 
 
 def decode_feedback(
@@ -399,6 +460,62 @@ def decode_feedback(
             ) from None
         keys[(fb.node, fb.port)] = fb.key
     return values, keys
+
+
+def _array(v: Any) -> bool:
+    return isinstance(v, np.ndarray) and v.ndim in (2, 3)
+
+
+def _number(v: Any) -> bool:
+    return isinstance(v, (int, float, np.number)) and not isinstance(v, bool)
+
+
+def _list_of(cls: type) -> Any:
+    return lambda v: isinstance(v, list) and all(isinstance(x, cls) for x in v)
+
+
+#: what a value of each of lanegraph's own port types is: a feedback value read back from a
+#: checkpoint must be one (a plugin's port type is checked as its nearest ancestor among these)
+PORT_VALUE_CHECKS: dict[str, Any] = {
+    "frame_id": lambda v: isinstance(v, str),
+    **{t: _array for t in ("image", "gray", "disparity", "mask", "vdisparity", "bev_image", "bev_mask")},
+    "calibration": lambda v: isinstance(v, Calibration),
+    "road_model": lambda v: isinstance(v, RoadModel),
+    "bev_geometry": lambda v: isinstance(v, BevGeometry),
+    "features": lambda v: isinstance(v, FeatureMap),
+    "orientation": _number,
+    "number": _number,
+    "lines": _list_of(Line),
+    "lanes": _list_of(Lane),
+}
+
+
+def check_feedback_types(
+    values: dict[tuple[str, str], Any], graph: Any, path: Path, types: dict[str, Any] | None = None
+) -> None:
+    """Refuse (:class:`UsageError`) a decoded feedback value that is not a value of its port's
+    type (a string where lanes belong); ``None`` (a node that failed under ``on_error: empty``) is
+    always one. ``types``: the port types by name (a plugin's type is checked as its nearest
+    ancestor among :data:`PORT_VALUE_CHECKS`; ``any`` and types without one take anything)."""
+    for (node, port), value in values.items():
+        if value is None:
+            continue
+        gnode = graph.nodes.get(node)
+        out = gnode.type.outputs.get(port) if gnode is not None else None
+        if out is None:
+            continue
+        name: str | None = out.type
+        seen: set[str] = set()
+        while name is not None and name not in PORT_VALUE_CHECKS and name not in seen:
+            seen.add(name)
+            pt = (types or {}).get(name)
+            name = getattr(pt, "parent", None)
+        check = PORT_VALUE_CHECKS.get(name) if name is not None else None
+        if check is not None and not check(value):
+            raise UsageError(
+                f"{path}: feedback ({node}.{port}): expected a value of port type {out.type!r}, "
+                f"got a {type(value).__name__} ({str(value)[:40]}){_HINT}"
+            )
 
 
 def check_identity(

@@ -24,6 +24,7 @@ from typing import Any, Protocol, runtime_checkable
 
 from ..errors import UsageError
 from ..hookspecs import hookimpl
+from ..plugins import call_hook
 from .batch import Progress, RunTask, SchedulerSpec, TaskOutcome, execute_task, parse_scheduler
 
 
@@ -88,7 +89,12 @@ class DaskRunner:
     @classmethod
     def from_spec(cls, text: str) -> DaskRunner | None:
         spec = parse_scheduler(text)
-        return cls(spec) if spec is not None else None
+        if spec is None:
+            return None
+        from .distributed import check_spec
+
+        check_spec(spec)  # local:N beyond the CPUs, an unknown scheme: refused before anything runs
+        return cls(spec)
 
     def run(self, tasks, progress=True, echo=None, done=None):  # noqa: D102 - Runner.run
         if not tasks:
@@ -116,7 +122,7 @@ def runner_types(pm: Any) -> list[type]:
     if not pm.is_registered(BUILTIN_RUNNERS):
         pm.register(BUILTIN_RUNNERS, name="lanegraph.runners")
     found: list[type] = []
-    for provided in pm.hook.lanegraph_runners():
+    for provided in call_hook(pm, "lanegraph_runners"):  # guarded: a raising plugin is named
         for rt in provided or []:
             if rt not in found:
                 found.append(rt)

@@ -16,7 +16,7 @@ from typing import Any
 from ..errors import GraphError, LanegraphError, NodeError, Problem
 from ..lifecycle import close, closing, constants_of
 from ..nodes import NodeParams, NodeType, RunContext
-from ..plugins import PluginManager
+from ..plugins import PluginManager, call_hook
 
 
 def select_source(
@@ -34,7 +34,7 @@ def select_source(
     none fits or the named type is not an installed source."""
     if not node_type.selects_source:
         return node_type
-    detect = lambda path: pm.hook.lanegraph_detect_source(path=path)  # noqa: E731
+    detect = lambda path: call_hook(pm, "lanegraph_detect_source", path=path)  # noqa: E731
     try:
         name = node_type.func.select_source(params, input_path, detect)
     except ValueError as exc:
@@ -55,7 +55,7 @@ def detect_source(pm: PluginManager, input_path: Path | None) -> NodeType | None
     """The source for ``input_path`` outside a graph: the type a plugin's
     ``lanegraph_detect_source`` names for it, or (no input, or none named) what an installed
     selecting source chooses with its default params; None when nothing reads it."""
-    name = pm.hook.lanegraph_detect_source(path=input_path) if input_path is not None else None
+    name = call_hook(pm, "lanegraph_detect_source", path=input_path) if input_path is not None else None
     if name is not None:
         nt = pm.get_node_type(name)
         return nt if nt is not None and nt.source else None
@@ -103,7 +103,7 @@ def read_calibration(pm: PluginManager, path: Path) -> Any:
     if not path.is_dir():
         if not path.is_file():
             raise InputError("calibration file not found", path=str(path))
-        calib = pm.hook.lanegraph_read_calibration(path=path)
+        calib = call_hook(pm, "lanegraph_read_calibration", path=path)
         if calib is None:
             raise InputError(
                 "no installed plugin reads this calibration file (by its format)", path=str(path)

@@ -9,6 +9,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from .. import interrupts
 from ..errors import InputError, LanegraphError, NotStarted, RunStopped, UsageError
 from ..evaluation.ablate import Variant, _safe, expand_sweeps, run_ablation
 from ..graph.files import resolve_graph_path
@@ -78,7 +79,11 @@ def ablate(
     check_folder(out_dir, identity, overwrite=session.overwrite)
     t0 = time.perf_counter()
     cache_folder = (cache_dir, "--cache-dir") if cache_dir is not None and not no_cache else (None, "")
-    with session.locked(out_dir, "ablate", cache_folder), ablation_kept(session, out_dir, identity, variants):
+    with (
+        interrupts.handling(),
+        session.locked(out_dir, "ablate", cache_folder),
+        ablation_kept(session, out_dir, identity, variants),
+    ):
         cache = _cache(cache_dir, cache_max_gb, no_cache)
         if isinstance(runner, InProcessRunner):
             runner.cache = cache
@@ -90,9 +95,11 @@ def ablate(
             )  # fmt: skip
         except (InputError, UsageError) as exc:  # unusable before any run: like `run`, exit 2
             raise NotStarted(exc) from exc
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP
+            label, code = interrupts.label_and_code(exc)
             raise RunStopped(
-                f"interrupted (Ctrl-C); the finished runs are in {out_dir}/runs and results.md", exit_code=130
+                f"interrupted ({label}); the finished runs are in {out_dir}/runs and results.md",
+                exit_code=code,
             ) from None
         except OSError as exc:
             raise RunStopped(

@@ -14,8 +14,9 @@ maps errors to exit codes in one place (:mod:`lanegraph.cli._errors`).
 
 Extension points kept here for every command alike: :attr:`Session.record_extra` (fields every
 ``run.json`` of the session gets: the command line, overrides, versions), :meth:`Session.locked`
-(the output folder's lock), and the interruption of a run (:class:`~lanegraph.errors.RunStopped`
-with exit code 130 after the record of what was done is written).
+(the output folder's lock), and the interruption of a run by Ctrl-C, SIGTERM or SIGHUP
+(:class:`~lanegraph.errors.RunStopped` with exit code 130, 143 or 129 after the record of what was
+done is written; :mod:`lanegraph.interrupts`).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from .. import interrupts
 from ..errors import InputError, LanegraphError, NotStarted, RunStopped, UsageError
 from ..frames import selection_text
 from ..graph.files import ResolvedGraph, load_graph_named, open_graph
@@ -189,7 +191,8 @@ class Session:
             )  # fmt: skip
 
         self._on_open = opened
-        with self.locked(out_dir, "run", (debug_dir, "--debug-dir")), self._stack:
+        # Ctrl-C, SIGTERM and SIGHUP stop the run alike: its record says so, --resume continues
+        with interrupts.handling(), self.locked(out_dir, "run", (debug_dir, "--debug-dir")), self._stack:
             claim_folder(out_dir, identity, resume=resume, overwrite=self.overwrite, resolved=resolved)
             try:
                 status = self._run_locked(g, input_path, out_dir, frames, resume, debug_dir, chosen)
@@ -314,9 +317,9 @@ class Session:
         except (LanegraphError, KeyboardInterrupt, OSError) as exc:
             if bar is not None:
                 bar.close()
-            if isinstance(exc, KeyboardInterrupt):
-                err: LanegraphError = LanegraphError("interrupted (Ctrl-C); continue with --resume")
-                code = 130
+            if isinstance(exc, KeyboardInterrupt):  # Ctrl-C, SIGTERM, SIGHUP (lanegraph.interrupts)
+                label, code = interrupts.label_and_code(exc)
+                err: LanegraphError = LanegraphError(f"interrupted ({label}); continue with --resume")
             elif isinstance(exc, OSError):
                 err = LanegraphError(
                     f"{str(exc.filename) + ': ' if exc.filename else ''}{exc.strerror or exc}"
@@ -377,6 +380,12 @@ class Session:
         """Write the run's record and say what it did: 0, 1 (frames failed) or None (its record
         could not be written)."""
         status = 0
+        if recorder is not None and debug_frames is not None:
+            missed = sorted(f for f in debug_frames if f not in recorder.matched)
+            if missed:  # said at the end and in run.json's warnings
+                result.notes.append(
+                    f"--debug-frames {', '.join(missed)} matched no frame of the run; nothing recorded for them"
+                )
         written = self._write_record(out_dir, g, input_path, result)
         if result.failures:
             self.err(f"{len(result.failures)} frame(s) failed:")
@@ -385,12 +394,6 @@ class Session:
             status = 1
         for w in result.warnings():
             self.err(f"warning: {w}")
-        if recorder is not None and debug_frames is not None:
-            missed = sorted(f for f in debug_frames if f not in recorder.matched)
-            if missed:
-                self.err(
-                    f"warning: --debug-frames {', '.join(missed)} matched no frame of the run; nothing recorded for them"
-                )
         if not written:
             return None
         outputs = [str(p) for p in ex.outputs()]
@@ -426,7 +429,7 @@ class Session:
         sets = list(graph.sets)
         self.record_extra = {**self.record_extra, **provenance(self.pm, g.file, sets)}
         try:
-            with self.locked(out_dir, "run"):
+            with interrupts.handling(), self.locked(out_dir, "run"):
                 claim_folder(out_dir, identity, overwrite=self.overwrite)
                 fields = {"kind": "dataset", **self.record_extra, "identity": identity,
                           "written": [s.name for s in dataset]}  # fmt: skip
@@ -489,6 +492,8 @@ class Session:
         out_dir.mkdir(parents=True, exist_ok=True)
         for plan in plans:
             clean_leftovers(plan.run_dir)
+        for w in planner.warnings:  # said before anything runs (and in each run.json)
+            self.err(f"warning: {w}")
         outcomes = runner.run(planner.tasks, progress=self.progress, echo=self.err)
         finish_runs(plans, outcomes)
         summary = []

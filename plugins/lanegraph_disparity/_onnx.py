@@ -47,9 +47,18 @@ _OUTPUT_TYPES = {
     "tensor(uint8)",
     "tensor(int16)",
     "tensor(uint16)",
-    "tensor(int32)",
-    "tensor(int64)",
 }
+#: element types a disparity output may not have: 32- and 64-bit integers are indices or labels
+#: (an argmax over disparity levels, a class map), not a disparity (a 16-bit one is KITTI's
+#: fixed point: give output_factor 1/256)
+_INDEX_TYPES = {
+    "tensor(int32)": "int32",
+    "tensor(int64)": "int64",
+    "tensor(uint32)": "uint32",
+    "tensor(uint64)": "uint64",
+}
+#: an output map smaller than this fraction of the network input (on either side) is refused
+MIN_OUTPUT_FRACTION = 1 / 16
 
 
 class OnnxParams(NodeParams):
@@ -416,11 +425,13 @@ class OnnxDisparity:
     ------
     GraphError
         When the run opens: no model, a missing or unloadable file, inputs or outputs
-        without the declared names, ranks, element types or channel count, no ONNX Runtime,
+        without the declared names, ranks, element types or channel count (an output of
+        32- or 64-bit integers is an index, not a disparity), no ONNX Runtime,
         ``providers: cuda`` without a CUDA provider.
     InputError
         At a frame: images the model's fixed input sizes do not fit, an output that is not
-        one map, or ONNX Runtime failing on the input.
+        one map or is smaller than 1/16 of the network input (1x1), or ONNX Runtime failing
+        on the input.
     """
 
     def __init__(self, params: OnnxParams, context: RunContext):
@@ -646,7 +657,16 @@ class OnnxDisparity:
                 )
             )
         else:
-            if out.type not in _OUTPUT_TYPES:
+            if out.type in _INDEX_TYPES:
+                problems.append(
+                    self._problem(
+                        "output",
+                        f"model output {_describe(out)}: a {_INDEX_TYPES[out.type]} tensor holds indices or labels, "
+                        "not a disparity in pixels: expected a float tensor (or a 16-bit fixed-point one with "
+                        "output_factor); cast the output to float in the model",
+                    )
+                )
+            elif out.type not in _OUTPUT_TYPES:
                 problems.append(
                     self._problem(
                         "output",
@@ -723,6 +743,20 @@ class OnnxDisparity:
                 raise InputError(f"model output {self.p.output!r}: {exc}", path=str(self.path)) from None
             hn, wn, hp, wp = network_size(h, w, self.p.resize, self.p.pad_to)
             ho, wo = d.shape
+            if d.dtype.kind not in "fiub" or (d.dtype.kind in "iu" and d.dtype.itemsize > 2):
+                raise InputError(
+                    f"model output {self.p.output!r} is of dtype {d.dtype}: expected a float disparity (a wider "
+                    "integer is an index or a label, not a disparity in pixels); cast it to float in the model",
+                    path=str(self.path),
+                )
+            least_h, least_w = max(2, int(hp * MIN_OUTPUT_FRACTION)), max(2, int(wp * MIN_OUTPUT_FRACTION))
+            if ho < least_h or wo < least_w:
+                raise InputError(
+                    f"model output {self.p.output!r} is a {ho}x{wo} map for a {hp}x{wp} network input: expected "
+                    f"a disparity map of at least 1/{round(1 / MIN_OUTPUT_FRACTION)} of the input's size "
+                    f"({least_h}x{least_w} here)",
+                    path=str(self.path),
+                )
             if abs(ho * wp / wo - hp) > wp / wo:
                 raise InputError(
                     f"model output {self.p.output!r} is a {ho}x{wo} map for a {hp}x{wp} network input: expected the "

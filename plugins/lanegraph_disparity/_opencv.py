@@ -185,10 +185,11 @@ def _check_range(width: int, min_disp: int, num_disp: int, block: int, scale: fl
         )
 
 
-def _from_fixed(raw: np.ndarray) -> np.ndarray:
-    """OpenCV int16 1/16-pixel disparity -> float32 pixels, invalid (<= 0) = 0."""
+def _from_fixed(raw: np.ndarray, min_disp: int = 0) -> np.ndarray:
+    """OpenCV int16 1/16-pixel disparity -> float32 pixels; invalid = 0: OpenCV's invalid value
+    ``(min_disp - 1) * 16`` and everything below ``min_disp`` (and ``<= 0``)."""
     d = raw.astype(np.float32) * np.float32(1.0 / 16.0)
-    d[raw <= 0] = 0.0
+    d[(raw <= 0) | (raw < 16 * min_disp)] = 0.0
     return d
 
 
@@ -203,10 +204,11 @@ def _compute_opencv(
         wls.setLambda(params.wls_lambda)
         wls.setSigmaColor(params.wls_sigma)
         raw = wls.filter(raw, gl, disparity_map_right=right_matcher.compute(gr, gl))
-    dl = _from_fixed(raw)
+    mind = matcher.getMinDisparity()
+    dl = _from_fixed(raw, mind)
     dr = None
     if need_right:
-        dr = right_by_flipping(lambda a, b: _from_fixed(matcher.compute(a, b)), gl, gr)
+        dr = right_by_flipping(lambda a, b: _from_fixed(matcher.compute(a, b), mind), gl, gr)
         # the mirrored matcher leaves its left strip (our right border) invalid for lack of
         # range, not for a mismatch: mark it "unknown" so lr_check keeps those left pixels
         w = gl.shape[1]

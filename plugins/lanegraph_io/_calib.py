@@ -3,15 +3,21 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
 
-from lanegraph.errors import InputError
+from lanegraph.errors import InputError, did_you_mean
 from lanegraph.types import BASELINE_RANGE_M, Calibration, calibration_problems
 
 #: calibration files are small text files: larger ones are refused before they are read
 MAX_CALIB_BYTES = 1_000_000
+#: how far (metres, along any axis) a camera of a stereo rig may sit from the rig's reference
+#: camera: a projection row whose translation is further is not a camera of the rig
+MAX_CAMERA_OFFSET_M = 10.0
+#: the keys of a calib.yaml
+YAML_KEYS = ("f", "fy", "cx", "cy", "baseline", "width", "height")
 
 
 def read_key_rows(path: Path) -> dict[str, tuple[int, list[float]]]:
@@ -118,6 +124,7 @@ def calibration_from_projections(
             path=str(path),
         )
     fy = float(p_left[1, 1])
+    _check_translations(p_left, p_right, keys, path, baseline)
     return Calibration(
         f=f,
         cx=float(p_left[0, 2]),
@@ -127,6 +134,49 @@ def calibration_from_projections(
         height=height,
         fy=None if abs(fy - f) < 1e-9 else fy,
     )
+
+
+def translation(p: np.ndarray) -> np.ndarray:
+    """The translation ``t`` (metres, from the rig's reference camera) of ``P = K [I | t]``."""
+    tz = float(p[2, 3])
+    return np.array(
+        [
+            (float(p[0, 3]) - float(p[0, 2]) * tz) / float(p[0, 0]),
+            (float(p[1, 3]) - float(p[1, 2]) * tz) / float(p[1, 1]),
+            tz,
+        ]
+    )
+
+
+def _check_translations(
+    p_left: np.ndarray, p_right: np.ndarray, keys: tuple[str, str], path: Path, baseline: float
+) -> None:
+    """Refuse a projection row whose camera sits implausibly far from the rig's reference camera
+    (more than :data:`MAX_CAMERA_OFFSET_M` along y or z: ``ty = -300`` m), and a pair whose right
+    camera is not beside the left one (a rectified pair's cameras differ along x only: rows of
+    the two images would not match)."""
+    ts = {}
+    for key, p in zip(keys, (p_left, p_right)):
+        t = ts[key] = translation(p)
+        # along x the cameras are a baseline apart: the baseline's own check names it (millimetres?)
+        far = next((i for i in (1, 2) if abs(t[i]) > MAX_CAMERA_OFFSET_M), None)
+        if far is not None:
+            axis = "xyz"[far]
+            raise InputError(
+                f"implausible calibration: row {key!r}: the camera's translation t{axis} (from P[:,3] = K t) is "
+                f"{t[far]:.4g} m, more than {MAX_CAMERA_OFFSET_M:g} m from the rig's reference camera",
+                path=str(path),
+            )
+    d = ts[keys[0]] - ts[keys[1]]
+    for i in (1, 2):
+        if abs(d[i]) > max(0.1 * baseline, 0.01):
+            axis = "xyz"[i]
+            raise InputError(
+                f"implausible calibration: rows {keys[0]!r}/{keys[1]!r}: the cameras are {abs(d[i]):.4g} m apart "
+                f"along {axis} (t{axis} from P[:,3] = K t), a rectified pair's differ along x only "
+                f"(baseline {baseline:.4g} m)",
+                path=str(path),
+            )
 
 
 def check_calibration(
@@ -151,9 +201,32 @@ def projection_names(kl: str, kr: str) -> dict[str, str]:
     return names
 
 
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """A safe YAML loader that refuses a key given twice (the last would win silently)."""
+
+
+def _unique_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = False) -> dict:
+    seen: dict[Any, int] = {}
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=True)
+        if isinstance(key, (str, int, float, bool)) or key is None:
+            if key in seen:
+                raise yaml.constructor.ConstructorError(
+                    None,
+                    None,
+                    f"key {key!r} is given twice (first at line {seen[key] + 1}); which one holds?",
+                    key_node.start_mark,
+                )
+            seen[key] = key_node.start_mark.line
+    return yaml.SafeLoader.construct_mapping(loader, node, deep=deep)
+
+
+_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _unique_mapping)
+
+
 def read_calibration_yaml(path: str | Path) -> Calibration:
     """A small YAML calibration: ``f``, ``cx``, ``cy``, ``baseline`` (metres), optional ``fy``,
-    ``width``, ``height``."""
+    ``width``, ``height``; a key given twice or another key is refused."""
     path = Path(path)
     if not path.is_file():
         raise InputError(
@@ -164,13 +237,20 @@ def read_calibration_yaml(path: str | Path) -> Calibration:
             f"{path.stat().st_size} bytes: not a calibration file (at most {MAX_CALIB_BYTES})", path=str(path)
         )
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.load(path.read_text(), Loader=_UniqueKeyLoader)  # noqa: S506 - a safe loader
+    except yaml.MarkedYAMLError as exc:
+        line = f"line {exc.problem_mark.line + 1}: " if exc.problem_mark is not None else ""
+        raise InputError(f"{line}invalid YAML: {exc.problem or exc}", path=str(path)) from None
     except yaml.YAMLError as exc:
         raise InputError(f"invalid YAML: {exc}", path=str(path)) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"cannot read the calibration file: {exc}", path=str(path)) from None
     if not isinstance(data, dict):
         raise InputError("expected a mapping with f, cx, cy, baseline", path=str(path))
+    unknown = [k for k in data if k not in YAML_KEYS]
+    if unknown:
+        hint = did_you_mean(unknown[0], YAML_KEYS, listing="known keys")
+        raise InputError(f"unknown key {str(unknown[0])[:40]!r} ({hint})", path=str(path))
     missing = [k for k in ("f", "cx", "cy", "baseline") if k not in data]
     if missing:
         raise InputError(

@@ -70,13 +70,15 @@ class WriteLanes:
         self.fsync = params.fsync
         self._hash = hashlib.sha256()
         self._bytes = 0
+        self._start = 0  # bytes of the file before this run's first line (append: true)
+        self._frames = 0  # lines written: one per frame done
         self.fh: Any = None
         if context.extra.get("resume"):
             return  # restore() opens the file where the checkpoint left it
         if params.append and self.path.is_file():
             data = self.path.read_bytes()
             self._hash.update(data)
-            self._bytes = len(data)
+            self._bytes = self._start = len(data)
         # unbuffered: a record is one write() call, so an interrupted run never leaves half of one
         # in a buffer that closing the file would flush; a new file is created anew (never written
         # through a link planted at its name)
@@ -89,31 +91,44 @@ class WriteLanes:
             view = view[self.fh.write(view) :]
         self._hash.update(data)
         self._bytes += len(data)
+        self._frames += 1
         if self.fsync:
             os.fsync(self.fh.fileno())
         return {}
 
     def state(self) -> dict[str, Any]:
-        """How much of the file belongs to the frames done: its length and the SHA-256 of its bytes."""
-        return {"bytes": self._bytes, "sha256": self._hash.hexdigest()}
+        """How much of the file belongs to the frames done: its length and the SHA-256 of its
+        bytes, where this run's lines start (``append``) and how many frames they are (the
+        checkpoint checks ``frames`` against the frames done)."""
+        return {
+            "bytes": self._bytes,
+            "sha256": self._hash.hexdigest(),
+            "start": self._start,
+            "frames": self._frames,
+        }
 
     def restore(self, state: Any) -> None:
-        """Continue the file of a checkpoint's ``state``: refused (InputError) when the file is gone,
-        shorter than recorded or changed; bytes after the recorded length (a frame written after the
+        """Continue the file of a checkpoint's ``state``: refused (InputError) when the state does
+        not agree with itself, or the file is gone, shorter than recorded, changed, or does not
+        hold one line per frame done; bytes after the recorded length (a frame written after the
         checkpoint, half a line of a killed run) are cut."""
-        if not (
-            isinstance(state, dict)
-            and isinstance(state.get("bytes"), int)
-            and not isinstance(state.get("bytes"), bool)
-            and state["bytes"] >= 0
-            and isinstance(state.get("sha256"), str)
-        ):
+        hint = "; cannot resume (run without --resume to start over)"
+
+        def count(key: str) -> int | None:
+            v = state.get(key) if isinstance(state, dict) else None
+            return v if isinstance(v, int) and not isinstance(v, bool) and v >= 0 else None
+
+        n, start, frames = count("bytes"), count("start"), count("frames")
+        if n is None or start is None or frames is None or not isinstance(state.get("sha256"), str):
             raise InputError(
-                f"the checkpoint holds no valid state of this writer (expected {{bytes, sha256}}, got {str(state)[:80]})",
+                f"the checkpoint holds no valid state of this writer (expected {{bytes, sha256, start, frames}}, got {str(state)[:80]}){hint}",
                 path=str(self.path),
             )
-        n = state["bytes"]
-        hint = "; cannot resume (run without --resume to start over)"
+        if start > n or (frames > 0) != (n > start) or frames > n - start:
+            raise InputError(
+                f"the checkpoint's state of this writer does not agree with itself ({frames} frame(s) in bytes {start}..{n}){hint}",
+                path=str(self.path),
+            )
         if not self.path.is_file():
             if n:
                 raise InputError(
@@ -127,23 +142,57 @@ class WriteLanes:
                 f"has {size} bytes, the checkpoint recorded {n} (shortened since?){hint}", path=str(self.path)
             )
         h = hashlib.sha256()
+        lines, last = 0, b"\n"
         with open(self.path, "rb") as fh:
-            left = n
-            while left:
-                chunk = fh.read(min(left, 1 << 20))
+            pos = 0
+            while pos < n:
+                chunk = fh.read(min(n - pos, 1 << 20))
                 if not chunk:
                     break
                 h.update(chunk)
-                left -= len(chunk)
+                if pos + len(chunk) > start:
+                    mine = chunk[max(start - pos, 0) :]
+                    lines += mine.count(b"\n")
+                    last = mine[-1:] or last
+                pos += len(chunk)
         if h.hexdigest() != state["sha256"]:
             raise InputError(
                 f"its first {n} bytes are not those the checkpoint recorded (changed since?){hint}",
                 path=str(self.path),
             )
+        if lines != frames or last != b"\n":
+            raise InputError(
+                f"bytes {start}..{n} hold {lines} whole line(s), the checkpoint recorded {frames} frame(s) done{hint}",
+                path=str(self.path),
+            )
         self.fh = open(self.path, "r+b", buffering=0)  # noqa: SIM115 - closed by close()
         self.fh.truncate(n)
         self.fh.seek(n)
-        self._hash, self._bytes = h, n
+        self._hash, self._bytes, self._start, self._frames = h, n, start, frames
+
+    def verify(self) -> None:
+        """After the last frame: the file at :attr:`path` must be the one this run wrote (the same
+        file, of the length written); another run, or a person, replacing it is an error (the run
+        exits 1 saying so)."""
+        if self.fh is None:
+            return
+        mine = os.fstat(self.fh.fileno())
+        try:
+            there = os.stat(self.path, follow_symlinks=False)
+        except OSError:
+            there = None
+        if there is None or (there.st_dev, there.st_ino) != (mine.st_dev, mine.st_ino):
+            raise InputError(
+                f"{'gone' if there is None else 'replaced'} during the run: the file there is not the one this run "
+                f"wrote its {self._frames} line(s) to (another process wrote into the output folder?)",
+                path=str(self.path),
+            )
+        if mine.st_size != self._bytes:
+            raise InputError(
+                f"changed during the run: {mine.st_size} bytes, this run wrote {self._bytes} "
+                "(another process wrote into it?)",
+                path=str(self.path),
+            )
 
     def close(self) -> None:
         if self.fh is not None:
@@ -217,14 +266,15 @@ class WriteOverlay:
         return {}
 
     def state(self) -> dict[str, Any]:
-        """Frames seen so far (``every`` counts them)."""
-        return {"count": self.count}
+        """Frames seen so far (``every`` counts them; the checkpoint checks them against the
+        frames done)."""
+        return {"frames": self.count}
 
     def restore(self, state: Any) -> None:
-        count = state.get("count") if isinstance(state, dict) else None
+        count = state.get("frames") if isinstance(state, dict) else None
         if not isinstance(count, int) or isinstance(count, bool) or count < 0:
             raise InputError(
-                f"the checkpoint holds no valid state of this writer (expected {{count}}, got {str(state)[:80]})",
+                f"the checkpoint holds no valid state of this writer (expected {{frames}}, got {str(state)[:80]})",
                 path=str(self.dir),
             )
         self.count = count

@@ -13,6 +13,8 @@ from __future__ import annotations
 import re
 import struct
 import warnings
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
@@ -21,6 +23,7 @@ import numpy as np
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from lanegraph import NodeParams, Port, RunContext, node_type
+from lanegraph._runtime import available_cpus
 from lanegraph.errors import InputError, UsageError
 from lanegraph.frames import parse_frames as _parse_frames
 from lanegraph.frames import select_frames, selection_text
@@ -57,7 +60,13 @@ def parse_frames(text: str | None) -> slice | None:
 
 
 def list_images(folder: Path) -> list[Path]:
-    return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXT and p.is_file())
+    """The image files of ``folder`` by name; AppleDouble files (``._NAME``: the resource forks
+    macOS leaves beside every file it copies to another file system) are not images."""
+    return sorted(
+        p
+        for p in folder.iterdir()
+        if p.suffix.lower() in IMAGE_EXT and not p.name.startswith("._") and p.is_file()
+    )
 
 
 #: ``image_size`` of an image whose header claims more pixels than PIL reads (about 179 Mpx)
@@ -224,6 +233,14 @@ class StereoSourceParams(NodeParams):
         True,
         description="refuse an input whose first readable pair matches at negative disparities (left and right swapped)",
     )
+    read_ahead: int = Field(
+        -1,
+        ge=-1,
+        le=16,
+        description="frames decoded ahead of the one the run asks for, on threads (each pair's two images in "
+        "parallel too); -1 = auto: 2 when the process has 2 or more CPUs free to it (affinity mask, cgroup "
+        "quota), else 0 with one image after the other",
+    )
 
     @model_validator(mode="after")
     def _baseline_range(self):
@@ -351,31 +368,75 @@ class _PairSource:
     def __len__(self) -> int:
         return len(self.pairs)
 
+    def _pair(self, stem: str, lp: Path, rp: Path, left: np.ndarray, right: np.ndarray) -> dict:
+        """The frame's outputs, its two images checked against each other and the calibration."""
+        if left.shape[:2] != right.shape[:2]:
+            raise InputError(
+                f"left/right size mismatch: left {left.shape[1]}x{left.shape[0]}, right {right.shape[1]}x{right.shape[0]}",
+                path=str(rp),
+                frame=stem,
+            )
+        if self.calib.width and (left.shape[1], left.shape[0]) != (self.calib.width, self.calib.height):
+            raise InputError(
+                f"image is {left.shape[1]}x{left.shape[0]}, the calibration expects {self.calib.width}x{self.calib.height}",
+                path=str(lp),
+                frame=stem,
+            )
+        return {"frame": stem, "left": left, "right": right}
+
+    def reading_plan(self) -> tuple[int, int]:
+        """``(frames read ahead, decoding threads)``: ``read_ahead``, or for -1 two frames when the
+        process has two or more CPUs free to it; the threads decode a pair's two images in
+        parallel (none: one image after the other in the caller's thread)."""
+        cpus = available_cpus()
+        ahead = self.params.read_ahead
+        if ahead < 0:
+            ahead = 2 if cpus >= 2 else 0
+        threads = min(cpus, 2 * (ahead + 1)) if cpus >= 2 or ahead > 0 else 0
+        return ahead, max(threads, 1 if ahead > 0 else 0)
+
     def __iter__(self):
         mpx = self.params.max_megapixels
-        for stem, lp, rp in self.pairs:
-            try:
-                left = read_image(lp, stem, self.gray, mpx)
-                right = read_image(rp, stem, self.gray, mpx)
-                if left.shape[:2] != right.shape[:2]:
-                    raise InputError(
-                        f"left/right size mismatch: left {left.shape[1]}x{left.shape[0]}, right {right.shape[1]}x{right.shape[0]}",
-                        path=str(rp),
-                        frame=stem,
-                    )
-                if self.calib.width and (left.shape[1], left.shape[0]) != (
-                    self.calib.width,
-                    self.calib.height,
-                ):
-                    raise InputError(
-                        f"image is {left.shape[1]}x{left.shape[0]}, the calibration expects {self.calib.width}x{self.calib.height}",
-                        path=str(lp),
-                        frame=stem,
-                    )
-            except InputError as exc:
-                yield exc
-                continue
-            yield {"frame": stem, "left": left, "right": right}
+        ahead, threads = self.reading_plan()
+        if threads == 0:
+            for stem, lp, rp in self.pairs:
+                try:
+                    left = read_image(lp, stem, self.gray, mpx)
+                    right = read_image(rp, stem, self.gray, mpx)
+                    item = self._pair(stem, lp, rp, left, right)
+                except InputError as exc:
+                    yield exc
+                    continue
+                yield item
+            return
+        pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="lanegraph-read")
+        pending: deque = deque()
+        pairs = iter(self.pairs)
+
+        def submit() -> bool:
+            for stem, lp, rp in pairs:
+                fl = pool.submit(read_image, lp, stem, self.gray, mpx)
+                pending.append((stem, lp, rp, fl, pool.submit(read_image, rp, stem, self.gray, mpx)))
+                return True
+            return False
+
+        try:
+            while True:
+                # this frame and ``ahead`` more in flight; the next is submitted only when the
+                # run asks for it (read_ahead 0: nothing decodes while the nodes compute)
+                while len(pending) < ahead + 1 and submit():
+                    pass
+                if not pending:
+                    return
+                stem, lp, rp, fl, fr = pending.popleft()
+                try:
+                    item = self._pair(stem, lp, rp, fl.result(), fr.result())
+                except InputError as exc:
+                    yield exc
+                    continue
+                yield item
+        finally:
+            pool.shutdown(wait=False, cancel_futures=True)
 
 
 def _resolved(p: str) -> str:

@@ -1,6 +1,6 @@
 """A plugin for the resume tests: interrupts the process that loads it at a chosen point of a run.
 
-``LANEGRAPH_TEST_INTERRUPT="SIGNAL:NODE:WHEN:N"`` (``INT`` or ``KILL``; a node id; ``before`` or
+``LANEGRAPH_TEST_INTERRUPT="SIGNAL:NODE:WHEN:N"`` (``INT``, ``TERM``, ``HUP`` or ``KILL``; a node id; ``before`` or
 ``after`` the node; the N-th frame this process gives that node, from 1) sends the signal to the
 process itself there: SIGKILL ends it at once, SIGINT raises KeyboardInterrupt as Ctrl-C does.
 ``after`` the sink ``write`` is the narrowest point: the line is written, the checkpoint is not.
@@ -29,7 +29,12 @@ class Interrupter:
         self.n = 0
         if spec:
             sig, self.node, self.when, n = spec.split(":")
-            self.sig = {"INT": signal.SIGINT, "KILL": signal.SIGKILL}[sig]
+            self.sig = {
+                "INT": signal.SIGINT,
+                "KILL": signal.SIGKILL,
+                "TERM": signal.SIGTERM,
+                "HUP": signal.SIGHUP,
+            }[sig]
             self.n = int(n)
         self.seen = 0
 

@@ -128,6 +128,11 @@ def test_chunks_are_the_runs_after_their_warmup(tmp_path, synthetic_dataset):
         ],
     )
     assert r.exit_code == 0, r.output
+    # issue 31, item 10: the graph's state outlives the warm-up: said before it starts and in run.json
+    said = "the graph carries state from frame to frame (feedback edge(s) "
+    assert said in r.output and "verify.lanes@prev" in r.output, r.output
+    assert r.output.index(said) < r.output.index("curve: 7 frame(s)"), r.output
+    assert any(said in w for w in json.loads((out / "curve" / "run.json").read_text())["warnings"])
     # 7 frames: [0, 3) alone, [3, 6) after frames 1-2, [6, 7) after frames 4-5
     expected = []
     for frames, warm in (("0:3", 0), ("1:6", 2), ("4:7", 2)):

@@ -14,6 +14,7 @@ docs/tutorial.md to ``docs/img/``.
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import re
@@ -284,12 +285,33 @@ def test_a_report_that_fails_leaves_the_earlier_one_whole(run_out, tmp_path, mon
         raise OSError("disk full")
 
     monkeypatch.setattr(_page, "render", broken)
-    with pytest.raises(OSError, match="disk full"):
-        CliRunner().invoke(
-            main, ["report", str(out), "--out", str(target), "--quiet"], catch_exceptions=False
-        )
+    r = CliRunner().invoke(main, ["report", str(out), "--out", str(target), "--quiet"])
+    assert r.exit_code == 1, r.output
+    assert r.exception is None or isinstance(r.exception, SystemExit), repr(r.exception)
+    assert f"error: {target}: cannot write the report: disk full" in r.output, r.output
     assert sorted(str(p.relative_to(target)) for p in target.rglob("*")) == before
     assert (target / "index.html").read_text() == page
+
+
+def test_a_report_out_that_cannot_be_a_folder(run_out, tmp_path, monkeypatch):
+    """Issue 31, item 8: ``--out FILE`` gave a FileExistsError traceback, a read-only file system
+    an OSError one; both are located usage errors (exit 2), the file left as it was."""
+    out, _ = run_out
+    f = tmp_path / "afile"
+    f.write_text("keep me\n")
+    for target, words in [(f, "exists and is not a folder"), (f / "sub", f"{f} is a file, not a folder")]:
+        r = CliRunner().invoke(main, ["report", str(out), "--out", str(target), "--quiet"])
+        assert r.exit_code == 2 and f"error: --out {target}: {words}" in r.output, r.output
+        assert "Traceback" not in r.output
+    assert f.read_text() == "keep me\n"
+
+    def refuse(self, *a, **k):
+        raise OSError(errno.EROFS, "Read-only file system", str(self))
+
+    monkeypatch.setattr(Path, "mkdir", refuse)
+    r = CliRunner().invoke(main, ["report", str(out), "--out", str(tmp_path / "ro"), "--quiet"])
+    assert r.exit_code == 2, r.output
+    assert f"error: --out {tmp_path / 'ro'}: cannot write there: Read-only file system" in r.output, r.output
 
 
 def test_a_run_of_part_of_the_frames_needs_its_frames(scene, run_out, tmp_path):

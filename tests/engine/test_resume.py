@@ -247,3 +247,21 @@ def test_a_feedback_value_a_checkpoint_cannot_hold(tmp_path, pm):
     )
     with pytest.raises(UsageError, match="cannot be resumed: a feedback value cannot be stored"):
         Executor(g, RunContext(skip=state.position), pm, checkpoint=ck, resume=state)
+
+
+@pytest.mark.parametrize("sig, code, label", [("TERM", 143, "SIGTERM"), ("HUP", 129, "SIGHUP")])
+def test_sigterm_and_sighup_stop_a_run_as_ctrl_c_does(tmp_path, uninterrupted, sig, code, label):
+    """Issue 31, item 6: only Ctrl-C wrote run.json's stop; SIGTERM and SIGHUP are handled alike:
+    the stop recorded, exit 128 + the signal, the lanes kept, --resume continues."""
+    out = tmp_path / "out"
+    r = interrupted_run(out, f"{sig}:write:after:3")
+    assert r.returncode == code, r.stderr
+    assert f"interrupted ({label}); continue with --resume" in r.stderr and "Traceback" not in r.stderr, (
+        r.stderr
+    )
+    rec = json.loads((out / "run.json").read_text())
+    assert rec["status"] == "stopped" and f"interrupted ({label})" in rec["stopped"]["error"], rec
+    assert (out / "lanes.jsonl").read_text().count("\n") == 3
+    r = interrupted_run(out, None, "--resume")
+    assert r.returncode == 0, r.stderr
+    assert (out / "lanes.jsonl").read_text() == uninterrupted

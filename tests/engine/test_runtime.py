@@ -64,3 +64,37 @@ def test_openmp_threads_sleep_unless_the_environment_says(preset, expected):
         [sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True
     ).stdout.split()
     assert out == [expected]
+
+
+def _cgroup(tmp_path, v2: str | None = None, v1: tuple[str, str] | None = None):
+    if v2 is not None:
+        (tmp_path / "cpu.max").write_text(v2 + "\n")
+    if v1 is not None:
+        (tmp_path / "cpu").mkdir()
+        (tmp_path / "cpu" / "cpu.cfs_quota_us").write_text(v1[0] + "\n")
+        (tmp_path / "cpu" / "cpu.cfs_period_us").write_text(v1[1] + "\n")
+    return str(tmp_path)
+
+
+@pytest.mark.parametrize(
+    "v2, v1, cap",
+    [
+        ("150000 100000", None, 2),  # 1.5 CPUs: two threads make progress
+        ("50000 100000", None, 1),
+        ("400000 100000", None, 4),
+        ("max 100000", None, None),  # no quota
+        (None, ("200000", "100000"), 2),  # cgroup v1
+        (None, ("-1", "100000"), None),  # v1 without a quota
+        ("garbage", None, None),  # unreadable: no cap
+        (None, None, None),  # no cgroup files at all
+    ],
+)
+def test_available_cpus_is_the_affinity_capped_by_the_cgroup_quota(tmp_path, v2, v1, cap):
+    from lanegraph._runtime import available_cpus
+
+    try:
+        affinity = len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        affinity = os.cpu_count() or 1
+    got = available_cpus(_cgroup(tmp_path, v2, v1))
+    assert got == (affinity if cap is None else min(affinity, cap)) and got >= 1

@@ -423,10 +423,11 @@ def test_every_param_is_documented_and_bounded(model):
             assert {"Ge", "Le"} <= bounds, f"{model.__name__}.{name} lacks ge/le bounds"
 
 
-def test_plugin_registers_the_five_backends():
+def test_plugin_registers_the_six_backends():
     types = {t.name: t for t in map(node_type_of, ld.lanegraph_node_types())}
     assert set(types) == {
         "disparity.sgbm",
+        "disparity.road_sgbm",
         "disparity.bm",
         "disparity.sgm",
         "disparity.file",
@@ -554,3 +555,185 @@ def test_strips_and_top_fraction_agree_with_one_pass():
     assert both.mean() > 0.5 and np.mean(np.abs(one - strips)[both] < 0.5) > 0.95
     top = run(ld.sgbm, ld.SgbmParams(), left, right, num_disparities=16, block_size=5, top_fraction=0.5)
     assert not top[:60].any() and np.median(top[70:, 30:80]) == pytest.approx(7, abs=0.5)
+
+
+# --------------------------------------------------------------------------- road-guided bands
+
+from lanegraph_disparity import _road  # noqa: E402
+
+from lanegraph.types import Calibration, RoadModel  # noqa: E402
+
+#: KITTI-like rig: f B = 387 px m, the road 1.65 m below the camera, horizon at row 173
+KITTI_CALIB = Calibration(f=721.5, cx=609.6, cy=172.9, baseline=0.537, width=1242, height=375)
+
+
+def flat_road(calib: Calibration = KITTI_CALIB, height: float = 1.65, roll: float = 0.0) -> RoadModel:
+    """The road model of a flat road at zero pitch: d(v) = f B / (fy h) (v - cy)."""
+    a1 = calib.f * calib.baseline / (calib.f_y * height)
+    return RoadModel(a0=-a1 * calib.cy, a1=a1, roll=roll, height=height, valid=True)
+
+
+def test_usable_prediction_checks_the_model():
+    road = flat_road()
+    assert _road.usable_prediction(road, 374, 96.0)
+    assert not _road.usable_prediction(None, 374, 96.0)  # the first frame
+    assert not _road.usable_prediction(RoadModel(**{**road.__dict__, "valid": False}), 374, 96.0)
+    assert not _road.usable_prediction(RoadModel(**{**road.__dict__, "a1": float("nan")}), 374, 96.0)
+    assert not _road.usable_prediction(RoadModel(**{**road.__dict__, "height": 0.0}), 374, 96.0)
+    # a disparity that falls down the rows, or one beyond the range at the bottom row
+    assert not _road.usable_prediction(RoadModel(**{**road.__dict__, "a0": 200.0, "a1": -0.3}), 374, 96.0)
+    assert not _road.usable_prediction(road, 374, 40.0)
+
+
+def test_road_range_holds_the_road_kerbs_and_obstacles_and_skips_beyond_the_far_end():
+    road, calib = flat_road(), KITTI_CALIB
+    rows = np.arange(375, dtype=float)
+    d = road.disparity_at(rows)
+    fb = calib.f * calib.baseline
+    p = ld.RoadSgbmParams()
+    lo, hi, dr = _road.road_range(road, calib, rows, calib.width, p)
+    np.testing.assert_allclose(dr, d)  # no roll: the same disparity along the row
+    used = lo <= hi
+    # rows whose road lies beyond far_m (and the margin) are not matched; the others are
+    assert np.array_equal(used, d + p.road_margin_px >= fb / p.far_m)
+    assert np.all(lo[used] <= d[used] - p.road_margin_px + 1e-9)
+    kerb = d / (1.0 - 0.3 / 1.65)  # what stands 30 cm on the road
+    assert np.all(hi[used] >= kerb[used])
+    # a car's lower metre, nearer than near_m never
+    car = np.minimum(fb / p.near_m, d / (1.0 - p.obstacle_height_m / 1.65))
+    assert np.all(hi[used] >= car[used] - 1e-9)
+    lo_c, hi_c, _ = _road.road_range(
+        road, calib, rows, calib.width, p.model_copy(update={"obstacles": "coarse"})
+    )
+    assert np.all(hi_c[used] <= hi[used]) and np.any(hi_c[used] < hi[used] - 0.1)
+
+
+def test_road_range_covers_a_rolled_row_end_to_end():
+    calib = KITTI_CALIB
+    road = flat_road(roll=np.radians(2.0))
+    lo, hi, dr = _road.road_range(road, calib, np.array([300.0]), calib.width, ld.RoadSgbmParams())
+    s = np.sin(road.roll) * calib.f_y / calib.f
+    ends = [
+        road.disparity_at(calib.cy + s * (u - calib.cx) + np.cos(road.roll) * (300.0 - calib.cy))
+        for u in (0, 1241)
+    ]
+    assert lo[0] <= min(ends) - 4.0 + 1e-9 and dr[0] == pytest.approx(max(ends))
+
+
+def test_band_plan_is_a_fixed_split_with_ranges_that_hold_every_row():
+    rng = np.random.default_rng(3)
+    n, first, rows = 375, 112, 32
+    lo = np.sort(rng.uniform(-10, 90, n))
+    hi = lo + rng.uniform(0, 30, n)
+    lo[:150], hi[:150] = 1.0, 0.0  # not matched
+    c0 = rng.integers(0, 300, n).astype(float)
+    c1 = rng.integers(900, 1300, n).astype(float)
+    plan = _road.band_plan(n, 1242, first, rows, 0, 96, (lo, hi), (c0, c1))
+    full = _road.band_plan(n, 1242, first, rows, 0, 96)
+    assert [(b.a, b.b) for b in full] == [(a, min(n, a + rows)) for a in range(first, n, rows)]
+    assert all((b.low, b.num, b.c0, b.c1) == (0, 96, 0, 1242) for b in full)
+    kept = {(b.a, b.b) for b in plan}
+    assert kept == {(a, b) for a, b in ((b.a, b.b) for b in full) if (lo[a:b] <= hi[a:b]).any()}
+    for b in plan:
+        assert b.num % 16 == 0 and 0 <= b.low and b.low + b.num <= 96
+        keep = lo[b.a : b.b] <= hi[b.a : b.b]
+        assert b.low <= max(0.0, lo[b.a : b.b][keep].min())
+        assert b.low + b.num - 1 >= min(95.0, hi[b.a : b.b][keep].max())
+        assert b.c0 == max(0, c0[b.a : b.b].min()) and b.c1 == min(1242, c1[b.a : b.b].max())
+
+
+@pytest.fixture(scope="module")
+def synthetic_pair():
+    synthetic = pytest.importorskip("lanegraph_synthetic")
+    renderer = synthetic.SceneRenderer(synthetic.preset("urban"))
+    prev, fr = renderer.render(3), renderer.render(4)
+    road = ld.sgbm(
+        ld.SgbmParams(num_disparities=96, top_fraction=0.3, uniqueness_ratio=30), prev.left, prev.right
+    )
+    from lanegraph.testing import run_node
+
+    model = run_node("road.profile", {"disparity": road["disparity"], "calib": prev.calib})["road"]
+    assert model.valid
+    return fr, model
+
+
+PAPER_SGBM = dict(num_disparities=96, block_size=5, top_fraction=0.3, uniqueness_ratio=30)
+
+
+@pytest.mark.parametrize("guided", [True, False])
+def test_road_sgbm_is_the_same_on_any_number_of_threads(synthetic_pair, guided):
+    fr, model = synthetic_pair
+    road = model if guided else None
+    maps = [
+        ld.road_sgbm(
+            ld.RoadSgbmParams(**PAPER_SGBM, threads=t), fr.left, fr.right, road=road, calib=fr.calib
+        )["disparity"]
+        for t in (1, 2, 3)
+    ]
+    assert maps[0].dtype == np.float32 and maps[0].shape == fr.left.shape[:2]
+    assert np.array_equal(maps[0], maps[1]) and np.array_equal(maps[0], maps[2])
+    assert (maps[0] > 0).mean() > 0.3
+
+
+def test_road_sgbm_without_a_usable_road_searches_the_full_range(synthetic_pair):
+    fr, model = synthetic_pair
+    p = ld.RoadSgbmParams(**PAPER_SGBM)
+    first = ld.road_sgbm(p, fr.left, fr.right)["disparity"]
+    invalid = RoadModel(**{**model.__dict__, "valid": False})
+    assert np.array_equal(
+        first, ld.road_sgbm(p, fr.left, fr.right, road=invalid, calib=fr.calib)["disparity"]
+    )
+    guided = ld.road_sgbm(p, fr.left, fr.right, road=model, calib=fr.calib)["disparity"]
+    assert not np.array_equal(first, guided)
+    assert not first[: round(0.3 * 375)].any()  # top_fraction
+    # the guided map leaves the rows beyond the road's far end without a disparity
+    horizon = int(-model.a0 / model.a1)
+    assert not guided[: horizon - 30].any() and first[round(0.3 * 375) : horizon - 30].any()
+
+
+@pytest.mark.parametrize("obstacles", ["band", "coarse"])
+def test_road_sgbm_on_the_road_is_no_worse_than_sgbm(synthetic_pair, obstacles):
+    """Exact ground truth: on the road 5-45 m ahead, where both the road-guided map and one full
+    SGBM search give a disparity, their errors (here and in docs/pipeline.md)."""
+    fr, model = synthetic_pair
+    sgbm = ld.sgbm(ld.SgbmParams(**PAPER_SGBM), fr.left, fr.right)["disparity"]
+    p = ld.RoadSgbmParams(**PAPER_SGBM, obstacles=obstacles)
+    guided = ld.road_sgbm(p, fr.left, fr.right, road=model, calib=fr.calib)["disparity"]
+    fb = fr.calib.f * fr.calib.baseline
+    z = np.where(fr.disparity > 0, fb / np.maximum(fr.disparity, 1e-6), np.inf)
+    road = fr.road_mask & (z >= 5) & (z <= 45)
+    road[:, :128] = False
+    # within the BEV's width (the bands match the columns within lateral_m of the axis)
+    x = (
+        (np.arange(fr.disparity.shape[1])[None, :] - fr.calib.cx)
+        * fr.calib.baseline
+        / np.maximum(fr.disparity, 1e-6)
+    )
+    road &= np.abs(x) <= 10.0
+    both = road & (sgbm > 0) & (guided > 0)
+    assert both.sum() > 50000
+    err_sgbm = np.abs(sgbm - fr.disparity)[both].mean()
+    err_guided = np.abs(guided - fr.disparity)[both].mean()
+    assert err_guided <= err_sgbm + 0.01, (err_guided, err_sgbm)
+    # and it covers the road as densely
+    assert (guided[road] > 0).mean() >= (sgbm[road] > 0).mean() - 0.02
+
+
+def test_road_sgbm_needs_the_calibration_with_a_road():
+    left, right = shifted_pair(4, 60, 200)
+    with pytest.raises(InputError, match="calib"):
+        ld.road_sgbm(ld.RoadSgbmParams(num_disparities=16), left, right, road=flat_road())
+
+
+@pytest.mark.parametrize("field, value", [("lr_check", True), ("wls", True), ("strips", 2)])
+def test_road_sgbm_refuses_what_the_bands_replace(field, value):
+    with pytest.raises(ValidationError, match=f"{field}: not supported by disparity.road_sgbm"):
+        ld.RoadSgbmParams(**{field: value})
+
+
+def test_sgbm_with_a_min_disparity_reports_no_disparity_below_it():
+    """OpenCV marks an invalid pixel (min_disparity - 1) * 16: never a disparity of the map."""
+    left, right = shifted_pair(12, 60, 200, smooth=2)
+    d = run(ld.sgbm, ld.SgbmParams(num_disparities=16, min_disparity=8), left, right)
+    assert (d > 0).any() and not ((d > 0) & (d < 8)).any()
+    assert np.median(d[d > 0]) == pytest.approx(12.0, abs=0.5)

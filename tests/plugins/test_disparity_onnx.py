@@ -789,3 +789,43 @@ def test_onnx_graph_with_a_fixed_size_model_fails_on_the_first_frame(tmp_path):
     assert r.exit_code == 1, r.output
     assert "node 'disp' (disparity.onnx) failed on frame 0000000000: InputError:" in r.output
     assert "model input 'left' has the fixed shape [1, 3, 32, 48]" in r.output
+
+
+@pytest.mark.parametrize("elem", [TensorProto.INT64, TensorProto.INT32])
+def test_an_integer_index_output_is_refused_when_the_run_opens(tmp_path, elem):
+    """Issue 31, item 9: an int64 output was taken as a disparity; the only sign was a road
+    invalid on every frame."""
+    inputs = [
+        helper.make_tensor_value_info(n, TensorProto.FLOAT, [1, 3, "h", "w"]) for n in ("left", "right")
+    ]
+    nodes = [
+        helper.make_node("ReduceMean", ["left"], ["m"], axes=[1], keepdims=0),
+        helper.make_node("Cast", ["m"], ["disparity"], to=elem),
+    ]
+    model = make_model(nodes, inputs, [helper.make_tensor_value_info("disparity", elem, [1, "h", "w"])])
+    model.opset_import[0].version = 13
+    path = save(model, tmp_path / "index.onnx")
+    with pytest.raises(GraphError) as info:
+        open_node(path)
+    text = str(info.value)
+    assert "node 'disp' (disparity.onnx): params.output: model output 'disparity'" in text, text
+    assert "holds indices or labels, not a disparity in pixels" in text, text
+
+
+def test_a_one_pixel_output_is_refused_at_the_first_frame(tmp_path):
+    """Issue 31, item 9: a 1x1 output passed the aspect check and became a constant disparity."""
+    inputs = [
+        helper.make_tensor_value_info(n, TensorProto.FLOAT, [1, 3, "h", "w"]) for n in ("left", "right")
+    ]
+    nodes = [helper.make_node("ReduceMean", ["left"], ["disparity"], axes=[1, 2, 3], keepdims=1)]
+    model = make_model(
+        nodes, inputs, [helper.make_tensor_value_info("disparity", TensorProto.FLOAT, [1, 1, 1, 1])]
+    )
+    model.opset_import[0].version = 13
+    path = save(model, tmp_path / "one.onnx")
+    left, right = shifted_pair(2)
+    with pytest.raises(InputError) as info:
+        open_node(path)(left=left, right=right)
+    text = str(info.value)
+    assert text.startswith(f"{path}: model output 'disparity' is a 1x1 map for a 64x96 network input"), text
+    assert "at least 1/16 of the input's size (4x6 here)" in text, text

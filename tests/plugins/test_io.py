@@ -243,3 +243,71 @@ def test_io_auto_selects_the_source_by_the_input(tmp_path):
         AutoSource.select_source(AutoParams(), tmp_path / "nothing", detect_source)
     with pytest.raises(RuntimeError, match="never instantiated"):
         AutoSource(AutoParams(), RunContext())
+
+
+@pytest.mark.parametrize("read_ahead", [0, 1, 3])
+def test_read_ahead_gives_the_frames_in_order_with_their_errors(tmp_path, read_ahead):
+    """Decoding ahead on threads (the pair's two images in parallel) changes nothing a run sees:
+    the same frames in the same order, a bad frame's error at its place."""
+    drive = kitti_raw(tmp_path, n=6)
+    (drive / "image_03" / "data" / "0000000002.png").write_bytes(b"\x89PNG\r\n\x1a\n truncated")
+    plain = list(open_source(KittiRawSource, {"read_ahead": 0}, drive))
+    src = open_source(KittiRawSource, {"read_ahead": read_ahead}, drive)
+    assert src.reading_plan()[0] == read_ahead
+    items = list(src)
+    assert len(items) == len(plain) == 6
+    for a, b in zip(items, plain):
+        if isinstance(b, InputError):
+            assert isinstance(a, InputError) and str(a) == str(b) and "0000000002" in str(a)
+        else:
+            assert a["frame"] == b["frame"] and np.array_equal(a["left"], b["left"])
+            assert np.array_equal(a["right"], b["right"])
+    assert [i["frame"] for i in items if not isinstance(i, InputError)] == [
+        f"{i:010d}" for i in (0, 1, 3, 4, 5)
+    ]
+
+
+def test_read_ahead_stops_with_the_run(tmp_path):
+    """A run that stops early (the generator closed) leaves no decoding thread behind."""
+    import threading
+
+    drive = kitti_raw(tmp_path, n=8)
+    it = iter(open_source(KittiRawSource, {"read_ahead": 4}, drive))
+    assert next(it)["frame"] == "0000000000"
+    it.close()
+    for th in threading.enumerate():
+        if th.name.startswith("lanegraph-read"):
+            th.join(timeout=5)
+            assert not th.is_alive()
+
+
+def test_auto_read_ahead_follows_the_free_cpus(tmp_path, monkeypatch):
+    from lanegraph_io import _sources
+
+    drive = kitti_raw(tmp_path, n=2)
+    src = open_source(KittiRawSource, {}, drive)
+    monkeypatch.setattr(_sources, "available_cpus", lambda: 1)
+    assert src.reading_plan() == (0, 0)  # one CPU: one image after the other, in the caller's thread
+    monkeypatch.setattr(_sources, "available_cpus", lambda: 4)
+    assert src.reading_plan() == (2, 4)
+    assert [i["frame"] for i in src] == ["0000000000", "0000000001"]
+
+
+@pytest.mark.parametrize("read_ahead", [0, 2])
+def test_read_ahead_decodes_that_many_frames_beyond_the_one_asked_for(tmp_path, monkeypatch, read_ahead):
+    from lanegraph_io import _sources
+
+    drive = kitti_raw(tmp_path, n=8)
+    src = open_source(KittiRawSource, {"read_ahead": read_ahead}, drive)
+    asked: list[str] = []
+    real = _sources.read_image
+    monkeypatch.setattr(
+        _sources, "read_image", lambda path, *a, **k: asked.append(path.name) or real(path, *a, **k)
+    )
+    it = iter(src)
+    next(it)
+    import time
+
+    time.sleep(0.2)  # let the threads take what was submitted
+    assert len(set(asked)) == 1 + read_ahead  # this frame's pair and read_ahead more
+    it.close()

@@ -17,7 +17,7 @@ from ...errors import InputError, LanegraphError, UsageError
 from ...evaluation.dataset import POOLED, Dataset, evaluate_sequences
 from ...evaluation.metrics import evaluate
 from ...graph.model import Graph
-from ...paths import new_temp_dir, new_temp_file
+from ...paths import new_temp_dir, new_temp_file, prepare_dir
 from ...plugins import PluginManager, get_plugin_manager
 from . import _page
 from ._collect import Collected, collect
@@ -99,6 +99,8 @@ def write_report(
         ``run_dir`` is not an output folder, or the options do not fit it (exit code 2).
     InputError
         a malformed file in it, or a malformed ground truth.
+    LanegraphError
+        the report could not be written (a full disk; exit code 1): the earlier report stays.
     """
     t0 = time.perf_counter()
     pm = pm or get_plugin_manager()
@@ -113,7 +115,18 @@ def write_report(
     if debug is not None and not debug.is_dir():
         raise UsageError(f"--debug-dir {debug}: no such folder")
     log = _Log(progress)
-    frames_json, failed, debug_frames = _assemble(data, out, pm, debug, image_width, log)
+    # a file, a file among its parents, a read-only file system: refused before anything is written
+    prepare_dir(out, "--out" if out_dir is not None else "report folder")
+    try:
+        frames_json, failed, debug_frames = _assemble(data, out, pm, debug, image_width, log)
+    except OSError as exc:  # a disk that fills up on the way: said, located; the earlier report stays
+        where = Path(exc.filename) if exc.filename else out
+        what = (
+            "cannot write the report"
+            if out.resolve() in [where.resolve(), *where.resolve().parents]
+            else "error"
+        )
+        raise LanegraphError(f"{where}: {what}: {exc.strerror or exc}") from None
     files = [out / "index.html", *(p for p in (out / "assets").rglob("*") if p.is_file())]
     for note in data.notes:
         log(f"note: {note}")
