@@ -263,33 +263,39 @@ class OutputLock:
         )
 
     def probe(self) -> None:
-        """Raise the :class:`UsageError` of :meth:`acquire` when another process holds the lock,
-        without creating or writing anything (a folder refused for another reason stays as it was)."""
+        """Raise the :class:`UsageError` of :meth:`acquire` when another process holds the lock
+        (on the folder, or on the lock file of an older lanegraph), without creating or writing
+        anything: a folder refused for another reason stays as it was."""
         try:
             import fcntl
         except ImportError:  # pragma: no cover - not a POSIX system: no lock
             return
-        try:
-            fd = os.open(self.path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
-        except OSError as exc:
+        for path, flags in (
+            (self.folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0)),
+            (self.path, os.O_RDONLY),
+        ):
             try:
-                planted = self.path.is_symlink()
-            except OSError:
-                planted = False
-            if planted:  # a link planted at its name: what acquire() would say
-                raise UsageError(f"{self.path}: cannot create the lock file: {exc.strerror or exc}") from None
-            return  # no lock file (nobody holds it), or no folder: prepare_dir says why
-        with os.fdopen(fd, "r", encoding="utf-8", errors="replace") as fh:
+                fd = os.open(path, flags | getattr(os, "O_NOFOLLOW", 0) * (path == self.path))
+            except OSError as exc:
+                try:
+                    planted = path == self.path and self.path.is_symlink()
+                except OSError:
+                    planted = False
+                if planted:  # a link planted at the lock file's name: what acquire() would say
+                    raise UsageError(
+                        f"{self.path}: cannot create the lock file: {exc.strerror or exc}"
+                    ) from None
+                return  # no folder or no lock file: nobody holds it (prepare_dir says why there is none)
             try:
-                fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError as exc:
                 if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
-                    raise UsageError(
-                        f"{self.path.parent}: in use by another lanegraph {_holder(fh.read(4096))}; "
-                        "wait for it to finish or choose another output folder"
-                    ) from None
-                return
-            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+                    raise self._busy() from None
+                continue  # a file system that cannot lock it
+            else:
+                fcntl.flock(fd, fcntl.LOCK_UN)
+            finally:
+                os.close(fd)
 
     def release(self) -> None:
         if self._fh is not None:

@@ -82,6 +82,7 @@ class _ConsoleHandler(logging.Handler):
             from tqdm import tqdm
 
             tqdm.write(self.format(record), file=sys.stderr)
+            sys.stderr.flush()  # in order with what the command prints on stdout
         except Exception:  # noqa: BLE001 - logging must never stop the run
             self.handleError(record)
 
