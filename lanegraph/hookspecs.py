@@ -86,3 +86,12 @@ def lanegraph_read_calibration(path: Any) -> Any:
     """Read the calibration file ``path`` if this plugin knows its format: a
     :class:`lanegraph.types.Calibration`, or None to decline. Raise an
     :class:`~lanegraph.errors.InputError` for a file of its format that is malformed."""
+
+
+@hookspec
+def lanegraph_trackers() -> list[Any]:
+    """Return the experiment trackers this plugin provides, chosen with ``--track NAME[:URI]`` on
+    ``run`` and ``ablate``: classes with a class attribute ``name`` (what ``--track`` calls them),
+    made with the URI (or None) and implementing :class:`lanegraph.tracking.Tracker` (``start``
+    before any frame, ``log_run`` per variant and sequence once evaluated, ``end``). Import the
+    tracker's library in those methods only, so that the plugin costs nothing until asked for."""

@@ -18,7 +18,7 @@ import errno
 import json
 import os
 import re
-import tempfile
+import secrets
 import time
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
@@ -225,7 +225,7 @@ class OutputLock:
 
     def _lock_file(self, fcntl: Any) -> None:
         try:  # never through a link planted at the lock's name (it would be truncated)
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), _FILE_MODE)
             fh = os.fdopen(fd, "r+", encoding="utf-8")
         except OSError as exc:
             raise UsageError(f"{self.path}: cannot create the lock file: {exc.strerror or exc}") from None
@@ -262,6 +262,41 @@ class OutputLock:
             "wait for it to finish or choose another output folder"
         )
 
+    def probe(self) -> None:
+        """Raise the :class:`UsageError` of :meth:`acquire` when another process holds the lock
+        (on the folder, or on the lock file of an older lanegraph), without creating or writing
+        anything: a folder refused for another reason stays as it was."""
+        try:
+            import fcntl
+        except ImportError:  # pragma: no cover - not a POSIX system: no lock
+            return
+        for path, flags in (
+            (self.folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0)),
+            (self.path, os.O_RDONLY),
+        ):
+            try:
+                fd = os.open(path, flags | getattr(os, "O_NOFOLLOW", 0) * (path == self.path))
+            except OSError as exc:
+                try:
+                    planted = path == self.path and self.path.is_symlink()
+                except OSError:
+                    planted = False
+                if planted:  # a link planted at the lock file's name: what acquire() would say
+                    raise UsageError(
+                        f"{self.path}: cannot create the lock file: {exc.strerror or exc}"
+                    ) from None
+                return  # no folder or no lock file: nobody holds it (prepare_dir says why there is none)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError as exc:
+                if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                    raise self._busy() from None
+                continue  # a file system that cannot lock it
+            else:
+                fcntl.flock(fd, fcntl.LOCK_UN)
+            finally:
+                os.close(fd)
+
     def release(self) -> None:
         if self._fh is not None:
             self._fh.close()  # closing releases the flock
@@ -285,11 +320,45 @@ def _holder(text: str) -> str:
         return "run (holder unknown)"
 
 
+#: the mode a new file or folder asks for; the umask takes from it, as for any file ``open()`` creates
+_FILE_MODE, _DIR_MODE = 0o666, 0o777
+_NEW_FILE = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+
+
+def new_temp_file(folder: Path, prefix: str = ".", suffix: str = ".tmp") -> tuple[int, Path]:
+    """A new file of a name no other has in ``folder``, opened for writing: ``(descriptor, path)``.
+
+    Unlike :func:`tempfile.mkstemp` (always ``0600``) it is created with the mode a plain ``open()``
+    gives under the process's umask, so a file written here and renamed into place is as readable as
+    any other file the command writes (``0644`` under umask 022, ``0600`` under 077). Never through a
+    link (``O_EXCL``, ``O_NOFOLLOW``)."""
+    for _ in range(100):
+        path = Path(folder) / f"{prefix}{secrets.token_hex(6)}{suffix}"
+        try:
+            return os.open(path, _NEW_FILE, _FILE_MODE), path
+        except FileExistsError:
+            continue
+    raise FileExistsError(errno.EEXIST, "no unused temporary file name", str(folder))
+
+
+def new_temp_dir(folder: Path, prefix: str = ".") -> Path:
+    """A new, empty folder of a name no other has in ``folder``, with the mode ``mkdir`` gives under
+    the umask (:func:`tempfile.mkdtemp` makes it ``0700``, which a rename into place would keep)."""
+    for _ in range(100):
+        path = Path(folder) / f"{prefix}{secrets.token_hex(6)}"
+        try:
+            os.mkdir(path, _DIR_MODE)
+            return path
+        except FileExistsError:
+            continue
+    raise FileExistsError(errno.EEXIST, "no unused temporary folder name", str(folder))
+
+
 def write_bytes_atomic(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` through a new temporary file in the same folder and a rename: never
     half a file, and never through a symbolic or hard link planted at ``path`` (the rename replaces
-    the link itself)."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name[:100]}.", suffix=".tmp")
+    the link itself). The file ends with the mode a plain ``open()`` would give it (the umask's)."""
+    fd, tmp = new_temp_file(path.parent, prefix=f".{path.name[:100]}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
@@ -314,7 +383,7 @@ def create_new(path: Path) -> Any:
         path.unlink()
     except FileNotFoundError:
         pass
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o644)
+    fd = os.open(path, _NEW_FILE, _FILE_MODE)
     return os.fdopen(fd, "wb", buffering=0)
 
 
@@ -332,6 +401,8 @@ __all__ = [
     "relative_output",
     "safe_name",
     "create_new",
+    "new_temp_dir",
+    "new_temp_file",
     "write_bytes_atomic",
     "write_text_atomic",
 ]

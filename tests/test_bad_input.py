@@ -75,8 +75,10 @@ def run(installed_pm, monkeypatch, tmp_path):
     monkeypatch.setattr(plugins, "_default", installed_pm)
     monkeypatch.chdir(tmp_path)
 
+    calls = iter(range(1000))
+
     def invoke(graph: Path, input_dir: Path, *args: str):
-        out = tmp_path / "out"
+        out = tmp_path / f"out{next(calls)}"  # one run per output folder
         r = CliRunner().invoke(
             main, ["run", str(graph), "--input", str(input_dir), "--out", str(out), "--quiet", *args]
         )

@@ -829,7 +829,7 @@ def test_a_full_disk_during_the_run(cli, tmp_path, monkeypatch):
 
     monkeypatch.setattr(paths, "write_text_atomic", no_space)
     calls["n"] = 0
-    code, output = cli("run", DEMO, "--out", out, "--quiet", *SYNTH)
+    code, output = cli("run", DEMO, "--out", out, "--quiet", "--overwrite", *SYNTH)
     assert code == 1 and f"cannot write {out}/run.json and timings.json: No space left on device" in output, (
         output
     )
@@ -1080,11 +1080,10 @@ def test_eval_checks_both_files(cli, tmp_path, pred, gt, where, words):
 def test_frames_minus_one_is_the_last_frame(cli, tmp_path):
     d = pair_folder(tmp_path / "in", n=4)
     for sel, expect in (("-1", ["000003"]), ("-2", ["000002"]), ("-2:", ["000002", "000003"])):
-        code, output = cli(
-            "run", DEMO, "--input", d, "--out", tmp_path / "out", "--quiet", *SMALL, "--frames", sel
-        )
+        out = tmp_path / f"out{sel}"  # one run per output folder
+        code, output = cli("run", DEMO, "--input", d, "--out", out, "--quiet", *SMALL, "--frames", sel)
         assert code == 0, output
-        assert [json.loads(x)["frame"] for x in lines(tmp_path / "out" / "lanes.jsonl")] == expect
+        assert [json.loads(x)["frame"] for x in lines(out / "lanes.jsonl")] == expect
 
 
 @pytest.mark.parametrize("sel", ["10:20", "7", "-9"])

@@ -23,7 +23,19 @@ from .run import run
 __all__ = ["allowed_roots", "builtin_node_types", "main", "nodes_markdown", "resolve_graph_path"]
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+class _Lanegraph(click.Group):
+    """The ``lanegraph`` group, recording the arguments it is invoked with (run.json keeps them)."""
+
+    def main(self, args=None, *rest, **kwargs):  # noqa: D102 - click.Group.main
+        import sys
+
+        from ..run.provenance import set_command_line
+
+        set_command_line(list(sys.argv[1:] if args is None else args))
+        return super().main(args, *rest, **kwargs)
+
+
+@click.group(cls=_Lanegraph, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="lanegraph")
 def main() -> None:
     """lanegraph: stereo lane-marking detection as validated, plugin-based processing graphs."""

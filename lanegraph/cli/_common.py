@@ -27,13 +27,57 @@ class FolderPath(click.Path):
 FOLDER = FolderPath()
 
 
-def session(quiet: bool = False, warn: bool = True) -> Session:
+def session(
+    quiet: int = 0, verbose: int = 0, overwrite: bool = False, track: str | None = None, warn: bool = True
+) -> Session:
     """The run service for a command; the plugins that could not be loaded said as warnings
-    (``warn``: the commands that load plugins for their own use say so)."""
-    s = Session(out=click.echo, err=lambda msg: click.echo(msg, err=True), progress=not quiet)
+    (``warn``: the commands that load plugins for their own use say so).
+
+    What the command says on stderr goes through :mod:`logging` (:func:`lanegraph.runlog.say`):
+    on the console at the level of ``-v`` / ``-q`` and into a run's ``run.log``. ``track``:
+    ``--track NAME[:URI]`` (a usage error for a tracker no plugin provides)."""
+    from ..runlog import configure_console, say
+    from ..tracking import Tracking, parse_track
+
+    undo = configure_console(verbose, quiet)
+    ctx = click.get_current_context(silent=True)
+    if ctx is not None:
+        ctx.call_on_close(undo)
+    s = Session(out=click.echo, err=say, progress=not quiet, overwrite=overwrite, verbose=verbose)
     if warn:
         s.warn_plugins()
+    if track is not None:
+        s.tracking = Tracking(parse_track(track, s.pm))
     return s
+
+
+def keeping_options(command):
+    """The options of the commands that write a result folder (``run``, ``ablate``): ``-v`` /
+    ``-q``, ``--overwrite`` and ``--track``."""
+    options = [
+        click.option("-v", "--verbose", count=True, help="say more (details on stderr and in OUT/run.log)"),
+        click.option(
+            "-q",
+            "--quiet",
+            count=True,
+            help="no progress bar (-qq: warnings and errors only, -qqq: errors only)",
+        ),
+        click.option(
+            "--overwrite",
+            is_flag=True,
+            help="OUT holds another run's results: remove what lanegraph wrote there (its results, run files, "
+            "debug pictures, report, runs/) and run; nothing else is touched",
+        ),
+        click.option(
+            "--track",
+            metavar="mlflow[:URI]",
+            help="send the runs to an experiment tracker: mlflow (a local store), mlflow:http://HOST:PORT, "
+            'mlflow:file:///DIR (pip install "lanegraph[mlflow]"; docs/tracking.md)',
+        ),
+    ]
+    for option in reversed(options):
+        command = option(command)
+    return command
 
 
 def parse_frames(text: str | None) -> slice | None:

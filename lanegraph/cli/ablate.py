@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from ._common import FOLDER, dataset_option, parse_frames, scale_out_options, session
+from ._common import FOLDER, dataset_option, keeping_options, parse_frames, scale_out_options, session
 from ._errors import handled
 
 
@@ -50,8 +50,8 @@ from ._errors import handled
 @click.option(
     "--cache-max-gb", type=float, default=2.0, show_default=True, help="size bound of the result cache, GiB"
 )
-@click.option("--quiet", is_flag=True, help="no progress bars")
 @scale_out_options()
+@keeping_options
 @handled()
 def ablate(
     base,
@@ -65,11 +65,14 @@ def ablate(
     no_cache,
     cache_dir,
     cache_max_gb,
-    quiet,
     scheduler,
     chunk_frames,
     warmup,
     make_report=False,
+    verbose=0,
+    quiet=0,
+    overwrite=False,
+    track=None,
 ):
     """Run BASE and every VARIANT (and every --sweep point) over the same input or dataset, evaluate
     each and write OUT/results.csv (per sequence and pooled), OUT/results.md and plots; runs go to
@@ -77,7 +80,7 @@ def ablate(
     fails gets its row with the error and the others go on (exit 1)."""
     from ..service.ablation import ablation_variants
 
-    s = session(quiet)
+    s = session(quiet, verbose, overwrite, track)
     runner = s.runner(scheduler)
     runs = ablation_variants(base, variants, sweeps)
     dataset = dataset_option(dataset_path, input_path, gt_path)

@@ -10,7 +10,7 @@ import click
 
 from ..errors import InputError, UsageError
 from ..plugins import get_plugin_manager
-from ._common import session
+from ._common import parse_frames, session
 from ._errors import handled
 
 
@@ -66,6 +66,11 @@ def _is_number(v: object) -> bool:
     type=click.Path(path_type=Path),
     help="the calibration for the lateral error: a calibration file, or an input folder (default: the folder of --scene)",
 )
+@click.option(
+    "--frames",
+    help="score these frames of the ground truth only: A:B, A:B:S or A (positions in GT; "
+    "default: the frames the run selected, as its run.json records them, else all)",
+)
 @handled(every_exit=2)  # whatever is wrong is the input's or the options': exit 2
 def eval_cmd(
     pred: Path,
@@ -75,11 +80,14 @@ def eval_cmd(
     metrics: str,
     scene: Path | None,
     calib: Path | None,
+    frames: str | None,
 ) -> None:
     """Evaluate PRED (a run's lanes file, or its run folder) against GT lanes_gt.jsonl: the lane
     metric of the data README, plus
     CULane-style F1, TuSimple-style accuracy and, for synthetic scenes, the lateral error in cm.
-    With --dataset, every sequence of the dataset and all of them pooled."""
+    With --dataset, every sequence of the dataset and all of them pooled. Only the frames the run
+    selected are scored (its run.json says which; --frames chooses), and the ground-truth frames
+    left out are counted."""
     wanted = {m.strip() for m in metrics.split(",") if m.strip()}
     unknown = wanted - {"readme", "culane", "tusimple", "lateral"}
     if unknown:
@@ -93,28 +101,65 @@ def eval_cmd(
             raise UsageError(
                 "--dataset names every sequence's ground truth: give PRED (a folder) and --dataset, not GT"
             )
-        _eval_dataset(pred, dataset_path, as_json)
+        _eval_dataset(pred, dataset_path, as_json, parse_frames(frames))
         return
     if gt is None:
         raise UsageError(
             "missing GT (a lanes_gt.jsonl), or --dataset FILE with PRED a folder of <sequence>/ run folders"
         )
-    res = _eval_one(pred, gt, wanted, scene, calib)
+    res = _eval_one(pred, gt, wanted, scene, calib, parse_frames(frames))
     if as_json:
         click.echo(json.dumps(res))
         return
     _print_eval(res)
 
 
+def run_selection(pred: Path) -> tuple[Path, list[str]] | None:
+    """The frames the run that wrote ``pred`` (a run folder, or the lanes file its run.json names)
+    selected: ``(its folder, the frame ids)``; None when no record says."""
+    from ..run.results import LANES, find_result, recorded_selection
+
+    folder = pred if pred.is_dir() else pred.parent
+    sel = recorded_selection(folder)
+    if sel is None:
+        return None
+    if not pred.is_dir():
+        lanes = find_result(folder, LANES)
+        if lanes is None or lanes.resolve() != pred.resolve():
+            return None
+    return folder, sel[1]
+
+
+def _selected(gt_recs: list, frames: slice | None, pred: Path) -> tuple[list, int, str | None]:
+    """The ground-truth records to score, how many are left out and why (for the summary)."""
+    from ..evaluation.metrics import select_frames
+
+    if frames is not None:
+        kept, not_run = select_frames(gt_recs, frames)
+        return kept, not_run, "--frames"
+    recorded = run_selection(pred)
+    if recorded is None:
+        return gt_recs, 0, None
+    kept, not_run = select_frames(gt_recs, recorded[1])
+    return kept, not_run, f"the frames the run selected ({recorded[0] / 'run.json'})"
+
+
 def _eval_one(
-    pred: Path, gt: Path, wanted: set[str], scene: Path | None, calib: Path | None
+    pred: Path,
+    gt: Path,
+    wanted: set[str],
+    scene: Path | None,
+    calib: Path | None,
+    frames: slice | None = None,
 ) -> dict[str, Any]:
     from ..evaluation.metrics import evaluate, read_ground_truth, read_predictions
     from ..evaluation.metrics_extra import culane_metrics, lateral_error_cm, tusimple_metrics
 
+    given = pred
     if pred.is_dir():  # a run folder: the lanes its sinks recorded
         pred = _run_lanes(pred)
     pred_recs, gt_recs = read_predictions(pred), read_ground_truth(gt)
+    gt_recs, not_run, chosen_by = _selected(gt_recs, frames, given)
     pred_frames, gt_frames = {str(r["frame"]) for r in pred_recs}, {str(r["frame"]) for r in gt_recs}
     if pred_frames and gt_frames and not pred_frames & gt_frames:
         raise InputError(
@@ -124,6 +169,8 @@ def _eval_one(
         )
     res = evaluate(pred_recs, gt_recs)
     res.pop("per_frame")
+    res["frames_not_run"] = not_run
+    res["frames_chosen_by"] = chosen_by
     if "culane" in wanted:
         res["culane"] = culane_metrics(pred_recs, gt_recs)
     if "tusimple" in wanted:
@@ -157,8 +204,14 @@ def _pct(x: float | None) -> str:
     return "n/a" if x is None else f"{100 * x:.1f} %"
 
 
+def _not_run(n: int, chosen_by: str | None) -> str:
+    return f" ({n} frame(s) of the ground truth not run, not scored: {chosen_by})" if n else ""
+
+
 def _print_eval(res: dict[str, Any]) -> None:
-    click.echo(f"frames:          {res['frames']}")
+    click.echo(
+        f"frames:          {res['frames']}{_not_run(res['frames_not_run'], res.get('frames_chosen_by'))}"
+    )
     click.echo(f"detection ratio: {_pct(res['detection_ratio'])}")
     click.echo(f"precision:       {_pct(res['precision'])}")
     click.echo(f"ego recall:      {_pct(res['ego_recall'])}")
@@ -183,7 +236,7 @@ def _print_eval(res: dict[str, Any]) -> None:
             click.echo(f"  {f['frame']}: {'; '.join(f['reasons'])}")
 
 
-def _eval_dataset(pred_dir: Path, dataset_path: Path, as_json: bool) -> None:
+def _eval_dataset(pred_dir: Path, dataset_path: Path, as_json: bool, frames: slice | None = None) -> None:
     """``eval PRED --dataset FILE``: each sequence's figures and the pooled ones (the README metric)."""
     from ..evaluation.dataset import POOLED, load_dataset, read_gt
     from ..evaluation.metrics import read_predictions
@@ -194,17 +247,21 @@ def _eval_dataset(pred_dir: Path, dataset_path: Path, as_json: bool) -> None:
             f"{pred_dir}: expected a folder with a run folder <sequence>/ for each sequence of {dataset_path}"
         )
     pairs = []
+    chosen: dict[str, Any] = {}
     for seq in ds:
-        gt = read_gt(seq, seq.frames)
+        gt = read_gt(seq)
         if gt is None:
             continue
         lanes = _run_lanes(pred_dir / seq.name, f"sequence {seq.name!r} of {dataset_path}")
         pairs.append((seq.name, read_predictions(lanes), gt))
+        recorded = run_selection(pred_dir / seq.name)
+        # --frames, else the frames the run selected, else the sequence's own frames
+        chosen[seq.name] = frames if frames is not None else (recorded[1] if recorded else seq.frames)
     if not pairs:
         raise UsageError(f"{dataset_path}: no sequence has a ground truth ('gt') to evaluate against")
     from ..evaluation.dataset import evaluate_sequences
 
-    res = evaluate_sequences(pairs)
+    res = evaluate_sequences(pairs, chosen)
     if as_json:
         click.echo(json.dumps({"dataset": ds.name, "sequences": res}))
         return
@@ -217,6 +274,8 @@ def _eval_dataset(pred_dir: Path, dataset_path: Path, as_json: bool) -> None:
             f"| {label} | {r['frames']} | {_pct(r['detection_ratio'])} | {_pct(r['precision'])} | "
             f"{_pct(r['ego_recall'])} | {'n/a' if dx is None else f'{dx:.2f}'} |"
         )
+    if res[POOLED]["frames_not_run"]:
+        click.echo(f"{res[POOLED]['frames_not_run']} frame(s) of the ground truth not run, not scored")
     failed = res[POOLED]["failed_frames"]
     if failed:
         click.echo(f"failed frames ({len(failed)}):")

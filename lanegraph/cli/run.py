@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from ..errors import UsageError
-from ._common import FOLDER, parse_frames, scale_out_options, session
+from ._common import FOLDER, keeping_options, parse_frames, scale_out_options, session
 from ._errors import handled
 
 
@@ -33,7 +33,6 @@ from ._errors import handled
 @click.option(
     "--frames", help="frame selection A:B, A:B:S or A (indices into the input's frames; -1 is the last)"
 )
-@click.option("--quiet", is_flag=True, help="no progress bar")
 @click.option(
     "--resume",
     is_flag=True,
@@ -52,6 +51,7 @@ from ._errors import handled
     help="a dataset file (YAML list of sequences) in place of --input: writes each sequence's run into OUT/<sequence>/",
 )
 @scale_out_options("with --dataset: ")
+@keeping_options
 @handled()
 def run(
     graph: str,
@@ -59,7 +59,6 @@ def run(
     out_dir: Path,
     sets: tuple[str, ...],
     frames: str | None,
-    quiet: bool,
     resume: bool,
     debug_dir: Path | None,
     debug_frames: str | None,
@@ -68,6 +67,10 @@ def run(
     chunk_frames: int | None,
     warmup: int,
     make_report: bool = False,
+    verbose: int = 0,
+    quiet: int = 0,
+    overwrite: bool = False,
+    track: str | None = None,
 ) -> int:
     """Run GRAPH (a file or a name under graphs/, default: paper): its sinks write into OUT (the
     lanes, overlays), with OUT/timings.json and OUT/run.json; with --dataset, every sequence into
@@ -85,7 +88,7 @@ def run(
                 )
         from ..evaluation.dataset import load_dataset
 
-        s = session(quiet)
+        s = session(quiet, verbose, overwrite, track)
         runner = s.runner(scheduler)
         dataset = load_dataset(dataset_path)
         graph_ = s.open_graph(graph, sets)
@@ -100,7 +103,7 @@ def run(
     ):
         if given is not None:
             raise UsageError(f"{flag} runs the sequences of a --dataset: give --dataset FILE")
-    s = session(quiet)
+    s = session(quiet, verbose, overwrite, track)
     return s.run(
         s.open_graph(graph, sets), input_path=input_path, out_dir=out_dir, frames=parse_frames(frames),
         resume=resume, debug_dir=debug_dir, debug_frames=debug_frames, make_report=make_report,

@@ -31,10 +31,12 @@ from typing import Any
 
 from ..errors import UsageError
 from ..graph.files import ResolvedGraph
-from ..paths import inside, safe_name, write_bytes_atomic, write_text_atomic
+from ..paths import inside, safe_name, write_text_atomic
 from ..plugins import get_plugin_manager
+from ..presentation.plots import write_ablation_plots
 from ..run.batch import Planned, Planner, clean_leftovers, finish_runs
 from ..run.cache import ResultCache, digest
+from ..run.provenance import git_commit
 from ..run.record import RunRecord, read_record
 from ..run.results import LANES, find_result
 from ..run.resume import input_identity
@@ -92,6 +94,7 @@ def run_ablation(
     chunk_frames: int | None = None,
     warmup: int = 0,
     echo: Callable[[str], None] | None = None,
+    record_extra: dict[str, Any] | None = None,
 ) -> list[dict[str, Any]]:
     """Run every variant on every sequence of ``dataset``, evaluate and tabulate; returns the rows
     (one per variant and sequence, then the variant's pooled row, ``sequence`` = ``all``).
@@ -111,6 +114,9 @@ def run_ablation(
     planner = Planner(pm, chunk_frames, warmup, cache)
     plans: list[tuple[Variant, list[Planned]]] = []
     for var in variants:
+        planner.record_extra = {  # each run's run.json: its overrides, its graph's checkout
+            **(record_extra or {}), "overrides": list(var.sets), "git": git_commit(Path(var.graph)),
+        }  # fmt: skip
         graph = ResolvedGraph.load(var.graph, var.sets)
         g = graph.validate(pm)
         code = sorted({n.type.code_version for n in g.nodes.values()})  # an edited plugin runs again
@@ -306,7 +312,7 @@ def write_reports(rows: list[dict[str, Any]], out_dir: Path) -> None:
     stages = list(dict.fromkeys(s for r in rows for s in r.get("stage_ms", {})))
     _write_csv(rows, stages, out_dir / "results.csv")
     write_text_atomic(out_dir / "results.md", _results_md(rows, stages))
-    _plots([r for r in rows if r.get("sequence") == POOLED], out_dir)
+    write_ablation_plots([r for r in rows if r.get("sequence") == POOLED], out_dir)
 
 
 def _write_csv(rows: list[dict[str, Any]], stages: list[str], path: Path) -> None:
@@ -392,48 +398,3 @@ def _results_md(rows: list[dict[str, Any]], stages: list[str]) -> str:
             )
             lines.append(f"- {r['variant']} / {r['sequence']}: {what}")
     return "\n".join(lines) + "\n"
-
-
-def _save(fig: Any, path: Path) -> None:
-    buf = io.BytesIO()
-    fig.savefig(buf, dpi=110, format="png")
-    write_bytes_atomic(path, buf.getvalue())
-
-
-def _plots(rows: list[dict[str, Any]], out_dir: Path) -> None:
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:  # pragma: no cover - matplotlib is a dependency
-        return
-    names = [r["variant"] for r in rows]
-    acc = [r.get("detection_ratio") or 0.0 for r in rows]
-    prec = [r.get("precision") or 0.0 for r in rows]
-    fig, ax = plt.subplots(figsize=(max(6, 0.8 * len(rows) + 2), 4))
-    xs = range(len(rows))
-    ax.bar([x - 0.2 for x in xs], acc, width=0.4, label="detection ratio")
-    ax.bar([x + 0.2 for x in xs], prec, width=0.4, label="precision")
-    ax.set_xticks(list(xs), names, rotation=35, ha="right")
-    ax.set_ylim(0, 1.05)
-    ax.set_ylabel("fraction")
-    ax.set_title("accuracy per variant")
-    ax.legend(loc="lower right")
-    fig.tight_layout()
-    _save(fig, out_dir / "accuracy.png")
-    plt.close(fig)
-    fig, ax = plt.subplots(figsize=(6, 4.5))
-    for r, a in zip(rows, acc):
-        ms = r.get("ms_per_frame")
-        if ms is None:
-            continue
-        ax.scatter(ms, a)
-        ax.annotate(r["variant"], (ms, a), fontsize=7, xytext=(3, 3), textcoords="offset points")
-    ax.set_xlabel("median ms per frame (all nodes)")
-    ax.set_ylabel("detection ratio")
-    ax.set_ylim(-0.02, 1.05)
-    ax.set_title("accuracy against time")
-    fig.tight_layout()
-    _save(fig, out_dir / "accuracy_vs_ms.png")
-    plt.close(fig)

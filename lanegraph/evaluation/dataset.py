@@ -24,7 +24,7 @@ own sequence): the detection ratio over all frames, the precision over all repor
 from __future__ import annotations
 
 import re
-from collections.abc import Iterable, Mapping
+from collections.abc import Collection, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -34,7 +34,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from ..errors import InputError
 from ..frames import parse_frames
-from .metrics import evaluate, read_ground_truth
+from .metrics import evaluate, read_ground_truth, select_frames
 
 _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.\-]*$")
 
@@ -192,22 +192,29 @@ def read_gt(seq: SequenceSpec, frames: slice | None = None) -> list[dict[str, An
 
 def evaluate_sequences(
     pairs: Iterable[tuple[str, list[Mapping[str, Any]], list[Mapping[str, Any]]]],
+    frames: Mapping[str, Collection[str] | slice | None] | None = None,
 ) -> dict[str, dict[str, Any]]:
     """Evaluate ``(name, predictions, ground truth)`` per sequence and pooled.
 
+    ``frames``: per sequence name, the frames to score (:func:`lanegraph.evaluation.metrics.select_frames`:
+    the ids its run selected, or a slice of its ground truth); a sequence not named is scored whole.
     Returns ``{name: result, ..., "all": pooled}`` with the keys of :func:`lanegraph.evaluation.metrics.evaluate`
-    (``per_frame`` left out); the pooled result's failed frames are named ``<sequence>/<frame>``.
+    (``per_frame`` left out); the pooled result's failed frames are named ``<sequence>/<frame>``, its
+    ``frames_not_run`` is the sum of the sequences'.
     """
     out: dict[str, dict[str, Any]] = {}
     pooled_pred: list[dict[str, Any]] = []
     pooled_gt: list[dict[str, Any]] = []
     for name, pred, gt in pairs:
+        gt, not_run = select_frames(gt, (frames or {}).get(name))
         res = evaluate(pred, gt)
         res.pop("per_frame")
+        res["frames_not_run"] = not_run
         out[name] = res
         pooled_pred += [{**p, "frame": f"{name}/{p.get('frame')}"} for p in pred]
         pooled_gt += [{**g, "frame": f"{name}/{g.get('frame')}"} for g in gt]
     res = evaluate(pooled_pred, pooled_gt)
     res.pop("per_frame")
+    res["frames_not_run"] = sum(r["frames_not_run"] for r in out.values())
     out[POOLED] = res
     return out

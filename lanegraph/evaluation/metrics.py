@@ -17,7 +17,7 @@ Rules (verbatim from the data README):
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -164,18 +164,47 @@ def evaluate_frame(pred_lanes: Sequence[Mapping[str, Any]], gt: Mapping[str, Any
     return FrameResult(frame, correct, len(pred_lanes), matched, len(m.ego), ego_matched, dx, reasons, m)
 
 
+def select_frames(
+    gt_records: Iterable[Mapping[str, Any]], frames: Collection[str] | slice | None
+) -> tuple[list[Mapping[str, Any]], int]:
+    """The ground-truth records of the frames a run selected, and how many others it has.
+
+    ``frames``: the frame ids the run selected (as its record lists them), a slice over the
+    ground truth's records in file order (``eval --frames``, as ``ablate`` cuts a sequence's ground
+    truth), or None for every record. Returns ``(records, not run)``: the records kept, in file
+    order, and the number of ground-truth frames left out (frames the run did not select, which
+    must not be scored as failures).
+    """
+    records = list(gt_records)
+    if frames is None:
+        return records, 0
+    if isinstance(frames, slice):
+        kept = records[frames]
+    else:
+        ids = {str(f) for f in frames}
+        kept = [g for g in records if str(g.get("frame")) in ids]
+    return kept, len(records) - len(kept)
+
+
 def evaluate(
-    pred_records: Iterable[Mapping[str, Any]], gt_records: Iterable[Mapping[str, Any]]
+    pred_records: Iterable[Mapping[str, Any]],
+    gt_records: Iterable[Mapping[str, Any]],
+    frames: Collection[str] | slice | None = None,
 ) -> dict[str, Any]:
     """Evaluate prediction records against ground-truth records (both as parsed JSON lines).
 
+    ``frames``: score only these frames of the ground truth (:func:`select_frames`: the ids a run
+    selected, or a slice over the ground truth's records); None scores every record.
+
     Returns a dict with the keys ``frames``, ``detection_ratio``, ``precision``, ``ego_recall``,
-    ``mean_abs_dx_px``, ``failed_frames`` (a list of ``{"frame", "reasons"}``) and ``per_frame``.
+    ``mean_abs_dx_px``, ``failed_frames`` (a list of ``{"frame", "reasons"}``), ``per_frame`` and
+    ``frames_not_run`` (ground-truth frames left out by ``frames``, not scored).
     Ratios with an empty denominator are ``None``.
     """
     preds: dict[str, list] = {}
     for rec in pred_records:
         preds[str(rec.get("frame"))] = list(rec.get("lanes") or [])
+    gt_records, not_run = select_frames(gt_records, frames)
     results = [evaluate_frame(preds.get(str(g.get("frame")), []), g) for g in gt_records]
     n = len(results)
     reported = sum(r.reported for r in results)
@@ -195,6 +224,7 @@ def evaluate(
         "mean_abs_dx_px": float(np.mean(dx)) if dx else None,
         "failed_frames": [{"frame": r.frame, "reasons": r.reasons} for r in results if not r.correct],
         "per_frame": results,
+        "frames_not_run": not_run,
     }
 
 

@@ -74,13 +74,14 @@ class ResolvedGraph:
     raw: dict[str, Any]
     origin: dict[str, str]
     display: str
+    sets: tuple[str, ...] = ()  # the --set overrides applied (recorded in run.json)
 
     @classmethod
     def load(
         cls, path: str | Path, sets: Iterable[str] = (), roots: list[Path] | None = None
     ) -> ResolvedGraph:
         raw, origin, display = load_raw(path, list(sets), roots)
-        return cls(raw, origin, display)
+        return cls(raw, origin, display, tuple(sets))
 
     def validate(self, pm: PluginManager | None = None) -> Graph:
         """A fresh :class:`~lanegraph.graph.model.Graph` (the executor replaces a selecting source in

@@ -33,11 +33,14 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import GraphError, InputError, LanegraphError, NodeError, UsageError
+from ..frames import selection_text
 from ..graph.files import ResolvedGraph
 from ..nodes import RunContext
 from ..plugins import PluginManager, get_plugin_manager
+from ..runlog import RunLog
 from .cache import ResultCache, digest
 from .executor import Executor, FrameFailure, RunResult
+from .provenance import refreshed, write_resolved_graph
 from .record import RunRecord, Stopped, read_record, write_run_files
 from .sources import close_source, open_source, select_source
 
@@ -104,6 +107,7 @@ class RunTask:
     record_cache: bool = False  # timings.json gets the cache's hits and misses
     record_extra: dict[str, Any] = field(default_factory=dict)  # what the run service adds to run.json
     notes: tuple[str, ...] = ()  # warnings for the run's run.json (a chunked run's carried state)
+    selection: str = ""  # the run's --frames text (a chunk's task too: the run's, not the chunk's)
 
     @property
     def label(self) -> str:
@@ -203,18 +207,10 @@ def task_record(
 ) -> RunRecord:
     """The :class:`~lanegraph.run.record.RunRecord` of a task's run (``error``: the task's error
     record, when it stopped)."""
-    stopped = None
-    if error is not None:
-        stopped = Stopped(error=error["message"], node=error["node"], frame=error["frame"])
-    return RunRecord.of(
-        result,
-        graph=graph_file,
-        input=input_path,
-        stopped=stopped,
-        timings=timings,
-        before_any_frame=bool(error.get("before_any_frame")) if error is not None else False,
-        **extra,
-    )
+    stop = Stopped(error=error["message"], node=error["node"], frame=error["frame"]) if error else None
+    before = bool(error.get("before_any_frame")) if error is not None else False
+    return RunRecord.of(result, graph=graph_file, input=input_path, stopped=stop, timings=timings,
+                        before_any_frame=before, **extra)  # fmt: skip
 
 
 def _write_run_files(
@@ -223,8 +219,9 @@ def _write_run_files(
     timings = result.timings_json()
     if task.record_cache:
         timings["cache"] = {"hits": result.cache_hits, "misses": result.cache_misses}
+    extra = refreshed(task.record_extra, get_plugin_manager())  # the versions of what the run loaded
     record = task_record(
-        graph_file, task.input, result, error, timings, sequence=task.sequence, **task.record_extra
+        graph_file, task.input, result, error, timings, sequence=task.sequence, frames=task.selection, **extra
     )
     write_run_files(folder, record, timings)
     if task.run_key is not None and error is None:
@@ -270,8 +267,10 @@ def execute_task(
             frames=task.frames,
             graph_file=g.file,
         )
+        if task.chunk is None:  # the resolved graph beside the run's results (a chunk's: the run's)
+            write_resolved_graph(tmp, g.resolved_dict())
         ex = Executor(g, ctx, pm, cache=cache, warmup=task.warmup)
-        with ex:  # the nodes opened are closed, however the run ends
+        with ex, RunLog(tmp, pm=pm):  # the nodes opened are closed, however the run ends
             started = True
             result = ex.run(on_frame=on_frame)
     except Exception as exc:  # noqa: BLE001 - reported with variant, sequence and frame; the others go on
@@ -318,6 +317,7 @@ def merge_chunks(tasks: list[RunTask], outcomes: list[TaskOutcome]) -> TaskOutco
         for nid, ts in r.timings_ms.items():
             merged.timings_ms.setdefault(nid, []).extend(ts)
         merged.failures += r.failures
+        merged.frame_ids += r.frame_ids
         merged.frame_ms += r.frame_ms
         for src_counts, dst_counts in (
             (r.cache_hits, merged.cache_hits),
@@ -464,6 +464,7 @@ class Planner:
             "cache_max_bytes": cache.max_bytes if cache is not None else 0,
             "record_cache": cache is not None,
             "record_extra": self.record_extra,
+            "selection": selection_text(frames),
         }
         plan = Planned(variant, sequence, run_dir)
         try:

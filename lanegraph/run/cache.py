@@ -33,13 +33,13 @@ import io
 import json
 import os
 import pickle
-import tempfile
 import time
 import warnings
 from pathlib import Path
 from typing import Any
 
 from .._numba import cache_root
+from ..paths import new_temp_file
 
 DEFAULT_MAX_BYTES = 2 * 1024**3
 #: a temporary entry file older than this (seconds) belongs to a writer that died
@@ -178,7 +178,7 @@ class ResultCache:
             return False
         p = self._path(key)
         p.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=p.parent, prefix=".", suffix=".tmp")
+        fd, tmp = new_temp_file(p.parent, prefix=".", suffix=".tmp")  # the umask's mode, as any file
         try:
             with os.fdopen(fd, "wb") as fh:
                 fh.write(data)

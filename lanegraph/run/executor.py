@@ -403,10 +403,14 @@ class Executor:
                 at.position = index + 1
                 if frame_out is None:  # the source could not read this frame (recorded as a failure)
                     at.previous, at.prev_keys = {}, {}
+                    if index >= self.warmup and result.failures and result.failures[-1].index == index:
+                        result.frame_ids.append(str(result.failures[-1].frame))
                     self._consumed(at)
                     continue
                 warming = index < self.warmup
                 frame = frame_out.get("frame")
+                if not warming:
+                    result.frame_ids.append(str(frame))
                 t_frame = time.perf_counter()
                 try:
                     cur, cur_keys = self._run_frame(

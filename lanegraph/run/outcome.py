@@ -51,6 +51,9 @@ class RunResult:
     results: dict[str, str] = field(
         default_factory=dict
     )  # the sinks' result files by kind (lanegraph.run.results)
+    #: the ids of the frames of the selection the run consumed (done or failed), in order: what
+    #: ``eval`` and ``report`` score (warm-up frames are not among them)
+    frame_ids: list[str] = field(default_factory=list)
 
     def warnings(self) -> list[str]:
         """Things that did not fail a frame but make the result doubtful: an output invalid on every

@@ -20,7 +20,7 @@ from .. import paths
 from ..errors import InputError
 
 #: the version of the record this lanegraph writes (a record without one is version 0)
-RECORD_VERSION = 1
+RECORD_VERSION = 2  # 2: command, overrides, selection, versions, git, identity, written (issue 30)
 RECORD_NAME = "run.json"
 TIMINGS_NAME = "timings.json"
 
@@ -33,6 +33,16 @@ class Stopped(BaseModel):
     error: str | None = None
     node: str | None = None
     frame: str | int | None = None
+
+
+class Selection(BaseModel):
+    """The frames a run selected: the ``--frames`` text (``""``: every frame) and the ids of the
+    frames it consumed, done or failed (what ``eval`` and ``report`` score)."""
+
+    model_config = ConfigDict(extra="allow")
+
+    frames: str = ""
+    ids: list[str] = Field(default_factory=list)
 
 
 class RunRecord(BaseModel):
@@ -60,6 +70,17 @@ class RunRecord(BaseModel):
     timings: dict[str, Any] | None = None
     stopped: Stopped | None = None
     before_any_frame: bool = False
+    #: how it was made (issue 30): the command line, the ``--set`` overrides, the frames selected,
+    #: the versions of what computed it, the git commit of the graph's checkout, what makes it
+    #: this run (:mod:`lanegraph.run.folder`), and what lanegraph wrote in the folder
+    command: list[str] = Field(default_factory=list)
+    overrides: list[str] = Field(default_factory=list)
+    selection: Selection | None = None
+    versions: dict[str, Any] = Field(default_factory=dict)
+    git: dict[str, str] | None = None
+    identity: dict[str, Any] | None = None
+    debug_dir: str | None = None
+    written: list[str] = Field(default_factory=list)
 
     @field_validator("results", mode="before")
     @classmethod
@@ -84,10 +105,15 @@ class RunRecord(BaseModel):
         stopped: Stopped | None = None,
         timings: dict[str, Any] | None = None,
         before_any_frame: bool = False,
+        frames: str | None = None,
         **extra: Any,
     ) -> RunRecord:
-        """The record of a run's :class:`~lanegraph.run.executor.RunResult` (and where it stopped)."""
+        """The record of a run's :class:`~lanegraph.run.executor.RunResult` (and where it stopped);
+        ``frames``: the ``--frames`` text of its selection (recorded with the ids of the frames it
+        consumed)."""
         status = "stopped" if stopped is not None else ("failed frames" if result.failures else "ok")
+        if "selection" not in extra:
+            extra["selection"] = Selection(frames=frames or "", ids=list(getattr(result, "frame_ids", [])))
         return cls(
             version=RECORD_VERSION,
             graph=graph,

@@ -46,6 +46,17 @@ def recorded_result_files(folder: Path) -> dict[str, str]:
     return dict(record.results) if record is not None else {}
 
 
+def recorded_selection(folder: Path) -> tuple[str | None, list[str]] | None:
+    """The frames the run in ``folder`` selected, as its ``run.json`` records them
+    (``"selection": {"frames": "0:20", "ids": [frame ids]}``): ``(the --frames text, the ids)``;
+    None when it records none (a run of an older lanegraph: every frame of the ground truth is
+    scored). ``eval`` and ``report`` score exactly these frames."""
+    record = read_record(Path(folder))
+    if record is None or record.selection is None:
+        return None
+    return record.selection.frames or None, list(record.selection.ids)
+
+
 def default_names(kind: str, pm: PluginManager | None = None) -> list[str]:
     """The files installed sink types write for ``kind`` with their default params."""
     pm = pm or get_plugin_manager()

@@ -4,15 +4,30 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 from .. import interrupts
 from ..errors import InputError, LanegraphError, NotStarted, RunStopped, UsageError
-from ..evaluation.ablate import Variant, expand_sweeps, run_ablation
+from ..evaluation.ablate import Variant, _safe, expand_sweeps, run_ablation
 from ..graph.files import resolve_graph_path
+from ..paths import safe_name
 from ..run.cache import ResultCache
+from ..run.folder import check as check_folder
+from ..run.folder import claim as claim_folder
+from ..run.provenance import versions
 from ..run.runners import InProcessRunner, Runner
+from ..runlog import RunLog, get_logger
+from ..tracking import CommandRecord, existing
+from .keeping import (
+    ABLATION_FILES,
+    dataset_identity,
+    provenance,
+    tracked_ablation_runs,
+    write_command_record,
+)
 
 
 def ablation_variants(base: Path, variants: tuple[Path, ...], sweeps: tuple[str, ...]) -> list[Variant]:
@@ -56,13 +71,19 @@ def ablate(
 ) -> int:
     """See :meth:`lanegraph.service.Session.ablate`."""
     runner = runner if runner is not None else session.runner(scheduler)
-    for r in variants:  # validate everything before running anything
-        session.load_graph(r.graph, tuple(r.sets))
+    graphs = {r.name: session.load_graph(r.graph, tuple(r.sets)) for r in variants}  # all checked first
     if not (math.isfinite(cache_max_gb) and cache_max_gb > 0):
         raise UsageError(f"--cache-max-gb: expected a size in GiB > 0, got {cache_max_gb}")
+    identity = dataset_identity("ablation", [r.name for r in variants], dataset, frames)
+    # another ablation's results are refused before anything is written (the folder left as it was)
+    check_folder(out_dir, identity, overwrite=session.overwrite)
     t0 = time.perf_counter()
     cache_folder = (cache_dir, "--cache-dir") if cache_dir is not None and not no_cache else (None, "")
-    with interrupts.handling(), session.locked(out_dir, "ablate", cache_folder):
+    with (
+        interrupts.handling(),
+        session.locked(out_dir, "ablate", cache_folder),
+        ablation_kept(session, out_dir, identity, variants),
+    ):
         cache = _cache(cache_dir, cache_max_gb, no_cache)
         if isinstance(runner, InProcessRunner):
             runner.cache = cache
@@ -70,6 +91,7 @@ def ablate(
             rows = run_ablation(
                 variants, dataset, out_dir, frames, cache, progress=session.progress, runner=runner,
                 chunk_frames=chunk_frames, warmup=warmup, echo=session.err,
+                record_extra={**session.record_extra, **provenance(session.pm, None, [])},
             )  # fmt: skip
         except (InputError, UsageError) as exc:  # unusable before any run: like `run`, exit 2
             raise NotStarted(exc) from exc
@@ -84,7 +106,15 @@ def ablate(
                 f"{str(exc.filename) + ': ' if exc.filename else ''}{exc.strerror or exc}", exc
             ) from None
     status = _end(session, rows, out_dir, cache, time.perf_counter() - t0)
+    runs = {
+        (r.name, s.name): out_dir / "runs" / _safe(r.name) / safe_name(s.name)
+        for r in variants
+        for s in dataset
+    }
+    for tracked in tracked_ablation_runs(rows, graphs, runs):
+        session.tracking.log_run(tracked)
     if status:
+        session.tracking.end("failed", existing(out_dir, ABLATION_FILES))
         return status
     if make_report:
         try:  # the base variant's source reads the left images; its graph is drawn
@@ -95,8 +125,45 @@ def ablate(
                 graph=session.load_graph(variants[0].graph, tuple(variants[0].sets)),
             )
         except LanegraphError as exc:  # the ablation's own outputs are written: they stay
+            session.tracking.end("failed", existing(out_dir, ABLATION_FILES))
             raise RunStopped(str(exc), exc) from exc
-    return _failures(session, rows)
+    status = _failures(session, rows)
+    session.tracking.end("failed" if status else "ok", existing(out_dir, ABLATION_FILES))
+    return status if session.tracking.ok else max(status, 1)
+
+
+@contextmanager
+def ablation_kept(
+    session: Any, out_dir: Path, identity: dict[str, Any], variants: list[Variant]
+) -> Iterator[None]:
+    """What an ablation keeps beside its results, once OUT is locked: the folder claimed (with
+    ``--overwrite``, cleared of lanegraph's files), ``command.json`` (its identity, command line,
+    versions), ``run.log`` and the tracker's command run (ended ``interrupted`` if the block raises)."""
+    claim_folder(out_dir, identity, overwrite=session.overwrite)
+    fields = {
+        "kind": "ablation",
+        **provenance(session.pm, variants[0].graph, []),
+        "variants": [{"name": r.name, "graph": str(r.graph), "sets": list(r.sets)} for r in variants],
+        "identity": identity,
+        "written": ["results.csv", "results.md", "accuracy.png", "accuracy_vs_ms.png", "runs"],
+    }
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_command_record(out_dir, fields)
+    session.tracking.start(
+        CommandRecord("ablate", f"ablate -> {out_dir}", out_dir, list(fields["command"]),
+                      {"variants": " ".join(r.name for r in variants), "frames": identity["frames"] or "all"})
+    )  # fmt: skip
+    try:
+        with RunLog(out_dir, verbose=session.verbose > 0):
+            get_logger("run").info(
+                "ablation into %s: %s", out_dir, " ".join(fields["command"]), extra={"file_only": True}
+            )
+            yield
+    except BaseException:
+        session.tracking.end("interrupted")
+        raise
+    fields["versions"] = versions(session.pm)
+    write_command_record(out_dir, fields)
 
 
 def _end(session: Any, rows: list[dict[str, Any]], out_dir: Path, cache: Any, seconds: float) -> int:

@@ -23,20 +23,35 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .. import interrupts
 from ..errors import InputError, LanegraphError, NotStarted, RunStopped, UsageError
+from ..frames import selection_text
 from ..graph.files import ResolvedGraph, load_graph_named, open_graph
 from ..graph.model import Graph
 from ..nodes import RunContext
 from ..paths import OutputLock, prepare_dir
 from ..plugins import PluginManager, get_plugin_manager
 from ..run.executor import Executor, RunResult
-from ..run.record import RunRecord, stopped_by, write_run_files
-from .single import checkpoint_for
+from ..run.folder import check as check_folder
+from ..run.folder import claim as claim_folder
+from ..run.provenance import command_line, versions, write_resolved_graph
+from ..run.record import RunRecord, read_record, stopped_by, write_run_files
+from ..runlog import RunLog, get_logger
+from ..tracking import CommandRecord, Tracking
+from .keeping import (
+    dataset_identity,
+    provenance,
+    relative_inside,
+    single_identity,
+    tracked_dataset_run,
+    tracked_single_run,
+    write_command_record,
+)
+from .single import checkpoint_for, resumed_frame_ids
 
 if TYPE_CHECKING:  # the batch modules load only for a batch: `lanegraph run` on one input keeps its start-up
     from ..run.runners import Runner
@@ -62,6 +77,9 @@ class Session:
         err: Callable[[str], None] | None = None,
         progress: bool = True,
         record_extra: dict[str, Any] | None = None,
+        overwrite: bool = False,
+        tracking: Tracking | None = None,
+        verbose: int = 0,
     ):
         self.pm = pm or get_plugin_manager()
         self.out = out or _stdout
@@ -69,6 +87,19 @@ class Session:
         self.progress = progress
         #: fields every run.json this session writes gets besides the run's own
         self.record_extra: dict[str, Any] = dict(record_extra or {})
+        #: ``--overwrite``: a folder holding another run's results is cleared of lanegraph's files
+        self.overwrite = overwrite
+        #: ``--track``: the experiment tracker the runs are sent to (none: nothing is tracked)
+        self.tracking = tracking if tracking is not None else Tracking(None)
+        #: ``-v``: run.log records the details too
+        self.verbose = verbose
+        self._run_extra: dict[str, Any] = {}
+        self._resumed_ids: list[str] = []
+        self._frames: slice | None = None
+        self._ex: Executor | None = None
+        #: what a run does once its input is open (before that, nothing is written into OUT)
+        self._on_open: Callable[[], None] | None = None
+        self._stack = ExitStack()
 
     # -- graphs, folders, runners ------------------------------------------------
     def warn_plugins(self) -> None:
@@ -131,9 +162,44 @@ class Session:
                 raise UsageError(
                     f"--debug-frames {debug_frames!r}: expected frame ids or indices, comma-separated"
                 )
+        resolved = g.resolved_dict()
+        identity = single_identity(resolved, input_path, frames)
+        # another run's results are refused before anything is written (the folder left as it was)
+        check_folder(out_dir, identity, resume=resume, overwrite=self.overwrite, resolved=resolved)
+        sets = list(getattr(graph, "sets", ()) or ())
+        self._run_extra = {
+            **provenance(self.pm, g.file, sets),
+            "identity": identity,
+            "debug_dir": relative_inside(debug_dir, out_dir),
+        }
+        tracked = "interrupted"
+
+        def opened() -> None:  # the input and nodes opened: the run will start; nothing written before
+            try:
+                self.tracking.start(
+                    CommandRecord("run", f"run {g.name} -> {out_dir}", out_dir, command_line(),
+                                  {"graph": str(g.file), "input": str(input_path or "synthetic"),
+                                   "frames": selection_text(frames) or "all"})
+                )  # fmt: skip
+            except UsageError as exc:  # a tracker that cannot start: exit 2 before any frame
+                raise NotStarted(exc) from exc
+            write_resolved_graph(out_dir, resolved)
+            self._stack.enter_context(RunLog(out_dir, append=resume, verbose=self.verbose > 0, pm=self.pm))
+            get_logger("run").info(
+                "run of %s on %s into %s: %s", g.file, input_path or "the synthetic scene", out_dir,
+                " ".join(command_line()), extra={"file_only": True},
+            )  # fmt: skip
+
+        self._on_open = opened
         # Ctrl-C, SIGTERM and SIGHUP stop the run alike: its record says so, --resume continues
-        with interrupts.handling(), self.locked(out_dir, "run", (debug_dir, "--debug-dir")):
-            status = self._run_locked(g, input_path, out_dir, frames, resume, debug_dir, chosen)
+        with interrupts.handling(), self.locked(out_dir, "run", (debug_dir, "--debug-dir")), self._stack:
+            claim_folder(out_dir, identity, resume=resume, overwrite=self.overwrite, resolved=resolved)
+            try:
+                status = self._run_locked(g, input_path, out_dir, frames, resume, debug_dir, chosen)
+                tracked = "ok" if status == 0 else "failed"
+            finally:
+                if tracked == "interrupted":
+                    self.tracking.end("interrupted")
         if make_report and status is not None:
             dbg = (
                 debug_dir if debug_dir is not None and debug_dir.is_dir() else None
@@ -141,8 +207,23 @@ class Session:
             try:
                 self.report(out_dir, graph=g, input_path=input_path, frames=frames, debug_dir=dbg)
             except LanegraphError as exc:  # the run's own outputs are written: they stay
+                self.tracking.end("failed")
                 raise RunStopped(f"report: {exc}", exc) from exc
-        return 1 if status is None else status
+        self._track_single(g, out_dir, input_path, sets, tracked)
+        status = 1 if status is None else status
+        return status if self.tracking.ok else max(status, 1)
+
+    def _track_single(
+        self, g: Graph, out_dir: Path, input_path: Path | None, sets: list[str], status: str
+    ) -> None:
+        """Send the run (its record written) to the tracker, with its report."""
+        if not self.tracking.started:
+            return
+        record = read_record(out_dir)
+        if record is not None:
+            timings = record.timings or {}
+            self.tracking.log_run(tracked_single_run(g, out_dir, input_path, sets, record, timings))
+        self.tracking.end(status, [])
 
     def _run_locked(
         self,
@@ -156,6 +237,7 @@ class Session:
     ) -> int | None:
         """The run once OUT is locked: its status, or None when its record could not be written."""
         ckpt, checkpoint = checkpoint_for(out_dir, resume)
+        self._resumed_ids = resumed_frame_ids(out_dir, ckpt) if ckpt is not None else []
         ctx = RunContext(
             input_path=input_path,
             out_dir=out_dir,
@@ -168,6 +250,7 @@ class Session:
             ex = Executor(g, ctx, self.pm, checkpoint=checkpoint, resume=ckpt)
         except LanegraphError as exc:
             raise NotStarted(exc) from exc
+        self._ex, self._frames = ex, selection
         if ckpt is not None:
             if ckpt.complete:
                 return self._nothing_to_resume(ex, ckpt, out_dir)
@@ -211,6 +294,8 @@ class Session:
                 ex.open()
             except (InputError, UsageError) as exc:  # unusable input found before any frame ran
                 raise NotStarted(exc) from exc
+            if self._on_open is not None:
+                self._on_open()
             bar = tqdm(
                 total=(len(ex) or None),
                 unit="frame",
@@ -219,9 +304,12 @@ class Session:
                 file=sys.stderr,
             )
 
+            log = get_logger("run")
+
             def tick(index: int, frame: str | None) -> None:
                 bar.update(1)
                 bar.set_postfix_str(str(frame))
+                log.debug("frame %s (#%d) done", frame, index)  # -v: on the terminal and in run.log
 
             return ex.run(on_frame=tick)
         except NotStarted:
@@ -257,13 +345,21 @@ class Session:
     ) -> bool:
         """``timings.json`` and ``run.json``; False (and the reason on stderr) when they cannot be
         written (a full disk)."""
+        extra = {**self.record_extra, **self._run_extra}
+        if "versions" in extra:  # at the end: the libraries the run loaded (ONNX Runtime ...)
+            extra["versions"] = versions(self.pm)
         record = RunRecord.of(
             result,
             graph=g.file,
             input=str(input_path) if input_path else None,
             stopped=stopped_by(stopped) if stopped is not None else None,
-            **self.record_extra,
+            frames=selection_text(self._frames),
+            **extra,
         )
+        if record.selection is not None and self._resumed_ids:
+            record.selection.ids = [*self._resumed_ids, *record.selection.ids]
+        outputs = self._ex.outputs() if self._ex is not None else []
+        record.written = sorted({relative_inside(Path(p), out_dir) for p in outputs} - {None})
         try:
             write_run_files(out_dir, record, result.timings_json())
         except OSError as exc:
@@ -327,9 +423,29 @@ class Session:
         from ..run.runners import InProcessRunner
 
         runner = runner if runner is not None else InProcessRunner()
+        g = graph.validate(self.pm)  # a GraphError before anything runs
+        identity = dataset_identity("dataset", [g.name], dataset, frames)
+        check_folder(out_dir, identity, overwrite=self.overwrite)
+        sets = list(graph.sets)
+        self.record_extra = {**self.record_extra, **provenance(self.pm, g.file, sets)}
         try:
             with interrupts.handling(), self.locked(out_dir, "run"):
-                summary = self._run_dataset(graph, dataset, out_dir, frames, runner, chunk_frames, warmup)
+                claim_folder(out_dir, identity, overwrite=self.overwrite)
+                fields = {"kind": "dataset", **self.record_extra, "identity": identity,
+                          "written": [s.name for s in dataset]}  # fmt: skip
+                write_command_record(out_dir, fields)
+                self.tracking.start(
+                    CommandRecord("run", f"run {g.name} --dataset -> {out_dir}", out_dir, list(fields["command"]),
+                                  {"graph": str(g.file), "frames": identity["frames"] or "all"})
+                )  # fmt: skip
+                try:
+                    with RunLog(out_dir, verbose=self.verbose > 0):
+                        summary = self._run_dataset(
+                            graph, dataset, out_dir, frames, runner, chunk_frames, warmup
+                        )
+                except BaseException:
+                    self.tracking.end("interrupted")
+                    raise
         except LanegraphError as exc:  # a usage error, an unusable input found before any frame ran
             if exc.exit_code == 2:
                 raise
@@ -351,7 +467,11 @@ class Session:
                 status = 1
         if summary and all(s["error"] is not None and s["error"].get("before_any_frame") for s in summary):
             status = 2  # nothing ran at all: the inputs are unusable
-        return status
+        if self.tracking.started:
+            for seq in dataset:
+                self.tracking.log_run(tracked_dataset_run(g, out_dir / seq.name, seq, sets))
+            self.tracking.end("failed" if status else "ok", [])
+        return status if self.tracking.ok else max(status, 1)
 
     def _run_dataset(
         self, graph, dataset, out_dir, frames, runner, chunk_frames, warmup

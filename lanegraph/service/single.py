@@ -30,3 +30,25 @@ def checkpoint_for(out_dir: Path, resume: bool) -> tuple[Any, Path]:
     except OSError as exc:
         raise UsageError(f"{out_dir}: {exc.strerror or exc}") from None
     return None, checkpoint
+
+
+def resumed_frame_ids(out_dir: Path, ckpt: Any) -> list[str]:
+    """The ids of the frames an interrupted run consumed before it is resumed (``ckpt.position``
+    of them): its record's when it wrote one that far, else those of its lanes file and its failures."""
+    from ..run.record import read_record
+    from ..run.results import LANES, find_result
+
+    record = read_record(out_dir)
+    if record is not None and record.selection is not None and len(record.selection.ids) == ckpt.position:
+        return list(record.selection.ids)
+    ids: list[str] = []
+    lanes = find_result(out_dir, LANES)
+    if lanes is not None:
+        from ..evaluation.metrics import read_jsonl
+
+        try:
+            ids = [str(r.get("frame")) for r in read_jsonl(lanes)]
+        except Exception:  # noqa: BLE001 - an unreadable lanes file: the resume itself refuses it
+            ids = []
+    failed = [str(f.frame) for f in ckpt.failures if f.frame is not None]
+    return list(dict.fromkeys([*ids, *failed]))

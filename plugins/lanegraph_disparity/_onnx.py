@@ -444,8 +444,8 @@ class OnnxDisparity:
         self.path = Path(params.model) if params.model else None
         ort = self._check_setup(context)
         self.session, self.provider = self._create_session(ort)
-        self.inputs = {a.name: a for a in self.session.get_inputs()}
-        self.outputs = {a.name: a for a in self.session.get_outputs()}
+        self.model_inputs = {a.name: a for a in self.session.get_inputs()}
+        self.model_outputs = {a.name: a for a in self.session.get_outputs()}
         problems = self._check_signature()
         if problems:
             self.close()
@@ -561,8 +561,8 @@ class OnnxDisparity:
         """The model's inputs and outputs against the params: names, ranks, element types, fixed sizes."""
         p = self.p
         problems: list[Problem] = []
-        have_in = ", ".join(_describe(a) for a in self.inputs.values()) or "(none)"
-        have_out = ", ".join(_describe(a) for a in self.outputs.values()) or "(none)"
+        have_in = ", ".join(_describe(a) for a in self.model_inputs.values()) or "(none)"
+        have_out = ", ".join(_describe(a) for a in self.model_outputs.values()) or "(none)"
         fed = (
             {p.stacked_input: ("stacked_input", 2 * p.n_channels)}
             if p.stacked_input
@@ -574,7 +574,7 @@ class OnnxDisparity:
         c_axis = 1 if p.layout == "NCHW" else 3
         h_axis, w_axis = (2, 3) if p.layout == "NCHW" else (1, 2)
         for name, (field, channels) in fed.items():
-            arg = self.inputs.get(name)
+            arg = self.model_inputs.get(name)
             if arg is None:
                 problems.append(
                     self._problem(
@@ -637,7 +637,7 @@ class OnnxDisparity:
                                 f"{list(p.resize)} with pad_to {p.pad_to} feeds {size}",
                             )
                         )
-        extra = [a for n, a in self.inputs.items() if n not in fed]
+        extra = [a for n, a in self.model_inputs.items() if n not in fed]
         if extra:
             problems.append(
                 self._problem(
@@ -647,7 +647,7 @@ class OnnxDisparity:
                     "a stereo model takes the two images (or one stacked input) only",
                 )
             )
-        out = self.outputs.get(p.output)
+        out = self.model_outputs.get(p.output)
         if out is None:
             problems.append(
                 self._problem(
@@ -702,7 +702,7 @@ class OnnxDisparity:
         """The fed shapes against the model's fixed sizes (first frame, or a new image size)."""
         hn, wn, hp, wp = network_size(h, w, self.p.resize, self.p.pad_to)
         for name, x in feeds.items():
-            shape = self.inputs[name].shape
+            shape = self.model_inputs[name].shape
             if all(not isinstance(s, int) or s == n for s, n in zip(shape, x.shape)):
                 continue
             fixed = _shape_text(shape)
@@ -724,7 +724,7 @@ class OnnxDisparity:
         first = self._checked != (h, w)
         if first:
             self._check_shapes(feeds, h, w)
-        feeds = {k: v.astype(_INPUT_TYPES[self.inputs[k].type], copy=False) for k, v in feeds.items()}
+        feeds = {k: v.astype(_INPUT_TYPES[self.model_inputs[k].type], copy=False) for k, v in feeds.items()}
         try:
             (raw,) = self.session.run([self.p.output], feeds)
         except Exception as exc:  # noqa: BLE001 - ONNX Runtime's errors have no common base

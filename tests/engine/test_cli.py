@@ -51,7 +51,10 @@ def test_run_writes_timings_and_reports_failures(cli, graph_file, tmp_path):
     assert r.exit_code == 0, r.output
     t = json.loads((out / "timings.json").read_text())
     assert t["frames"] == 3 and t["nodes"]["double"]["type"] == "toy.scale"
-    r = cli.invoke(main, ["run", str(graph_file), "--out", str(out), "--quiet", "--set", "double.fail_on=2"])
+    r = cli.invoke(
+        main,
+        ["run", str(graph_file), "--out", str(out), "--quiet", "--set", "double.fail_on=2", "--overwrite"],
+    )
     assert r.exit_code == 1
     assert "node 'double' (toy.scale) failed on frame 0002" in r.output
     # the stopped run still records what it did and why it stopped

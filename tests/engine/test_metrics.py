@@ -105,3 +105,45 @@ def test_match_frame_exposes_each_lane_and_marking_outcome():
     m2 = match_frame([], {"markings": [{"id": 1, "points": GT_ROWS}], "ego": {"left": 5, "right": None}})
     assert m2.ego == {"left": None} and m2.marking_outcomes() == ["unmatched"]
     assert not evaluate_frame([], {"frame": "b", "markings": [], "ego": {"left": 5}}).correct
+
+
+def _gt_frames(n: int) -> list[dict]:
+    return [
+        {"frame": f"{i:04d}", "markings": [{"id": 1, "points": GT_ROWS}], "ego": {"left": 1, "right": None}}
+        for i in range(n)
+    ]
+
+
+def test_only_the_frames_a_run_selected_are_scored():
+    """After a run of frames 0:3 of 8, the 5 frames not run are not failures: they are counted apart."""
+    from lanegraph.evaluation.metrics import select_frames
+
+    gt = _gt_frames(8)
+    pred = [{"frame": f"{i:04d}", "lanes": [{"points": shifted(1)}]} for i in range(3)]
+    whole = evaluate(pred, gt)
+    assert whole["frames"] == 8 and whole["detection_ratio"] == 3 / 8 and whole["frames_not_run"] == 0
+    by_ids = evaluate(pred, gt, frames=["0000", "0001", "0002"])
+    assert by_ids["frames"] == 3 and by_ids["detection_ratio"] == 1.0 and by_ids["failed_frames"] == []
+    assert by_ids["frames_not_run"] == 5 and by_ids["ego_recall"] == 1.0
+    assert evaluate(pred, gt, frames=slice(0, 3))["detection_ratio"] == 1.0
+    # a selected frame the run did not write (it failed) is still scored: nothing reported
+    res = evaluate(pred, gt, frames=["0000", "0001", "0002", "0005"])
+    assert res["frames"] == 4 and [f["frame"] for f in res["failed_frames"]] == ["0005"]
+    assert res["frames_not_run"] == 4
+    kept, not_run = select_frames(gt, slice(2, 8, 2))
+    assert [g["frame"] for g in kept] == ["0002", "0004", "0006"] and not_run == 5
+    # ids of frames the ground truth does not have select nothing of it
+    assert select_frames(gt, ["x"]) == ([], 8)
+
+
+def test_evaluate_sequences_with_the_frames_of_each_run():
+    from lanegraph.evaluation.dataset import POOLED, evaluate_sequences
+
+    gt_a, gt_b = _gt_frames(6), _gt_frames(4)
+    pred_a = [{"frame": f"{i:04d}", "lanes": [{"points": shifted(0)}]} for i in range(2)]
+    pred_b = [{"frame": f"{i:04d}", "lanes": [{"points": shifted(0)}]} for i in range(4)]
+    res = evaluate_sequences([("a", pred_a, gt_a), ("b", pred_b, gt_b)], frames={"a": ["0000", "0001"]})
+    assert res["a"]["frames"] == 2 and res["a"]["frames_not_run"] == 4 and res["a"]["detection_ratio"] == 1.0
+    assert res["b"]["frames"] == 4 and res["b"]["frames_not_run"] == 0
+    assert res[POOLED]["frames"] == 6 and res[POOLED]["detection_ratio"] == 1.0
+    assert res[POOLED]["frames_not_run"] == 4

@@ -19,11 +19,15 @@ def _result() -> RunResult:
 
 
 def test_a_record_round_trips_through_its_one_writer(tmp_path):
-    rec = RunRecord.of(_result(), graph="g.yaml", input="in", sequence="seq", command="lanegraph run")
+    rec = RunRecord.of(
+        _result(), graph="g.yaml", input="in", sequence="seq", command=["lanegraph", "run"], origin="a test",
+        frames="0:3",
+    )  # fmt: skip
     write_run_files(tmp_path, rec)
     data = json.loads((tmp_path / "run.json").read_text())
     assert data["version"] == RECORD_VERSION and data["status"] == "failed frames" and "stopped" not in data
-    assert data["command"] == "lanegraph run"  # a field the service adds is kept
+    assert data["command"] == ["lanegraph", "run"] and data["selection"]["frames"] == "0:3"
+    assert data["origin"] == "a test"  # a field this version does not know is kept
     back = read_record(tmp_path)
     assert back == rec and back.failures[0]["node"] == "fit"
     assert json.loads((tmp_path / "timings.json").read_text())["frames"] == 3

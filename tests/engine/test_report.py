@@ -653,6 +653,8 @@ def test_svg_drawings_escape_their_text_and_draw_every_node_and_edge():
     )
     assert "3.0 / 4.5 ms" in svg and "no timing" in svg
     scatter = _svg.scatter_svg([("<b>x</b>", 10.0, 0.5), ("no time", None, 1.0)], "ms", "ratio")
-    assert "&lt;b&gt;x&lt;/b&gt;" in scatter and "<b>" not in scatter and scatter.count("<circle") == 1
+    assert (
+        "&lt;b&gt;x&lt;/b&gt;" in scatter and "<b>" not in scatter and scatter.count('<g class="point"') == 1
+    )
     bars = _svg.stage_times_svg(["v&1"], ["disp", "fit"], {"v&1": {"disp": 30.0, "fit": None}})
     assert "v&amp;1" in bars and "30.0 ms" in bars

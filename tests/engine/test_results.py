@@ -141,3 +141,17 @@ def test_eval_lateral_reads_the_calibration_through_the_plugins(cli, scene, tmp_
     (tmp_path / "calib.txt").write_text("not a format any plugin reads\n")
     r = cli.invoke(main, [*args, "--calib", str(tmp_path / "calib.txt")])
     assert r.exit_code == 2 and "no installed plugin reads this calibration file" in r.output
+
+
+def test_the_frames_a_run_selected_are_read_from_its_record(tmp_path):
+    import json
+
+    from lanegraph.run.results import recorded_selection
+
+    assert recorded_selection(tmp_path) is None
+    (tmp_path / "run.json").write_text(json.dumps({"status": "ok"}))
+    assert recorded_selection(tmp_path) is None  # an older record: every ground-truth frame is scored
+    (tmp_path / "run.json").write_text(json.dumps({"selection": {"frames": "0:2", "ids": ["0000", "0001"]}}))
+    assert recorded_selection(tmp_path) == ("0:2", ["0000", "0001"])
+    (tmp_path / "run.json").write_text(json.dumps({"selection": {"frames": "", "ids": []}}))
+    assert recorded_selection(tmp_path) == (None, [])

@@ -733,6 +733,11 @@ def test_graph_run_with_the_node_in_place_of_sgbm(tmp_path, monkeypatch):
     assert timings["frames"] == 3 and timings["nodes"]["disp"]["type"] == "disparity.onnx"
     assert timings["nodes"]["disp"]["calls"] == 3
     assert len((tmp_path / "out" / "lanes.jsonl").read_text().splitlines()) == 3
+    # the summary line names the files the run wrote, and only those (not the model's output "disparity")
+    line = next(ln for ln in r.output.splitlines() if "frame(s) processed -> " in ln)
+    named = line.split(" -> ", 1)[1].split(" (median")[0].split(", ")
+    assert str(tmp_path / "out" / "lanes.jsonl") in named
+    assert all(Path(f).is_file() for f in named), named
     assert len(spy.outputs) == 3
     for frame, out in spy.outputs.items():
         d, gt, road = out["disp"]["disparity"], out["src"]["gt_disparity"], out["src"]["gt_road_mask"]

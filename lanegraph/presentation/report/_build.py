@@ -8,7 +8,6 @@ import math
 import os
 import shutil
 import sys
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,7 +17,7 @@ from ...errors import InputError, LanegraphError, UsageError
 from ...evaluation.dataset import POOLED, Dataset, evaluate_sequences
 from ...evaluation.metrics import evaluate
 from ...graph.model import Graph
-from ...paths import prepare_dir
+from ...paths import new_temp_dir, new_temp_file, prepare_dir
 from ...plugins import PluginManager, get_plugin_manager
 from . import _page
 from ._collect import Collected, collect
@@ -189,7 +188,7 @@ def _check_assets(out: Path) -> Path:
 def _new_assets(out: Path) -> Path:
     _check_assets(out)
     out.mkdir(parents=True, exist_ok=True)
-    new = Path(tempfile.mkdtemp(prefix=".assets-", dir=out))
+    new = new_temp_dir(out, prefix=".assets-")  # the umask's mode (mkdtemp's 0700 would stay private)
     (new / "frames").mkdir()
     (new / _OWNED).write_text("written by `lanegraph report`; replaced by the next report into this folder\n")
     return new
@@ -202,10 +201,9 @@ def _swap_in(out: Path, new_assets: Path, page: str) -> None:
     if old.exists():
         shutil.rmtree(old)
     os.replace(new_assets, old)
-    fd, tmp = tempfile.mkstemp(prefix=".index-", suffix=".html", dir=out)
+    fd, tmp = new_temp_file(out, prefix=".index-", suffix=".html")  # the umask's mode, as any file
     with os.fdopen(fd, "w", encoding="utf-8") as fh:
         fh.write(page)
-    os.chmod(tmp, 0o644)
     os.replace(tmp, out / "index.html")
 
 

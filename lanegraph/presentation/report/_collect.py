@@ -14,7 +14,8 @@ from typing import Any
 
 from ...errors import GraphError, InputError, UsageError
 from ...evaluation.dataset import Dataset, read_gt, single_sequence
-from ...evaluation.metrics import read_jsonl
+from ...evaluation.metrics import read_jsonl, select_frames
+from ...frames import parse_frames
 from ...graph.model import Graph
 from ...plugins import PluginManager
 from ...run.record import RunRecord, read_record
@@ -193,6 +194,10 @@ def _collect_run(run_dir, gt, dataset, input_path, frames, sets, graph, pm) -> C
         for s in _from_dataset(dataset, frames):
             folder = run_dir / s.name
             lanes = find_result(folder, LANES, pm) if folder.is_dir() else None
+            rec = read_record(folder) if lanes is not None and frames is None else None
+            if rec is not None and rec.selection is not None:  # the frames the run selected
+                s.frames = parse_frames(rec.selection.frames or None)
+                s.gt = _recorded_frames(read_gt_file(s.gt_path), rec.selection.ids, notes, s.name)
             if lanes is not None:
                 runs[(0, len(seqs))] = read_run(folder, lanes)
                 seqs.append(s)
@@ -222,15 +227,39 @@ def _collect_run(run_dir, gt, dataset, input_path, frames, sets, graph, pm) -> C
         if gt is not None:
             notes.append(f"ground truth: {gt} (found in the input folder)")
     name = single_sequence(input_path).name
+    gt_records = _gt_records(gt, frames)
+    if frames is None and run_json.selection is not None:  # the frames the run selected, and only those
+        frames = parse_frames(run_json.selection.frames or None)
+        gt_records = _recorded_frames(gt_records, run_json.selection.ids, notes)
     seq = Sequence(
         name,
         input_path,
         frames,
-        _gt_records(gt, frames),
+        gt_records,
         gt,
         default_source=input_path is None and not run_json.input,
     )
     return Collected("run", run_dir, [variant], [seq], {(0, 0): read_run(run_dir, lanes)}, graph, notes=notes)
+
+
+def _recorded_frames(
+    gt: list[dict[str, Any]] | None, ids: list[str], notes: list[str], sequence: str | None = None
+) -> list[dict[str, Any]] | None:
+    """The ground truth of the frames a run selected (its record's ids); a note says how many of
+    the ground truth's frames the run did not run (they are not shown as failed)."""
+    if gt is None:
+        return None
+    kept, not_run = select_frames(gt, ids)
+    if not_run:
+        where = f"sequence {sequence}: " if sequence else ""
+        notes.append(
+            f"{where}{not_run} frame(s) of the ground truth not run (the run selected {len(kept)}): not scored"
+        )
+    return kept
+
+
+def read_gt_file(path: Path | None) -> list[dict[str, Any]] | None:
+    return read_jsonl(path) if path is not None else None
 
 
 def _safe_folder(name: str) -> str:

@@ -7,6 +7,7 @@ Every text that comes from a graph, an output folder or a results table is escap
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from html import escape
 from typing import Any
@@ -246,26 +247,48 @@ def stage_times_svg(
     return "".join(out)
 
 
+#: the height of a label's box at font size 11, pixels (ascent and descent)
+_TEXT_H = 13.0
+
+
 def scatter_svg(points: Sequence[tuple[str, float | None, float | None]], x_label: str, y_label: str) -> str:
-    """Accuracy against time: ``(label, x, y)`` per point, ``y`` a fraction in [0, 1]."""
+    """Accuracy against time: ``(label, x, y)`` per point, ``y`` a fraction in [0, 1].
+
+    Each point has its own colour, a legend entry beside the plot, and a label placed where it
+    overlaps no other label and no point (:func:`lanegraph.plots.place_labels`; joined to its point
+    by a thin line when moved away, left out when there is no room: the legend names the point)."""
+    from ..plots import nearest_on_box, place_labels, text_width
+
     pts = [(n, float(xv), float(yv)) for n, xv, yv in points if xv is not None and yv is not None]
     if not pts:
         return '<p class="note">no variant has both a time and an accuracy</p>'
-    W, H, ml, mr, mt, mb = 620, 380, 56, 130, 14, 44
-    pw, ph = W - ml - mr, H - mt - mb
-    x_max = max(p[1] for p in pts) * 1.1 or 1.0
+    legend_w = 34 + max(text_width(_clip(n, 32), 11) for n, _, _ in pts)
+    ml, mt, mb, pw = 56, 14, 44, 470
+    ph = max(322, 16 * len(pts) - 8)
+    W, H = ml + pw + 16 + legend_w, mt + ph + mb
+    lo, hi = min(p[1] for p in pts), max(p[1] for p in pts)
+    pad = max(0.15 * (hi - lo), 0.08 * hi, 1.0)
+    step = _nice_step((hi + pad - (0.0 if lo < 0.4 * hi else lo - pad)) / 5)
+    x_lo = 0.0 if lo < 0.4 * hi else step * math.floor((lo - pad) / step)
+    x_hi = hi + pad
+
+    def px(xv: float) -> float:
+        return ml + pw * (xv - x_lo) / (x_hi - x_lo)
+
+    def py(yv: float) -> float:
+        return mt + ph - ph * max(0.0, min(yv, 1.0))
+
     out = [
-        f'<svg xmlns="http://www.w3.org/2000/svg" class="chart scatter" viewBox="0 0 {W} {H}" width="{W}" height="{H}" {_FONT} font-size="11">'
+        f'<svg xmlns="http://www.w3.org/2000/svg" class="chart scatter" viewBox="0 0 {W:.0f} {H}" width="{W:.0f}" height="{H}" {_FONT} font-size="11">'
     ]
     out.append(f'<rect x="{ml}" y="{mt}" width="{pw}" height="{ph}" fill="#fafafa" stroke="#bbb"/>')
     for k in range(6):  # y ticks: 0, 20 ... 100 %
         yy = mt + ph - ph * k / 5
         out.append(f'<line x1="{ml}" x2="{ml + pw}" y1="{yy:.1f}" y2="{yy:.1f}" stroke="#e4e4e4"/>')
         out.append(f'<text x="{ml - 6}" y="{yy + 4:.1f}" text-anchor="end">{20 * k} %</text>')
-    step = _nice_step(x_max / 5)
-    k = 0
-    while k * step <= x_max:
-        xx = ml + pw * k * step / x_max
+    k = math.ceil(x_lo / step)
+    while k * step <= x_hi:
+        xx = px(k * step)
         out.append(f'<line x1="{xx:.1f}" x2="{xx:.1f}" y1="{mt}" y2="{mt + ph}" stroke="#eee"/>')
         out.append(f'<text x="{xx:.1f}" y="{mt + ph + 15}" text-anchor="middle">{k * step:g}</text>')
         k += 1
@@ -275,13 +298,28 @@ def scatter_svg(points: Sequence[tuple[str, float | None, float | None]], x_labe
     out.append(
         f'<text transform="translate(14,{mt + ph / 2}) rotate(-90)" text-anchor="middle" fill="#444">{escape(y_label)}</text>'
     )
-    for i, (name, xv, yv) in enumerate(pts):
-        xx, yy = ml + pw * xv / x_max, mt + ph - ph * max(0.0, min(yv, 1.0))
+    anchors = [(px(xv), py(yv)) for _, xv, yv in pts]
+    labels = [_clip(name, 32) for name, _, _ in pts]
+    boxes = place_labels(
+        anchors,
+        [(text_width(t, 11), _TEXT_H) for t in labels],
+        (ml + 2, mt + 2, ml + pw - 2, mt + ph - 2),
+        6.0,
+    )
+    for i, ((name, xv, yv), (xx, yy), label, box) in enumerate(zip(pts, anchors, labels, boxes)):
         colour = PALETTE[i % len(PALETTE)]
+        text = ""
+        if box is not None:
+            lx, ly = nearest_on_box(box, xx, yy)
+            if math.dist((xx, yy), (lx, ly)) > 10:
+                text += f'<line class="leader" x1="{xx:.1f}" y1="{yy:.1f}" x2="{lx:.1f}" y2="{ly:.1f}" stroke="#999" stroke-width="0.7"/>'
+            text += f'<text class="label" x="{box[0]:.1f}" y="{box[3] - 3:.1f}">{escape(label)}</text>'
+        ly0 = mt + 4 + 16 * i
         out.append(
-            f'<g class="point"><title>{escape(name)}: {yv * 100:.1f} %, {_ms(xv)} ms</title>'
+            f'<g class="point"><title>{escape(name)}: {yv * 100:.1f} %, {_ms(xv)} ms</title>{text}'
             f'<circle cx="{xx:.1f}" cy="{yy:.1f}" r="5" fill="{colour}" stroke="#333" stroke-width="0.6"/>'
-            f'<text x="{xx + 7:.1f}" y="{yy - 5:.1f}">{escape(_clip(name, 26))}</text></g>'
+            f'<g class="legend-entry"><circle cx="{ml + pw + 24}" cy="{ly0 + 6}" r="5" fill="{colour}" stroke="#333" stroke-width="0.6"/>'
+            f'<text x="{ml + pw + 34}" y="{ly0 + 10}">{escape(label)}</text></g></g>'
         )
     out.append("</svg>")
     return "".join(out)

@@ -1,0 +1,223 @@
+"""Logging through Python's :mod:`logging`: the console's level (``-v`` / ``-q``) and a run's own log
+file, ``OUT/run.log``.
+
+Everything lanegraph says while it works goes to the ``lanegraph`` logger (and its children,
+``lanegraph.run``, ``lanegraph.tracking`` ...); Python warnings go to ``py.warnings`` while the
+command line is set up (:func:`configure_console`). Two kinds of handler read them:
+
+- the console (stderr): ``warning: ...`` and ``error: ...`` lines, notes at the default level, the
+  details with ``-v``; ``-q`` keeps warnings and errors only. Lines are written through
+  :func:`tqdm.tqdm.write`, so a progress bar is not torn.
+- :class:`RunLog`, attached for the duration of a run: ``OUT/run.log`` gets every record at INFO
+  and above (DEBUG with ``-v``), time-stamped: what the run did, every warning, and every error a
+  node raised on a frame (through the ``lanegraph_after_node`` hook, whatever the node's
+  ``on_error`` then does with it). A resumed run appends to it.
+
+A library user who does not call :func:`configure_console` gets Python's defaults: lanegraph adds
+no handler of its own to the console.
+"""
+
+from __future__ import annotations
+
+import io
+import logging
+import os
+import re
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from .hookspecs import hookimpl
+from .paths import create_new
+
+LOGGER = "lanegraph"
+LOG_NAME = "run.log"
+#: the loggers the console and a run's log read: lanegraph's own, and Python warnings
+_SOURCES = (LOGGER, "py.warnings")
+
+
+def get_logger(name: str = "") -> logging.Logger:
+    """The ``lanegraph`` logger, or its child ``lanegraph.<name>``."""
+    return logging.getLogger(f"{LOGGER}.{name}" if name else LOGGER)
+
+
+def console_level(verbose: int = 0, quiet: int = 0) -> int:
+    """The console's level for ``-v`` given ``verbose`` times and ``-q`` given ``quiet`` times:
+    INFO by default and with ``-q`` (which only turns the progress bars off: a long wait still says
+    what it is doing), DEBUG with ``-v``, WARNING with ``-qq``, ERROR with ``-qqq``."""
+    if verbose > 0:
+        return logging.DEBUG
+    return {0: logging.INFO, 1: logging.INFO, 2: logging.WARNING}.get(quiet, logging.ERROR)
+
+
+class _ConsoleFormatter(logging.Formatter):
+    """``warning: message`` / ``error: message``; a note as it is; a detail as ``debug: ...``."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        text = record.getMessage()
+        if getattr(record, "plain", False):  # a line of a listing (failed frames): as it is
+            return text
+        if record.name == "py.warnings":  # "file:line: Category: message\n  source line"
+            text = text.strip().splitlines()[0]
+        if record.exc_info and record.levelno >= logging.ERROR:
+            text += f" ({type(record.exc_info[1]).__name__}: {record.exc_info[1]})"
+        if record.levelno >= logging.ERROR:
+            return f"error: {text}"
+        if record.levelno >= logging.WARNING:
+            return f"warning: {text}"
+        if record.levelno < logging.INFO:
+            return f"debug: {text}"
+        return text
+
+
+class _ConsoleHandler(logging.Handler):
+    """To the current ``sys.stderr`` at every record (a test runner may swap it), through tqdm."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if getattr(record, "file_only", False):  # for run.log (what a run was), not the terminal
+            return
+        try:
+            from tqdm import tqdm
+
+            tqdm.write(self.format(record), file=sys.stderr)
+            sys.stderr.flush()  # in order with what the command prints on stdout
+        except Exception:  # noqa: BLE001 - logging must never stop the run
+            self.handleError(record)
+
+
+def _set_level(logger: logging.Logger) -> None:
+    """The logger's level: the lowest of its handlers' (records no handler wants are not made)."""
+    levels = [h.level for h in logger.handlers if isinstance(h, (_ConsoleHandler, _FileHandler))]
+    logger.setLevel(min(levels) if levels else logging.NOTSET)
+
+
+def configure_console(verbose: int = 0, quiet: int = 0) -> Callable[[], None]:
+    """Send lanegraph's records (and Python warnings) to stderr at :func:`console_level`; returns
+    the function that undoes it. Calling it again replaces the console handler."""
+    level = console_level(verbose, quiet)
+    handler = _ConsoleHandler(level)
+    handler.setFormatter(_ConsoleFormatter())
+    olds: list[tuple[logging.Logger, list[logging.Handler], bool]] = []
+    for name in _SOURCES:
+        logger = logging.getLogger(name)
+        mine = [h for h in logger.handlers if isinstance(h, _ConsoleHandler)]
+        for h in mine:
+            logger.removeHandler(h)
+        olds.append((logger, mine, logger.propagate))
+        logger.addHandler(handler)
+        logger.propagate = False  # printed once, by us, not again by a root handler
+        _set_level(logger)
+    logging.captureWarnings(True)
+
+    def undo() -> None:
+        logging.captureWarnings(False)
+        for logger, mine, propagate in olds:
+            logger.removeHandler(handler)
+            for h in mine:
+                logger.addHandler(h)
+            logger.propagate = propagate
+            _set_level(logger)
+
+    return undo
+
+
+class _FileHandler(logging.StreamHandler):
+    """A handler on a file opened by :class:`RunLog` (never through a link planted at its name)."""
+
+
+class _NodeErrors:
+    """A plugin that logs every error a node raises on a frame (``lanegraph_after_node``)."""
+
+    def __init__(self) -> None:
+        self.log = get_logger("run")
+
+    @hookimpl
+    def lanegraph_after_node(
+        self, node_id: str, node_type: str, frame: str | None, error: BaseException | None
+    ) -> None:
+        if error is not None:
+            where = f"frame {frame}: " if frame is not None else ""
+            self.log.warning(
+                "%snode '%s' (%s) raised %s: %s", where, node_id, node_type, type(error).__name__, error
+            )
+
+
+class RunLog:
+    """``OUT/run.log`` for the duration of a run (a context manager).
+
+    Parameters
+    ----------
+    folder
+        The run's output folder; the log is ``folder/run.log``.
+    append
+        Continue the file (a resumed run); otherwise it is written anew.
+    verbose
+        Record DEBUG details too (``-v``).
+    pm
+        A plugin manager to register the node-error logger with (every error a node raises on a
+        frame is then recorded, with the frame and the node).
+    """
+
+    def __init__(self, folder: Path, append: bool = False, verbose: bool = False, pm: Any = None) -> None:
+        self.path = Path(folder) / LOG_NAME
+        self.append = append
+        self.level = logging.DEBUG if verbose else logging.INFO
+        self.pm = pm
+        self._handler: _FileHandler | None = None
+        self._plugin: _NodeErrors | None = None
+
+    def __enter__(self) -> RunLog:
+        if self.append and self.path.is_file() and not self.path.is_symlink():
+            fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | getattr(os, "O_NOFOLLOW", 0))
+            fh: Any = os.fdopen(fd, "a", encoding="utf-8", buffering=1)
+        else:  # anew: a file or a link at its name is replaced, never written through
+            fh = io.TextIOWrapper(
+                io.BufferedWriter(create_new(self.path)), encoding="utf-8", line_buffering=True
+            )
+        handler = _FileHandler(fh)
+        handler.setLevel(self.level)
+        formatter = logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s", "%Y-%m-%d %H:%M:%S")
+        formatter.converter = time.gmtime
+        handler.setFormatter(formatter)
+        for name in _SOURCES:
+            logger = logging.getLogger(name)
+            logger.addHandler(handler)
+            _set_level(logger)
+        self._handler = handler
+        if self.pm is not None:
+            self._plugin = _NodeErrors()
+            self.pm.register(self._plugin)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._plugin is not None and self.pm is not None:
+            self.pm.unregister(self._plugin)
+            self._plugin = None
+        if self._handler is not None:
+            for name in _SOURCES:
+                logger = logging.getLogger(name)
+                logger.removeHandler(self._handler)
+                _set_level(logger)
+            self._handler.close()
+            self._handler.stream.close()  # logging's close() leaves a stream it did not open
+            self._handler = None
+
+
+_FAILURE_LINE = re.compile(r"^\s+frame .*|.*\bframe\(s\) failed\b.*")
+
+
+def say(message: str, logger: logging.Logger | None = None) -> None:
+    """One line a command says on stderr, as a log record: ``error: ...`` and ``warning: ...`` at
+    their levels (the prefix is the console's), the lines listing failed frames as warnings shown as
+    they are, any other line a note (INFO: hidden by ``-q``). Everything reaches ``run.log``."""
+    log = logger or get_logger("run")
+    for prefix, level in (("error: ", logging.ERROR), ("warning: ", logging.WARNING)):
+        if message.startswith(prefix):
+            log.log(level, message[len(prefix) :])
+            return
+    if _FAILURE_LINE.match(message):
+        log.warning(message, extra={"plain": True})
+    else:
+        log.info(message)
