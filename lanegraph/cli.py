@@ -17,24 +17,19 @@ import yaml
 
 from . import __version__
 from .errors import GraphError, InputError, LanegraphError, Problem, UsageError
+from .builtin import find_graph, graphs_dir
 from .graph import Graph, graph_json_schema, load_graph
 from .nodes import NodeType, RunContext
 from .plugins import PluginManager, get_plugin_manager
 
-REPO_GRAPHS = Path(__file__).resolve().parents[1] / "graphs"
+REPO_GRAPHS = graphs_dir()  # the built-in graphs: lanegraph/graphs when installed, graphs/ in a checkout
 
 
 def resolve_graph_path(name: str) -> Path:
     """A graph argument is a file path, or the name of a graph under ``graphs/`` (``paper``,
-    ``ablations/slt``), looked up in the current folder and then beside the installed package."""
-    p = Path(name)
-    if p.is_file():
-        return p
-    for base in (Path("graphs"), REPO_GRAPHS):
-        for cand in (base / name, base / f"{name}.yaml"):
-            if cand.is_file():
-                return cand
-    return p  # reported as "graph file not found" by the loader
+    ``ablations/slt``), looked up in the current folder and then among the built-in graphs; an
+    unknown name is a :class:`GraphError` with the closest built-in name."""
+    return find_graph(name)
 
 
 def parse_frames(text: str | None) -> slice | None:
@@ -1013,7 +1008,10 @@ def _ablation_variants(base: Path, variants: tuple[Path, ...], sweeps: tuple[str
     variant of BASE per ``--sweep`` value."""
     from .ablate import Variant, expand_sweeps
 
-    paths = [resolve_graph_path(str(p)) for p in (base, *variants)]
+    try:
+        paths = [resolve_graph_path(str(p)) for p in (base, *variants)]
+    except GraphError as exc:
+        _fail(exc)
     runs = [Variant(p.stem, p) for p in paths]
     names = [r.name for r in runs]
     for r in runs:  # disambiguate equal file names
@@ -1373,6 +1371,11 @@ def _write_report(
     click.echo(summary.line())
     return summary
 
+
+from .cli_start import data_cmd, graphs_cmd  # noqa: E402 - the newcomer's commands (issue 32)
+
+main.add_command(graphs_cmd)
+main.add_command(data_cmd)
 
 if __name__ == "__main__":  # pragma: no cover
     main()
