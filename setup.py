@@ -17,7 +17,9 @@ class BuildPyWithGraphs(build_py):
     def run(self):
         super().run()
         src = ROOT / "graphs"
-        if not src.is_dir() or getattr(self, "editable_mode", False):  # an editable install reads graphs/ in place
+        if not src.is_dir() or getattr(
+            self, "editable_mode", False
+        ):  # an editable install reads graphs/ in place
             return
         dst = Path(self.build_lib) / "lanegraph" / "graphs"
         for f in sorted(src.rglob("*.yaml")):

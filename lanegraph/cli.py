@@ -16,9 +16,10 @@ import click
 import yaml
 
 from . import __version__
-from .errors import GraphError, InputError, LanegraphError, Problem, UsageError
 from .builtin import find_graph, graphs_dir
+from .errors import GraphError, InputError, LanegraphError, Problem, UsageError
 from .graph import Graph, graph_json_schema, load_graph
+from .kernel_cache import first_run_notice
 from .nodes import NodeType, RunContext
 from .plugins import PluginManager, get_plugin_manager
 
@@ -198,6 +199,7 @@ def run(
     """Run GRAPH (a file or a name under graphs/, default: paper): its sinks write into OUT (the
     lanes, overlays), with OUT/timings.json and OUT/run.json; with --dataset, every sequence into
     OUT/<sequence>/ (in this process, or on a Dask cluster with --scheduler)."""
+    first_run_notice(quiet)  # the first run on a machine compiles the kernels: say so at once
     if dataset_path is not None:
         _run_dataset(
             graph,
@@ -902,6 +904,7 @@ def ablate(
     each and write OUT/results.csv (per sequence and pooled), OUT/results.md and plots; runs go to
     OUT/runs/<variant>/<sequence>/; work shared between variants is computed once. A run that
     fails gets its row with the error and the others go on (exit 1)."""
+    first_run_notice(quiet)
     from .batch import parse_scheduler
 
     pm = _plugins()

@@ -36,7 +36,11 @@ def data_cmd() -> None:
 @data_cmd.command(name="kitti")
 @click.argument("sources", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option(
-    "--out", "out_dir", type=click.Path(path_type=Path), required=True, help="the folder to lay the data out in"
+    "--out",
+    "out_dir",
+    type=click.Path(path_type=Path),
+    required=True,
+    help="the folder to lay the data out in",
 )
 @click.option("--quiet", is_flag=True, help="no progress messages")
 def kitti_cmd(sources: tuple[Path, ...], out_dir: Path, quiet: bool) -> None:

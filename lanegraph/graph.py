@@ -264,7 +264,9 @@ def _base_file(
     if not base_found and (builtin := builtin_base(ext)) is not None:  # extends: paper.yaml from anywhere
         base_path, base_display, base_found = builtin, f"{ext} (built-in: {builtin})", True
         if base_path in chain:
-            raise problem("extends cycle: " + " -> ".join(str(p) for p in (*chain, path.resolve(), base_path)))
+            raise problem(
+                "extends cycle: " + " -> ".join(str(p) for p in (*chain, path.resolve(), base_path))
+            )
     if not base_found:
         raise problem(f"base graph file not found: {base_display} (resolved to {base_path})")
     return base_path, base_display

@@ -19,7 +19,9 @@ REPO_GRAPHS = Path(__file__).resolve().parents[2] / "graphs"
 def test_graphs_dir_has_every_file_of_the_repository(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # nothing depends on the current folder
     names = graph_names()
-    expected = sorted(p.relative_to(REPO_GRAPHS).with_suffix("").as_posix() for p in REPO_GRAPHS.rglob("*.yaml"))
+    expected = sorted(
+        p.relative_to(REPO_GRAPHS).with_suffix("").as_posix() for p in REPO_GRAPHS.rglob("*.yaml")
+    )
     assert sorted(names + graph_names("datasets")) == expected
     assert "paper" in names and "ablations/slt" in names and "datasets/dev" in graph_names("datasets")
     assert find_graph("paper").resolve() == (graphs_dir() / "paper.yaml").resolve()
@@ -43,7 +45,11 @@ def test_graphs_command_lists_graphs_and_datasets(tmp_path, monkeypatch):
     r = CliRunner().invoke(main, ["graphs"])
     assert r.exit_code == 0, r.output
     lines = r.output.splitlines()
-    assert any(line.split()[0] == "ablations/slt" and "SLT instead of ESLT" in line for line in lines[1:] if line.strip())
+    assert any(
+        line.split()[0] == "ablations/slt" and "SLT instead of ESLT" in line
+        for line in lines[1:]
+        if line.strip()
+    )
     assert any(line.strip().startswith("datasets/dev") for line in lines)
     r = CliRunner().invoke(main, ["graphs", "--paths"])
     assert all(Path(line.strip()).is_file() for line in r.output.splitlines() if not line.startswith("#"))
