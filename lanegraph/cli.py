@@ -1347,9 +1347,9 @@ def report(run_dir, gt_path, dataset_path, input_path, frames, sets, debug_dir, 
     except LanegraphError as exc:  # a folder, option or file that does not fit: 2; failing to write: 1
         _fail(exc, 2 if isinstance(exc, (UsageError, InputError, GraphError)) else 1)
     if open_browser:
-        import webbrowser
+        from .cli_start import open_in_browser
 
-        webbrowser.open(summary.index.resolve().as_uri())
+        open_in_browser(summary.index)
 
 
 def _write_report(

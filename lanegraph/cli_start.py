@@ -61,6 +61,23 @@ def kitti_cmd(sources: tuple[Path, ...], out_dir: Path, quiet: bool) -> None:
         click.echo(line)
 
 
+def open_in_browser(page: Path) -> bool:
+    """Open ``page`` in the web browser (``report --open``); where this machine has none (a server,
+    a container, no DISPLAY), say so and where the page is, instead of doing nothing."""
+    import webbrowser
+
+    try:
+        opened = webbrowser.open(page.resolve().as_uri())
+    except webbrowser.Error:
+        opened = False
+    if not opened:
+        click.echo(
+            f"report: no web browser found to open it (set BROWSER to one); open {page} in a browser",
+            err=True,
+        )
+    return opened
+
+
 def _say(text: str) -> None:
     click.echo(f"data: {text}", err=True)
 

@@ -205,3 +205,17 @@ def test_plugin_render_hook_is_used(pm, tmp_path):
     assert frames and all((tmp_path / "dbg" / f / "mosaic.png").exists() for f in frames)
     saved = cv2.imread(str(tmp_path / "dbg" / frames[0] / "double.y.png"))
     assert np.array_equal(saved, marker)
+
+
+def test_mosaic_never_cuts_a_caption_and_widens_a_narrow_tile():
+    """A v-disparity (375 rows x 60 bins) comes out at a readable width, and a long title whole."""
+    import cv2
+
+    name = "road.vdisparity_with_a_long_title"
+    m = mosaic(
+        [(name, np.full((375, 60), 128, np.uint8)), ("x", np.zeros((240, 320, 3), np.uint8))], tile_height=240
+    )
+    (text_w, _), _ = cv2.getTextSize(name, cv2.FONT_HERSHEY_SIMPLEX, 0.45, 1)
+    first = m.shape[1] - (320 + 4) - 4  # the first tile's width: the whole minus the second tile and gaps
+    assert first >= max(160, text_w + 8)
+    assert (m[20:260, 60:160] == 128).all()  # the picture itself is stretched, not only padded
