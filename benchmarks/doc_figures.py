@@ -34,6 +34,13 @@ SHARED = ROOT.parent / "shared" / "data"
 DRIVE = SHARED / "kitti_raw" / "2011_09_26" / "2011_09_26_drive_0001_sync"
 DOCS = {"readme": ROOT / "README.md", "tutorial": ROOT / "docs" / "tutorial.md"}
 BLOCK = re.compile(r"(<!-- figures: (?P<name>[\w/-]+)[^>]*-->\n)(?P<body>.*?)(<!-- /figures -->)", re.S)
+#: every block the generators write, by the figures they need
+BLOCKS = {
+    "tutorial/ablation-kerbs": "synthetic",
+    "tutorial/eval-drive": "real",
+    "tutorial/ablation-drive": "real",
+    "readme/dev": "real",
+}
 README_ROWS = {  # sequence of dev.yaml -> the row's label
     "drive_0001": "KITTI raw drive 0001, urban street, kerb and tram tracks (0-53)",
     "seq1": "KITTI odometry `seq1`, residential street without painted lines (0-25)",

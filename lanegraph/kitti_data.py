@@ -55,6 +55,9 @@ RAW_CALIB = re.compile(
 )
 ODO_IMAGE = re.compile(r"(?:^|/)sequences/(?P<seq>\d{2})/(?P<cam>image_[01])/(?P<frame>\d{6})\.png$")
 ODO_FILE = re.compile(r"(?:^|/)sequences/(?P<seq>\d{2})/(?P<file>calib\.txt|times\.txt)$")
+ODO_CALIB_FLAT = re.compile(
+    r"(?:^|/)calib_(?P<seq>\d{2})\.txt$"
+)  # some mirrors: one calib_NN.txt per sequence
 
 #: the lane ground truth shipped with lanegraph: (kind, date or None, sequence folder) -> package data file
 GROUND_TRUTH = {
@@ -152,6 +155,7 @@ class _Sequence:
 def _scan(sources: list[_Source]) -> tuple[dict[tuple, _Sequence], dict[str, dict[str, tuple[_Source, str]]]]:
     seqs: dict[tuple, _Sequence] = {}
     calib: dict[str, dict[str, tuple[_Source, str]]] = defaultdict(dict)
+    odo_calib: dict[str, tuple[_Source, str]] = {}
     for src in sources:
         found = 0
         for name in src.members():
@@ -169,6 +173,8 @@ def _scan(sources: list[_Source]) -> tuple[dict[tuple, _Sequence], dict[str, dic
             elif m := ODO_FILE.search(name):
                 s = seqs.setdefault(("odometry", None, m["seq"]), _Sequence("odometry", None, m["seq"]))
                 s.files[m["file"]] = (src, name)
+            elif m := ODO_CALIB_FLAT.search(name):
+                odo_calib[m["seq"]] = (src, name)
             else:
                 continue
             found += 1
@@ -178,6 +184,9 @@ def _scan(sources: list[_Source]) -> tuple[dict[tuple, _Sequence], dict[str, dic
                 "(DATE/DATE_drive_NNNN_sync/image_02/data/*.png), its date's calibration (DATE/calib_cam_to_cam.txt) "
                 "or the odometry data (dataset/sequences/NN/image_0/*.png, calib.txt)"
             )
+    for seq, member in odo_calib.items():
+        if ("odometry", None, seq) in seqs:
+            seqs[("odometry", None, seq)].files.setdefault("calib.txt", member)
     return seqs, calib
 
 
