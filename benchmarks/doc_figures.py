@@ -34,6 +34,7 @@ SHARED = ROOT.parent / "shared" / "data"
 DRIVE = SHARED / "kitti_raw" / "2011_09_26" / "2011_09_26_drive_0001_sync"
 DOCS = {"readme": ROOT / "README.md", "tutorial": ROOT / "docs" / "tutorial.md"}
 BLOCK = re.compile(r"(<!-- figures: (?P<name>[\w/-]+)[^>]*-->\n)(?P<body>.*?)(<!-- /figures -->)", re.S)
+TIMING_NOTE = "(ms/frame: the sum of the stages' median times,"
 #: every block the generators write, by the figures they need
 BLOCKS = {
     "tutorial/ablation-kerbs": "synthetic",
@@ -65,11 +66,15 @@ def variants() -> list[str]:
 
 
 def pooled_table(results_md: Path) -> str:
-    """The first (pooled) table of an ablation's results.md."""
+    """The first (pooled) table of an ablation's results.md, and how busy the machine was."""
+    import os
+
     lines = results_md.read_text(encoding="utf-8").splitlines()
     start = next(i for i, line in enumerate(lines) if line.startswith("| variant |"))
     end = next((i for i in range(start, len(lines)) if not lines[i].startswith("|")), len(lines))
-    return "\n".join(lines[start:end]) + "\n"
+    load = os.getloadavg()[0]
+    note = f"\n{TIMING_NOTE} measured at a load average of {load:.1f} on {os.cpu_count()} cores)\n"
+    return "\n".join(lines[start:end]) + "\n" + note
 
 
 def ablation(tmp: Path, name: str, *source: str) -> Path:
@@ -125,10 +130,12 @@ def gen_real(tmp: Path) -> dict[str, str]:
 
 
 def comparable(name: str, text: str) -> str:
-    """The text without what depends on the machine: the ms/frame column of an ablation table."""
+    """The text without what depends on the machine: the ms/frame column of an ablation table and
+    the line that says how busy the machine was."""
     if "ablation" not in name:
         return text
-    return "\n".join(re.sub(r"\| [^|]* \|$", "|", line) for line in text.splitlines())
+    lines = [line for line in text.splitlines() if not line.startswith(TIMING_NOTE)]
+    return "\n".join(re.sub(r"\| [^|]* \|$", "|", line) for line in lines).strip()
 
 
 def main() -> None:

@@ -70,8 +70,8 @@ def find_graph(name: str) -> Path:
         for cand in (base / name, base / f"{name}.yaml"):
             if cand.is_file():
                 return cand
-    if p.suffix in (".yaml", ".yml") or "/" in name or "\\" in name or p.exists():
-        return p  # a path: reported as "graph file not found" by the loader, where it is
+    if p.suffix.lower() in (".yaml", ".yml", ".json", ".toml") or p.exists():
+        return p  # a file's path: reported as "graph file not found" (or a folder) by the loader
     names = graph_names()
     hint = did_you_mean(name, names, listing="built-in graphs") or ""
     raise GraphError(

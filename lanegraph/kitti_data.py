@@ -100,6 +100,10 @@ class _Source:
                 if not info.is_dir():
                     yield info.filename
             return
+        top = self.path.resolve()
+        for f in sorted(top.parent.glob("calib_*.txt")):  # a drive folder given: its date's calibration
+            if f.is_file() and not f.is_symlink():
+                yield f.as_posix()
         for dirpath, _dirs, files in os.walk(self.path):  # links to folders are not followed
             for name in files:
                 full = Path(dirpath) / name

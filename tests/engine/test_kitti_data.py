@@ -181,6 +181,10 @@ def test_real_drive_zips_give_the_developer_layout(kitti_drive, tmp_path):
     r = _run(str(date_dir), "--out", str(tmp_path / "from_folder"), "--quiet")
     assert r.exit_code == 0, r.output
     assert (tmp_path / "from_folder" / "kitti_raw" / DATE / kitti_drive.name / "lanes_gt.jsonl").is_file()
+    # the drive folder alone: its date's calibration is taken from the folder above it
+    r = _run(str(kitti_drive), "--out", str(tmp_path / "from_drive"), "--quiet")
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "from_drive" / "kitti_raw" / DATE / "calib_cam_to_cam.txt").is_file()
 
 
 @pytest.mark.kitti
