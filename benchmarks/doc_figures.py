@@ -9,9 +9,8 @@ Each generated block in the docs lies between ``<!-- figures: NAME ... -->`` and
   ablation on KITTI raw drive 0001 (``../shared/data``);
 - ``readme/dev``: ``paper`` on the three developer sequences of ``graphs/datasets/dev.yaml``.
 
-The real ones need ``../shared/data`` (skipped with a note when it is absent). ``ms/frame`` depends
-on the machine and its load: ``--check`` compares every other column, ``--write`` writes it as
-measured.
+The real ones need ``../shared/data`` (skipped with a note when it is absent). The tables leave out
+``ms/frame``, which depends on the machine and its load (docs/pipeline.md has the timings).
 
     python benchmarks/doc_figures.py --write            # regenerate the blocks in the docs
     python benchmarks/doc_figures.py --check            # exit 1 when a committed block differs
@@ -34,7 +33,6 @@ SHARED = ROOT.parent / "shared" / "data"
 DRIVE = SHARED / "kitti_raw" / "2011_09_26" / "2011_09_26_drive_0001_sync"
 DOCS = {"readme": ROOT / "README.md", "tutorial": ROOT / "docs" / "tutorial.md"}
 BLOCK = re.compile(r"(<!-- figures: (?P<name>[\w/-]+)[^>]*-->\n)(?P<body>.*?)(<!-- /figures -->)", re.S)
-TIMING_NOTE = "(ms/frame: the sum of the stages' median times,"
 #: every block the generators write, by the figures they need
 BLOCKS = {
     "tutorial/ablation-kerbs": "synthetic",
@@ -66,15 +64,13 @@ def variants() -> list[str]:
 
 
 def pooled_table(results_md: Path) -> str:
-    """The first (pooled) table of an ablation's results.md, and how busy the machine was."""
-    import os
-
+    """The first (pooled) table of an ablation's results.md, without its ms/frame column: a time
+    depends on the machine and its load (docs/pipeline.md has the timings of a quiet machine)."""
     lines = results_md.read_text(encoding="utf-8").splitlines()
     start = next(i for i, line in enumerate(lines) if line.startswith("| variant |"))
     end = next((i for i in range(start, len(lines)) if not lines[i].startswith("|")), len(lines))
-    load = os.getloadavg()[0]
-    note = f"\n{TIMING_NOTE} measured at a load average of {load:.1f} on {os.cpu_count()} cores)\n"
-    return "\n".join(lines[start:end]) + "\n" + note
+    assert lines[start].endswith("| ms/frame |"), lines[start]
+    return "\n".join(line[: line.rstrip("|").rfind("|") + 1] for line in lines[start:end]) + "\n"
 
 
 def ablation(tmp: Path, name: str, *source: str) -> Path:
@@ -130,12 +126,8 @@ def gen_real(tmp: Path) -> dict[str, str]:
 
 
 def comparable(name: str, text: str) -> str:
-    """The text without what depends on the machine: the ms/frame column of an ablation table and
-    the line that says how busy the machine was."""
-    if "ablation" not in name:
-        return text
-    lines = [line for line in text.splitlines() if not line.startswith(TIMING_NOTE)]
-    return "\n".join(re.sub(r"\| [^|]* \|$", "|", line) for line in lines).strip()
+    """The text as compared: trailing blanks ignored."""
+    return "\n".join(line.rstrip() for line in text.strip().splitlines())
 
 
 def main() -> None:
