@@ -70,8 +70,18 @@ def find_graph(name: str) -> Path:
         for cand in (base / name, base / f"{name}.yaml"):
             if cand.is_file():
                 return cand
-    if p.suffix.lower() in (".yaml", ".yml", ".json", ".toml") or p.exists():
-        return p  # a file's path: reported as "graph file not found" (or a folder) by the loader
+    try:
+        a_path = (
+            p.is_absolute()
+            or p.suffix.lower() in (".yaml", ".yml", ".json", ".toml")
+            or p.exists()
+            or p.is_symlink()
+            or (p.parent != Path(".") and p.parent.is_dir())
+        )
+    except (OSError, ValueError):  # a NUL byte, a name too long
+        a_path = True
+    if a_path:
+        return p  # a file's path: reported where it is by the loader (not found, a folder, a link loop)
     names = graph_names()
     hint = did_you_mean(name, names, listing="built-in graphs") or ""
     raise GraphError(
