@@ -3,8 +3,9 @@
 Use :func:`jit` for every kernel. Kernels are cached on disk in a *user* cache directory shared by
 every ``$LANEGRAPH_CACHE_DIR`` (``~/.cache/lanegraph/kernels``, or ``$LANEGRAPH_KERNEL_CACHE``;
 ``NUMBA_CACHE_DIR`` wins when set; :mod:`lanegraph.kernel_cache`), so only the first run on a
-machine pays the compilation, also when the install directory is read-only. ``LANEGRAPH_NUMBA_CACHE=0`` turns the disk cache off; ``NUMBA_DISABLE_JIT=1`` turns
-every kernel into plain Python (for coverage and debugging).
+machine pays the compilation, also when the install directory is read-only.
+``LANEGRAPH_NUMBA_CACHE=0`` turns the disk cache off; ``NUMBA_DISABLE_JIT=1`` turns every kernel
+into plain Python (for coverage and debugging).
 
 The parallel kernels' worker threads (numba's OpenMP layer) sleep as soon as a kernel ends
 (``OMP_WAIT_POLICY=PASSIVE``, set unless the environment already sets it, before the OpenMP
