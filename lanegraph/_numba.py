@@ -1,10 +1,11 @@
 """The one place numba flags come from.
 
-Use :func:`jit` for every kernel. Kernels are cached on disk in a *user* cache directory
-(``$LANEGRAPH_CACHE_DIR/numba``, default ``~/.cache/lanegraph/numba``; ``NUMBA_CACHE_DIR`` wins when
-set), so only the first run on a machine pays the compilation, also when the install directory
-is read-only. ``LANEGRAPH_NUMBA_CACHE=0`` turns the disk cache off; ``NUMBA_DISABLE_JIT=1`` turns
-every kernel into plain Python (for coverage and debugging).
+Use :func:`jit` for every kernel. Kernels are cached on disk in a *user* cache directory shared by
+every ``$LANEGRAPH_CACHE_DIR`` (``~/.cache/lanegraph/kernels``, or ``$LANEGRAPH_KERNEL_CACHE``;
+``NUMBA_CACHE_DIR`` wins when set; :mod:`lanegraph.kernel_cache`), so only the first run on a
+machine pays the compilation, also when the install directory is read-only.
+``LANEGRAPH_NUMBA_CACHE=0`` turns the disk cache off; ``NUMBA_DISABLE_JIT=1`` turns every kernel
+into plain Python (for coverage and debugging).
 
 The parallel kernels' worker threads (numba's OpenMP layer) sleep as soon as a kernel ends
 (``OMP_WAIT_POLICY=PASSIVE``, set unless the environment already sets it, before the OpenMP
@@ -18,21 +19,13 @@ spikes of 4-8 ms on a frame in eight gone, end to end 10.3 -> 11.2-12.0 frames/s
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
-
-def cache_root() -> Path:
-    """lanegraph's user cache directory."""
-    base = os.environ.get("LANEGRAPH_CACHE_DIR") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "lanegraph"
-    )
-    return Path(base)
-
+from .kernel_cache import cache_root, kernel_cache_dir  # noqa: F401 - cache_root: lanegraph.cache uses it
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # read when the OpenMP runtime loads: see above
 
-if not os.environ.get("NUMBA_CACHE_DIR"):
-    os.environ["NUMBA_CACHE_DIR"] = str(cache_root() / "numba")
+if not os.environ.get("NUMBA_CACHE_DIR"):  # shared by every LANEGRAPH_CACHE_DIR: see lanegraph.kernel_cache
+    os.environ["NUMBA_CACHE_DIR"] = str(kernel_cache_dir())
 
 import numba  # noqa: E402 - after NUMBA_CACHE_DIR is set
 

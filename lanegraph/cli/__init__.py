@@ -19,6 +19,7 @@ from .evaluate import eval_cmd
 from .nodes import builtin_node_types, nodes, nodes_markdown, schema, show, validate
 from .report import report
 from .run import run
+from .start import data_cmd, graphs_cmd
 
 __all__ = ["allowed_roots", "builtin_node_types", "main", "nodes_markdown", "resolve_graph_path"]
 
@@ -41,7 +42,7 @@ def main() -> None:
     """lanegraph: stereo lane-marking detection as validated, plugin-based processing graphs."""
 
 
-for _command in (run, validate, nodes, schema, show, ablate, eval_cmd, report):
+for _command in (run, validate, nodes, schema, show, ablate, eval_cmd, report, graphs_cmd, data_cmd):
     main.add_command(_command)
 
 

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from ..kernel_cache import first_run_notice
 from ._common import FOLDER, dataset_option, keeping_options, parse_frames, scale_out_options, session
 from ._errors import handled
 
@@ -80,6 +81,7 @@ def ablate(
     fails gets its row with the error and the others go on (exit 1)."""
     from ..service.ablation import ablation_variants
 
+    first_run_notice(bool(quiet))  # the first run on a machine compiles the kernels: say so at once
     s = session(quiet, verbose, overwrite, track)
     runner = s.runner(scheduler)
     runs = ablation_variants(base, variants, sweeps)

@@ -59,6 +59,6 @@ def report(run_dir, gt_path, dataset_path, input_path, frames, sets, debug_dir, 
         frames=parse_frames(frames), sets=sets, debug_dir=debug_dir,
     )  # fmt: skip
     if open_browser:
-        import webbrowser
+        from .start import open_in_browser
 
-        webbrowser.open(summary.index.resolve().as_uri())
+        open_in_browser(summary.index)

@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from ..errors import UsageError
+from ..kernel_cache import first_run_notice
 from ._common import FOLDER, keeping_options, parse_frames, scale_out_options, session
 from ._errors import handled
 
@@ -75,6 +76,7 @@ def run(
     """Run GRAPH (a file or a name under graphs/, default: paper): its sinks write into OUT (the
     lanes, overlays), with OUT/timings.json and OUT/run.json; with --dataset, every sequence into
     OUT/<sequence>/ (in this process, or on a Dask cluster with --scheduler)."""
+    first_run_notice(bool(quiet))  # the first run on a machine compiles the kernels: say so at once
     if dataset_path is not None:
         for flag, given in (
             ("--input", input_path),

@@ -16,25 +16,20 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ..builtin import find_graph, graphs_dir
 from ..errors import GraphError, Problem
 from ..plugins import PluginManager
 from .model import Graph, load_raw
 from .validation import validate_raw
 
-REPO_GRAPHS = Path(__file__).resolve().parents[2] / "graphs"
+REPO_GRAPHS = graphs_dir()  # the built-in graphs: lanegraph/graphs when installed, graphs/ in a checkout
 
 
 def resolve_graph_path(name: str) -> Path:
     """A graph argument is a file path, or the name of a graph under ``graphs/`` (``paper``,
-    ``ablations/slt``), looked up in the current folder and then beside the installed package."""
-    p = Path(name)
-    if p.is_file():
-        return p
-    for base in (Path("graphs"), REPO_GRAPHS):
-        for cand in (base / name, base / f"{name}.yaml"):
-            if cand.is_file():
-                return cand
-    return p  # reported as "graph file not found" by the loader
+    ``ablations/slt``), looked up in the current folder and then among the built-in graphs; an
+    unknown name is a :class:`GraphError` with the closest built-in name."""
+    return find_graph(name)
 
 
 def allowed_roots(graph_path: Path) -> list[Path]:

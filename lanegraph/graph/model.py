@@ -36,6 +36,7 @@ from typing import Annotated, Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints, field_validator
 
+from ..builtin import builtin_base
 from ..errors import GraphError, Problem, did_you_mean
 from ..nodes import NodeParams, NodeType
 from ..plugins import PluginManager, get_plugin_manager
@@ -279,6 +280,12 @@ def _base_file(
             f"{ext!r} resolves to {base_path}, outside the allowed roots ({', '.join(map(str, roots))})"
         )
     base_display = str(Path(display).parent / ext) if display else str(base_path)
+    if not base_found and (builtin := builtin_base(ext)) is not None:  # extends: paper.yaml from anywhere
+        base_path, base_display, base_found = builtin, f"{ext} (built-in: {builtin})", True
+        if base_path in chain:
+            raise problem(
+                "extends cycle: " + " -> ".join(str(p) for p in (*chain, path.resolve(), base_path))
+            )
     if not base_found:
         raise problem(f"base graph file not found: {base_display} (resolved to {base_path})")
     return base_path, base_display

@@ -346,16 +346,23 @@ def mosaic(
     tile_height: int = 240,
     max_row_width: int = 1920,
     max_tile_width: int = 640,
+    min_tile_width: int = 160,
 ) -> np.ndarray:
     """Captioned tiles scaled to ``tile_height`` (at most ``max_tile_width`` wide), packed in rows
-    of at most ``max_row_width`` pixels, in the order given."""
+    of at most ``max_row_width`` pixels, in the order given. A tall, narrow picture (a v-disparity:
+    one column per disparity bin) is stretched to ``min_tile_width``; a tile narrower than its
+    caption is widened (black on the right) so that the caption is never cut."""
     scaled = []
     for name, img in tiles:
         h, w = img.shape[:2]
         s = min(tile_height / max(h, 1), max_tile_width / max(w, 1))
-        size = (max(int(round(w * s)), 1), max(int(round(h * s)), 1))
-        interp = cv2.INTER_AREA if s < 1 else cv2.INTER_NEAREST
-        scaled.append(caption(cv2.resize(to_bgr(img), size, interpolation=interp), name))
+        size = (max(int(round(w * s)), 1, min(min_tile_width, max_tile_width)), max(int(round(h * s)), 1))
+        interp = cv2.INTER_AREA if s < 1 and size[0] <= w else cv2.INTER_NEAREST
+        tile = cv2.resize(to_bgr(img), size, interpolation=interp)
+        (text_w, _), _ = cv2.getTextSize(name, cv2.FONT_HERSHEY_SIMPLEX, 0.45, 1)
+        if text_w + 8 > tile.shape[1]:
+            tile = np.pad(tile, ((0, 0), (0, text_w + 8 - tile.shape[1]), (0, 0)))
+        scaled.append(caption(tile, name))
     if not scaled:
         return text_card(["nothing to show"])
     rows: list[list[np.ndarray]] = [[]]

@@ -242,3 +242,17 @@ def test_a_plugins_port_type_draws_its_own_values():
     assert seen == [7] and out.shape == (3, 4, 3)
     # a value its type does not draw is drawn by what it is: a number as a card
     assert render_value("blob", 7, {}, {"blob": PortType("blob", "no picture")}).ndim == 3
+
+
+def test_mosaic_never_cuts_a_caption_and_widens_a_narrow_tile():
+    """A v-disparity (375 rows x 60 bins) comes out at a readable width, and a long title whole."""
+    import cv2
+
+    name = "road.vdisparity_with_a_long_title"
+    m = mosaic(
+        [(name, np.full((375, 60), 128, np.uint8)), ("x", np.zeros((240, 320, 3), np.uint8))], tile_height=240
+    )
+    (text_w, _), _ = cv2.getTextSize(name, cv2.FONT_HERSHEY_SIMPLEX, 0.45, 1)
+    first = m.shape[1] - (320 + 4) - 4  # the first tile's width: the whole minus the second tile and gaps
+    assert first >= max(160, text_w + 8)
+    assert (m[20:260, 60:160] == 128).all()  # the picture itself is stretched, not only padded

@@ -138,7 +138,10 @@ def load_recorded_graph(
     text = run_json.graph
     if not text:
         return None
-    path = _resolve_recorded(str(text), run_dir) or resolve_graph_path(Path(str(text)).stem)
+    try:
+        path = _resolve_recorded(str(text), run_dir) or resolve_graph_path(Path(str(text)).stem)
+    except GraphError:
+        path = Path(str(text))
     if not path.is_file():
         notes.append(f"the graph {text} that run.json names was not found: no graph drawing")
         return None

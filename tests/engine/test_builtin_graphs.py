@@ -1,0 +1,94 @@
+"""Built-in graphs found from any folder (issue 32): names, `lanegraph graphs`, did-you-mean,
+``extends: paper.yaml`` in a user's own graph outside the checkout."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from lanegraph.builtin import find_graph, graph_names, graphs_dir
+from lanegraph.cli import main
+from lanegraph.errors import GraphError
+from lanegraph.graph import load_raw
+
+REPO_GRAPHS = Path(__file__).resolve().parents[2] / "graphs"
+
+
+def test_graphs_dir_has_every_file_of_the_repository(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # nothing depends on the current folder
+    names = graph_names()
+    expected = sorted(
+        p.relative_to(REPO_GRAPHS).with_suffix("").as_posix() for p in REPO_GRAPHS.rglob("*.yaml")
+    )
+    assert sorted(names + graph_names("datasets")) == expected
+    assert "paper" in names and "ablations/slt" in names and "datasets/dev" in graph_names("datasets")
+    assert find_graph("paper").resolve() == (graphs_dir() / "paper.yaml").resolve()
+    assert find_graph("ablations/slt.yaml").name == "slt.yaml"
+
+
+def test_unknown_name_gets_did_you_mean(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(GraphError, match=r"did you mean 'paper'\?"):
+        find_graph("papr")
+    r = CliRunner().invoke(main, ["run", "papr", "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2 and "did you mean 'paper'?" in r.output and "Traceback" not in r.output
+    assert not (tmp_path / "o").exists()  # nothing written before the graph is found
+    # a path (with a folder or a suffix) is reported where it is, as before
+    r = CliRunner().invoke(main, ["validate", "nope/graph.yaml"])
+    assert r.exit_code == 2 and "graph file not found" in r.output
+
+
+def test_graphs_command_lists_graphs_and_datasets(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(main, ["graphs"])
+    assert r.exit_code == 0, r.output
+    lines = r.output.splitlines()
+    assert any(
+        line.split()[0] == "ablations/slt" and "SLT instead of ESLT" in line
+        for line in lines[1:]
+        if line.strip()
+    )
+    assert any(line.strip().startswith("datasets/dev") for line in lines)
+    r = CliRunner().invoke(main, ["graphs", "--paths"])
+    assert all(Path(line.strip()).is_file() for line in r.output.splitlines() if not line.startswith("#"))
+
+
+def test_user_graph_extends_builtin_from_another_folder(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    mine = tmp_path / "mine.yaml"
+    mine.write_text("extends: paper.yaml\nname: mine\nnodes:\n  hough: {params: {min_relative: 0.3}}\n")
+    raw, origin, _ = load_raw(mine, roots=[tmp_path, graphs_dir().resolve()])
+    assert raw["name"] == "mine" and raw["nodes"]["hough"]["params"]["min_relative"] == 0.3
+    assert "disp" in raw["nodes"]  # the built-in paper graph's nodes
+    r = CliRunner().invoke(main, ["validate", str(mine)])
+    assert r.exit_code == 0, r.output
+    # a file of that name beside the graph wins over the built-in one
+    (tmp_path / "paper.yaml").write_text("name: local\nnodes: {hough: {type: toy.scale}}\n")
+    raw, _, _ = load_raw(mine, roots=[tmp_path])
+    assert "disp" not in raw["nodes"]
+    # no escape through the fallback: '..' and absolute paths are never looked up among the built-ins
+    up = tmp_path / "sub"
+    up.mkdir()
+    (up / "g.yaml").write_text("extends: ../../paper.yaml\nnodes: {}\n")
+    with pytest.raises(GraphError, match="outside the allowed roots|not found"):
+        load_raw(up / "g.yaml", roots=[up])
+
+
+def test_open_without_a_browser_says_so(tmp_path, monkeypatch, capsys):
+    import webbrowser
+
+    from lanegraph.cli.start import open_in_browser
+
+    page = tmp_path / "report" / "index.html"
+    monkeypatch.setattr(webbrowser, "open", lambda url: False)  # what it returns with no browser
+    assert open_in_browser(page) is False
+    err = capsys.readouterr().err
+    assert "no web browser found" in err and str(page) in err
+
+    def broken(url):
+        raise webbrowser.Error("could not locate runnable browser")
+
+    monkeypatch.setattr(webbrowser, "open", broken)
+    assert open_in_browser(page) is False and "no web browser found" in capsys.readouterr().err
