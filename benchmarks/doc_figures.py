@@ -95,8 +95,8 @@ def _pct(x: float | None, digits: int = 1) -> str:
 
 
 def gen_real(tmp: Path) -> dict[str, str]:
-    from lanegraph.dataset import load_dataset, read_gt
-    from lanegraph.metrics import evaluate
+    from lanegraph.evaluation.dataset import load_dataset, read_gt
+    from lanegraph.evaluation.metrics import evaluate
 
     out = ablation(tmp, "ablation_drive", "--input", str(DRIVE), "--gt", str(DRIVE / "lanes_gt.jsonl"))
     lanes = out / "runs" / "paper" / DRIVE.name / "lanes.jsonl"

@@ -63,7 +63,7 @@ def _machine_key() -> str:
     """lanegraph's and numba's versions, Python's, and this CPU: the stamp's name."""
     from importlib import metadata
 
-    from . import __version__
+    from ._version import __version__
 
     try:
         numba_version = metadata.version("numba")

@@ -347,7 +347,7 @@ def prepare_kitti(sources: list[Path], out: Path, progress: Progress = None) -> 
 
 def _write_gt(out: Path, base: str, frames: list[str], gt_name: str, entry: dict[str, str]) -> str:
     """``lanes_gt.jsonl`` beside the frames, when they hold the ground truth's frames and image size."""
-    from .metrics import read_ground_truth
+    from .evaluation.metrics import read_ground_truth
     from .paths import write_text_atomic
 
     gt_path = ground_truth_file(gt_name)

@@ -11,7 +11,7 @@ from click.testing import CliRunner
 from lanegraph.builtin import find_graph, graph_names, graphs_dir
 from lanegraph.cli import main
 from lanegraph.errors import GraphError
-from lanegraph.graph import load_raw
+from lanegraph.graph.model import load_raw
 
 REPO_GRAPHS = Path(__file__).resolve().parents[2] / "graphs"
 

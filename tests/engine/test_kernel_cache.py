@@ -58,7 +58,7 @@ def test_first_run_notice_once_per_machine(fresh, tmp_path, capsys):
 
 def test_the_stamp_names_the_versions(monkeypatch):
     key = kernel_cache._machine_key()
-    monkeypatch.setattr("lanegraph.__version__", "0.0.0-other")
+    monkeypatch.setattr("lanegraph._version.__version__", "0.0.0-other")
     assert kernel_cache._machine_key() != key and len(key) == 16
 
 

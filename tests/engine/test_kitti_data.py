@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
-from lanegraph.dataset import load_dataset
+from lanegraph.evaluation.dataset import load_dataset
 
 from lanegraph.cli import main
 from lanegraph.kitti_data import GROUND_TRUTH, ground_truth_file
