@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
-from lanegraph.evaluation.dataset import load_dataset
 
 from lanegraph.cli import main
+from lanegraph.evaluation.dataset import load_dataset
 from lanegraph.kitti_data import GROUND_TRUTH, ground_truth_file
 
 from ..conftest import SHARED
