@@ -7,7 +7,7 @@ Each generated block in the docs lies between ``<!-- figures: NAME ... -->`` and
   synthetic ``kerbs`` street (its answers are exact);
 - ``tutorial/eval-drive``, ``tutorial/ablation-drive``: ``lanegraph eval`` of ``paper`` and the same
   ablation on KITTI raw drive 0001 (``../shared/data``);
-- ``readme/dev``: ``paper`` on the three developer sequences of ``graphs/datasets/dev.yaml``.
+- ``readme/dev``: ``paper`` on the four developer sequences of ``graphs/datasets/dev.yaml``.
 
 The real ones need ``../shared/data`` (skipped with a note when it is absent). The tables leave out
 ``ms/frame``, which depends on the machine and its load (docs/pipeline.md has the timings).
@@ -44,6 +44,7 @@ README_ROWS = {  # sequence of dev.yaml -> the row's label
     "drive_0001": "KITTI raw drive 0001, urban street, kerb and tram tracks (0-53)",
     "seq1": "KITTI odometry `seq1`, residential street without painted lines (0-25)",
     "seq2": "KITTI odometry `seq2`, curved highway, edge line beside grass (32-50)",
+    "seq2_ramp": "KITTI odometry `seq2_ramp`, tight on-ramp bend onto a chevron-hatched gore area (0-15)",
 }
 
 
