@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 from lanegraph.cli import main
 from lanegraph.evaluation.dataset import load_dataset
-from lanegraph.kitti_data import GROUND_TRUTH, ground_truth_file
+from lanegraph.data.kitti import GROUND_TRUTH, ground_truth_file
 
 from ..conftest import SHARED
 
