@@ -424,11 +424,14 @@ class Planner:
             self._counts[key] = count_frames(graph, input_path, frames, self.pm)
         return self._counts[key]
 
-    def _carried_state_note(self, graph: ResolvedGraph) -> str | None:
-        """For a chunked run: what the graph carries from frame to frame (feedback edges, stateful
-        nodes between source and sinks), said once before the runs start and in each run.json:
-        a chunk starts from its warm-up frames, not from the sequence's start, so its lanes may
-        differ from a whole run's. None for a graph that carries nothing."""
+    def _carried_state_note(self, graph: ResolvedGraph, chunks: list[tuple]) -> str | None:
+        """What the graph carries from frame to frame (feedback edges, stateful nodes between source
+        and sinks), said before the runs start and in each run.json, when a chunk's warm-up does not
+        reach back to the selection's first frame: its lanes may differ from a whole run's. None
+        for a graph that carries nothing or ``chunks`` that all start there (one chunk, a long
+        enough warm-up): those are the whole run's frames from the whole run's state."""
+        if all(warm == start for _, warm, start, _ in chunks):
+            return None
         what = graph.validate(self.pm).carried_state()
         if what is None:
             return None
@@ -484,10 +487,9 @@ class Planner:
                     f"--chunk-frames: the source of {graph.display} cannot tell how many frames {input_path} has"
                 )
             key = None if run_key is None else digest(run_key, "chunks", self.chunk_frames, self.warmup)
-            note = self._carried_state_note(graph)
-            for k, (sel, w, start, count) in enumerate(
-                chunk_selections(n_input, frames, self.chunk_frames, self.warmup)
-            ):
+            chunks = chunk_selections(n_input, frames, self.chunk_frames, self.warmup)
+            note = self._carried_state_note(graph, chunks)
+            for k, (sel, w, start, count) in enumerate(chunks):
                 plan.tasks.append(
                     RunTask(
                         len(self.tasks) + k,
