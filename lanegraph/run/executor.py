@@ -94,11 +94,12 @@ class Executor:
         ``resume`` (:class:`~lanegraph.run.checkpointing.Checkpointer`)."""
         self.warmup = max(0, int(warmup))
         self.graph = graph
+        self.pm = pm or get_plugin_manager()
         ctx0 = context or RunContext()
         # the checkpoint piece (:mod:`lanegraph.run.checkpointing`): identity checked before anything opens
         self.identity = run_identity(graph, ctx0)
         if checkpointer is None and (checkpoint is not None or resume is not None):
-            checkpointer = Checkpointer(graph, ctx0, checkpoint, resume, self.identity)
+            checkpointer = Checkpointer(graph, ctx0, checkpoint, resume, self.identity, self.pm.port_types)
         self.checkpointer = checkpointer
         self.checkpoint = checkpointer.path if checkpointer is not None else None
         self.resume = checkpointer.resume if checkpointer is not None else None
@@ -109,7 +110,6 @@ class Executor:
             if cache_nodes is not None
             else {nid for nid, n in graph.nodes.items() if not n.type.stateful}
         )
-        self.pm = pm or get_plugin_manager()
         self.context = context or RunContext()
         self._select_source()
         self.result_files = graph_result_files(graph)
