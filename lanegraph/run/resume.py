@@ -17,7 +17,8 @@ types; it can never run code -- and holds:
 
 ``--resume`` reads and validates it (:func:`load_checkpoint`; a malformed one is refused with the
 file and field, exit code 2), refuses it unless the graph, params, input and frame selection are
-those of the checkpoint (:func:`check_identity`), hands each stateful node its state back (the
+those of the checkpoint (:func:`check_identity`), refuses a feedback value that its port type's
+registered ``check`` refuses (:func:`check_feedback_types`), hands each stateful node its state back (the
 lanes writer cuts its file back to the frames done) and continues with the next frame, so that
 the final outputs equal those of an uninterrupted run however often it was interrupted. A
 checkpoint of a complete run is not run again.
