@@ -28,8 +28,19 @@ from pydantic import AfterValidator
 
 from .errors import UsageError
 
-#: the files a run writes into ``--out`` itself; no sink may write them
-RUN_FILES = ("timings.json", "run.json", "checkpoint.json", "checkpoint.pkl", ".lanegraph.lock")
+#: the files a run writes into ``--out`` itself; no sink may write them (the record, the timings,
+#: the checkpoint, the lock, the resolved graph of ``lanegraph.run.provenance``, the log of
+#: ``lanegraph.runlog``, a batch run's key)
+RUN_FILES = (
+    "timings.json",
+    "run.json",
+    "checkpoint.json",
+    "checkpoint.pkl",
+    ".lanegraph.lock",
+    "graph.yaml",
+    "run.log",
+    "run_key.txt",
+)
 LOCK_NAME = ".lanegraph.lock"
 
 
@@ -144,10 +155,10 @@ def safe_name(text: object) -> str:
     """One file name made of ``text``: characters other than letters, digits, ``.``, ``_`` and ``-``
     become ``_``; a name that would be empty, start with a dot (``.``, ``..``, hidden files) or be
     longer than 200 characters is prefixed or cut so it stays one ordinary name in its folder."""
-    name = _UNSAFE.sub("_", str(text))[:200]
+    name = _UNSAFE.sub("_", str(text))
     if not name or name.startswith("."):
         name = "_" + name
-    return name
+    return name[:200]
 
 
 def prepare_dir(path: Path, what: str) -> Path:

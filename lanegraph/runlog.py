@@ -5,8 +5,9 @@ Everything lanegraph says while it works goes to the ``lanegraph`` logger (and i
 ``lanegraph.run``, ``lanegraph.tracking`` ...); Python warnings go to ``py.warnings`` while the
 command line is set up (:func:`configure_console`). Two kinds of handler read them:
 
-- the console (stderr): ``warning: ...`` and ``error: ...`` lines, notes at the default level, the
-  details with ``-v``; ``-q`` keeps warnings and errors only. Lines are written through
+- the console (stderr): ``warning: ...`` and ``error: ...`` lines, notes at the default level and
+  with ``-q`` (which only turns the progress bars off), the details with ``-v``; ``-qq`` keeps
+  warnings and errors only, ``-qqq`` errors only (:func:`console_level`). Lines are written through
   :func:`tqdm.tqdm.write`, so a progress bar is not torn.
 - :class:`RunLog`, attached for the duration of a run: ``OUT/run.log`` gets every record at INFO
   and above (DEBUG with ``-v``), time-stamped: what the run did, every warning, and every error a
@@ -211,7 +212,8 @@ _FAILURE_LINE = re.compile(r"^\s+frame .*|.*\bframe\(s\) failed\b.*")
 def say(message: str, logger: logging.Logger | None = None) -> None:
     """One line a command says on stderr, as a log record: ``error: ...`` and ``warning: ...`` at
     their levels (the prefix is the console's), the lines listing failed frames as warnings shown as
-    they are, any other line a note (INFO: hidden by ``-q``). Everything reaches ``run.log``."""
+    they are, any other line a note (INFO: shown with ``-q``, hidden by ``-qq``). Everything reaches
+    ``run.log``."""
     log = logger or get_logger("run")
     for prefix, level in (("error: ", logging.ERROR), ("warning: ", logging.WARNING)):
         if message.startswith(prefix):

@@ -270,6 +270,8 @@ def test_path_helpers():
         "0000000001",
         "x" * 200,
     ]
+    # longer than 200 characters and hidden: prefixed, then cut (it was 201 characters)
+    assert safe_name("." + "x" * 300) == "_." + "x" * 198
 
 
 def test_a_symbolic_link_out_of_out_is_refused(cli, tmp_path):

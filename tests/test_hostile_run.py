@@ -103,7 +103,10 @@ TAMPERED = [
     ("invalid counts", ["invalid_outputs.profile.road", "[5, 3]"]),
     (
         "a string where lanes belong",
-        ["feedback (verify.lanes): expected a value of port type 'lanes', got a str"],
+        [
+            "feedback (verify.lanes) of frame 0000000001: not a value of port type 'lanes' "
+            "(expected a list of lanegraph.types.Lane, got str)"
+        ],
     ),
 ]
 
@@ -170,13 +173,16 @@ def test_a_feedback_value_of_the_wrong_type_is_refused(tmp_path, installed_pm):
         {("verify", "lanes"): [Lane(coeffs=(0.0, 0.0, 1.0), bev_rows=(0, 10), side="left", score=1.0)]},
         g,
         path,
+        installed_pm.port_types,
     )
-    check_feedback_types({("verify", "lanes"): None}, g, path)  # a node that failed under on_error: empty
+    types = installed_pm.port_types  # a node that failed under on_error: empty
+    check_feedback_types({("verify", "lanes"): None}, g, path, types)
     for wrong in ("lanes", [1, 2], {"a": 1}):
         with pytest.raises(
-            UsageError, match=r"feedback \(verify.lanes\): expected a value of port type 'lanes'"
+            UsageError,
+            match=r"feedback \(verify.lanes\) of frame 7: not a value of port type 'lanes' \(expected a list of lanegraph.types.Lane",
         ):
-            check_feedback_types({("verify", "lanes"): wrong}, g, path)
+            check_feedback_types({("verify", "lanes"): wrong}, g, path, types, "7")
 
 
 # ============================================================================ 3. inputs refused

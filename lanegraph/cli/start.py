@@ -50,7 +50,7 @@ def kitti_cmd(sources: tuple[Path, ...], out_dir: Path, quiet: bool) -> None:
     data_odometry_gray.zip with data_odometry_calib.zip; zip files or the folders they unpack to.
     Writes the lane ground truth lanegraph ships for the frames it has (lanes_gt.jsonl beside the
     frames) and OUT/kitti.yaml, a dataset file of the sequences laid out."""
-    from ..kitti_data import prepare_kitti
+    from ..data.kitti import prepare_kitti
 
     try:
         summary = prepare_kitti(list(sources), out_dir, progress=None if quiet else _say)

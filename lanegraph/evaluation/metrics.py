@@ -178,8 +178,8 @@ def select_frames(
     records = list(gt_records)
     if frames is None:
         return records, 0
-    if isinstance(frames, slice):
-        kept = records[frames]
+    if isinstance(frames, slice):  # in file order whatever the step's sign (``--frames 9:0:-1``)
+        kept = [records[i] for i in sorted(range(len(records))[frames])]
     else:
         ids = {str(f) for f in frames}
         kept = [g for g in records if str(g.get("frame")) in ids]

@@ -38,11 +38,12 @@ from ..graph.files import ResolvedGraph
 from ..nodes import RunContext
 from ..plugins import PluginManager, get_plugin_manager
 from ..runlog import RunLog
-from .cache import ResultCache, digest
+from .cache import Caching, ResultCache, digest
 from .executor import Executor, FrameFailure, RunResult
 from .provenance import refreshed, write_resolved_graph
 from .record import RunRecord, Stopped, read_record, write_run_files
 from .sources import close_source, open_source, select_source
+from .warmup import WarmUp
 
 _SCHEDULER = re.compile(r"^local(?::(?P<n>[^:]*))?$")
 
@@ -269,7 +270,7 @@ def execute_task(
         )
         if task.chunk is None:  # the resolved graph beside the run's results (a chunk's: the run's)
             write_resolved_graph(tmp, g.resolved_dict())
-        ex = Executor(g, ctx, pm, cache=cache, warmup=task.warmup)
+        ex = Executor(g, ctx, pm, caching=cache and Caching(cache), warming=WarmUp(task.warmup))
         with ex, RunLog(tmp, pm=pm):  # the nodes opened are closed, however the run ends
             started = True
             result = ex.run(on_frame=on_frame)
@@ -424,12 +425,14 @@ class Planner:
             self._counts[key] = count_frames(graph, input_path, frames, self.pm)
         return self._counts[key]
 
-    def _carried_state_note(self, graph: ResolvedGraph) -> str | None:
-        """For a chunked run: what the graph carries from frame to frame (feedback edges, stateful
-        nodes between source and sinks), said once before the runs start and in each run.json:
-        a chunk starts from its warm-up frames, not from the sequence's start, so its lanes may
-        differ from a whole run's. None for a graph that carries nothing."""
-        what = graph.validate(self.pm).carried_state()
+    def _carried_state_note(self, graph: ResolvedGraph, chunks: list[tuple]) -> str | None:
+        """What the graph carries from frame to frame (feedback edges, stateful nodes between source
+        and sinks), said before the runs start and in each run.json, when a chunk's warm-up does not
+        reach back to the selection's first frame: its lanes may differ from a whole run's. None
+        for a graph that carries nothing or ``chunks`` that all start there (one chunk, a long
+        enough warm-up): those are the whole run's frames from the whole run's state."""
+        whole = all(warm == start for _, warm, start, _ in chunks)
+        what = None if whole else graph.validate(self.pm).carried_state()
         if what is None:
             return None
         note = (
@@ -484,10 +487,9 @@ class Planner:
                     f"--chunk-frames: the source of {graph.display} cannot tell how many frames {input_path} has"
                 )
             key = None if run_key is None else digest(run_key, "chunks", self.chunk_frames, self.warmup)
-            note = self._carried_state_note(graph)
-            for k, (sel, w, start, count) in enumerate(
-                chunk_selections(n_input, frames, self.chunk_frames, self.warmup)
-            ):
+            chunks = chunk_selections(n_input, frames, self.chunk_frames, self.warmup)
+            note = self._carried_state_note(graph, chunks)
+            for k, (sel, w, start, count) in enumerate(chunks):
                 plan.tasks.append(
                     RunTask(
                         len(self.tasks) + k,

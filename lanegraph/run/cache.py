@@ -245,3 +245,45 @@ class ResultCache:
         for p in self.root.glob("*/*.pkl"):
             p.unlink(missing_ok=True)
         self._size = 0
+
+
+class Caching:
+    """The result-cache piece of a run: ``cache`` keeps the results of the graph's ``nodes`` (None:
+    every stateless node), each keyed by :meth:`key`."""
+
+    def __init__(self, cache: ResultCache, nodes: set[str] | None = None):
+        self.cache = cache
+        self.nodes = None if nodes is None else set(nodes)
+
+    def nodes_of(self, graph: Any) -> set[str]:
+        """The nodes of ``graph`` whose results are cached."""
+        if self.nodes is not None:
+            return set(self.nodes)
+        return {nid for nid, n in graph.nodes.items() if not n.type.stateful}
+
+    @staticmethod
+    def key(
+        node: Any, keys: dict[tuple[str, str], str | None], prev_keys: dict[tuple[str, str], str | None]
+    ) -> str | None:
+        """The content key of ``node``'s result this frame (its type, plugin, code version, params
+        and the keys of its inputs; a feedback input's key of the frame before), or None when it
+        is not determined by its inputs (a stateful node, or an input without a key)."""
+        if node.type.stateful:
+            return None
+        parts = []
+        for port in sorted(node.inputs):
+            e = node.inputs[port]
+            if e.previous:
+                k = prev_keys.get((e.src_node, e.src_port), "first-frame") if prev_keys else "first-frame"
+            else:
+                k = keys.get((e.src_node, e.src_port))
+            if k is None:
+                return None
+            parts.append((port, k))
+        return digest(
+            node.type.name,
+            node.type.plugin,
+            node.type.code_version,
+            node.params.model_dump(mode="json"),
+            parts,
+        )

@@ -10,6 +10,7 @@ consumed (:meth:`Checkpointer.write`).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -17,6 +18,7 @@ from typing import Any
 from ..errors import InputError, LanegraphError, UsageError
 from ..frames import selection_text
 from ..lifecycle import Resumable
+from ..types import PortType
 from .resume import (
     _HINT,
     FORMAT,
@@ -27,6 +29,7 @@ from .resume import (
     check_identity,
     decode_feedback,
     feedback_entries,
+    feedback_type_problem,
     graph_identity,
     resolved_input,
     save_checkpoint,
@@ -55,7 +58,12 @@ def run_identity(graph: Any, context: Any) -> dict[str, Any]:
 
 
 class Checkpointer:
-    """Keeps the checkpoint of one run in ``path`` (``None``: none kept), resuming ``resume``."""
+    """Keeps the checkpoint of one run in ``path`` (``None``: none kept), resuming ``resume``.
+
+    ``port_types``: the registered port types (a plugin manager's ``port_types``; default: the
+    installed plugins'): every feedback value read back from ``resume`` must pass its port type's
+    ``check`` (:func:`~lanegraph.run.resume.check_feedback_types`), a plugin's port type's too,
+    before anything opens."""
 
     def __init__(
         self,
@@ -64,12 +72,18 @@ class Checkpointer:
         path: Path | None,
         resume: Checkpoint | None = None,
         identity: dict[str, Any] | None = None,
+        port_types: Mapping[str, PortType] | None = None,
     ):
         self.path = path
         self.resume = resume
         self.unresumable: str | None = None
         self.identity = identity if identity is not None else run_identity(graph, context)
         self.resumed_feedback: tuple[dict, dict] = ({}, {})
+        if port_types is None:
+            from ..plugins import get_plugin_manager
+
+            port_types = get_plugin_manager().port_types
+        self.graph, self.port_types = graph, port_types
         if resume is not None:
             where = self.where
             check_identity(resume, where, **{k: v for k, v in self.identity.items() if k != "graph"})
@@ -86,7 +100,8 @@ class Checkpointer:
             self.resumed_feedback = decode_feedback(
                 resume, where
             )  # a malformed value: refused before anything opens
-            check_feedback_types(self.resumed_feedback[0], graph, where)  # lanes are lanes, not a string
+            # lanes are lanes, not a string: checked by the registered port types, a plugin's too
+            check_feedback_types(self.resumed_feedback[0], graph, where, port_types, resume.last_frame)
 
     @property
     def where(self) -> Path:
@@ -138,10 +153,15 @@ class Checkpointer:
         assert self.path is not None
         feedback: list[dict[str, Any]] = []
         if self.unresumable is None:
+            # a value off its port type's contract would be refused by --resume: said now
+            problem = feedback_type_problem(previous, self.graph, self.port_types)
+            reason = None if problem is None else f"frame {frame}: feedback {problem}"
             try:
                 feedback = feedback_entries(previous, prev_keys)
             except CheckpointValueError as exc:
-                self.unresumable = f"a feedback value cannot be stored ({exc})"
+                reason = f"a feedback value cannot be stored ({exc})"
+            if reason is not None:
+                self.unresumable, feedback = reason, []
                 result.notes.append(f"--resume will not be possible for this run: {self.unresumable}")
         states = {nid: inst.state() for nid, inst in instances.items() if isinstance(inst, Resumable)}
         data = {

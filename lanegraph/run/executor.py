@@ -41,13 +41,14 @@ from ..lifecycle import (
 )
 from ..nodes import RunContext
 from ..plugins import PluginManager, call_hook, get_plugin_manager
-from .cache import ResultCache, digest
+from .cache import Caching, ResultCache, digest
 from .checkpointing import Checkpointer, OpenedInput, run_identity
 from .outcome import FrameFailure, RunResult
-from .prefetch import prefetched, timed
+from .prefetch import Prefetch
 from .results import graph_result_files
 from .resume import Checkpoint, input_identity
 from .sources import select_source
+from .warmup import WarmUp
 
 
 class _SkipFrame(Exception):
@@ -80,36 +81,47 @@ class Executor:
         resume: Checkpoint | None = None,
         warmup: int = 0,
         checkpointer: Checkpointer | None = None,
+        caching: Caching | None = None,
+        prefetcher: Prefetch | None = None,
+        warming: WarmUp | None = None,
     ):
-        """``cache``: a :class:`~lanegraph.run.cache.ResultCache` for the results of ``cache_nodes``
-        (default: every stateless node); results are keyed by node type, params, upstream keys and
-        the identity of the source's input files. ``checkpoint``: a file rewritten (atomically)
-        before the first frame and after every frame consumed (:mod:`lanegraph.run.resume`); ``resume``:
-        such a checkpoint, validated, to continue its run -- refused (:class:`UsageError`) unless the
-        graph, params, input and frame selection are its own. ``context.skip`` must then be its
-        ``position``. ``warmup``: the first ``warmup`` frames only bring the feedback edges and
-        stateful nodes up to date (a chunk of a longer sequence starts from the frames before it):
-        the sinks do not see them, their times and failures are not recorded, ``on_frame`` is not
-        called for them. ``checkpointer``: the checkpoint piece itself, in place of ``checkpoint`` and
-        ``resume`` (:class:`~lanegraph.run.checkpointing.Checkpointer`)."""
-        self.warmup = max(0, int(warmup))
+        """The jobs around execution are pieces passed in, each of :mod:`lanegraph.run`:
+
+        - ``checkpointer``: the checkpoint (:class:`~lanegraph.run.checkpointing.Checkpointer`): a
+          file rewritten (atomically) before the first frame and after every frame consumed, and
+          the checkpoint of an interrupted run to continue -- refused (:class:`UsageError`) unless
+          the graph, params, input and frame selection are its own (``context.skip`` must then be
+          its ``position``);
+        - ``caching``: the result cache (:class:`~lanegraph.run.cache.Caching`): results keyed by
+          node type, params, upstream keys and the identity of the source's input files;
+        - ``prefetcher``: the source read ahead on a thread (:class:`~lanegraph.run.prefetch.Prefetch`,
+          default one frame);
+        - ``warming``: warm-up frames (:class:`~lanegraph.run.warmup.WarmUp`): the first frames only
+          bring the feedback edges and stateful nodes up to date (a chunk of a longer sequence
+          starts from the frames before it), unseen by the sinks, untimed, without ``on_frame``.
+
+        The flags make them where a piece is not given: ``checkpoint`` (the file) and ``resume``
+        (the checkpoint to continue), ``cache`` (a :class:`~lanegraph.run.cache.ResultCache`) and
+        ``cache_nodes`` (default: every stateless node), ``prefetch`` (frames ahead, 0: none),
+        ``warmup`` (frames)."""
         self.graph = graph
+        self.pm = pm or get_plugin_manager()
         ctx0 = context or RunContext()
-        # the checkpoint piece (:mod:`lanegraph.run.checkpointing`): identity checked before anything opens
-        self.identity = run_identity(graph, ctx0)
+        # what the run is (the graph as the user wrote it), checked before anything opens
+        self.identity = checkpointer.identity if checkpointer is not None else run_identity(graph, ctx0)
         if checkpointer is None and (checkpoint is not None or resume is not None):
-            checkpointer = Checkpointer(graph, ctx0, checkpoint, resume, self.identity)
+            checkpointer = Checkpointer(graph, ctx0, checkpoint, resume, self.identity, self.pm.port_types)
         self.checkpointer = checkpointer
         self.checkpoint = checkpointer.path if checkpointer is not None else None
         self.resume = checkpointer.resume if checkpointer is not None else None
-        self.prefetch = prefetch
-        self.cache = cache
-        self.cache_nodes = (
-            set(cache_nodes)
-            if cache_nodes is not None
-            else {nid for nid, n in graph.nodes.items() if not n.type.stateful}
-        )
-        self.pm = pm or get_plugin_manager()
+        if caching is None and cache is not None:
+            caching = Caching(cache, cache_nodes)
+        self.caching = caching
+        self.cache = caching.cache if caching is not None else None
+        self.cache_nodes = caching.nodes_of(graph) if caching is not None else set()
+        self.prefetcher = prefetcher if prefetcher is not None else Prefetch(max(0, int(prefetch)))
+        self.warming = warming if warming is not None else WarmUp(max(0, int(warmup)))
+        self.warmup = self.warming.frames
         self.context = context or RunContext()
         self._select_source()
         self.result_files = graph_result_files(graph)
@@ -223,34 +235,6 @@ class Executor:
     def unresumable(self) -> str | None:
         """Why the run cannot be resumed (a value a checkpoint cannot hold), or None."""
         return self.checkpointer.unresumable if self.checkpointer is not None else None
-
-    def _key(
-        self,
-        node: GraphNode,
-        keys: dict[tuple[str, str], str | None],
-        prev_keys: dict[tuple[str, str], str | None],
-    ) -> str | None:
-        """The content key of ``node``'s result this frame, or None when it is not determined by its
-        inputs (a stateful node, or an input without a key)."""
-        if node.type.stateful:
-            return None
-        parts = []
-        for port in sorted(node.inputs):
-            e = node.inputs[port]
-            if e.previous:
-                k = prev_keys.get((e.src_node, e.src_port), "first-frame") if prev_keys else "first-frame"
-            else:
-                k = keys.get((e.src_node, e.src_port))
-            if k is None:
-                return None
-            parts.append((port, k))
-        return digest(
-            node.type.name,
-            node.type.plugin,
-            node.type.code_version,
-            node.params.model_dump(mode="json"),
-            parts,
-        )
 
     def open(self) -> None:
         """Instantiate the stateful nodes (sources, sinks); done by :meth:`run` if not yet done.
@@ -381,7 +365,7 @@ class Executor:
             if nid in self.constant_nodes:
                 n = g.nodes[nid]
                 ins = {p: values.get((e.src_node, e.src_port)) for p, e in n.inputs.items()}
-                key = self._key(n, keys, {}) if caching else None
+                key = self.caching.key(n, keys, {}) if caching else None
                 out = self._call(n, ins, None, -1, result, key)
                 for port, v in out.items():
                     values[(nid, port)] = v
@@ -395,7 +379,7 @@ class Executor:
         g, result = self.graph, self.result
         source = self.instances[g.source.id]
         feedback = {(e.src_node, e.src_port) for e in g.edges if e.previous}
-        warm = RunResult(node_types=result.node_types) if self.warmup else result
+        warm = RunResult(node_types=result.node_types) if self.warming.frames else result
         drop = max(self.context.skip - self._skipped, 0)  # frames done that the source did not leave out
         frames = self._frames(source, g.source.id, result, at.position, drop)
         try:
@@ -403,11 +387,15 @@ class Executor:
                 at.position = index + 1
                 if frame_out is None:  # the source could not read this frame (recorded as a failure)
                     at.previous, at.prev_keys = {}, {}
-                    if index >= self.warmup and result.failures and result.failures[-1].index == index:
+                    if (
+                        not self.warming.warming(index)
+                        and result.failures
+                        and result.failures[-1].index == index
+                    ):
                         result.frame_ids.append(str(result.failures[-1].frame))
                     self._consumed(at)
                     continue
-                warming = index < self.warmup
+                warming = self.warming.warming(index)
                 frame = frame_out.get("frame")
                 if not warming:
                     result.frame_ids.append(str(frame))
@@ -453,7 +441,7 @@ class Executor:
         key. Raises :class:`_SkipFrame` when a node under ``on_error: skip`` failed."""
         g = self.graph
         src_id = g.source.id
-        warming = index < self.warmup
+        warming = self.warming.warming(index)
         frame = frame_out.get("frame")
         cur = dict(values)
         cur_keys = dict(keys)
@@ -496,7 +484,7 @@ class Executor:
             for p, port in n.type.inputs.items():
                 if p not in ins and port.optional:
                     ins[p] = None
-            key = self._key(n, cur_keys, prev_keys) if self.cache is not None else None
+            key = self.caching.key(n, cur_keys, prev_keys) if self.caching is not None else None
             out = self._call(n, ins, frame, index, res, key)
             for port, v in out.items():
                 cur[(nid, port)] = v
@@ -521,7 +509,7 @@ class Executor:
         (image decoding releases the GIL).
         """
         node = self.graph.nodes[src_id]
-        items = prefetched(iter(source), self.prefetch) if self.prefetch > 0 else timed(iter(source))
+        items = self.prefetcher.read(iter(source))
         try:
             index = start
             scratch = RunResult()  # what warm-up frames record
@@ -531,7 +519,7 @@ class Executor:
                     if kind == "error" and not isinstance(item, LanegraphError):
                         raise NodeError(src_id, node.type.name, None, item) from item
                     continue
-                rec = scratch if index < self.warmup else result
+                rec = scratch if self.warming.warming(index) else result
                 if kind == "error":
                     exc = item
                     frame = getattr(exc, "frame", None)

@@ -1,4 +1,4 @@
-"""Reading a source ahead: the prefetch piece of the executor.
+"""Reading a source ahead: the prefetch piece of the executor (:class:`Prefetch`).
 
 :func:`timed` times each item a source yields and hands its errors on as items (a source may yield
 or raise an :class:`~lanegraph.errors.InputError` for one frame and go on); :func:`prefetched` does
@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterator
+from dataclasses import dataclass
 from typing import Any
 
 from ..errors import LanegraphError
@@ -73,3 +74,20 @@ def prefetched(it: Iterator[Any], depth: int) -> Iterator[tuple[str, Any, float]
     finally:
         stop.set()
         th.join(timeout=5)
+
+
+@dataclass(frozen=True)
+class Prefetch:
+    """The prefetch piece of a run: the source read ``depth`` frames ahead on a background thread
+    (:func:`prefetched`), or in the executor's own thread with ``depth`` 0 (:func:`timed`)."""
+
+    depth: int = 1
+
+    def __post_init__(self) -> None:
+        if isinstance(self.depth, bool) or not isinstance(self.depth, int) or self.depth < 0:
+            raise ValueError(f"Prefetch: depth: expected an integer >= 0, got {self.depth!r}")
+
+    def read(self, it: Iterator[Any]) -> Iterator[tuple[str, Any, float]]:
+        """``(kind, item, ms)`` for each item of the source iterator ``it``; close it to stop the
+        read-ahead thread (it is joined)."""
+        return prefetched(it, self.depth) if self.depth > 0 else timed(it)

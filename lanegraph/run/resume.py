@@ -17,7 +17,8 @@ types; it can never run code -- and holds:
 
 ``--resume`` reads and validates it (:func:`load_checkpoint`; a malformed one is refused with the
 file and field, exit code 2), refuses it unless the graph, params, input and frame selection are
-those of the checkpoint (:func:`check_identity`), hands each stateful node its state back (the
+those of the checkpoint (:func:`check_identity`), refuses a feedback value that its port type's
+registered ``check`` refuses (:func:`check_feedback_types`), hands each stateful node its state back (the
 lanes writer cuts its file back to the frames done) and continues with the next frame, so that
 the final outputs equal those of an uninterrupted run however often it was interrupted. A
 checkpoint of a complete run is not run again.
@@ -29,6 +30,7 @@ import base64
 import dataclasses
 import json
 import math
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
 
@@ -37,7 +39,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from ..errors import UsageError
 from ..paths import write_bytes_atomic
-from ..types import BevGeometry, Calibration, FeatureMap, Lane, Line, RoadModel
+from ..types import BevGeometry, Calibration, FeatureMap, Lane, Line, PortType, RoadModel
 from .cache import digest
 
 CHECKPOINT_NAME = "checkpoint.json"
@@ -462,60 +464,56 @@ def decode_feedback(
     return values, keys
 
 
-def _array(v: Any) -> bool:
-    return isinstance(v, np.ndarray) and v.ndim in (2, 3)
+def feedback_type_problem(
+    values: dict[tuple[str, str], Any], graph: Any, types: Mapping[str, PortType]
+) -> str | None:
+    """The first feedback value that is not a value of its port's type, as ``"(node.port): not a
+    value of port type 'lanes' (what its check says)"``, or None.
 
-
-def _number(v: Any) -> bool:
-    return isinstance(v, (int, float, np.number)) and not isinstance(v, bool)
-
-
-def _list_of(cls: type) -> Any:
-    return lambda v: isinstance(v, list) and all(isinstance(x, cls) for x in v)
-
-
-#: what a value of each of lanegraph's own port types is: a feedback value read back from a
-#: checkpoint must be one (a plugin's port type is checked as its nearest ancestor among these)
-PORT_VALUE_CHECKS: dict[str, Any] = {
-    "frame_id": lambda v: isinstance(v, str),
-    **{t: _array for t in ("image", "gray", "disparity", "mask", "vdisparity", "bev_image", "bev_mask")},
-    "calibration": lambda v: isinstance(v, Calibration),
-    "road_model": lambda v: isinstance(v, RoadModel),
-    "bev_geometry": lambda v: isinstance(v, BevGeometry),
-    "features": lambda v: isinstance(v, FeatureMap),
-    "orientation": _number,
-    "number": _number,
-    "lines": _list_of(Line),
-    "lanes": _list_of(Lane),
-}
+    ``types``: the registered port types by name (a plugin manager's ``port_types``: lanegraph's
+    own, :mod:`lanegraph.presentation.port_types`, and every plugin's); a value is checked by its
+    port type's own ``check``, or by that of its nearest ancestor through ``parent`` that has one
+    (``any`` and a type without one take anything). ``None`` (a node that failed under ``on_error:
+    empty``) is a value of every type; a ``check`` that raises says no."""
+    for (node, port), value in values.items():
+        gnode = graph.nodes.get(node)
+        out = gnode.type.outputs.get(port) if gnode is not None else None
+        if value is None or out is None:
+            continue
+        name, pt, seen = out.type, None, set()
+        while name is not None and name not in seen:
+            seen.add(name)
+            pt = types.get(name)
+            if pt is None or pt.check is not None:
+                break
+            name = pt.parent
+        if pt is None or pt.check is None:
+            continue
+        try:
+            problem = pt.check(value)
+        except Exception as exc:  # noqa: BLE001 - a plugin's check: its failure is a refusal, located
+            problem = f"port type {pt.name!r}'s check raised {type(exc).__name__}: {str(exc)[:80]}"
+        if problem is not None:
+            return f"({node}.{port}): not a value of port type {out.type!r} ({str(problem)[:160]})"
+    return None
 
 
 def check_feedback_types(
-    values: dict[tuple[str, str], Any], graph: Any, path: Path, types: dict[str, Any] | None = None
+    values: dict[tuple[str, str], Any],
+    graph: Any,
+    path: Path,
+    types: Mapping[str, PortType],
+    frame: str | None = None,
 ) -> None:
-    """Refuse (:class:`UsageError`) a decoded feedback value that is not a value of its port's
-    type (a string where lanes belong); ``None`` (a node that failed under ``on_error: empty``) is
-    always one. ``types``: the port types by name (a plugin's type is checked as its nearest
-    ancestor among :data:`PORT_VALUE_CHECKS`; ``any`` and types without one take anything)."""
-    for (node, port), value in values.items():
-        if value is None:
-            continue
-        gnode = graph.nodes.get(node)
-        out = gnode.type.outputs.get(port) if gnode is not None else None
-        if out is None:
-            continue
-        name: str | None = out.type
-        seen: set[str] = set()
-        while name is not None and name not in PORT_VALUE_CHECKS and name not in seen:
-            seen.add(name)
-            pt = (types or {}).get(name)
-            name = getattr(pt, "parent", None)
-        check = PORT_VALUE_CHECKS.get(name) if name is not None else None
-        if check is not None and not check(value):
-            raise UsageError(
-                f"{path}: feedback ({node}.{port}): expected a value of port type {out.type!r}, "
-                f"got a {type(value).__name__} ({str(value)[:40]}){_HINT}"
-            )
+    """Refuse (:class:`UsageError`) a feedback value read back from a checkpoint that is not a
+    value of its port's type (a string where lanes belong: :func:`feedback_type_problem`), before
+    any node sees it; the error names the file, the node, the port and ``frame`` (the checkpoint's
+    last frame)."""
+    problem = feedback_type_problem(values, graph, types)
+    if problem is not None:
+        node_port, _, what = problem.partition(": ")
+        of = f" of frame {frame}" if frame is not None else ""
+        raise UsageError(f"{path}: feedback {node_port}{of}: {what}{_HINT}")
 
 
 def check_identity(

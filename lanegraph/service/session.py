@@ -35,6 +35,7 @@ from ..graph.model import Graph
 from ..nodes import RunContext
 from ..paths import OutputLock, prepare_dir
 from ..plugins import PluginManager, get_plugin_manager
+from ..run.checkpointing import Checkpointer
 from ..run.executor import Executor, RunResult
 from ..run.folder import check as check_folder
 from ..run.folder import claim as claim_folder
@@ -247,7 +248,9 @@ class Session:
             skip=ckpt.position if ckpt is not None else 0,
         )
         try:
-            ex = Executor(g, ctx, self.pm, checkpoint=checkpoint, resume=ckpt)
+            # the checkpoint piece: checked against the graph, input and frames before anything opens
+            keeper = Checkpointer(g, ctx, checkpoint, ckpt, port_types=self.pm.port_types)
+            ex = Executor(g, ctx, self.pm, checkpointer=keeper)
         except LanegraphError as exc:
             raise NotStarted(exc) from exc
         self._ex, self._frames = ex, selection

@@ -330,3 +330,30 @@ def test_a_sequence_that_cannot_start_does_not_stop_the_others(tmp_path, synthet
         main, ["run", PAPER, "--dataset", str(ds), "--out", str(tmp_path / "out2"), "--quiet"]
     )
     assert r.exit_code == 2, r.output
+
+
+def test_the_carried_state_is_said_only_when_a_chunk_starts_from_another_state(tmp_path, synthetic_dataset):
+    """A chunked run of a graph with feedback edges says its lanes may differ from a whole run's
+    only when a chunk's warm-up does not reach back to the selection's first frame; one chunk, or
+    a warm-up as long as the frames before every chunk, runs the whole run's frames from its state."""
+    from lanegraph.graph.files import ResolvedGraph
+    from lanegraph.plugins import get_plugin_manager
+    from lanegraph.run.batch import Planner
+
+    pm, graph = get_plugin_manager(), ResolvedGraph.load(PAPER, [])
+    curve = synthetic_dataset.parent / "b"  # 7 frames
+
+    def said(chunk_frames, warmup, frames=None):
+        planner = Planner(pm, chunk_frames, warmup)
+        plan = planner.add(None, "curve", graph, curve, frames, tmp_path / "run")
+        assert plan.tasks and plan.outcome is None
+        notes = {n for t in plan.tasks for n in t.notes}
+        assert notes == set(planner.warnings)
+        return planner.warnings
+
+    assert said(3, 2) and "verify.lanes@prev" in said(3, 2)[0]  # [3, 6) after frames 1-2 only
+    assert said(3, 3)  # [6, 7) after frames 3-5 only
+    assert said(None, 0) == []  # no chunks: the whole run
+    assert said(10, 0) == [] and said(7, 0) == []  # one chunk
+    assert said(3, 6) == [] and said(2, 100) == []  # every chunk's warm-up reaches frame 0
+    assert said(2, 2, slice(4, 7)) == [] and said(1, 1, slice(4, 7))  # from the selection's first frame

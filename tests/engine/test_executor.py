@@ -359,3 +359,49 @@ def test_a_run_json_naming_a_result_outside_its_folder_is_refused(tmp_path, pm):
     (run / "run.json").write_text('{"results": {"lanes": "../secret.txt"}}')
     with pytest.raises(UsageError, match="outside"):
         find_result(run, "lanes", pm)
+
+
+def test_the_jobs_around_execution_are_pieces_passed_in(tmp_path, pm):
+    """The result cache, the prefetch and the warm-up are pieces of lanegraph.run handed to the
+    executor as the checkpoint is (``caching=``, ``prefetcher=``, ``warming=``, ``checkpointer=``);
+    the flags ``cache=``, ``prefetch=``, ``warmup=``, ``checkpoint=`` make the same pieces."""
+    import copy
+    import json
+
+    from lanegraph.run.cache import Caching, ResultCache
+    from lanegraph.run.checkpointing import Checkpointer
+    from lanegraph.run.prefetch import Prefetch
+    from lanegraph.run.warmup import WarmUp
+
+    d = copy.deepcopy(VALID)
+    d["nodes"]["src"]["params"]["n"] = 6
+    cache = ResultCache(tmp_path / "cache")
+    outs = []
+    for i, how in enumerate(("flags", "pieces")):
+        g, ctx, ck = load(tmp_path, pm, d), RunContext(frames=slice(1, 6)), tmp_path / f"checkpoint{i}.json"
+        if how == "flags":
+            ex = Executor(
+                g, ctx, pm, prefetch=0, cache=cache, cache_nodes={"double"}, warmup=2, checkpoint=ck
+            )
+        else:
+            ex = Executor(
+                g,
+                ctx,
+                pm,
+                caching=Caching(cache, {"double"}),
+                prefetcher=Prefetch(0),
+                warming=WarmUp(2),
+                checkpointer=Checkpointer(g, ctx, ck, port_types=pm.port_types),
+            )
+        assert ex.prefetcher == Prefetch(0) and ex.warming == WarmUp(2) and ex.cache_nodes == {"double"}
+        res = ex.run()
+        outs.append(list(toyplugin.Collect.out))
+        assert res.frames == 3 and json.loads(ck.read_text())["complete"]  # the checkpoint piece wrote it
+        hits = (res.cache_hits, res.cache_misses)
+        # one cache (the warm-up frames' counts are not the run's)
+        assert hits == (({}, {"double": 3}) if how == "flags" else ({"double": 3}, {}))
+    assert outs[0] == outs[1] == [("0003", 12.0), ("0004", 20.0), ("0005", 30.0)]
+    for bad in (lambda: WarmUp(-1), lambda: Prefetch(-1), lambda: WarmUp(True)):
+        with pytest.raises(ValueError, match="expected an integer >= 0"):
+            bad()
+    assert Executor(load(tmp_path, pm, d), RunContext(), pm).caching is None  # no cache unless given

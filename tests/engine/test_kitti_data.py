@@ -10,8 +10,8 @@ import pytest
 from click.testing import CliRunner
 
 from lanegraph.cli import main
+from lanegraph.data.kitti import GROUND_TRUTH, ground_truth_file
 from lanegraph.evaluation.dataset import load_dataset
-from lanegraph.kitti_data import GROUND_TRUTH, ground_truth_file
 
 from ..conftest import SHARED
 

@@ -122,3 +122,63 @@ def test_nothing_below_the_command_line_imports_it():
         and any(e.startswith("lanegraph.cli") for e in edges)
     }
     assert users == set()
+
+
+#: the layers of lanegraph/, lowest first (docs/architecture.md): a module imports only from its own
+#: layer and the ones below it; ``data`` and ``presentation`` stand side by side (neither imports the other)
+LAYERS = {
+    "core": 0,
+    "graph": 1,
+    "run": 2,
+    "evaluation": 3,
+    "presentation": 4,
+    "data": 4,
+    "service": 5,
+    "cli": 6,
+}
+#: the imports that cross the layers upwards on purpose, each with its reason (a new one fails the test)
+UPWARD_ON_PURPOSE = {
+    ("lanegraph.__main__", "lanegraph.cli"): "python -m lanegraph is the command line",
+    ("lanegraph.plugins", "lanegraph.presentation.port_types"): (
+        "the plugin manager registers lanegraph's own port types first, as a built-in plugin"
+    ),
+    ("lanegraph.testing", "lanegraph.graph.validation"): "the conformance check runs a node in a graph",
+    ("lanegraph.testing", "lanegraph.run.executor"): "the conformance check runs a node in a graph",
+    ("lanegraph.testing", "lanegraph.presentation.port_types"): "the conformance check's own port types",
+    ("lanegraph.evaluation.ablate", "lanegraph.presentation.plots"): "an ablation writes its two plots",
+}
+
+
+def layer_of(module: str) -> str:
+    """``core`` for ``lanegraph`` and its top-level modules, else the sub-package (``run``, ``cli`` ...)."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 2 or (len(parts) == 2 and parts[1] in LAYERS) else "core"
+
+
+def upward_imports(graph: dict[str, set[str]]) -> set[tuple[str, str]]:
+    """``(module, imported)`` pairs where a module imports from a layer above its own (or from a
+    layer beside it)."""
+    out = set()
+    for module, edges in graph.items():
+        mine = layer_of(module)
+        for e in edges:
+            theirs = layer_of(e)
+            if theirs != mine and LAYERS[theirs] >= LAYERS[mine]:
+                out.add((module, e))
+    return out
+
+
+def test_every_subpackage_is_a_layer():
+    assert {layer_of(m) for m in import_graph()} == set(LAYERS)
+
+
+def test_the_layer_check_finds_a_core_module_importing_evaluation():
+    # lanegraph/kitti_data.py was a core module that imported the ground truth reader of evaluation/
+    graph = {"lanegraph.kitti_data": {"lanegraph.evaluation.metrics", "lanegraph.paths"}}
+    assert upward_imports(graph) == {("lanegraph.kitti_data", "lanegraph.evaluation.metrics")}
+    assert upward_imports({"lanegraph.data.kitti": {"lanegraph.evaluation.metrics"}}) == set()
+    assert upward_imports({"lanegraph.data.kitti": {"lanegraph.presentation.render"}}) != set()
+
+
+def test_a_module_imports_only_from_its_layer_and_the_ones_below():
+    assert upward_imports(import_graph()) == set(UPWARD_ON_PURPOSE)

@@ -134,6 +134,11 @@ def test_only_the_frames_a_run_selected_are_scored():
     assert [g["frame"] for g in kept] == ["0002", "0004", "0006"] and not_run == 5
     # ids of frames the ground truth does not have select nothing of it
     assert select_frames(gt, ["x"]) == ([], 8)
+    # the records are kept in file order, as the docstring says, whatever the step's sign
+    kept, not_run = select_frames(gt, slice(6, 1, -2))
+    assert [g["frame"] for g in kept] == ["0002", "0004", "0006"] and not_run == 5
+    res = evaluate(pred, gt, frames=slice(None, None, -1))
+    assert [r.frame for r in res["per_frame"]] == [f"{i:04d}" for i in range(8)]
 
 
 def test_evaluate_sequences_with_the_frames_of_each_run():

@@ -265,3 +265,117 @@ def test_sigterm_and_sighup_stop_a_run_as_ctrl_c_does(tmp_path, uninterrupted, s
     r = interrupted_run(out, None, "--resume")
     assert r.returncode == 0, r.stderr
     assert (out / "lanes.jsonl").read_text() == uninterrupted
+
+
+def test_a_restored_feedback_value_passes_its_registered_port_types_check(tmp_path, pm):
+    """The checkpointer checks a feedback value read back from a checkpoint with the ``check`` of
+    its port type as the ``lanegraph_port_types`` hook registered it: a plugin's port type's too
+    (a sub-type without a check of its own by its parent's), and lanegraph's own as strictly as a
+    node's output is checked (a float64 array is no disparity map). A refusal names the file, the
+    node, the port and the frame; a check that raises is a refusal too, never a traceback."""
+    import json
+
+    import numpy as np
+
+    from lanegraph import NodeParams, Port, PortType, hookimpl, node_type
+    from lanegraph.errors import UsageError
+    from lanegraph.nodes import RunContext
+    from lanegraph.run.executor import Executor
+    from lanegraph.run.resume import encode_value, load_checkpoint
+
+    def cloud_check(v):
+        ok = isinstance(v, np.ndarray) and v.ndim == 2 and v.shape[1] == 3 and v.dtype == np.float64
+        return None if ok else "expected N x 3 float64 points"
+
+    calls = []
+
+    @node_type(
+        "toy.grow",
+        inputs={
+            "x": "number",
+            "prev": Port("ground_cloud", optional=True),
+            "disp": Port("disparity", optional=True),
+        },
+        outputs={"cloud": "ground_cloud", "disparity": "disparity"},
+    )
+    def grow(params: NodeParams, x, prev=None, disp=None):
+        """Adds a point to the previous cloud."""
+        calls.append(None if prev is None else prev.shape)
+        pts = np.zeros((0, 3)) if prev is None else prev
+        return {"cloud": np.vstack([pts, [[x, x, x]]]), "disparity": np.zeros((2, 2), np.float32)}
+
+    class Clouds:
+        @staticmethod
+        @hookimpl
+        def lanegraph_port_types():
+            return [
+                PortType("point_cloud", "N x 3 float64 metres", check=cloud_check),
+                PortType("ground_cloud", "points on the road", parent="point_cloud"),
+            ]
+
+        @staticmethod
+        @hookimpl
+        def lanegraph_node_types():
+            return [grow]
+
+    pm.register(Clouds, name="clouds")
+    ck = tmp_path / "checkpoint.json"
+    extra = {
+        "grow": {
+            "type": "toy.grow",
+            "inputs": {"x": "src.value", "prev": "grow.cloud@prev", "disp": "grow.disparity@prev"},
+        }
+    }
+    Executor(_toy_graph(tmp_path, pm, extra), RunContext(), pm, checkpoint=ck).run()
+    good = json.loads(ck.read_text())
+    good.update(position=3, frames_ok=3, last_frame="0002", complete=False)
+    good["states"] = {
+        k: {**v, "frames": 3} if isinstance(v, dict) and "frames" in v else v
+        for k, v in good["states"].items()
+    }
+
+    def resume(value, port="cloud"):
+        data = json.loads(json.dumps(good))
+        data["feedback"] = [{"node": "grow", "port": port, "value": encode_value(value), "key": None}]
+        ck.write_text(json.dumps(data))
+        state = load_checkpoint(ck)
+        return Executor(
+            _toy_graph(tmp_path, pm, extra),
+            RunContext(skip=state.position, extra={"resume": True}),
+            pm,
+            checkpoint=ck,
+            resume=state,
+        )
+
+    resume(np.ones((3, 3)))  # a cloud: accepted
+    for wrong in (np.ones((3, 2)), np.ones((3, 3), np.float32), [[1.0, 2.0, 3.0]], "points"):
+        with pytest.raises(UsageError) as info:
+            resume(wrong)
+        assert str(info.value).startswith(
+            f"{ck}: feedback (grow.cloud) of frame 0002: not a value of port type 'ground_cloud' "
+            "(expected N x 3 float64 points); cannot resume"
+        ), info.value
+    resume(np.ones((2, 2), np.float32), "disparity")
+    with pytest.raises(
+        UsageError,
+        match=r"\(grow.disparity\) of frame 0002: not a value of port type 'disparity' "
+        r"\(expected an HxW float32 disparity map, got float64 array of shape \(2, 2\)\)",
+    ):
+        resume(np.ones((2, 2)), "disparity")  # PORT_VALUE_CHECKS took any 2-D array
+    calls.clear()
+
+    def broken(v):
+        raise KeyError("x")
+
+    pm.port_types["point_cloud"] = PortType("point_cloud", "N x 3", check=broken)
+    with pytest.raises(UsageError, match=r"port type 'point_cloud''s check raised KeyError"):
+        resume(np.ones((3, 3)))
+    assert calls == []  # no node saw a value
+    # a run whose node puts out a value its port type's check refuses says at once that --resume
+    # will refuse it (not only when --resume reads it back)
+    pm.port_types["point_cloud"] = PortType("point_cloud", "N x 3", check=lambda v: "expected a cloud")
+    ck.unlink()
+    res = Executor(_toy_graph(tmp_path, pm, extra), RunContext(), pm, checkpoint=ck).run()
+    said = "frame 0000: feedback (grow.cloud): not a value of port type 'ground_cloud' (expected a cloud)"
+    assert res.frames == 4 and f"--resume will not be possible for this run: {said}" in res.warnings()
+    assert load_checkpoint(ck).unresumable == said and load_checkpoint(ck).feedback == []

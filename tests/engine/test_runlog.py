@@ -30,7 +30,9 @@ def test_console_levels():
     [
         (0, 0, ["a note", "warning: a doubt", "error: a failure"]),
         (1, 0, ["debug: a detail", "a note", "warning: a doubt", "error: a failure"]),
+        (0, 1, ["a note", "warning: a doubt", "error: a failure"]),  # -q: no progress bars only
         (0, 2, ["warning: a doubt", "error: a failure"]),
+        (0, 3, ["error: a failure"]),
     ],
 )
 def test_console_prints_each_level_as_a_line(capsys, verbose, quiet, shown):
@@ -45,6 +47,21 @@ def test_console_prints_each_level_as_a_line(capsys, verbose, quiet, shown):
         undo()
     err = capsys.readouterr().err
     assert err.splitlines() == shown
+
+
+@pytest.mark.parametrize(("quiet", "shown"), [(1, ["a note", "warning: a doubt"]), (2, ["warning: a doubt"])])
+def test_a_line_a_command_says_is_a_note_that_q_keeps_and_qq_hides(capsys, quiet, shown):
+    """``say``'s docstring said a note was hidden by ``-q``: ``-q`` only turns the progress bars
+    off (a long wait still says what it is doing); ``-qq`` hides notes."""
+    from lanegraph.runlog import say
+
+    undo = configure_console(0, quiet)
+    try:
+        say("a note")
+        say("warning: a doubt")
+    finally:
+        undo()
+    assert capsys.readouterr().err.splitlines() == shown
 
 
 def test_python_warnings_reach_the_console_while_configured(capsys):

@@ -39,8 +39,8 @@ from typing import IO
 
 import yaml
 
-from .errors import UsageError
-from .paths import inside, prepare_dir
+from ..errors import UsageError
+from ..paths import inside, prepare_dir
 
 _PNG = b"\x89PNG\r\n\x1a\n"
 _DATE = r"(?P<date>\d{4}_\d{2}_\d{2})"
@@ -275,7 +275,7 @@ def _folder(out: Path, rel: str) -> Path:
 
 def ground_truth_file(name: str) -> Path:
     """The package data file of :data:`GROUND_TRUTH`."""
-    return Path(__file__).resolve().parent / "data" / name
+    return Path(__file__).resolve().parent / name
 
 
 def _png_size(path: Path) -> tuple[int, int] | None:
@@ -347,8 +347,8 @@ def prepare_kitti(sources: list[Path], out: Path, progress: Progress = None) -> 
 
 def _write_gt(out: Path, base: str, frames: list[str], gt_name: str, entry: dict[str, str]) -> str:
     """``lanes_gt.jsonl`` beside the frames, when they hold the ground truth's frames and image size."""
-    from .evaluation.metrics import read_ground_truth
-    from .paths import write_text_atomic
+    from ..evaluation.metrics import read_ground_truth
+    from ..paths import write_text_atomic
 
     gt_path = ground_truth_file(gt_name)
     records = read_ground_truth(gt_path)
@@ -370,8 +370,8 @@ def _write_gt(out: Path, base: str, frames: list[str], gt_name: str, entry: dict
 
 
 def _write_dataset(path: Path, entries: list[dict[str, str]]) -> None:
-    from .builtin import graphs_dir
-    from .paths import write_text_atomic
+    from ..builtin import graphs_dir
+    from ..paths import write_text_atomic
 
     template = graphs_dir() / DATASET_TEMPLATE
     description = (
