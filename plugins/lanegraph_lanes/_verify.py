@@ -302,7 +302,7 @@ def _paint_rows_kernel(
     camera's view); the side levels ``L``, ``R``: the medians of the columns ``-band_px .. -gap_px``
     and ``gap_px .. band_px`` (``hist``: see :func:`_small_median`). A row is painted when its centre
     is ``min_row_contrast`` (relative) brighter than the brighter side: then the strip divided by
-    that side's level is added to ``profile`` (``2 band_px + 1`` values, zeroed by the caller), and
+    that side's level is written to ``profile[k]`` (``2 band_px + 1`` values) for the ``k``-th painted row, and
     ``contrast[k]`` = centre / brighter side - 1 and ``ratio[k]`` = darker side / brighter side are
     written for the ``k``-th painted row. Returns ``(strips inside the image, painted rows, painted
     rows whose centre is at ``sat_level`` or above: saturated)``."""
@@ -345,7 +345,7 @@ def _paint_rows_kernel(
             continue
         inv = 1.0 / hi
         for j in range(w):
-            profile[j] += img[r, a + j] * inv
+            profile[painted, j] = img[r, a + j] * inv
         contrast[painted] = c_rel
         ratio[painted] = min(left, right) * inv
         painted += 1
@@ -407,8 +407,10 @@ def paint_cues(
     """The cross profile of ``lane`` in the grey BEV ``image``, on its rows nearer than
     ``max_distance_m``: its painted rows (:func:`_paint_rows_kernel`: the centre ``min_row_contrast``
     brighter than the brighter side band, ``gap_m .. band_m`` away), their median contrast and side
-    ratio, and the widths of their mean profile (each row divided by its brighter side's level) at
-    half and a quarter of its height above its base (the brighter of the profile's two side levels)."""
+    ratio, and the widths of their median profile (each row divided by its brighter side's level;
+    the median over the rows, offset by offset: a sun patch that a minority of the rows cross, as
+    wide as a metre, does not widen it as it widens their mean) at half and a quarter of its height
+    above its base (the brighter of the profile's two side levels)."""
     img, r0, r1 = _lane_rows_in(image, lane)
     res = float(geometry.resolution)
     near = int(math.floor(geometry.metric_to_bev(0.0, max_distance_m)[1]))
@@ -418,7 +420,7 @@ def paint_cues(
     align = max(int(round(align_m / res)), 0)
     c0, c1, c2 = (float(c) for c in lane.coeffs)
     n = max(r1 - r0 + 1, 0)
-    profile = np.zeros(2 * band + 1)
+    strips = np.empty((n, 2 * band + 1))
     contrast = np.empty(n)
     ratio = np.empty(n)
     sat = float(np.iinfo(img.dtype).max) if img.dtype.kind in "ui" else math.inf
@@ -435,14 +437,14 @@ def paint_cues(
         float(min_row_contrast),
         sat,
         _median_hist(img),
-        profile,
+        strips,
         contrast,
         ratio,
     )
     nan = float("nan")
     if painted < max(min_rows, 1):
         return PaintCues(int(inside), int(painted), int(saturated), nan, nan, nan, nan)
-    profile /= painted
+    profile = np.median(strips[:painted], axis=0)
     base = max(float(np.median(profile[: band - gap + 1])), float(np.median(profile[band + gap :])))
     height = profile[band] - base
     if height <= 0.0:
