@@ -354,6 +354,56 @@ def _paint_rows_kernel(
     return inside, painted, saturated
 
 
+@jit
+def _select(buf, n, k):
+    """The ``k``-th smallest of ``buf[:n]`` (0-based), reordering ``buf[:n]`` in place (Hoare's
+    selection: linear time on average, no allocation)."""
+    lo = 0
+    hi = n - 1
+    while lo < hi:
+        pivot = buf[(lo + hi) // 2]
+        i = lo
+        j = hi
+        while i <= j:
+            while buf[i] < pivot:
+                i += 1
+            while buf[j] > pivot:
+                j -= 1
+            if i <= j:
+                tmp = buf[i]
+                buf[i] = buf[j]
+                buf[j] = tmp
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            break
+    return buf[k]
+
+
+@jit
+def _column_medians(strips, n, out):
+    """The median of each column of ``strips[:n]`` (``n >= 1``) into ``out``, as ``np.median(strips[:n],
+    axis=0)`` (the mean of the two middle values when ``n`` is even), by selection."""
+    buf = np.empty(n)
+    k1 = (n - 1) // 2
+    k2 = n // 2
+    for j in range(strips.shape[1]):
+        for i in range(n):
+            buf[i] = strips[i, j]
+        hi = _select(buf, n, k2)
+        lo = hi
+        if k1 != k2:  # the largest below the k2-th: after the selection, all of buf[:k2] is <= it
+            lo = buf[0]
+            for i in range(1, k2):
+                if buf[i] > lo:
+                    lo = buf[i]
+        out[j] = 0.5 * (lo + hi)
+
+
 def _crossing_width(profile: np.ndarray, centre: int, level: float) -> float:
     """Width (pixels, sub-pixel) of the run of ``profile`` at or above ``level`` around ``centre``
     (linear interpolation at both ends; a run reaching the profile's end ends there)."""
@@ -408,9 +458,10 @@ def paint_cues(
     ``max_distance_m``: its painted rows (:func:`_paint_rows_kernel`: the centre ``min_row_contrast``
     brighter than the brighter side band, ``gap_m .. band_m`` away), their median contrast and side
     ratio, and the widths of their median profile (each row divided by its brighter side's level;
-    the median over the rows, offset by offset: a sun patch that a minority of the rows cross, as
-    wide as a metre, does not widen it as it widens their mean) at half and a quarter of its height
-    above its base (the brighter of the profile's two side levels)."""
+    the median over the rows, offset by offset, of 64 to 127 of them spread evenly: a sun patch
+    that a minority of the rows cross, a metre or more across, does not widen it as it widens
+    their mean) at half and a quarter of its height above its base (the brighter of the profile's
+    two side levels)."""
     img, r0, r1 = _lane_rows_in(image, lane)
     res = float(geometry.resolution)
     near = int(math.floor(geometry.metric_to_bev(0.0, max_distance_m)[1]))
@@ -444,7 +495,11 @@ def paint_cues(
     nan = float("nan")
     if painted < max(min_rows, 1):
         return PaintCues(int(inside), int(painted), int(saturated), nan, nan, nan, nan)
-    profile = np.median(strips[:painted], axis=0)
+    # the median profile over every k-th painted row, 64 to 127 of them: as good a median for a
+    # width, at the cost of a mean (a median over all 300-400 near rows cost 0.1-0.2 ms a lane)
+    rows_used = np.ascontiguousarray(strips[: painted : max(1, painted // 64)])
+    profile = np.empty(2 * band + 1)
+    _column_medians(rows_used, rows_used.shape[0], profile)
     base = max(float(np.median(profile[: band - gap + 1])), float(np.median(profile[band + gap :])))
     height = profile[band] - base
     if height <= 0.0:

@@ -1054,6 +1054,20 @@ def test_paint_rows_kernel_matches_twin(dtype):
         np.testing.assert_allclose(rat[:painted], ref[5], rtol=1e-12)
 
 
+def test_column_medians_match_numpy():
+    """``_column_medians`` (selection in place) against ``np.median(..., axis=0)``: odd and even
+    row counts, ties, one row."""
+    rng = np.random.default_rng(5)
+    for n in (1, 2, 3, 4, 7, 64, 127):
+        for ties in (False, True):
+            strips = rng.random((130, 9))
+            if ties:
+                strips = np.round(strips * 3)
+            out = np.empty(9)
+            _verify._column_medians(strips, n, out)
+            np.testing.assert_allclose(out, np.median(strips[:n], axis=0), rtol=0, atol=0)
+
+
 def _road_bev(rows=600, cols=200, level=100.0, noise=3.0, seed=0):
     """A BEV of asphalt (5 cm pixels, 30 m of road from 5 m) and its geometry."""
     rng = np.random.default_rng(seed)
