@@ -300,6 +300,9 @@ def test_merge_replaces_first_then_adds_and_prefers_the_shorter_closer_followed_
     compromise = Lane((241.5, 0.0, 2e-4), (0, 799), "right", 1.0)
     out = merge([compromise], followed[1:], g, p, f)
     assert out[0].bev_rows == (300, 799)
+    # ... when it covers a dashed line's period (min_followed_m): 5 m rest on one dash
+    short = Lane((240.0, 0.0, 2e-4), (700, 799), "right", 1.0)
+    assert merge([compromise], [short], g, p, f)[0].bev_rows == (0, 799)
     # ... but not when the Hough lane is the closer fit
     out = merge(
         [Lane((240.0, 0.0, 2e-4), (0, 799), "right", 1.0)],
