@@ -17,7 +17,8 @@ paint when
   the road on both sides, while a kerb's lit edge or the road's border against a darker verge barely stands above
   the brighter side (on KITTI drive 0001 the kerb beside the tram tracks measures 0.16-0.33, its
   painted lines 0.39-1.0, the highway's lines 0.65-1.6);
-- their mean profile is at least ``min_width_m`` wide at half its height (the narrowest marking is
+- their median profile (offset by offset over the painted rows: sun patches that cross a minority
+  of the rows do not widen it as they widen the mean) is at least ``min_width_m`` wide at half its height (the narrowest marking is
   10 cm; a kerb's lit edge measures 5-7 cm) and at most ``max_foot_width_m`` wide at a quarter of
   its height (paint is at most 30 cm wide with sharp edges; a light concrete gutter between the
   asphalt and a paved strip measures 46-85 cm there, painted lines 16-27 cm);
@@ -438,7 +439,7 @@ class PaintCues:
     saturated: int  # painted rows whose centre is at the image's largest grey level (clipped)
     contrast: float  # median over the painted rows of centre / brighter side - 1
     side_ratio: float  # median over the painted rows of darker side / brighter side
-    width_m: float  # full width at half the mean profile's height
+    width_m: float  # full width at half the median profile's height
     foot_width_m: float  # full width at a quarter of its height
 
 
@@ -570,13 +571,13 @@ class VerifyParams(NodeParams):
         0.09,
         ge=0.0,
         le=2.0,
-        description="paint check: narrowest mean profile at half height, metres (the narrowest marking is 10 cm; a kerb's lit edge is narrower)",
+        description="paint check: narrowest median profile at half height, metres (the narrowest marking is 10 cm; a kerb's lit edge is narrower)",
     )
     max_foot_width_m: float = Field(
         0.36,
         gt=0.0,
         le=5.0,
-        description="paint check: widest mean profile at a quarter of its height, metres (paint is at most 30 cm wide with "
+        description="paint check: widest median profile at a quarter of its height, metres (paint is at most 30 cm wide with "
         "sharp edges, blurred by about a BEV pixel; a concrete gutter is a wider band with soft edges)",
     )
     min_side_ratio: float = Field(
