@@ -429,6 +429,14 @@ class MergeParams(NodeParams):
         description="a lane is replaced only when the followed line has this many times its features (within meet_m, "
         "on the rows both cover) (unitless)",
     )
+    min_followed_m: float = Field(
+        15.0,
+        ge=0.0,
+        le=500.0,
+        description="a followed lane that stops short of the same line's lane replaces it (when it is the closer fit) "
+        "only when it covers this much road: a dashed line's period, 3 m + 9 m to 6 m + 12 m, so that its parabola "
+        "rests on two dashes or more, metres",
+    )
     min_lane_width_m: float = Field(
         2.0,
         gt=0.0,
@@ -502,13 +510,31 @@ def merge(
     rows = geometry.rows
     res = geometry.resolution
     out = list(have)
-    for ln in found:
+    # the replacements first, then the additions: a lane added beside the others is checked against
+    # the lanes that are kept (a misplaced Hough lane that a followed line replaces must not keep
+    # the other side's followed line out)
+    sides = {o.side for o in out}
+    for ln in [f for f in found if f.side in sides] + [f for f in found if f.side not in sides]:
         same = [o for o in out if o.side == ln.side]
         if same:
             o = same[0]
             mean_gap, min_gap, spread = _gaps_px(o, ln, rows)
             if mean_gap * res <= p.meet_m:
-                continue  # the same line where both are
+                # the same line where both are. The followed lane's parabola stops where the line's
+                # features leave it (its curvature changes there); a lane reaching beyond it is one
+                # parabola over a changing curvature (an S-bend; a dashed line is fitted over the
+                # whole BEV), a compromise on the near part too: the followed lane is taken when
+                # more features lie within half a marking's width of it on the rows both cover and
+                # it covers a dashed line's period (a shorter one rests on one dash: it may stray)
+                if (
+                    ln.bev_rows[0] > o.bev_rows[0]
+                    and ln.bev_rows[1] - ln.bev_rows[0] >= p.min_followed_m / res
+                ):
+                    lo, hi = max(o.bev_rows[0], ln.bev_rows[0]), min(o.bev_rows[1], ln.bev_rows[1])
+                    half = 0.5 * p.meet_m / res
+                    if _support(features, ln, lo, hi, half) > _support(features, o, lo, hi, half):
+                        out[out.index(o)] = ln
+                continue
             if min_gap * res >= p.meet_m and spread * res <= p.parallel_m:
                 continue  # another marking beside it, parallel
             lo, hi = max(o.bev_rows[0], ln.bev_rows[0]), min(o.bev_rows[1], ln.bev_rows[1])

@@ -272,3 +272,43 @@ def test_merge_adds_a_missing_side_and_replaces_a_misplaced_lane():
     # a followed lane on the other side nearer than a lane's width to a lane: not added
     out = merge([_lane(195.0, 0.0, "left")], [_lane(215.0, 0.0, "right")], g, p, f)
     assert len(out) == 1
+
+
+def test_merge_replaces_first_then_adds_and_prefers_the_shorter_closer_followed_lane():
+    """Issue 28's bends: the replacements come before the additions, and of two fits of the same
+    line the followed one is taken where it stops short and more features lie on it."""
+    g = geometry()
+    p = MergeParams()
+    rows = np.arange(800)
+    t = 799.0 - rows
+    # a bend to the right: a left line 3.5 m (70 px) left of a right line, both curving right
+    right = 240.0 + 2e-4 * t * t
+    f = FeatureMap.from_points(
+        (800, 400), np.repeat(rows, 2), np.stack([right - 70, right], 1).ravel().round()
+    )
+    followed = [
+        Lane((170.0, 0.0, 2e-4), (300, 799), "left", 1.0, extra={"support": 500}),
+        Lane((240.0, 0.0, 2e-4), (300, 799), "right", 1.0, extra={"support": 500}),
+    ]
+    # the Hough lane on the right: straight, it runs into the left line's path at the top
+    hough = [Lane((240.0, -0.1, 0.0), (0, 799), "right", 1.0)]
+    out = merge(hough, followed, g, p, f)
+    # replaced by the followed right lane, and the followed left lane is then a lane's width from it
+    assert [ln.coeffs[0] for ln in out] == [170.0, 240.0] and out[1].coeffs[1] == 0.0
+    # the same line where both are, the Hough lane reaching farther: the followed lane, shorter,
+    # with more features within half a marking's width, is taken ...
+    compromise = Lane((241.5, 0.0, 2e-4), (0, 799), "right", 1.0)
+    out = merge([compromise], followed[1:], g, p, f)
+    assert out[0].bev_rows == (300, 799)
+    # ... when it covers a dashed line's period (min_followed_m): 5 m rest on one dash
+    short = Lane((240.0, 0.0, 2e-4), (700, 799), "right", 1.0)
+    assert merge([compromise], [short], g, p, f)[0].bev_rows == (0, 799)
+    # ... but not when the Hough lane is the closer fit
+    out = merge(
+        [Lane((240.0, 0.0, 2e-4), (0, 799), "right", 1.0)],
+        [Lane((241.5, 0.0, 2e-4), (300, 799), "right", 1.0)],
+        g,
+        p,
+        f,
+    )
+    assert out[0].bev_rows == (0, 799)

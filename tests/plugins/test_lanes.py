@@ -996,10 +996,10 @@ def test_mdiff_ignores_a_few_sharp_edges():
 
 
 def paint_rows_twin(img, r0, r1, coeffs, band, gap, align, min_row_contrast, sat):
-    """NumPy twin of ``_paint_rows_kernel``: ``(inside, painted, saturated, profile sum, contrasts, ratios)``."""
+    """NumPy twin of ``_paint_rows_kernel``: ``(inside, painted, saturated, painted rows' strips, contrasts, ratios)``."""
     rows, cols = img.shape
     c0, c1, c2 = coeffs
-    prof = np.zeros(2 * band + 1)
+    prof = []
     con, rat = [], []
     inside = saturated = 0
     for r in range(max(r0, 0), min(r1, rows - 1) + 1):
@@ -1016,11 +1016,11 @@ def paint_rows_twin(img, r0, r1, coeffs, band, gap, align, min_row_contrast, sat
         hi = max(left, right)
         if hi <= 0 or strip[band] / hi - 1.0 < min_row_contrast:
             continue
-        prof += strip / hi
+        prof.append(strip / hi)
         con.append(strip[band] / hi - 1.0)
         rat.append(min(left, right) / hi)
         saturated += int(strip[band] >= sat)
-    return inside, len(con), saturated, prof, np.array(con), np.array(rat)
+    return inside, len(con), saturated, np.reshape(prof, (-1, 2 * band + 1)), np.array(con), np.array(rat)
 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.float32])
@@ -1040,7 +1040,7 @@ def test_paint_rows_kernel_matches_twin(dtype):
         r0, r1 = int(rng.integers(-5, rows // 2)), int(rng.integers(rows // 2, rows + 5))
         mrc = float(rng.choice([0.0, 0.15, 0.5]))
         n = max(r1 - r0 + 1, 0)
-        prof, con, rat = np.zeros(2 * band + 1), np.empty(n), np.empty(n)
+        prof, con, rat = np.empty((n, 2 * band + 1)), np.empty(n), np.empty(n)
         hist = _verify._median_hist(img)
         sat = 250.0
         got = _verify._paint_rows_kernel(
@@ -1049,9 +1049,23 @@ def test_paint_rows_kernel_matches_twin(dtype):
         ref = paint_rows_twin(img, r0, r1, coeffs, band, gap, align, mrc, sat)
         assert got == ref[:3]
         painted = got[1]
-        np.testing.assert_allclose(prof, ref[3], rtol=1e-12)
+        np.testing.assert_allclose(prof[:painted], ref[3], rtol=1e-12)
         np.testing.assert_allclose(con[:painted], ref[4], rtol=1e-12)
         np.testing.assert_allclose(rat[:painted], ref[5], rtol=1e-12)
+
+
+def test_column_medians_match_numpy():
+    """``_column_medians`` (selection in place) against ``np.median(..., axis=0)``: odd and even
+    row counts, ties, one row."""
+    rng = np.random.default_rng(5)
+    for n in (1, 2, 3, 4, 7, 64, 127):
+        for ties in (False, True):
+            strips = rng.random((130, 9))
+            if ties:
+                strips = np.round(strips * 3)
+            out = np.empty(9)
+            _verify._column_medians(strips, n, out)
+            np.testing.assert_allclose(out, np.median(strips[:n], axis=0), rtol=0, atol=0)
 
 
 def _road_bev(rows=600, cols=200, level=100.0, noise=3.0, seed=0):
@@ -1078,9 +1092,18 @@ def _paint_scene(kind: str, gain: float = 1.0) -> tuple[np.ndarray, Lane, BevGeo
     ``kerb`` (a kerb's lit edge, 5 cm, then dark gravel), ``kerb_top`` (a kerb's top 15 cm wide,
     brighter than the road, then dark gravel), ``shadow`` (paint with a smooth shadow along its
     right), ``step`` (the road's edge against a darker verge, no stripe), ``gutter`` (a light
-    concrete band 45 cm wide with soft edges)."""
+    concrete band 45 cm wide with soft edges), ``sun_patches`` (paint in deep shade, hard-edged sun
+    patches 0.8-1.8 m across every 2.5 m, three times as bright, over it on half of its rows)."""
     img, g = _road_bev()
     rng = np.random.default_rng(1)
+    if kind == "sun_patches":
+        img = 0.4 * img
+        _stripe(img, 100, 3, 80.0)
+        rr, cc = np.mgrid[: img.shape[0], : img.shape[1]]
+        for centre in range(20, img.shape[0], 50):
+            radius = rng.uniform(8, 18)
+            sun = (rr - centre) ** 2 + (cc - 100 - rng.uniform(-6, 6)) ** 2 <= radius**2
+            img[sun] *= 3.0
     if kind in ("paint", "dashed", "edge_grass", "shadow"):
         _stripe(img, 100, 3, 200.0)
         if kind == "shadow":
@@ -1100,7 +1123,7 @@ def _paint_scene(kind: str, gain: float = 1.0) -> tuple[np.ndarray, Lane, BevGeo
         img[:, 101:] = 60 + rng.normal(0, 5, (img.shape[0], img.shape[1] - 101))
     elif kind == "gutter":
         _stripe(img, 100, 5, 150.0, soft_px=2.5)
-    else:
+    elif kind != "sun_patches":
         raise ValueError(kind)
     img = np.clip(img * gain, 1, 255).astype(np.uint8)
     return img, Lane((100.0, 0.0, 0.0), (0, img.shape[0] - 1), "right", 0.9), g
@@ -1142,6 +1165,28 @@ def test_overexposed_paint_is_kept():
     img, lane, g = _paint_scene("kerb")
     bright = np.clip(img.astype(np.float64) * 2.15, 0, 255).astype(np.uint8)
     assert verify(VerifyParams(), lanes=[lane], image=bright, geometry=g)["lanes"] == []
+
+
+def test_sun_patches_do_not_widen_the_paint():
+    """Sun patches a metre or more across that cross a shaded line on half of its rows are painted rows
+    too (their centre stands far above the shade beside them); the median profile over the rows
+    keeps the paint's width where their mean profile would take the patches' (issue 28: the
+    synthetic shade with saturated sun patches, 20 % -> 100 %)."""
+    img, lane, g = _paint_scene("sun_patches")
+    cues = _verify.paint_cues(img, lane, g)
+    assert 0.1 <= cues.width_m <= 0.2 and cues.foot_width_m <= VerifyParams().max_foot_width_m
+    assert len(verify(VerifyParams(), lanes=[lane], image=img, geometry=g)["lanes"]) == 1
+    # their mean profile (as before issue 28) is wider than paint at a quarter height
+    band, gap = 30, 5
+    n = img.shape[0]
+    strips, con, rat = np.empty((n, 2 * band + 1)), np.empty(n), np.empty(n)
+    painted = _verify._paint_rows_kernel(
+        img, 0, n - 1, *lane.coeffs, band, gap, 2, 0.15, 255.0, _verify._median_hist(img), strips, con, rat
+    )[1]
+    mean = strips[:painted].mean(axis=0)
+    base = max(np.median(mean[: band - gap + 1]), np.median(mean[band + gap :]))
+    foot = _verify._crossing_width(mean, band, base + 0.25 * (mean[band] - base)) * g.resolution
+    assert foot > VerifyParams().max_foot_width_m
 
 
 def test_paint_cues_name_the_failing_cue():
