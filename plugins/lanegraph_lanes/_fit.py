@@ -25,6 +25,8 @@ from pydantic import Field
 from lanegraph import NodeParams, Port, jit, node_type
 from lanegraph.types import BevGeometry, FeatureMap, Lane, Line
 
+from ._select import median_inplace
+
 
 @jit
 def _roi_kernel(mask, a, b, c, half_width):
@@ -226,10 +228,12 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px, scale_of, prior):
             ca = _coeffs4(a)
             for i in range(n):
                 res[i] = (y[i] - _poly4(ca, x[i])) * ks[i]
-            med = np.median(res)
+            for i in range(n):
+                dev[i] = res[i]
+            med = median_inplace(dev, n)  # np.median's value (lanegraph_lanes._select)
             for i in range(n):
                 dev[i] = abs(res[i] - med)
-            scale = 1.4826 * np.median(dev)
+            scale = 1.4826 * median_inplace(dev, n)
             scale = max(scale, 0.5)  # BEV pixels: never trust sub-half-pixel residual scales
             inv = 1.0 / (k * scale)
             if tukey:
