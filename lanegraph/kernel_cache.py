@@ -12,18 +12,33 @@ This module does not import numba: :func:`first_run_notice` says, before anythin
 the kernels are about to be compiled (a stamp file in the kernel folder records that this lanegraph
 and numba have compiled them on this machine), and, from then on, says so at the first compilation
 of the process if the stamp was wrong (a plugin changed, the cache was emptied).
+
+On that first run, with two CPUs or more, :func:`first_run_notice` also starts a second process
+(``python -m lanegraph.kernel_cache LIST``) that compiles the kernels the default run needs
+(``lanegraph/data/kernels.json``: module, name and argument types of each, written by
+``python -m lanegraph.kernel_cache --record``) into the same folder, in the reverse of the order
+the run needs them: the run compiles the first ones while the helper compiles the last ones, and
+loads each kernel the helper has already saved instead of compiling it. The run stops the helper
+when it ends. A list that no longer matches the code costs only the time: a kernel it does not
+name is compiled by the run as before, a name or a type it cannot resolve is skipped.
 """
 
 from __future__ import annotations
 
 import atexit
 import hashlib
+import json
 import os
 import platform
+import re
+import subprocess
 import sys
 from pathlib import Path
 
 _STATE = {"said": False, "armed": False}
+
+#: the kernels of the default run (module, name, argument types), for the first run's helper
+KERNEL_LIST = Path(__file__).resolve().parent / "data" / "kernels.json"
 
 
 def cache_root() -> Path:
@@ -109,6 +124,8 @@ def first_run_notice(quiet: bool = False) -> None:
     cached = os.environ.get("LANEGRAPH_NUMBA_CACHE", "1") != "0"
     if not stamp.exists() or not cached:
         _say(where if cached else None)
+        if cached:
+            _start_helper()
     if cached:
         _listen(where)
         atexit.register(_write_stamp, stamp)
@@ -138,4 +155,152 @@ def _write_stamp(stamp: Path) -> None:
         pass
 
 
-__all__ = ["cache_root", "first_run_notice", "kernel_cache_dir"]
+def _start_helper() -> None:
+    """Start the process that compiles the listed kernels beside the run (see the module's text);
+    stopped at exit. Not with one CPU (it would take the run's), ``NUMBA_DISABLE_JIT`` or
+    ``LANEGRAPH_PRECOMPILE=0``."""
+    from ._runtime import available_cpus
+
+    if (
+        os.environ.get("LANEGRAPH_PRECOMPILE", "1") == "0"
+        or os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0")
+        or not KERNEL_LIST.is_file()
+        or available_cpus() < 2
+    ):
+        return
+    try:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "lanegraph.kernel_cache", str(KERNEL_LIST)],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+    except OSError:
+        return
+    atexit.register(_stop_helper, proc)
+
+
+def _stop_helper(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.terminate()  # numba writes a cache entry to a temporary file first: none is left half-written
+        try:
+            proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:  # pragma: no cover - terminate is honoured
+            proc.kill()
+
+
+_ARRAY = re.compile(r"array\((\w+), (\d+), ([CFA])(, readonly)?\)")
+
+
+def encode_type(t) -> str | None:
+    """A numba argument type as the kernel list writes it (``float64``, ``array(uint8, 2, C)``,
+    ``array(int64, 1, C, readonly)``); None for a type it does not write (literals, tuples, ...)."""
+    from numba.core import types
+
+    if isinstance(t, types.Literal):
+        return None
+    if isinstance(t, types.Array) and isinstance(t.dtype, (types.Integer, types.Float, types.Boolean)):
+        return f"array({t.dtype}, {t.ndim}, {t.layout}{'' if t.mutable else ', readonly'})"
+    if isinstance(t, (types.Integer, types.Float, types.Boolean)):
+        return str(t)
+    return None
+
+
+def decode_type(text: str):
+    """The numba type :func:`encode_type` wrote (ValueError, TypeError for another text)."""
+    import numba
+    import numpy as np
+    from numba.core import types
+
+    m = _ARRAY.fullmatch(text)
+    if m:
+        return types.Array(numba.from_dtype(np.dtype(m[1])), int(m[2]), m[3], readonly=bool(m[4]))
+    if not re.fullmatch(r"(bool|u?int(8|16|32|64)|float(32|64))", text):
+        raise ValueError(f"not a kernel argument type: {text!r}")
+    return numba.from_dtype(np.dtype(text))
+
+
+def precompile(entries: list[dict]) -> int:
+    """Compile (or load from the kernel folder) each ``{"module", "name", "args"}`` of ``entries`` in
+    the reverse order; returns how many were compiled or loaded. An entry whose module, kernel or
+    types cannot be resolved is skipped: the list is a hint, the run compiles what it needs."""
+    import importlib
+
+    from . import _numba  # noqa: F401 - numba's cache folder, as the run sets it
+
+    done = 0
+    for entry in reversed(entries):
+        try:
+            module = importlib.import_module(str(entry["module"]))
+            kernel = getattr(module, str(entry["name"]))
+            sig = tuple(decode_type(str(a)) for a in entry["args"])
+            if not hasattr(kernel, "compile"):
+                continue
+            kernel.compile(sig)
+            done += 1
+        except Exception:  # noqa: BLE001 - a stale entry: the run compiles it itself
+            continue
+    return done
+
+
+def record(argv: list[str]) -> list[dict]:
+    """The top-level kernels ``lanegraph run ARGV`` compiles, in the order it compiles them (run in
+    this process with an empty kernel folder): the entries of the kernel list."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        os.environ["NUMBA_CACHE_DIR"] = os.path.join(tmp, "kernels")
+        os.environ["LANEGRAPH_CACHE_DIR"] = os.path.join(tmp, "cache")
+        os.environ["LANEGRAPH_PRECOMPILE"] = "0"
+        import numba
+        from numba.core import event
+
+        numba.config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]  # lanegraph._numba may have set it
+
+        entries: list[dict] = []
+        depth = [0]
+
+        class _Record(event.Listener):
+            def on_start(self, ev: event.Event) -> None:
+                depth[0] += 1
+                disp = ev.data["dispatcher"]
+                func = disp.py_func
+                args = [encode_type(t) for t in ev.data["args"]]
+                if depth[0] == 1 and func.__module__.split(".")[0] != "numba" and None not in args:
+                    entries.append({"module": func.__module__, "name": func.__qualname__, "args": args})
+
+            def on_end(self, ev: event.Event) -> None:
+                depth[0] -= 1
+
+        event.register("numba:compile", _Record())
+        from .cli import main
+
+        try:
+            main(["run", "--quiet", "--out", os.path.join(tmp, "out"), *argv], standalone_mode=False)
+        except SystemExit:
+            pass
+    return entries
+
+
+def _main(argv: list[str]) -> int:
+    if argv[:1] == ["--record"]:
+        entries = record(argv[2:])
+        text = ",\n".join(json.dumps(e) for e in entries)  # one kernel a line
+        Path(argv[1]).write_text(f"[\n{text}\n]\n", encoding="utf-8")
+        print(f"{len(entries)} kernels -> {argv[1]}")
+        return 0
+    if len(argv) != 1:
+        print("usage: python -m lanegraph.kernel_cache LIST | --record LIST [RUN ARGS]", file=sys.stderr)
+        return 2
+    try:
+        entries = json.loads(Path(argv[0]).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return 1
+    precompile([e for e in entries if isinstance(e, dict)] if isinstance(entries, list) else [])
+    return 0
+
+
+__all__ = ["cache_root", "first_run_notice", "kernel_cache_dir", "precompile", "record"]
+
+if __name__ == "__main__":
+    sys.exit(_main(sys.argv[1:]))
