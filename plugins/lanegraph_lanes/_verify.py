@@ -677,7 +677,8 @@ def _bar_profile_kernel(img, r0, r1, c0, c1, c2, band_px, min_contrast):
             for j in range(w):
                 profile[j] += img[r, a + j] - b
     if n > 0:
-        profile /= n
+        for j in range(w):
+            profile[j] = profile[j] / n
     return profile, n
 
 

@@ -284,11 +284,15 @@ def _profile_kernel(
     disparity is ``>= min_fit_disp`` (a float32, compared in float32): row, disparity and pixel count
     (float64)."""
     H, D = vd.shape
-    v0 = 0
-    for v in range(H):
-        if np.any(vd[v] != 0):
-            v0 = v
+    v0 = -1
+    for v in range(H):  # a loop, not np.any(vd[v] != 0): an array expression compiles for seconds
+        for k in range(D):
+            if vd[v, k] != 0:
+                v0 = v
+                break
+        if v0 >= 0:
             break
+    v0 = max(v0, 0)
     last = -1
     for v in range(v0, H):
         for k in range(last + 1, D):
@@ -301,7 +305,9 @@ def _profile_kernel(
             score[v - v0, k] = np.float64(vd[v, k]) / columns
     sub = _dp_path_kernel(score, max_step, smoothness)
     centre = np.empty(H, np.float64)
-    radius = np.full(H, radius0)
+    radius = np.empty(H, np.float64)
+    for v in range(H):
+        radius[v] = radius0
     for v in range(H):
         centre[v] = (np.float64(sub[max(v - v0, 0)]) + 0.5) * bin_size
     starts, nr = _row_runs(rows)  # the list is read three times in pass 2
@@ -314,7 +320,9 @@ def _profile_kernel(
                     centre[v] = total[v] / max(count[v], 1.0)
                 radius[v] = max(plane_tol * centre[v] / height, min_tol)
             total, count = _refine(rows, d, fixed, dq, starts, nr, centre, radius)
-    profile = np.full(H, np.float32(-1.0))
+    profile = np.empty(H, np.float32)
+    for v in range(H):
+        profile[v] = -1.0
     use = np.zeros(H, np.bool_)
     n = 0
     for v in range(H):
@@ -464,7 +472,10 @@ def _line_fit_kernel(v, d, w, i, j, tol, rounds, min_slope):
     Returns ``(status, a0, a1, inliers)``: status 0 when RANSAC found no line or fewer than two
     inliers, 1 when the least squares failed (``inliers``: the last ones), 2 for a line."""
     found, inl = _ransac_line_kernel(v, d, w, i, j, tol, min_slope)
-    if not found or np.count_nonzero(inl) < 2:
+    count = 0
+    for k in range(inl.size):  # np.count_nonzero(inl), in a loop that compiles at once
+        count += inl[k]
+    if not found or count < 2:
         return 0, 0.0, 0.0, inl
     ok, a0, a1, inl = _line_refit_kernel(v, d, w, inl, tol, rounds)
     return (2 if ok else 1), a0, a1, inl
