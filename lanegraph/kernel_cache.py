@@ -292,6 +292,8 @@ def _main(argv: list[str]) -> int:
     if len(argv) != 1:
         print("usage: python -m lanegraph.kernel_cache LIST | --record LIST [RUN ARGS]", file=sys.stderr)
         return 2
+    if hasattr(os, "nice"):
+        os.nice(10)  # where the CPUs are busy, the run's own compilation goes first
     try:
         entries = json.loads(Path(argv[0]).read_text(encoding="utf-8"))
     except (OSError, ValueError):
