@@ -16,7 +16,7 @@ of the process if the stamp was wrong (a plugin changed, the cache was emptied).
 On that first run, with two CPUs or more, :func:`first_run_notice` also starts a second process
 (``python -m lanegraph.kernel_cache LIST``) that compiles the kernels the default run needs
 (``lanegraph/data/kernels.json``: module, name and argument types of each, written by
-``python -m lanegraph.kernel_cache --record``) into the same folder, in the reverse of the order
+``benchmarks/record_kernels.py``) into the same folder, in the reverse of the order
 the run needs them: the run compiles the first ones while the helper compiles the last ones, and
 loads each kernel the helper has already saved instead of compiling it. The run stops the helper
 when it ends. A list that no longer matches the code costs only the time: a kernel it does not
@@ -105,7 +105,7 @@ def _say(where: Path | None) -> None:
     kept = f"once: they are kept in {where}" if where else "LANEGRAPH_NUMBA_CACHE=0: in every process"
     print(
         f"lanegraph: compiling the numba kernels for this machine ({kept}; "
-        "the first run takes about a minute longer on 2 cores) ...",
+        "the first run takes about half a minute longer on 2 cores) ...",
         file=sys.stderr,
         flush=True,
     )
@@ -243,54 +243,9 @@ def precompile(entries: list[dict]) -> int:
     return done
 
 
-def record(argv: list[str]) -> list[dict]:
-    """The top-level kernels ``lanegraph run ARGV`` compiles, in the order it compiles them (run in
-    this process with an empty kernel folder): the entries of the kernel list."""
-    import tempfile
-
-    with tempfile.TemporaryDirectory() as tmp:
-        os.environ["NUMBA_CACHE_DIR"] = os.path.join(tmp, "kernels")
-        os.environ["LANEGRAPH_CACHE_DIR"] = os.path.join(tmp, "cache")
-        os.environ["LANEGRAPH_PRECOMPILE"] = "0"
-        import numba
-        from numba.core import event
-
-        numba.config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]  # lanegraph._numba may have set it
-
-        entries: list[dict] = []
-        depth = [0]
-
-        class _Record(event.Listener):
-            def on_start(self, ev: event.Event) -> None:
-                depth[0] += 1
-                disp = ev.data["dispatcher"]
-                func = disp.py_func
-                args = [encode_type(t) for t in ev.data["args"]]
-                if depth[0] == 1 and func.__module__.split(".")[0] != "numba" and None not in args:
-                    entries.append({"module": func.__module__, "name": func.__qualname__, "args": args})
-
-            def on_end(self, ev: event.Event) -> None:
-                depth[0] -= 1
-
-        event.register("numba:compile", _Record())
-        from .cli import main
-
-        try:
-            main(["run", "--quiet", "--out", os.path.join(tmp, "out"), *argv], standalone_mode=False)
-        except SystemExit:
-            pass
-    return entries
-
-
 def _main(argv: list[str]) -> int:
-    if argv[:1] == ["--record"]:
-        entries = record(argv[2:])
-        text = ",\n".join(json.dumps(e) for e in entries)  # one kernel a line
-        Path(argv[1]).write_text(f"[\n{text}\n]\n", encoding="utf-8")
-        print(f"{len(entries)} kernels -> {argv[1]}")
-        return 0
     if len(argv) != 1:
-        print("usage: python -m lanegraph.kernel_cache LIST | --record LIST [RUN ARGS]", file=sys.stderr)
+        print("usage: python -m lanegraph.kernel_cache LIST", file=sys.stderr)
         return 2
     if hasattr(os, "nice"):
         os.nice(10)  # where the CPUs are busy, the run's own compilation goes first
@@ -302,7 +257,7 @@ def _main(argv: list[str]) -> int:
     return 0
 
 
-__all__ = ["cache_root", "first_run_notice", "kernel_cache_dir", "precompile", "record"]
+__all__ = ["cache_root", "decode_type", "encode_type", "first_run_notice", "kernel_cache_dir", "precompile"]
 
 if __name__ == "__main__":
     sys.exit(_main(sys.argv[1:]))
