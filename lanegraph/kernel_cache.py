@@ -224,9 +224,7 @@ def precompile(entries: list[dict]) -> int:
     """Compile (or load from the kernel folder) each ``{"module", "name", "args"}`` of ``entries`` in
     the reverse order; returns how many were compiled or loaded. An entry whose module, kernel or
     types cannot be resolved is skipped: the list is a hint, the run compiles what it needs."""
-    import importlib
-
-    from . import _numba  # noqa: F401 - numba's cache folder, as the run sets it
+    import importlib  # the kernels' modules load lanegraph._numba: numba's cache folder, as the run's
 
     done = 0
     for entry in reversed(entries):
