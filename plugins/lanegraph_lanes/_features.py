@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
@@ -281,6 +282,8 @@ def _eslt_rows(img, gx, gy, window, threshold, max_angle, where, out_mask, out_t
 
 _pools: dict[int, ThreadPoolExecutor] = {}
 _pools_lock = threading.Lock()
+if hasattr(os, "register_at_fork"):  # a forked child has none of the parent's threads: new pools
+    os.register_at_fork(after_in_child=_pools.clear)
 
 
 @functools.cache
