@@ -16,6 +16,7 @@ from __future__ import annotations
 import functools
 import math
 import os
+import signal
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
@@ -297,12 +298,21 @@ def _threads() -> int:
     return max(1, min(_cpus(), cv2.getNumThreads()))
 
 
+def _quiet_signals() -> None:
+    """A pool thread leaves Ctrl-C, SIGTERM and SIGHUP to the main thread (where Python handles
+    them): the kernel then delivers a signal sent to the process there, at once."""
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM, signal.SIGHUP})
+
+
 def _pool(n: int) -> ThreadPoolExecutor:
     """A process-wide pool of ``n - 1`` threads (the calling thread takes a block too)."""
     with _pools_lock:
         pool = _pools.get(n)
         if pool is None:
-            pool = _pools[n] = ThreadPoolExecutor(max_workers=n - 1, thread_name_prefix="lanegraph-eslt")
+            pool = _pools[n] = ThreadPoolExecutor(
+                max_workers=n - 1, thread_name_prefix="lanegraph-eslt", initializer=_quiet_signals
+            )
         return pool
 
 
