@@ -12,18 +12,33 @@ This module does not import numba: :func:`first_run_notice` says, before anythin
 the kernels are about to be compiled (a stamp file in the kernel folder records that this lanegraph
 and numba have compiled them on this machine), and, from then on, says so at the first compilation
 of the process if the stamp was wrong (a plugin changed, the cache was emptied).
+
+On that first run, with two CPUs or more, :func:`first_run_notice` also starts a second process
+(``python -m lanegraph.kernel_cache LIST``) that compiles the kernels the default run needs
+(``lanegraph/data/kernels.json``: module, name and argument types of each, written by
+``benchmarks/record_kernels.py``) into the same folder, in the reverse of the order
+the run needs them: the run compiles the first ones while the helper compiles the last ones, and
+loads each kernel the helper has already saved instead of compiling it. The run stops the helper
+when it ends. A list that no longer matches the code costs only the time: a kernel it does not
+name is compiled by the run as before, a name or a type it cannot resolve is skipped.
 """
 
 from __future__ import annotations
 
 import atexit
 import hashlib
+import json
 import os
 import platform
+import re
+import subprocess
 import sys
 from pathlib import Path
 
 _STATE = {"said": False, "armed": False}
+
+#: the kernels of the default run (module, name, argument types), for the first run's helper
+KERNEL_LIST = Path(__file__).resolve().parent / "data" / "kernels.json"
 
 
 def cache_root() -> Path:
@@ -90,7 +105,7 @@ def _say(where: Path | None) -> None:
     kept = f"once: they are kept in {where}" if where else "LANEGRAPH_NUMBA_CACHE=0: in every process"
     print(
         f"lanegraph: compiling the numba kernels for this machine ({kept}; "
-        "the first run takes about a minute longer on 2 cores) ...",
+        "the first run takes about half a minute longer on 2 cores) ...",
         file=sys.stderr,
         flush=True,
     )
@@ -109,6 +124,8 @@ def first_run_notice(quiet: bool = False) -> None:
     cached = os.environ.get("LANEGRAPH_NUMBA_CACHE", "1") != "0"
     if not stamp.exists() or not cached:
         _say(where if cached else None)
+        if cached:
+            _start_helper()
     if cached:
         _listen(where)
         atexit.register(_write_stamp, stamp)
@@ -138,4 +155,107 @@ def _write_stamp(stamp: Path) -> None:
         pass
 
 
-__all__ = ["cache_root", "first_run_notice", "kernel_cache_dir"]
+def _start_helper() -> None:
+    """Start the process that compiles the listed kernels beside the run (see the module's text);
+    stopped at exit. Not with one CPU (it would take the run's), ``NUMBA_DISABLE_JIT`` or
+    ``LANEGRAPH_PRECOMPILE=0``."""
+    from ._runtime import available_cpus
+
+    if (
+        os.environ.get("LANEGRAPH_PRECOMPILE", "1") == "0"
+        or os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0")
+        or not KERNEL_LIST.is_file()
+        or available_cpus() < 2
+    ):
+        return
+    try:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "lanegraph.kernel_cache", str(KERNEL_LIST)],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+    except OSError:
+        return
+    atexit.register(_stop_helper, proc)
+
+
+def _stop_helper(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.terminate()  # numba writes a cache entry to a temporary file first: none is left half-written
+        try:
+            proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:  # pragma: no cover - terminate is honoured
+            proc.kill()
+
+
+_ARRAY = re.compile(r"array\((\w+), (\d+), ([CFA])(, readonly)?\)")
+
+
+def encode_type(t) -> str | None:
+    """A numba argument type as the kernel list writes it (``float64``, ``array(uint8, 2, C)``,
+    ``array(int64, 1, C, readonly)``); None for a type it does not write (literals, tuples, ...)."""
+    from numba.core import types
+
+    if isinstance(t, types.Literal):
+        return None
+    if isinstance(t, types.Array) and isinstance(t.dtype, (types.Integer, types.Float, types.Boolean)):
+        return f"array({t.dtype}, {t.ndim}, {t.layout}{'' if t.mutable else ', readonly'})"
+    if isinstance(t, (types.Integer, types.Float, types.Boolean)):
+        return str(t)
+    return None
+
+
+def decode_type(text: str):
+    """The numba type :func:`encode_type` wrote (ValueError, TypeError for another text)."""
+    import numba
+    import numpy as np
+    from numba.core import types
+
+    m = _ARRAY.fullmatch(text)
+    if m:
+        return types.Array(numba.from_dtype(np.dtype(m[1])), int(m[2]), m[3], readonly=bool(m[4]))
+    if not re.fullmatch(r"(bool|u?int(8|16|32|64)|float(32|64))", text):
+        raise ValueError(f"not a kernel argument type: {text!r}")
+    return numba.from_dtype(np.dtype(text))
+
+
+def precompile(entries: list[dict]) -> int:
+    """Compile (or load from the kernel folder) each ``{"module", "name", "args"}`` of ``entries`` in
+    the reverse order; returns how many were compiled or loaded. An entry whose module, kernel or
+    types cannot be resolved is skipped: the list is a hint, the run compiles what it needs."""
+    import importlib  # the kernels' modules load lanegraph._numba: numba's cache folder, as the run's
+
+    done = 0
+    for entry in reversed(entries):
+        try:
+            module = importlib.import_module(str(entry["module"]))
+            kernel = getattr(module, str(entry["name"]))
+            sig = tuple(decode_type(str(a)) for a in entry["args"])
+            if not hasattr(kernel, "compile"):
+                continue
+            kernel.compile(sig)
+            done += 1
+        except Exception:  # noqa: BLE001 - a stale entry: the run compiles it itself
+            continue
+    return done
+
+
+def _main(argv: list[str]) -> int:
+    if len(argv) != 1:
+        print("usage: python -m lanegraph.kernel_cache LIST", file=sys.stderr)
+        return 2
+    if hasattr(os, "nice"):
+        os.nice(10)  # where the CPUs are busy, the run's own compilation goes first
+    try:
+        entries = json.loads(Path(argv[0]).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return 1
+    precompile([e for e in entries if isinstance(e, dict)] if isinstance(entries, list) else [])
+    return 0
+
+
+__all__ = ["cache_root", "decode_type", "encode_type", "first_run_notice", "kernel_cache_dir", "precompile"]
+
+if __name__ == "__main__":
+    sys.exit(_main(sys.argv[1:]))

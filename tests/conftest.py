@@ -7,6 +7,11 @@ from pathlib import Path
 
 import pytest
 
+# the first run's helper process (lanegraph.kernel_cache) compiles the default run's kernels beside a
+# run; the suite's runs compile what they use in their own process (tests/engine/test_kernel_cache.py
+# tests the helper)
+os.environ.setdefault("LANEGRAPH_PRECOMPILE", "0")
+
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("LANEGRAPH_SHARED_DATA", ROOT.parent / "shared" / "data"))
 KITTI_DRIVE = SHARED / "kitti_raw" / "2011_09_26" / "2011_09_26_drive_0001_sync"

@@ -25,6 +25,8 @@ from pydantic import Field
 from lanegraph import NodeParams, Port, jit, node_type
 from lanegraph.types import BevGeometry, FeatureMap, Lane, Line
 
+from ._select import median_inplace
+
 
 @jit
 def _roi_kernel(mask, a, b, c, half_width):
@@ -150,7 +152,7 @@ def _normal_equations(x, w, y, m, M):
         M[r, m] = T[r]
 
 
-@jit(inline="always")
+@jit
 def _poly(a, x):
     """``sum a[j] x^j`` by Horner's rule."""
     p = 0.0
@@ -159,14 +161,14 @@ def _poly(a, x):
     return p
 
 
-@jit(inline="always")
+@jit
 def _coeffs4(a):
     """The coefficients of ``a`` (at most 4) as four scalars, zero-padded, for :func:`_poly4`."""
     m = a.size
     return (a[0] if m > 0 else 0.0, a[1] if m > 1 else 0.0, a[2] if m > 2 else 0.0, a[3] if m > 3 else 0.0)
 
 
-@jit(inline="always")
+@jit
 def _poly4(c, x):
     """:func:`_poly` with the coefficients ``c`` of :func:`_coeffs4` (scalars): Horner's rule from the
     zero-padded terms gives the same value as from ``a``'s own highest term, and a loop over points
@@ -191,8 +193,13 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px, scale_of, prior):
     the robust weights times ``scale_of**2 * prior``."""
     n = t.size
     m = degree + 1
-    lo = t.min()
-    hi = t.max()
+    lo = t[0]
+    hi = t[0]
+    for i in range(1, n):  # t.min(), t.max() (loops: their generic code took a second to compile)
+        if t[i] < lo:
+            lo = t[i]
+        if t[i] > hi:
+            hi = t[i]
     mid = 0.5 * (lo + hi)
     half = 0.5 * (hi - lo)
     if half <= 0.0:
@@ -226,10 +233,12 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px, scale_of, prior):
             ca = _coeffs4(a)
             for i in range(n):
                 res[i] = (y[i] - _poly4(ca, x[i])) * ks[i]
-            med = np.median(res)
+            for i in range(n):
+                dev[i] = res[i]
+            med = median_inplace(dev, n)  # np.median's value (lanegraph_lanes._select)
             for i in range(n):
                 dev[i] = abs(res[i] - med)
-            scale = 1.4826 * np.median(dev)
+            scale = 1.4826 * median_inplace(dev, n)
             scale = max(scale, 0.5)  # BEV pixels: never trust sub-half-pixel residual scales
             inv = 1.0 / (k * scale)
             if tukey:
@@ -256,10 +265,16 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px, scale_of, prior):
         for i in range(m):
             for j in range(m):
                 new[i] += T[i, j] * new_a[j]
-        if not np.all(np.isfinite(new)):
+        finite = True
+        for i in range(m):
+            finite = finite and math.isfinite(new[i])
+        if not finite:
             return False, coef, w
         if it > 0:
-            cs = _coeffs4(new_a - a)
+            step = np.empty(m)
+            for i in range(m):
+                step[i] = new_a[i] - a[i]
+            cs = _coeffs4(step)
             moved = 0.0
             for i in range(n):
                 moved = max(moved, abs(_poly4(cs, x[i])))

@@ -59,6 +59,8 @@ from pydantic import Field, model_validator
 from lanegraph import InputError, NodeParams, Port, jit, node_type
 from lanegraph.types import BevGeometry, Lane
 
+from ._select import percentile_inplace
+
 #: the texture measures, as the kernels number them
 _MEASURES = {"std": 0, "diff": 1, "mdiff": 2}
 
@@ -719,7 +721,10 @@ def _bar_profile_kernel(img, r0, r1, c0, c1, c2, band_px, min_contrast):
     profile = np.zeros(w)
     if m < 10:
         return profile, 0
-    thr = max(min_contrast, 0.5 * np.percentile(contrast[:m], 90))
+    work = np.empty(m)
+    for i in range(m):
+        work[i] = contrast[i]
+    thr = max(min_contrast, 0.5 * percentile_inplace(work, work.size, 90.0))  # np.percentile's value
     n = 0
     for i in range(m):
         if contrast[i] >= thr:
@@ -730,7 +735,8 @@ def _bar_profile_kernel(img, r0, r1, c0, c1, c2, band_px, min_contrast):
             for j in range(w):
                 profile[j] += img[r, a + j] - b
     if n > 0:
-        profile /= n
+        for j in range(w):
+            profile[j] = profile[j] / n
     return profile, n
 
 

@@ -35,6 +35,7 @@ from typing import Literal
 
 import numpy as np
 from pydantic import Field, model_validator
+from scipy.linalg.lapack import dgesv
 
 from lanegraph import InputError, NodeParams, Port, jit, node_type
 from lanegraph.types import Calibration, RoadModel
@@ -283,11 +284,15 @@ def _profile_kernel(
     disparity is ``>= min_fit_disp`` (a float32, compared in float32): row, disparity and pixel count
     (float64)."""
     H, D = vd.shape
-    v0 = 0
-    for v in range(H):
-        if np.any(vd[v] != 0):
-            v0 = v
+    v0 = -1
+    for v in range(H):  # a loop, not np.any(vd[v] != 0): an array expression compiles for seconds
+        for k in range(D):
+            if vd[v, k] != 0:
+                v0 = v
+                break
+        if v0 >= 0:
             break
+    v0 = max(v0, 0)
     last = -1
     for v in range(v0, H):
         for k in range(last + 1, D):
@@ -300,7 +305,9 @@ def _profile_kernel(
             score[v - v0, k] = np.float64(vd[v, k]) / columns
     sub = _dp_path_kernel(score, max_step, smoothness)
     centre = np.empty(H, np.float64)
-    radius = np.full(H, radius0)
+    radius = np.empty(H, np.float64)
+    for v in range(H):
+        radius[v] = radius0
     for v in range(H):
         centre[v] = (np.float64(sub[max(v - v0, 0)]) + 0.5) * bin_size
     starts, nr = _row_runs(rows)  # the list is read three times in pass 2
@@ -313,7 +320,9 @@ def _profile_kernel(
                     centre[v] = total[v] / max(count[v], 1.0)
                 radius[v] = max(plane_tol * centre[v] / height, min_tol)
             total, count = _refine(rows, d, fixed, dq, starts, nr, centre, radius)
-    profile = np.full(H, np.float32(-1.0))
+    profile = np.empty(H, np.float32)
+    for v in range(H):
+        profile[v] = -1.0
     use = np.zeros(H, np.bool_)
     n = 0
     for v in range(H):
@@ -451,7 +460,8 @@ def _line_refit_kernel(v, d, w, inl, tol, rounds):
             same = same and new[i] == inl[i]
         if m < 2 or same:
             break
-        inl[:] = new
+        for i in range(n):  # not inl[:] = new: its shape check's message took 3 s to compile
+            inl[i] = new[i]
     return ok, a0, a1, inl
 
 
@@ -462,27 +472,19 @@ def _line_fit_kernel(v, d, w, i, j, tol, rounds, min_slope):
     Returns ``(status, a0, a1, inliers)``: status 0 when RANSAC found no line or fewer than two
     inliers, 1 when the least squares failed (``inliers``: the last ones), 2 for a line."""
     found, inl = _ransac_line_kernel(v, d, w, i, j, tol, min_slope)
-    if not found or np.count_nonzero(inl) < 2:
+    count = 0
+    for k in range(inl.size):  # np.count_nonzero(inl), in a loop that compiles at once
+        count += inl[k]
+    if not found or count < 2:
         return 0, 0.0, 0.0, inl
     ok, a0, a1, inl = _line_refit_kernel(v, d, w, inl, tol, rounds)
     return (2 if ok else 1), a0, a1, inl
 
 
 @jit
-def _plane_fit_kernel(
-    disp, step, v_top, min_disp, b0, b1, b2, first_tol, plane_tol, height, min_tol, uc, vc, rounds
-):
-    """The roll plane ``d = b0 + b1 u + b2 v`` (disparity space), ``rounds`` selection and
-    least-squares rounds over every ``step``-th row and column from row 0 and column 0.
-
-    The candidates (``d > min_disp``, ``v >= v_top``) are compacted once, in row-major order. A round
-    selects those with ``|d - (b0 + b1 u + b2 v)| < tol`` (the plane of the previous round, the
-    first round the one given), ``tol = first_tol`` in the first round, then ``max(plane_tol * d /
-    height, min_tol)``; sums the least-squares normal equations of ``d = a + c1 (u - uc) + c2 (v -
-    vc)`` (centred coordinates) and solves them (LAPACK ``gesv``, as ``np.linalg.solve``):
-    ``b = (a - c1 uc - c2 vc, c1, c2)``. Returns ``(ok, b0, b1, b2)``; not ok when a round selects
-    fewer than 50 pixels, its system is singular, a coefficient is not finite, or the final
-    ``b2 <= 0``."""
+def _plane_points(disp, step, v_top, min_disp):
+    """The candidates of :func:`_plane_fit_kernel`, compacted in row-major order: ``(us, vs, ds, m)``
+    (float64 columns, rows and disparities; the first ``m`` are set)."""
     H, W = disp.shape
     cap = ((H + step - 1) // step) * ((W + step - 1) // step)
     us = np.empty(cap, np.float64)
@@ -500,59 +502,90 @@ def _plane_fit_kernel(
             vs[m] = v
             ds[m] = dd
             m += 1
+    return us, vs, ds, m
+
+
+@jit
+def _plane_sums(us, vs, ds, m, first, b0, b1, b2, first_tol, plane_tol, height, min_tol, uc, vc, M, rhs):
+    """One round of :func:`_plane_fit_kernel`: selects the candidates within the round's tolerance
+    of the plane ``b``, writes the normal equations into ``M`` (3 x 3) and ``rhs``; returns the
+    number selected."""
+    n = 0
+    su = 0.0
+    sv = 0.0
+    suu = 0.0
+    suv = 0.0
+    svv = 0.0
+    sd = 0.0
+    sud = 0.0
+    svd = 0.0
+    for p in range(m):
+        fu = us[p]
+        fv = vs[p]
+        dd = ds[p]
+        if first:
+            tol = first_tol
+        else:
+            tol = max(plane_tol * dd / height, min_tol)
+        if abs(dd - (b0 + b1 * fu + b2 * fv)) < tol:
+            x = fu - uc
+            y = fv - vc
+            n += 1
+            su += x
+            sv += y
+            suu += x * x
+            suv += x * y
+            svv += y * y
+            sd += dd
+            sud += x * dd
+            svd += y * dd
+    M[0, 0] = n
+    M[0, 1] = su
+    M[0, 2] = sv
+    M[1, 0] = su
+    M[1, 1] = suu
+    M[1, 2] = suv
+    M[2, 0] = sv
+    M[2, 1] = suv
+    M[2, 2] = svv
+    rhs[0] = sd
+    rhs[1] = sud
+    rhs[2] = svd
+    return n
+
+
+def _plane_fit_kernel(
+    disp, step, v_top, min_disp, b0, b1, b2, first_tol, plane_tol, height, min_tol, uc, vc, rounds
+):
+    """The roll plane ``d = b0 + b1 u + b2 v`` (disparity space), ``rounds`` selection and
+    least-squares rounds over every ``step``-th row and column from row 0 and column 0.
+
+    The candidates (``d > min_disp``, ``v >= v_top``) are compacted once, in row-major order
+    (:func:`_plane_points`). A round (:func:`_plane_sums`) selects those with ``|d - (b0 + b1 u + b2
+    v)| < tol`` (the plane of the previous round, the first round the one given), ``tol =
+    first_tol`` in the first round, then ``max(plane_tol * d / height, min_tol)``; sums the
+    least-squares normal equations of ``d = a + c1 (u - uc) + c2 (v - vc)`` (centred coordinates)
+    and solves them with LAPACK's ``dgesv`` (SciPy's, the one numba's ``np.linalg.solve`` calls:
+    the solve stays out of the kernels, whose first compilation it made 4 s longer):
+    ``b = (a - c1 uc - c2 vc, c1, c2)``. Returns ``(ok, b0, b1, b2)``; not ok when a round selects
+    fewer than 50 pixels, its system is singular or not finite, a coefficient is not finite, or
+    the final ``b2 <= 0``."""
+    us, vs, ds, m = _plane_points(disp, int(step), int(v_top), float(min_disp))
     M = np.empty((3, 3), np.float64)
     rhs = np.empty(3, np.float64)
-    for it in range(rounds):
-        n = 0
-        su = 0.0
-        sv = 0.0
-        suu = 0.0
-        suv = 0.0
-        svv = 0.0
-        sd = 0.0
-        sud = 0.0
-        svd = 0.0
-        for p in range(m):
-            fu = us[p]
-            fv = vs[p]
-            dd = ds[p]
-            if it == 0:
-                tol = first_tol
-            else:
-                tol = max(plane_tol * dd / height, min_tol)
-            if abs(dd - (b0 + b1 * fu + b2 * fv)) < tol:
-                x = fu - uc
-                y = fv - vc
-                n += 1
-                su += x
-                sv += y
-                suu += x * x
-                suv += x * y
-                svv += y * y
-                sd += dd
-                sud += x * dd
-                svd += y * dd
-        if n < 50:
+    b0, b1, b2 = float(b0), float(b1), float(b2)
+    args = (float(first_tol), float(plane_tol), float(height), float(min_tol), float(uc), float(vc))
+    for it in range(int(rounds)):
+        n = _plane_sums(us, vs, ds, m, it == 0, b0, b1, b2, *args, M, rhs)
+        if n < 50 or not (np.isfinite(M).all() and np.isfinite(rhs).all()):
             return False, 0.0, 0.0, 0.0
-        M[0, 0] = n
-        M[0, 1] = su
-        M[0, 2] = sv
-        M[1, 0] = su
-        M[1, 1] = suu
-        M[1, 2] = suv
-        M[2, 0] = sv
-        M[2, 1] = suv
-        M[2, 2] = svv
-        rhs[0] = sd
-        rhs[1] = sud
-        rhs[2] = svd
-        try:
-            sol = np.linalg.solve(M, rhs)
-        except Exception:  # singular (every selected pixel on one row or column) or not finite
+        _, _, sol, info = dgesv(M, rhs)
+        if info != 0:  # singular (every selected pixel on one row or column)
             return False, 0.0, 0.0, 0.0
-        b0 = sol[0] - sol[1] * uc - sol[2] * vc
-        b1 = sol[1]
-        b2 = sol[2]
+        c0, c1, c2 = float(sol[0]), float(sol[1]), float(sol[2])
+        b0 = c0 - c1 * uc - c2 * vc
+        b1 = c1
+        b2 = c2
         if not (math.isfinite(b0) and math.isfinite(b1) and math.isfinite(b2)):
             return False, 0.0, 0.0, 0.0
     if not b2 > 0:

@@ -1,9 +1,14 @@
 """Where compiled kernels are kept (one folder for every LANEGRAPH_CACHE_DIR) and the first run's
-notice that they are being compiled (lanegraph.kernel_cache). Nothing is compiled here."""
+notice that they are being compiled, and the helper process that compiles the default run's kernels
+beside the first run (lanegraph.kernel_cache). One small kernel is compiled here."""
 
 from __future__ import annotations
 
+import importlib
+import json
 import os
+import subprocess
+import sys
 
 import pytest
 
@@ -73,3 +78,67 @@ def test_cli_run_says_it_before_loading_anything(fresh, tmp_path, monkeypatch):
     assert r.exit_code == 2
     assert r.output.splitlines()[0].startswith("lanegraph: compiling the numba kernels")
     assert os.path.basename(str(tmp_path / "o")) not in os.listdir(tmp_path)
+
+
+def test_the_first_run_starts_the_helper_beside_it(fresh, monkeypatch):
+    started = []
+
+    class _Popen:
+        def __init__(self, cmd, **kwargs):
+            started.append(cmd)
+
+    monkeypatch.setenv("LANEGRAPH_PRECOMPILE", "1")
+    monkeypatch.setattr(kernel_cache.subprocess, "Popen", _Popen)
+    monkeypatch.setattr("lanegraph._runtime.available_cpus", lambda: 2)
+    kernel_cache.first_run_notice(quiet=True)
+    assert started == [[sys.executable, "-m", "lanegraph.kernel_cache", str(kernel_cache.KERNEL_LIST)]]
+    assert [fn for fn, _ in fresh] == [kernel_cache._stop_helper, kernel_cache._write_stamp]
+    started.clear()
+    monkeypatch.setattr("lanegraph._runtime.available_cpus", lambda: 1)  # it would take the run's CPU
+    kernel_cache._STATE.update(said=False, armed=False)
+    kernel_cache.first_run_notice(quiet=True)
+    monkeypatch.setattr("lanegraph._runtime.available_cpus", lambda: 2)
+    monkeypatch.setenv("LANEGRAPH_PRECOMPILE", "0")
+    kernel_cache._STATE.update(said=False, armed=False)
+    kernel_cache.first_run_notice(quiet=True)
+    assert started == []
+
+
+def test_the_run_stops_the_helper_at_exit():
+    proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    kernel_cache._stop_helper(proc)
+    assert proc.poll() is not None
+
+
+def test_the_kernel_list_names_kernels_and_types_it_can_read():
+    """Every entry of the shipped list is a lanegraph kernel with one type per argument, written
+    back as read (the list is a hint: a stale one costs time, not results)."""
+    entries = json.loads(kernel_cache.KERNEL_LIST.read_text(encoding="utf-8"))
+    assert len(entries) >= 10
+    for e in entries:
+        kernel = getattr(importlib.import_module(e["module"]), e["name"])
+        assert hasattr(kernel, "compile"), e["name"]
+        sig = tuple(kernel_cache.decode_type(a) for a in e["args"])
+        assert [kernel_cache.encode_type(t) for t in sig] == e["args"]
+        assert len(sig) == kernel.py_func.__code__.co_argcount, e["name"]
+
+
+def test_precompile_skips_what_it_cannot_resolve():
+    good = {
+        "module": "lanegraph_lanes._select",
+        "name": "kth_smallest",
+        "args": ["array(float64, 1, C)", "int64", "int64"],
+    }
+    bad = [
+        {"module": "lanegraph_no_such_module", "name": "k", "args": []},
+        {"module": "lanegraph_lanes._select", "name": "no_such_kernel", "args": []},
+        {"module": "lanegraph_lanes._select", "name": "kth_smallest", "args": ["complex128"]},
+        {"module": "lanegraph_lanes._select", "name": "math", "args": []},  # not a kernel
+    ]
+    assert kernel_cache.precompile([*bad, good]) == 1
+    from lanegraph_lanes._select import kth_smallest
+    from numba.core import types
+
+    assert (types.Array(types.float64, 1, "C"), types.int64, types.int64) in kth_smallest.signatures
+    with pytest.raises(ValueError):
+        kernel_cache.decode_type("object")

@@ -1661,3 +1661,21 @@ def test_eslt_node_dense_orientation_is_minus_one_off_the_features():
     assert mask.any()
     np.testing.assert_array_equal(f.mask, mask.view(bool))
     np.testing.assert_array_equal(f.orientation, ori)
+
+
+@pytest.mark.parametrize("threads", [1, 3, 7])
+def test_eslt_gives_the_same_maps_on_any_number_of_threads(threads, monkeypatch):
+    img = make_bev_image(rows=150, cols=120, lane_cols=(40.0, 80.0), noise=8)
+    gx, gy = cv2.spatialGradient(img, ksize=3)
+    where = np.zeros(img.shape, np.uint8)
+    where[20:140, 5:115] = 1
+    maps = []
+    for n in (2, threads):
+        monkeypatch.setattr(_features, "_threads", lambda n=n: n)
+        mask = np.full(img.shape, 9, np.uint8)
+        ori = np.full(img.shape, 9.0, np.float32)
+        _features._eslt(img, gx, gy, 6, 10.0, math.radians(15), where, mask, ori, True)
+        maps.append((mask, ori))
+    assert maps[0][0].any() and set(np.unique(maps[0][0])) <= {0, 1}  # every row written
+    np.testing.assert_array_equal(maps[0][0], maps[1][0])
+    np.testing.assert_array_equal(maps[0][1], maps[1][1])
