@@ -45,7 +45,9 @@ def select_source(
     return chosen
 
 
-def chosen_params(chosen: NodeType, params: NodeParams, *, file: str | None = None, node: str | None = None) -> NodeParams:
+def chosen_params(
+    chosen: NodeType, params: NodeParams, *, file: str | None = None, node: str | None = None
+) -> NodeParams:
     """The params the source ``chosen`` by a selecting source runs with: its defaults, and every
     field the selecting source's ``params`` set explicitly (in the graph) that ``chosen``'s params
     have too (``io.auto``'s ``read_ahead`` for a KITTI or folder source); a field the chosen type
