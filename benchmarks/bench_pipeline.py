@@ -17,6 +17,9 @@ disturbed one):
   node's matching params (number of disparities, block size, uniqueness, penalties, mode), timed
   in the same process right after the runs (median of ``--sgbm-calls`` calls on the frames' grey
   pairs): the ratio the speed target is stated in;
+- the process's CPU time per frame in those runs (every thread) and the frames/s the CPUs free to
+  it would give at most if they were always busy: on a shared machine a steadier figure than the
+  frames/s, and the ceiling the overlap of reading, matching and the nodes works towards;
 - the load average beside the figures (the machines are shared: a figure taken under load is
   not an idle machine's);
 - with --cold-start: the wall time of a fresh `lanegraph run --frames 0:1` process, twice (the
@@ -36,6 +39,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from lanegraph._runtime import available_cpus
 from lanegraph.graph.validation import load_graph
 from lanegraph.nodes import RunContext
 from lanegraph.run.executor import Executor
@@ -138,14 +142,15 @@ def bench(
     res = min(runs, key=lambda r: float(np.median(per_frame(r, [i for i in g.nodes if i != src]))))
     # 2. end to end, as `lanegraph run` does it: the next frame is read while this one is
     #    computed; best of `repeat` runs
-    walls = []
+    walls, cpus = [], []
     for _ in range(repeat):
         ex = Executor(load_graph(graph_path), RunContext(input_path=drive, out_dir=out_dir, frames=sel))
         if read_ahead is not None and "read_ahead" in type(ex.graph.source.params).model_fields:
             ex.graph.source.params = ex.graph.source.params.model_copy(update={"read_ahead": read_ahead})
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         e2e = ex.run()
         walls.append(time.perf_counter() - t0)
+        cpus.append(time.process_time() - c0)
     wall = min(walls)
     n = res.frames
     print(f"\n== {graph_path}: {n} frames of {drive.name} (best of {repeat} runs; {start_load} at the start)")
@@ -163,6 +168,15 @@ def bench(
     print(
         f"  end to end, reading included: {e2e.frames / wall:.1f} frames/s ({1000 * wall / e2e.frames:.1f} ms/frame, next frame read ahead)"
         f"; runs {', '.join(f'{e2e.frames / w:.1f}' for w in walls)}"
+    )
+    # the CPU time of the whole process (every thread: decoding, SGBM bands, nodes) per frame: a
+    # figure other load on a shared machine changes little, and with the CPUs free to the process
+    # the most frames/s they could give if every one were always busy
+    cpu_ms = 1000.0 * min(cpus) / max(e2e.frames, 1)
+    n_cpu = available_cpus()
+    print(
+        f"  CPU time per frame, end to end (all threads, least of the runs): {cpu_ms:.1f} ms; "
+        f"{n_cpu} CPUs busy all the time would give at most {1000.0 * n_cpu / cpu_ms:.1f} frames/s"
     )
     compute = sum(
         float(np.median(ts))

@@ -1,8 +1,8 @@
 """Digests of every graph's lanes.jsonl, to check that a refactoring changes no result.
 
 Runs every graph in graphs/ and graphs/ablations/ with `lanegraph run` on the built-in synthetic
-scene and, with `--dataset graphs/datasets/dev.yaml`, on the developer sequences (drive 0001, seq1,
-seq2), and prints one line per (graph, sequence): the SHA-256 of its lanes.jsonl. With --compare, it
+scene and, with `--dataset graphs/datasets/dev.yaml`, on the developer sequences (every sequence the
+dataset file names: drive 0001, seq1, seq2, seq2_ramp), and prints one line per (graph, sequence): the SHA-256 of its lanes.jsonl. With --compare, it
 reads an earlier output of this script and says which digests differ.
 
     python benchmarks/lanes_digests.py --lanegraph /path/to/before/.venv/bin/lanegraph > before.txt
@@ -21,6 +21,8 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+import yaml
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -50,6 +52,11 @@ def main() -> int:
     root = args.root.resolve()
     graphs = sorted((root / "graphs").glob("*.yaml")) + sorted((root / "graphs" / "ablations").glob("*.yaml"))
     dataset = root / "graphs" / "datasets" / "dev.yaml"
+    sequences = (
+        [str(q["name"]) for q in yaml.safe_load(dataset.read_text())["sequences"]]
+        if dataset.is_file()
+        else []
+    )
     lines: list[str] = []
     tmp = Path(tempfile.mkdtemp(prefix="lanes_digests_"))
     try:
@@ -63,7 +70,7 @@ def main() -> int:
             if args.no_dataset or not dataset.is_file():
                 continue
             rc, err = _run(args.lanegraph, graph, out / "dev", ["--dataset", str(dataset)], root)
-            for seq in ("drive_0001", "seq1", "seq2"):
+            for seq in sequences:
                 row = _digest(out / "dev" / seq / "lanes.jsonl") if rc == 0 else f"rc={rc} {err}"
                 lines.append(f"{name}\t{seq}\t{row}")
                 print(lines[-1], flush=True)

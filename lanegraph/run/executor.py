@@ -47,7 +47,7 @@ from .outcome import FrameFailure, RunResult
 from .prefetch import Prefetch
 from .results import graph_result_files
 from .resume import Checkpoint, input_identity
-from .sources import select_source
+from .sources import chosen_params, select_source
 from .warmup import WarmUp
 
 
@@ -133,14 +133,16 @@ class Executor:
     # -- compile -------------------------------------------------------------
     def _select_source(self) -> None:
         """A source node that stands for others (``select_source``, e.g. ``io.auto``) is replaced
-        by the source type it names for the input path, with that type's default params."""
+        by the source type it names for the input path, with that type's default params and the
+        fields of the node's params it shares with them (:func:`~lanegraph.run.sources.chosen_params`:
+        ``io.auto``'s ``read_ahead``)."""
         src = self.graph.source
         nt = select_source(
             self.pm, src.type, src.params, self.context.input_path, file=self.graph.file, node=src.id
         )
         if nt is not src.type:
+            src.params = chosen_params(nt, src.params, file=self.graph.file, node=src.id)
             src.type = nt
-            src.params = nt.params()
 
     def _constant_nodes(self) -> set[str]:
         const: set[str] = set()

@@ -45,6 +45,26 @@ def select_source(
     return chosen
 
 
+def chosen_params(
+    chosen: NodeType, params: NodeParams, *, file: str | None = None, node: str | None = None
+) -> NodeParams:
+    """The params the source ``chosen`` by a selecting source runs with: its defaults, and every
+    field the selecting source's ``params`` set explicitly (in the graph) that ``chosen``'s params
+    have too (``io.auto``'s ``read_ahead`` for a KITTI or folder source); a field the chosen type
+    does not have is not passed. Raises a :class:`GraphError` located at ``file`` / ``node`` and
+    the field when the chosen type refuses a value."""
+    from pydantic import ValidationError
+
+    from ..graph.validation import _pydantic_problems
+
+    fields = chosen.params.model_fields
+    shared = {k: getattr(params, k) for k in sorted(params.model_fields_set) if k in fields}
+    try:
+        return chosen.params(**shared)
+    except ValidationError as exc:
+        raise GraphError(_pydantic_problems(exc, file or "", node, chosen.name, "params")) from None
+
+
 def default_selector(pm: PluginManager) -> NodeType | None:
     """An installed source that selects the source for an input (the first by name), for a
     command that reads an input without a graph; None when no installed source does."""

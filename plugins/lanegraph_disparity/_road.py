@@ -272,9 +272,12 @@ def band_plan(
     return plan
 
 
-def _band(params: RoadSgbmParams, gl: np.ndarray, gr: np.ndarray, band: Band, d_min: int) -> np.ndarray:
-    """Raw 1/16-px disparities of one band's rows (all columns; outside its own, and where
-    invalid, ``_INVALID_RAW``)."""
+def _band(
+    params: RoadSgbmParams, gl: np.ndarray, gr: np.ndarray, band: Band, d_min: int, out: np.ndarray
+) -> None:
+    """Raw 1/16-px disparities of one band's own rows and columns written into ``out`` (the whole
+    map, ``_INVALID_RAW`` elsewhere; where invalid, ``_INVALID_RAW``). The bands write disjoint
+    blocks of ``out``, so that they can run on threads without a copy per band."""
     h, w = gl.shape
     below = params.block_size // 2 + 1 if params.mode == "sgbm" else params.strip_overlap
     r0, r1 = max(0, band.a - params.strip_overlap), min(h, band.b + below)
@@ -286,9 +289,10 @@ def _band(params: RoadSgbmParams, gl: np.ndarray, gr: np.ndarray, band: Band, d_
     raw = matcher.compute(np.ascontiguousarray(gl[r0:r1, x0:x1]), np.ascontiguousarray(gr[r0:r1, x0:x1]))
     raw = raw[band.a - r0 : band.b - r0, band.c0 - x0 : band.c1 - x0]
     floor = 16 * (band.low + 1) if band.low > d_min else 16 * band.low
-    out = np.full((band.b - band.a, w), _INVALID_RAW, np.int16)
-    out[:, band.c0 : band.c1] = np.where((raw < floor) | (raw <= 0), np.int16(_INVALID_RAW), raw)
-    return out
+    # below the floor (or not positive): invalid. One masked copy (cv2 compare and copyTo, no
+    # temporaries of np.where) into the band's block of the map
+    mask = cv2.compare(raw, max(floor, 1), cv2.CMP_GE)
+    cv2.copyTo(raw, mask, out[band.a : band.b, band.c0 : band.c1])
 
 
 @node_type(
@@ -373,15 +377,18 @@ def road_sgbm(
         cs = float(params.obstacle_scale)
         coarse_size = (max(2, int(round(w * cs))), max(2, int(round(h * cs))))
         jobs.append(("coarse", plan[0].a))
-    results = _run_jobs(params, gl, gr, jobs, d_min, coarse_size)
     raw = np.full((h, w), _INVALID_RAW, np.int16)
-    for (kind, job), part in zip(jobs, results):
-        if kind == "band":
-            raw[job.a : job.b] = part
+    results = _run_jobs(params, gl, gr, jobs, d_min, coarse_size, raw)
     if plan and params.speckle_window_size > 0:
-        raw = cv2.filterSpeckles(raw, _INVALID_RAW, params.speckle_window_size, 16 * params.speckle_range)[0]
-    d = raw.astype(np.float32) * np.float32(1.0 / 16.0)
-    d[raw <= 0] = 0.0
+        # on the rows the bands cover only: the rows above are all invalid, and OpenCV's speckle
+        # filter neither starts from nor joins an invalid pixel, so it is the same map
+        top = plan[0].a
+        cv2.filterSpeckles(raw[top:], _INVALID_RAW, params.speckle_window_size, 16 * params.speckle_range)
+    # every valid value is positive (the bands keep > 0), every other one _INVALID_RAW: clipping
+    # at 0 before the exact scaling by 1/16 gives the 0 of an invalid pixel in place
+    d = raw.astype(np.float32)
+    np.maximum(d, 0.0, out=d)
+    d *= np.float32(1.0 / 16.0)
     if coarse_size is not None:
         d = merge_coarse(d, results[-1], plan, (w, h), params.coarse_tolerance_px * s)
     return {"disparity": upsample_disparity(d, (H, W), s, params.upsample)}
@@ -394,13 +401,15 @@ def _run_jobs(
     jobs: list,
     d_min: int,
     coarse_size: tuple[int, int] | None,
-) -> list[np.ndarray]:
-    """Every band (and the coarse pass) on the thread pool; the results in the jobs' order."""
+    raw: np.ndarray,
+) -> list[np.ndarray | None]:
+    """Every band (written into ``raw``) and the coarse pass on the thread pool; the results in
+    the jobs' order (None for a band)."""
 
     def run(item):
         kind, job = item
         if kind == "band":
-            return _band(params, gl, gr, job, d_min)
+            return _band(params, gl, gr, job, d_min, raw)
         return _coarse(params, gl, gr, job, coarse_size)
 
     if not jobs:

@@ -203,6 +203,17 @@ def disparity_votes(left: np.ndarray, right: np.ndarray) -> tuple[int, int]:
     return n_pos, n_neg
 
 
+def _read_ahead_field():
+    return Field(
+        -1,
+        ge=-1,
+        le=16,
+        description="frames decoded ahead of the one the run asks for, on threads (each pair's two images in "
+        "parallel too); -1 = auto: 2 when the process has 2 or more CPUs free to it (affinity mask, cgroup "
+        "quota), else 0 with one image after the other",
+    )
+
+
 class StereoSourceParams(NodeParams):
     """Params shared by the file-based stereo sources."""
 
@@ -233,14 +244,7 @@ class StereoSourceParams(NodeParams):
         True,
         description="refuse an input whose first readable pair matches at negative disparities (left and right swapped)",
     )
-    read_ahead: int = Field(
-        -1,
-        ge=-1,
-        le=16,
-        description="frames decoded ahead of the one the run asks for, on threads (each pair's two images in "
-        "parallel too); -1 = auto: 2 when the process has 2 or more CPUs free to it (affinity mask, cgroup "
-        "quota), else 0 with one image after the other",
-    )
+    read_ahead: int = _read_ahead_field()
 
     @model_validator(mode="after")
     def _baseline_range(self):
@@ -584,12 +588,14 @@ def detect_source(path: Path) -> str | None:
 
 
 class AutoParams(NodeParams):
-    """Params of ``io.auto``."""
+    """Params of ``io.auto``. A field it shares with the source it chooses (``read_ahead``) is
+    passed on to that source when the graph sets it; the synthetic scene has none."""
 
     default: str = Field(
         "io.synthetic",
         description="source node type used when no --input is given (an installed source type)",
     )
+    read_ahead: int = _read_ahead_field()
 
     @field_validator("default")
     @classmethod

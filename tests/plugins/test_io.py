@@ -311,3 +311,47 @@ def test_read_ahead_decodes_that_many_frames_beyond_the_one_asked_for(tmp_path, 
     time.sleep(0.2)  # let the threads take what was submitted
     assert len(set(asked)) == 1 + read_ahead  # this frame's pair and read_ahead more
     it.close()
+
+
+@pytest.mark.parametrize("given", [None, 0, 3])
+def test_io_auto_passes_read_ahead_to_the_source_it_chooses(tmp_path, given):
+    """A graph sets read_ahead on io.auto: the chosen KITTI source runs with it (the default when
+    not set); the synthetic scene, which has no such field, is chosen without it."""
+    import yaml
+
+    from lanegraph.graph.validation import load_graph
+    from lanegraph.run.executor import Executor
+
+    drive = kitti_raw(tmp_path, n=2)
+    src: dict = {"type": "io.auto"}
+    if given is not None:
+        src["params"] = {"read_ahead": given}
+    gp = tmp_path / "g.yaml"
+    gp.write_text(yaml.safe_dump({"nodes": {"src": src}}))
+    ex = Executor(load_graph(gp), RunContext(input_path=drive, out_dir=tmp_path / "out"))
+    assert ex.graph.source.type.name == "io.kitti_raw"
+    assert ex.graph.source.params.read_ahead == (-1 if given is None else given)
+    assert ex.run().frames == 2
+    ex = Executor(load_graph(gp), RunContext(out_dir=tmp_path / "out2", frames=slice(0, 1)))
+    assert ex.graph.source.type.name == "io.synthetic"
+    assert "read_ahead" not in type(ex.graph.source.params).model_fields
+
+
+def test_a_value_the_chosen_source_refuses_is_a_located_graph_error():
+    from lanegraph_io._sources import AutoParams
+    from pydantic import Field
+
+    from lanegraph import NodeParams
+    from lanegraph.errors import GraphError
+    from lanegraph.run.sources import chosen_params
+
+    class Narrow(NodeParams):
+        read_ahead: int = Field(0, le=2)
+
+    chosen = type("NT", (), {"params": Narrow, "name": "toy.narrow"})
+    assert chosen_params(chosen, AutoParams(read_ahead=2)).read_ahead == 2
+    assert chosen_params(chosen, AutoParams()).read_ahead == 0  # not set in the graph: the chosen default
+    with pytest.raises(GraphError) as info:
+        chosen_params(chosen, AutoParams(read_ahead=3), file="g.yaml", node="src")
+    assert str(info.value).startswith("g.yaml: node 'src' (toy.narrow): params.read_ahead: ")
+    assert "less than or equal to 2" in str(info.value)
