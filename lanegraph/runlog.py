@@ -223,3 +223,88 @@ def say(message: str, logger: logging.Logger | None = None) -> None:
         log.warning(message, extra={"plain": True})
     else:
         log.info(message)
+
+
+#: seconds between two progress lines when stderr is not a terminal
+PIPED_INTERVAL_S = 10.0
+
+
+class PipedProgress:
+    """A progress bar's stand-in when stderr is not a terminal (a pipe, a log file, a batch
+    system): a bar redrawn with carriage returns would pile up there as one endless line, and
+    tqdm's own choice on a non-terminal is to print nothing at all, so a long run said nothing
+    until it ended. This one prints a line when it starts (``desc: 0/N frames``) and then at most
+    every ``interval`` seconds (``desc: k/N frames (p %), r frames/s[, postfix]``). It has the
+    part of tqdm's interface lanegraph uses: ``n``, ``update``, ``refresh``, ``set_postfix_str``,
+    ``close``."""
+
+    def __init__(
+        self,
+        total: int | None,
+        desc: str,
+        unit: str = "frame",
+        interval: float = PIPED_INTERVAL_S,
+        clock: Callable[[], float] = time.monotonic,
+    ):
+        self.total, self.desc, self.unit = total, desc, unit
+        self.interval, self._clock = interval, clock
+        self.n = 0
+        self._postfix = ""
+        self._start = self._last = clock()
+        self._closed = False
+        self._write(f"{desc}: 0{'/' + str(total) if total else ''} {unit}s")
+
+    def _write(self, line: str) -> None:
+        stream = sys.stderr
+        stream.write(line + "\n")
+        stream.flush()
+
+    def update(self, k: int = 1) -> None:
+        self.n += k
+        self.refresh()
+
+    def set_postfix_str(self, s: str = "", refresh: bool = True) -> None:
+        self._postfix = s
+        if refresh:
+            self.refresh()
+
+    def refresh(self) -> None:
+        now = self._clock()
+        if self._closed or now - self._last < self.interval:
+            return
+        self._last = now
+        done = f"{self.n}/{self.total}" if self.total else f"{self.n}"
+        share = f" ({100.0 * self.n / self.total:.0f} %)" if self.total else ""
+        rate = self.n / (now - self._start) if now > self._start else 0.0
+        post = f", {self._postfix}" if self._postfix else ""
+        self._write(f"{self.desc}: {done} {self.unit}s{share}, {rate:.1f} {self.unit}s/s{post}")
+
+    def close(self) -> None:
+        self._closed = True
+
+
+def progress_bar(
+    total: int | None, desc: str, enabled: bool = True, unit: str = "frame", leave: bool = True
+) -> Any:
+    """The progress display of a command: tqdm's bar on a terminal, :class:`PipedProgress`'s
+    occasional lines when stderr is not one, nothing when ``enabled`` is false (``-q``)."""
+    from tqdm import tqdm
+
+    if enabled and not _is_terminal(sys.stderr):
+        return PipedProgress(total, desc, unit=unit)
+    return tqdm(
+        total=total,
+        desc=desc,
+        unit=unit,
+        disable=not enabled,
+        file=sys.stderr,
+        dynamic_ncols=True,
+        leave=leave,
+    )
+
+
+def _is_terminal(stream: Any) -> bool:
+    try:
+        return bool(stream.isatty())
+    except (AttributeError, ValueError):  # a closed or stand-in stream
+        return False

@@ -23,7 +23,6 @@ import errno
 import os
 import re
 import shutil
-import sys
 import threading
 import time
 import uuid
@@ -37,7 +36,7 @@ from ..frames import selection_text
 from ..graph.files import ResolvedGraph
 from ..nodes import RunContext
 from ..plugins import PluginManager, get_plugin_manager
-from ..runlog import RunLog
+from ..runlog import RunLog, progress_bar
 from .cache import Caching, ResultCache, digest
 from .executor import Executor, FrameFailure, RunResult
 from .provenance import refreshed, write_resolved_graph
@@ -513,21 +512,12 @@ class Progress:
     after its worker died starts its count anew."""
 
     def __init__(self, tasks: list[RunTask], enabled: bool = True, desc: str = "frames"):
-        from tqdm import tqdm
-
         self.tasks = {t.index: t for t in tasks}
         total = sum(t.total or 0 for t in tasks)
         self._done: dict[int, tuple[str, int]] = {}
         self._finished = 0
         self._lock = threading.Lock()
-        self.bar = tqdm(
-            total=total or None,
-            desc=desc,
-            unit="frame",
-            disable=not enabled,
-            file=sys.stderr,
-            dynamic_ncols=True,
-        )
+        self.bar = progress_bar(total or None, desc, enabled=enabled)
         self._postfix()
 
     def _postfix(self) -> None:

@@ -41,7 +41,7 @@ from ..run.folder import check as check_folder
 from ..run.folder import claim as claim_folder
 from ..run.provenance import command_line, versions, write_resolved_graph
 from ..run.record import RunRecord, read_record, stopped_by, write_run_files
-from ..runlog import RunLog, get_logger
+from ..runlog import RunLog, get_logger, progress_bar
 from ..tracking import CommandRecord, Tracking
 from .keeping import (
     dataset_identity,
@@ -289,8 +289,6 @@ class Session:
     def _execute(self, ex: Executor, g: Graph, out_dir: Path, input_path: Path | None) -> RunResult:
         """Open and run the executor with a progress bar; when it stops, its partial record is
         written (``run.json`` says what it did and why it stopped) and :class:`RunStopped` raised."""
-        from tqdm import tqdm
-
         bar = None
         try:
             try:
@@ -299,13 +297,7 @@ class Session:
                 raise NotStarted(exc) from exc
             if self._on_open is not None:
                 self._on_open()
-            bar = tqdm(
-                total=(len(ex) or None),
-                unit="frame",
-                disable=None if self.progress else True,
-                desc=g.name,
-                file=sys.stderr,
-            )
+            bar = progress_bar(len(ex) or None, g.name, enabled=self.progress)
 
             log = get_logger("run")
 

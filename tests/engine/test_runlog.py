@@ -137,3 +137,67 @@ def test_run_log_is_written_anew_or_continued_and_never_through_a_link(tmp_path)
     with RunLog(out):
         get_logger().warning("third")
     assert [line.split(": ", 1)[1] for line in (out / "run.log").read_text().splitlines()] == ["third"]
+
+
+# --------------------------------------------------------------------------- progress when piped
+def test_piped_progress_prints_a_start_line_then_at_most_one_line_an_interval(capsys):
+    from lanegraph.runlog import PipedProgress
+
+    now = [100.0]
+    bar = PipedProgress(40, "paper", interval=10.0, clock=lambda: now[0])
+    assert capsys.readouterr().err == "paper: 0/40 frames\n"
+    for _ in range(9):  # 9 frames in 9 s: no line yet
+        now[0] += 1.0
+        bar.update(1)
+    assert capsys.readouterr().err == ""
+    now[0] += 1.0
+    bar.update(1)
+    bar.set_postfix_str("0000000009")
+    assert capsys.readouterr().err == "paper: 10/40 frames (25 %), 1.0 frames/s\n"
+    now[0] += 10.0
+    bar.set_postfix_str("0000000010")  # a postfix alone reports too, once the interval has passed
+    assert capsys.readouterr().err == "paper: 10/40 frames (25 %), 0.5 frames/s, 0000000010\n"
+    bar.close()
+    now[0] += 60.0
+    bar.update(30)
+    assert capsys.readouterr().err == "" and bar.n == 40
+
+
+def test_progress_bar_is_tqdm_on_a_terminal_lines_on_a_pipe_and_nothing_with_q(monkeypatch):
+    import io
+    import sys
+
+    from tqdm import tqdm
+
+    from lanegraph.runlog import PipedProgress, progress_bar
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    monkeypatch.setattr(sys, "stderr", Terminal())
+    bar = progress_bar(3, "paper")
+    assert isinstance(bar, tqdm) and not bar.disable
+    bar.close()
+    monkeypatch.setattr(sys, "stderr", io.StringIO())
+    assert isinstance(progress_bar(3, "paper"), PipedProgress)
+    assert sys.stderr.getvalue() == "paper: 0/3 frames\n"
+    quiet = progress_bar(3, "paper", enabled=False)
+    assert isinstance(quiet, tqdm) and quiet.disable
+    assert sys.stderr.getvalue() == "paper: 0/3 frames\n"
+
+
+def test_a_piped_run_says_it_has_started_and_q_keeps_it_quiet(tmp_path):
+    import subprocess
+    import sys
+
+    env = dict(os.environ, LANEGRAPH_PRECOMPILE="0")
+    cmd = [sys.executable, "-m", "lanegraph.cli", "run", "--frames", "0:2"]
+    loud = subprocess.run([*cmd, "--out", str(tmp_path / "a")], capture_output=True, text=True, env=env)
+    assert loud.returncode == 0, loud.stderr
+    assert "paper: 0/2 frames" in loud.stderr.splitlines()
+    quiet = subprocess.run(
+        [*cmd, "--out", str(tmp_path / "b"), "-q"], capture_output=True, text=True, env=env
+    )
+    assert quiet.returncode == 0, quiet.stderr
+    assert "frames" not in quiet.stderr

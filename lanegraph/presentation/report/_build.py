@@ -400,7 +400,7 @@ def _sequence_images(
 ) -> list[str] | None:
     """The left images of one sequence's frames in ``entries`` as JPEG files (their paths and
     sizes set in the entries); returns the source's frame order (None when it could not be read)."""
-    from tqdm import tqdm
+    from ...runlog import progress_bar
 
     folder = assets / "frames" / f"s{si}"
     folder.mkdir(parents=True, exist_ok=True)
@@ -414,14 +414,7 @@ def _sequence_images(
         e["img"] = f"assets/frames/{folder.name}/{name}"
         e["h"], e["w"] = int(left.shape[0]), int(left.shape[1])
 
-    bar = tqdm(
-        total=len(entries),
-        desc=f"report: {seq.name}",
-        unit="frame",
-        disable=not log.on or None,
-        file=sys.stderr,
-        leave=False,
-    )
+    bar = progress_bar(len(entries), f"report: {seq.name}", enabled=log.on, leave=False)
     try:
         order = read_left_images(
             choice, seq.input, seq.frames, set(entries), on_image, on_frame=lambda: bar.update(1)
