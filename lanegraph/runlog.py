@@ -236,7 +236,7 @@ class PipedProgress:
     until it ended. This one prints a line when it starts (``desc: 0/N frames``) and then at most
     every ``interval`` seconds (``desc: k/N frames (p %), r frames/s[, postfix]``). It has the
     part of tqdm's interface lanegraph uses: ``n``, ``update``, ``refresh``, ``set_postfix_str``,
-    ``close``."""
+    ``set_description_str``, ``close``."""
 
     def __init__(
         self,
@@ -265,6 +265,11 @@ class PipedProgress:
 
     def set_postfix_str(self, s: str = "", refresh: bool = True) -> None:
         self._postfix = s
+        if refresh:
+            self.refresh()
+
+    def set_description_str(self, desc: str = "", refresh: bool = True) -> None:
+        self.desc = desc
         if refresh:
             self.refresh()
 

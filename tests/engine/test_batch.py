@@ -357,3 +357,13 @@ def test_the_carried_state_is_said_only_when_a_chunk_starts_from_another_state(t
     assert said(10, 0) == [] and said(7, 0) == []  # one chunk
     assert said(3, 6) == [] and said(2, 100) == []  # every chunk's warm-up reaches frame 0
     assert said(2, 2, slice(4, 7)) == [] and said(1, 1, slice(4, 7))  # from the selection's first frame
+
+
+def test_a_dataset_run_on_a_pipe_says_it_has_started(tmp_path, synthetic_dataset):
+    """stderr is not a terminal under CliRunner: the batch's progress is a line, not tqdm's bar."""
+    r = CliRunner().invoke(
+        main, ["run", PAPER, "--dataset", str(synthetic_dataset), "--out", str(tmp_path / "o")]
+    )
+    assert r.exit_code == 0, r.output
+    assert "frames: 0/12 frames" in r.output.splitlines()
+    assert "\r" not in r.output
