@@ -39,6 +39,18 @@ _STATE = {"said": False, "armed": False}
 
 #: the kernels of the default run (module, name, argument types), for the first run's helper
 KERNEL_LIST = Path(__file__).resolve().parent / "data" / "kernels.json"
+#: the folder that holds the ``lanegraph`` package (site-packages, or a checkout's root)
+_PACKAGE_ROOT = Path(__file__).resolve().parent.parent
+#: the packages whose kernels the helper may import: lanegraph's own and its built-in plugins
+_KERNEL_PACKAGES = {
+    "lanegraph",
+    "lanegraph_disparity",
+    "lanegraph_image",
+    "lanegraph_io",
+    "lanegraph_lanes",
+    "lanegraph_road",
+    "lanegraph_synthetic",
+}
 
 
 def cache_root() -> Path:
@@ -171,6 +183,10 @@ def _start_helper() -> None:
     try:
         proc = subprocess.Popen(
             [sys.executable, "-m", "lanegraph.kernel_cache", str(KERNEL_LIST)],
+            # ``-m`` puts the working folder first on the child's import path: started from the
+            # folder lanegraph is installed in, a module lying in the user's folder (an input or
+            # output folder, say) can never be imported in its place
+            cwd=str(_PACKAGE_ROOT),
             stdin=subprocess.DEVNULL,
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,
@@ -229,6 +245,8 @@ def precompile(entries: list[dict]) -> int:
     done = 0
     for entry in reversed(entries):
         try:
+            if str(entry["module"]).split(".")[0] not in _KERNEL_PACKAGES:
+                continue  # the list names lanegraph's own kernels only
             module = importlib.import_module(str(entry["module"]))
             kernel = getattr(module, str(entry["name"]))
             sig = tuple(decode_type(str(a)) for a in entry["args"])

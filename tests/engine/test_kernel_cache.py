@@ -9,6 +9,7 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -86,6 +87,8 @@ def test_the_first_run_starts_the_helper_beside_it(fresh, monkeypatch):
     class _Popen:
         def __init__(self, cmd, **kwargs):
             started.append(cmd)
+            # -m imports from the working folder first: never the user's (an input folder, say)
+            assert kwargs["cwd"] == str(Path(kernel_cache.__file__).resolve().parent.parent)
 
     monkeypatch.setenv("LANEGRAPH_PRECOMPILE", "1")
     monkeypatch.setattr(kernel_cache.subprocess, "Popen", _Popen)
@@ -142,3 +145,13 @@ def test_precompile_skips_what_it_cannot_resolve():
     assert (types.Array(types.float64, 1, "C"), types.int64, types.int64) in kth_smallest.signatures
     with pytest.raises(ValueError):
         kernel_cache.decode_type("object")
+
+
+def test_precompile_imports_lanegraph_modules_only(tmp_path, monkeypatch):
+    """A kernel list names lanegraph's kernels; a module of another name (one lying in the user's
+    folder, say) is never imported."""
+    (tmp_path / "stranger_kernels.py").write_text("import os\nos.environ['STRANGER_RAN'] = '1'\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delenv("STRANGER_RAN", raising=False)
+    assert kernel_cache.precompile([{"module": "stranger_kernels", "name": "k", "args": []}]) == 0
+    assert "STRANGER_RAN" not in os.environ and "stranger_kernels" not in sys.modules
