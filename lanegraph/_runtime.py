@@ -12,7 +12,8 @@ run starts; ``LANEGRAPH_MALLOC_TUNING=0`` leaves the allocator alone. Elsewhere 
 Windows, musl) it does nothing.
 
 :func:`available_cpus` tells the nodes that run work on threads how many CPUs the process may use
-at once (its affinity mask and cgroup CPU quota), instead of assuming the machine's count.
+at once (its affinity mask and cgroup CPU quota), instead of assuming the machine's count, and
+:func:`worker_pool` gives them a process-wide pool of that many threads.
 """
 
 from __future__ import annotations
@@ -21,7 +22,10 @@ import ctypes
 import ctypes.util
 import math
 import os
+import signal
 import sys
+import threading
+from concurrent.futures import ThreadPoolExecutor
 
 #: ``mallopt`` parameters (glibc's malloc.h)
 _M_TRIM_THRESHOLD = -1
@@ -86,3 +90,30 @@ def available_cpus(root: str = "/sys/fs/cgroup") -> int:
     if limit is not None and limit > 0:
         n = min(n, max(1, math.ceil(limit - 1e-9)))
     return max(1, n)
+
+
+_pools: dict[tuple[str, int], ThreadPoolExecutor] = {}
+_pools_lock = threading.Lock()
+if hasattr(os, "register_at_fork"):  # a forked child has none of the parent's threads: new pools
+    os.register_at_fork(after_in_child=_pools.clear)
+
+
+def _leave_signals_to_the_main_thread() -> None:
+    """A pool thread blocks Ctrl-C, SIGTERM and SIGHUP: the kernel then delivers a signal sent to
+    the process to the main thread, where Python handles it, at once."""
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM, signal.SIGHUP})
+
+
+def worker_pool(name: str, n: int) -> ThreadPoolExecutor:
+    """A process-wide pool of ``n`` threads named ``lanegraph-<name>``, created once per name and
+    size (and anew in a forked child); its threads leave signals to the main thread."""
+    with _pools_lock:
+        pool = _pools.get((name, n))
+        if pool is None:
+            pool = _pools[(name, n)] = ThreadPoolExecutor(
+                max_workers=n,
+                thread_name_prefix=f"lanegraph-{name}",
+                initializer=_leave_signals_to_the_main_thread,
+            )
+        return pool

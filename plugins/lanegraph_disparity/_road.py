@@ -40,8 +40,6 @@ num_disparities)`` on every column from ``top_fraction`` down.
 from __future__ import annotations
 
 import math
-import threading
-from concurrent.futures import ThreadPoolExecutor
 from typing import Literal, NamedTuple
 
 import cv2
@@ -49,7 +47,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from lanegraph import InputError, Port, node_type
-from lanegraph._runtime import available_cpus
+from lanegraph._runtime import available_cpus, worker_pool
 from lanegraph.types import Calibration, RoadModel
 
 from ._common import gray_pair, scaled_disparities, upsample_disparity
@@ -57,18 +55,6 @@ from ._opencv import SgbmParams, _check_range, _sgbm_matcher
 
 #: raw (1/16 px) value of an invalid pixel in the stitched map before the speckle filter
 _INVALID_RAW = -16
-
-_pools: dict[int, ThreadPoolExecutor] = {}
-_pools_lock = threading.Lock()
-
-
-def _pool(n: int) -> ThreadPoolExecutor:
-    """A process-wide pool of ``n`` threads (created once per size)."""
-    with _pools_lock:
-        pool = _pools.get(n)
-        if pool is None:
-            pool = _pools[n] = ThreadPoolExecutor(max_workers=n, thread_name_prefix="lanegraph-bands")
-        return pool
 
 
 class RoadSgbmParams(SgbmParams):
@@ -420,7 +406,7 @@ def _run_jobs(
         return [run(item) for item in jobs]
     # the coarse pass is the longest job: started first, the bands fill the other threads
     order = sorted(range(len(jobs)), key=lambda i: jobs[i][0] != "coarse")
-    done = dict(zip(order, _pool(n).map(run, [jobs[i] for i in order])))
+    done = dict(zip(order, worker_pool("bands", n).map(run, [jobs[i] for i in order])))
     return [done[i] for i in range(len(jobs))]
 
 

@@ -15,17 +15,13 @@ from __future__ import annotations
 
 import functools
 import math
-import os
-import signal
-import threading
-from concurrent.futures import ThreadPoolExecutor
 
 import cv2
 import numpy as np
 from pydantic import Field, field_validator
 
 from lanegraph import InputError, NodeParams, Port, jit, node_type, prange
-from lanegraph._runtime import available_cpus
+from lanegraph._runtime import available_cpus, worker_pool
 from lanegraph.types import FeatureMap
 
 
@@ -281,12 +277,6 @@ def _eslt_rows(img, gx, gy, window, threshold, max_angle, where, out_mask, out_t
                         )
 
 
-_pools: dict[int, ThreadPoolExecutor] = {}
-_pools_lock = threading.Lock()
-if hasattr(os, "register_at_fork"):  # a forked child has none of the parent's threads: new pools
-    os.register_at_fork(after_in_child=_pools.clear)
-
-
 @functools.cache
 def _cpus() -> int:
     return available_cpus()
@@ -296,24 +286,6 @@ def _threads() -> int:
     """The threads ESLT runs on: the CPUs free to the process, at most OpenCV's thread count
     (which a Dask worker limits to its share)."""
     return max(1, min(_cpus(), cv2.getNumThreads()))
-
-
-def _quiet_signals() -> None:
-    """A pool thread leaves Ctrl-C, SIGTERM and SIGHUP to the main thread (where Python handles
-    them): the kernel then delivers a signal sent to the process there, at once."""
-    if hasattr(signal, "pthread_sigmask"):
-        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM, signal.SIGHUP})
-
-
-def _pool(n: int) -> ThreadPoolExecutor:
-    """A process-wide pool of ``n - 1`` threads (the calling thread takes a block too)."""
-    with _pools_lock:
-        pool = _pools.get(n)
-        if pool is None:
-            pool = _pools[n] = ThreadPoolExecutor(
-                max_workers=n - 1, thread_name_prefix="lanegraph-eslt", initializer=_quiet_signals
-            )
-        return pool
 
 
 def _eslt(img, gx, gy, window, threshold, max_angle, where, out_mask, out_theta, fill_theta=True):
@@ -338,7 +310,7 @@ def _eslt(img, gx, gy, window, threshold, max_angle, where, out_mask, out_theta,
         _eslt_rows(*args, 0, tasks)
         return
     cut = [tasks * k // n for k in range(n + 1)]
-    futures = [_pool(n).submit(_eslt_rows, *args, cut[k], cut[k + 1]) for k in range(1, n)]
+    futures = [worker_pool("eslt", n - 1).submit(_eslt_rows, *args, cut[k], cut[k + 1]) for k in range(1, n)]
     _eslt_rows(*args, cut[0], cut[1])
     for f in futures:
         f.result()

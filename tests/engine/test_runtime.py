@@ -98,3 +98,37 @@ def test_available_cpus_is_the_affinity_capped_by_the_cgroup_quota(tmp_path, v2,
         affinity = os.cpu_count() or 1
     got = available_cpus(_cgroup(tmp_path, v2, v1))
     assert got == (affinity if cap is None else min(affinity, cap)) and got >= 1
+
+
+def test_worker_pool_is_one_per_name_and_size_and_its_threads_leave_signals_to_the_main_thread():
+    import signal
+    import threading
+
+    from lanegraph._runtime import worker_pool
+
+    pool = worker_pool("test", 2)
+    assert worker_pool("test", 2) is pool
+    assert worker_pool("test", 3) is not pool and worker_pool("other", 2) is not pool
+    blocked, name = pool.submit(
+        lambda: (signal.pthread_sigmask(signal.SIG_BLOCK, set()), threading.current_thread().name)
+    ).result()
+    assert {signal.SIGINT, signal.SIGTERM, signal.SIGHUP} <= set(blocked)
+    assert name.startswith("lanegraph-test")
+    assert signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, set())  # the main thread's
+
+
+def test_a_forked_child_gets_new_pools():
+    import os
+
+    from lanegraph._runtime import worker_pool
+
+    worker_pool("fork", 1).submit(lambda: None).result()  # the parent's pool has a live thread
+    pid = os.fork()
+    if pid == 0:  # the child: the parent's pool has no thread here; a new one must run the task
+        try:
+            ok = worker_pool("fork", 1).submit(lambda: 42).result(timeout=10) == 42
+        except Exception:  # noqa: BLE001
+            ok = False
+        os._exit(0 if ok else 1)
+    _, status = os.waitpid(pid, 0)
+    assert os.waitstatus_to_exitcode(status) == 0
