@@ -170,9 +170,10 @@ class NodeType:
     @property
     def code_version(self) -> str:
         """A digest of the code that computes this node: the source files of the top-level package
-        (or module) that defines its function, and lanegraph's version. Cached results and reused
-        runs are keyed by it, so that a changed plugin (an upgrade, or an edit in a development
-        install) never serves results its old code computed."""
+        (or module) that defines its function, and lanegraph's own source files (the engine's types
+        and helpers a node calls, and the version). Cached results and reused runs are keyed by it,
+        so that a changed plugin or engine (an upgrade, or an edit in a development install) never
+        serves results its old code computed."""
         return _code_version(getattr(self.func, "__module__", "") or "")
 
     @property
@@ -194,14 +195,33 @@ class NodeType:
         return {str(k): str(v) for k, v in (declare(params) or {}).items()}
 
 
+def _hash_sources(h: Any, folder: Path, files: list[Path]) -> None:
+    for f in files:
+        try:
+            h.update(f.relative_to(folder).as_posix().encode() + b"\0" + f.read_bytes())
+        except OSError:
+            continue
+
+
+@functools.cache
+def _engine_version() -> str:
+    """A digest of lanegraph's version and every source file of the ``lanegraph`` package."""
+    import hashlib
+
+    from ._version import __version__
+
+    h = hashlib.sha256(__version__.encode())
+    root = Path(__file__).resolve().parent
+    _hash_sources(h, root, sorted(root.rglob("*.py")))
+    return h.hexdigest()
+
+
 @functools.cache
 def _code_version(module: str) -> str:
     import hashlib
     import importlib.util
 
-    from ._version import __version__
-
-    h = hashlib.sha256(__version__.encode())
+    h = hashlib.sha256(_engine_version().encode())
     top = module.split(".")[0]
     try:
         spec = importlib.util.find_spec(top) if top else None
@@ -210,11 +230,7 @@ def _code_version(module: str) -> str:
     if spec is not None and spec.origin:
         origin = Path(spec.origin)
         files = sorted(origin.parent.rglob("*.py")) if spec.submodule_search_locations else [origin]
-        for f in files:
-            try:
-                h.update(f.relative_to(origin.parent).as_posix().encode() + b"\0" + f.read_bytes())
-            except OSError:
-                continue
+        _hash_sources(h, origin.parent, files)
     else:  # a function defined in __main__ or a test: its module's name only
         h.update(module.encode())
     return h.hexdigest()[:16]

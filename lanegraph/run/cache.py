@@ -1,6 +1,7 @@
 """A content-addressed, size-bounded, on-disk cache of node results.
 
-A node's result on a frame is keyed by what determines it: the node type, its params, the keys of
+A node's result on a frame is keyed by what determines it: the node type, its code (its plugin
+package's and lanegraph's source files, :attr:`lanegraph.nodes.NodeType.code_version`), its params, the keys of
 its inputs (recursively, down to the source) and, at the source, the identity of the input files
 (path, size, modification time) or of the synthetic scene. Variants of a graph that share a node
 with the same params and the same upstream -- typically the disparity -- share its results; a

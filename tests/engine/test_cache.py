@@ -91,6 +91,40 @@ def test_edited_plugin_code_changes_the_keys(tmp_path, monkeypatch):
     sys.modules.pop("lg_edited._impl", None)
 
 
+def test_edited_engine_code_changes_the_keys(tmp_path, monkeypatch):
+    """A node's key covers lanegraph's own source files too (the types and helpers a plugin calls):
+    an edited engine in a development install never serves results its old code computed."""
+    from lanegraph import nodes
+    from lanegraph.nodes import NodeType, _code_version, _engine_version
+
+    engine = tmp_path / "lanegraph"
+    (engine / "run").mkdir(parents=True)
+    (engine / "types.py").write_text("SCALE = 2\n")
+    (engine / "run" / "executor.py").write_text("pass\n")
+    monkeypatch.setattr(nodes, "__file__", str(engine / "nodes.py"))
+    _engine_version.cache_clear()
+    first = _engine_version()
+    _engine_version.cache_clear()
+    assert _engine_version() == first  # stable while unchanged
+    (engine / "run" / "executor.py").write_text("pass  # edited\n")  # any file, in any sub-package
+    _engine_version.cache_clear()
+    edited = _engine_version()
+    assert edited != first
+
+    def double(params, x):
+        return {"y": 2 * x}
+
+    _code_version.cache_clear()
+    key = NodeType("toy.engine", double).code_version
+    (engine / "types.py").write_text("SCALE = 3\n")
+    _engine_version.cache_clear()
+    _code_version.cache_clear()
+    assert NodeType("toy.engine", double).code_version != key
+    monkeypatch.undo()
+    _engine_version.cache_clear()
+    _code_version.cache_clear()
+
+
 # -- a cache folder shared by several processes (the workers of a Dask cluster) ----------------------
 class _Exploit:
     """Pickles as a call of os.system: what a crafted entry in a shared folder would hold."""
