@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 from pathlib import Path
 
 import pytest
@@ -11,6 +12,14 @@ import pytest
 # run; the suite's runs compile what they use in their own process (tests/engine/test_kernel_cache.py
 # tests the helper)
 os.environ.setdefault("LANEGRAPH_PRECOMPILE", "0")
+
+# The tests that stop a run with Ctrl-C send SIGINT to this process or to a child. A suite started in
+# the background by a shell without job control (`pytest &` in a script, a detached CI step) inherits
+# SIGINT ignored, which lanegraph rightly keeps ignoring (`nohup`), and which every child inherits;
+# those tests would then see runs that no Ctrl-C stops. The suite itself gets Python's usual handler
+# (children get the default action).
+if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("LANEGRAPH_SHARED_DATA", ROOT.parent / "shared" / "data"))
