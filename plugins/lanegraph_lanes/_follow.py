@@ -460,11 +460,13 @@ class FollowParams(NodeParams):
 def _steep_rows(geometry: BevGeometry) -> np.ndarray:
     """Per BEV row (uint8): 1 where one image row covers more than two BEV rows on the vehicle's
     column (the BEV repeats it: a slanted line's features read steeper there)."""
-    rows = geometry.rows
-    r = np.arange(rows, dtype=np.float64)
-    y = geometry.bev_to_image(np.full(rows, geometry.vehicle_col), r)[:, 1]
-    per_row = np.abs(np.gradient(y))  # image rows per BEV row
-    return np.ascontiguousarray(per_row < 0.5, dtype=np.uint8)
+    h = geometry.H_img_from_bev
+    r = np.arange(geometry.rows, dtype=np.float64)
+    c = geometry.vehicle_col
+    num = h[1, 0] * c + h[1, 1] * r + h[1, 2]  # the image row y = num / den
+    den = h[2, 0] * c + h[2, 1] * r + h[2, 2]
+    per_row = np.abs(h[1, 1] * den - num * h[2, 1]) / (den * den)  # |dy / dr|: image rows per BEV row
+    return (per_row < 0.5).astype(np.uint8)
 
 
 def _seeds(t, c, theta, row_start, rows, cols, p: FollowParams, res: float):
