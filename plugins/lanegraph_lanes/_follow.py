@@ -548,8 +548,8 @@ class MergeParams(NodeParams):
         1.2,
         ge=0.0,
         le=100.0,
-        description="a lane is replaced only when the followed line has this many times its features (within meet_m, "
-        "on the rows both cover) (unitless)",
+        description="a lane is replaced only when the followed line has this many times its features (within half of "
+        "meet_m, on the rows both cover) (unitless)",
     )
     min_followed_m: float = Field(
         15.0,
@@ -625,7 +625,7 @@ def merge(
     line there (more than ``meet_m``, a marking's width, apart on average over the rows both cover)
     and either meets it (within ``meet_m`` on some row) or is not parallel to it (their distance
     changes by more than ``parallel_m``) takes the followed one when more features lie on it
-    (``min_support_ratio`` times, within ``meet_m``, on those rows); a parallel line is another marking:
+    (``min_support_ratio`` times, within half of ``meet_m``, on those rows); a parallel line is another marking:
     one orientation and a straight Hough line misplace a lane in a bend, while a followed line keeps
     to its features window by window (asking the followed line for more features as well lost
     one ramp frame in 16 and changed nothing on the other sequences)."""
