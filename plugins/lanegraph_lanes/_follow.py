@@ -18,6 +18,16 @@ locks onto the bars. ``lanes.follow`` finds each line from where it is seen and 
    windows over the last ``base_m`` (a window's own slope over 1 m of a dash is too noisy). Windows without features (a dashed line's
    gaps, a parked car) continue on the prediction up to ``max_gap_m``. A line that leaves the BEV
    through its side stops there: it is fitted on the part that is seen.
+   **Guides.** Markings are parallel: a line followed over ``guide_min_m`` or more (longer than a
+   hatching bar) guides the lines followed after it. Where one lies within ``guide_m`` across, a
+   track takes its heading and curvature from it (those of the parallel curve) after every window,
+   and its own windows' features only place it: a dash's own curvature (3 m of paint) is noise, and
+   over a 6-12 m gap of a bend of 30 m radius it misses the next dash by a metre or more. The
+   strongest seeds (solid lines) are followed first; a short track (a dash) followed before the
+   long lines beside it is followed again with them. Far ahead the BEV repeats each image row over
+   several BEV rows and a slanted line's features read steeper than the line (a staircase): there a
+   track longer than a hatching bar also takes features whose orientation lies between its heading
+   and straight ahead.
 3. **Hatching is not a lane.** A hatched area's bars are short tracks, at an angle to the road,
    repeated at a regular step: a track shorter than ``max_bar_m`` with two or more short tracks
    beside it that are parallel to it (within ``max_angle_deg``) is a bar, and so is a short track
@@ -47,6 +57,45 @@ from ._fit import irls_fit
 
 
 @jit
+def _guide_at(x, y, psi, gx, gy, gpsi, gk, n_guide, guide_max, step, cos_max, max_kappa):
+    """The heading and curvature at ``(x, y)`` of the curve parallel to the nearest guide facing
+    it (see ``_follow_kernel``); ``(False, psi, 0)`` when no guide is near."""
+    best = -1
+    best_n = guide_max
+    for k in range(n_guide):
+        ex = x - gx[k]
+        ey = y - gy[k]
+        if abs(ex) > guide_max + step or abs(ey) > guide_max + step:
+            continue
+        if abs(math.cos(gpsi[k] - psi)) < cos_max:
+            continue
+        cg = math.cos(gpsi[k])
+        sg = math.sin(gpsi[k])
+        if abs(ex * cg + ey * sg) > 0.5 * step:
+            continue
+        nn = abs(-ex * sg + ey * cg)
+        if nn <= best_n:
+            best_n = nn
+            best = k
+    if best < 0:
+        return False, psi, 0.0
+    gp = gpsi[best]
+    kg = gk[best]
+    if math.cos(gp - psi) < 0.0:  # the guide was followed the other way
+        gp += math.pi
+        kg = -kg
+    ex = x - gx[best]
+    ey = y - gy[best]
+    gu = ex * math.cos(gp) + ey * math.sin(gp)
+    gn = -ex * math.sin(gp) + ey * math.cos(gp)
+    d = gp + kg * gu - psi
+    new_psi = psi + d - 2.0 * math.pi * math.floor((d + math.pi) / (2.0 * math.pi))
+    den = 1.0 - kg * gn
+    kappa = kg / den if den > 0.5 else kg
+    return True, new_psi, min(max(kappa, -max_kappa), max_kappa)
+
+
+@jit
 def _follow_kernel(
     t,
     c,
@@ -66,6 +115,18 @@ def _follow_kernel(
     base,
     owner,
     track,
+    steep,
+    relax_after,
+    gx,
+    gy,
+    gpsi,
+    gk,
+    n_guide,
+    guide_max,
+    out_x,
+    out_y,
+    out_psi,
+    out_k,
 ):
     """Follow one line from ``(c0, t0)`` (BEV column, BEV rows above the bottom row) with heading
     ``psi0`` (radians from +column towards +t; ``pi`` added: downwards) through windows.
@@ -73,8 +134,22 @@ def _follow_kernel(
     ``t``, ``c``, ``theta``: the features' t (descending: row-major order of the BEV), column and
     orientation (radians in [0, pi), -1 unknown); ``row_start``: index of the first feature of each
     BEV row (length rows + 1). Features taken by the track get ``owner[i] = track`` where ``owner``
-    was -1; features of other tracks (``owner[i]`` >= 0, not ``track``) are not looked at. Returns ``(windows with features, features taken, lowest and highest t taken, t where
-    the heading first turns further from straight ahead than ``asin(sin_turn)``)``."""
+    was -1; features of other tracks (``owner[i]`` >= 0, not ``track``) are not looked at.
+
+    ``steep``: per BEV row, 1 where the BEV repeats one image row over several BEV rows (a slanted
+    line turns into a staircase there and its features read steeper than the line); once the track
+    has ``relax_after`` windows with features, a feature there also counts when its orientation
+    lies between the line's heading and straight ahead. ``gx``, ``gy``, ``gpsi``, ``gk``: the first
+    ``n_guide`` entries are window centres (column, t), headings and curvatures of lines followed
+    before (guides); after every window the heading and curvature are taken from the nearest guide
+    within ``guide_max`` pixels across (a centre within half a window's length along it, its
+    heading within ``acos(cos_max)`` of the track's heading before the window), when there is one:
+    lane markings are parallel, and the parallel curve at a distance ``n`` to the left of a guide of
+    curvature ``k`` has curvature ``k / (1 - k n)``; the window's features still place the track. ``out_x``, ``out_y``, ``out_psi``, ``out_k`` (length 401) receive this
+    track's window centres, headings and curvatures.
+
+    Returns ``(windows with features, features taken, lowest and highest t taken, t where the
+    heading first turns further from straight ahead than ``asin(sin_turn)``, window centres written)``."""
     n_rows = row_start.shape[0] - 1
     ncols_hi = 1e9
     x = c0
@@ -96,6 +171,13 @@ def _follow_kernel(
         steps += 1
         cp = math.cos(psi)
         sp = math.sin(psi)
+        # a long track (not a hatching bar) also takes, where the BEV stretches the image's rows,
+        # features whose orientation lies between its heading (an orientation in [0, pi)) and
+        # straight ahead (pi / 2): the staircase of the stretched rows reads steeper than the line
+        relaxed = windows >= relax_after
+        o_psi = psi - math.pi * math.floor(psi / math.pi)
+        o_lo = min(o_psi, 0.5 * math.pi)
+        o_hi = max(o_psi, 0.5 * math.pi)
         # window: along u in [0, step] from (x, y), across v within hw of the predicted arc; after
         # a gap the prediction is less sure: the window widens with the gap's length
         hw = half_w + widen * gap
@@ -133,7 +215,8 @@ def _follow_kernel(
                 continue
             th = theta[i]
             if th >= 0.0 and abs(math.cos(th - psi)) < cos_max:
-                continue
+                if not (relaxed and steep[n_rows - 1 - int(t[i])] and th >= o_lo and th <= o_hi):
+                    continue
             if owner[i] >= 0 and owner[i] != track:  # another line's, followed already
                 continue
             sw += 1.0
@@ -195,6 +278,10 @@ def _follow_kernel(
                     kappa = max_kappa
                 elif kappa < -max_kappa:
                     kappa = -max_kappa
+            out_x[last] = hx[last]
+            out_y[last] = hy[last]
+            out_psi[last] = new_psi - kappa * (step - mu)
+            out_k[last] = kappa
             # mark the features taken (a second pass over the window)
             for i in range(row_start[r_lo], row_start[r_hi + 1]):
                 ci = c[i]
@@ -210,7 +297,8 @@ def _follow_kernel(
                     continue
                 th = theta[i]
                 if th >= 0.0 and abs(math.cos(th - psi)) < cos_max:
-                    continue
+                    if not (relaxed and steep[n_rows - 1 - int(t[i])] and th >= o_lo and th <= o_hi):
+                        continue
                 if owner[i] < 0:
                     owner[i] = track
                     taken += 1
@@ -233,11 +321,19 @@ def _follow_kernel(
             gap += step
             if gap > max_gap:
                 break
+        if n_guide > 0:
+            # parallel to the nearest guide facing the track's new position
+            found, g_psi, g_kappa = _guide_at(
+                x, y, prev_psi, gx, gy, gpsi, gk, n_guide, guide_max, step, cos_max, max_kappa
+            )
+            if found:
+                psi = g_psi
+                kappa = g_kappa
         if abs(math.cos(psi)) > sin_turn and t_turn > 1e8:
             t_turn = y
         if y < 0.0 or y > n_rows - 1:
             break
-    return windows, taken, t_lo, t_hi, t_turn
+    return windows, taken, t_lo, t_hi, t_turn, nh
 
 
 class FollowParams(NodeParams):
@@ -285,6 +381,20 @@ class FollowParams(NodeParams):
         gt=0.0,
         le=1e6,
         description="tightest bend followed (the curvature is clamped to 1 / this), metres",
+    )
+    guide_m: float = Field(
+        4.5,
+        ge=0.0,
+        le=50.0,
+        description="a line takes its heading and curvature from a long line followed before it within this across "
+        "(the widest lane): markings are parallel, a dash's own curvature is noise, metres",
+    )
+    guide_min_m: float = Field(
+        10.0,
+        ge=0.0,
+        le=500.0,
+        description="a line followed over this much road guides the lines followed after it: longer than a hatching "
+        "bar across a lane-wide gore area at 30 deg or more to the road (4.5 m / sin 30 deg), metres",
     )
     min_window_features: int = Field(
         12, ge=1, le=100000, description="a window with fewer features counts as a gap"
@@ -345,6 +455,18 @@ class FollowParams(NodeParams):
         le=1.0,
         description="largest curvature of a fitted line's path where it is seen nearest, 1/metres (else a straight refit)",
     )
+
+
+def _steep_rows(geometry: BevGeometry) -> np.ndarray:
+    """Per BEV row (uint8): 1 where one image row covers more than two BEV rows on the vehicle's
+    column (the BEV repeats it: a slanted line's features read steeper there)."""
+    h = geometry.H_img_from_bev
+    r = np.arange(geometry.rows, dtype=np.float64)
+    c = geometry.vehicle_col
+    num = h[1, 0] * c + h[1, 1] * r + h[1, 2]  # the image row y = num / den
+    den = h[2, 0] * c + h[2, 1] * r + h[2, 2]
+    per_row = np.abs(h[1, 1] * den - num * h[2, 1]) / (den * den)  # |dy / dr|: image rows per BEV row
+    return (per_row < 0.5).astype(np.uint8)
 
 
 def _seeds(t, c, theta, row_start, rows, cols, p: FollowParams, res: float):
@@ -426,8 +548,8 @@ class MergeParams(NodeParams):
         1.2,
         ge=0.0,
         le=100.0,
-        description="a lane is replaced only when the followed line has this many times its features (within meet_m, "
-        "on the rows both cover) (unitless)",
+        description="a lane is replaced only when the followed line has this many times its features (within half of "
+        "meet_m, on the rows both cover) (unitless)",
     )
     min_followed_m: float = Field(
         15.0,
@@ -503,7 +625,7 @@ def merge(
     line there (more than ``meet_m``, a marking's width, apart on average over the rows both cover)
     and either meets it (within ``meet_m`` on some row) or is not parallel to it (their distance
     changes by more than ``parallel_m``) takes the followed one when more features lie on it
-    (``min_support_ratio`` times, within ``meet_m``, on those rows); a parallel line is another marking:
+    (``min_support_ratio`` times, within half of ``meet_m``, on those rows); a parallel line is another marking:
     one orientation and a straight Hough line misplace a lane in a bend, while a followed line keeps
     to its features window by window (asking the followed line for more features as well lost
     one ramp frame in 16 and changed nothing on the other sequences)."""
@@ -537,8 +659,10 @@ def merge(
                 continue
             if min_gap * res >= p.meet_m and spread * res <= p.parallel_m:
                 continue  # another marking beside it, parallel
+            # the features within half a marking's width of each (as above): within a whole width
+            # a lane that crosses the line at a small angle keeps most of them
             lo, hi = max(o.bev_rows[0], ln.bev_rows[0]), min(o.bev_rows[1], ln.bev_rows[1])
-            half = p.meet_m / res
+            half = 0.5 * p.meet_m / res
             if _support(features, ln, lo, hi, half) > p.min_support_ratio * _support(
                 features, o, lo, hi, half
             ):
@@ -572,17 +696,16 @@ def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None):
     max_gap = p.max_gap_m / res
     max_kappa = res / p.min_radius_m
     # the strongest seeds first: a solid line is followed before a dashed one beside it, whose
-    # windows then leave its features alone
+    # windows then leave its features alone, and guides it across its gaps
     seeds = sorted(_seeds(t, cf, th, row_start, rows, cols, p, res), key=lambda sd: -sd[3])
-    for t0, c0, psi0, _votes in seeds:
-        # a seed on a line already followed: its band's features there are taken
-        near = np.abs(cf[row_start[max(0, rows - 1 - int(t0) - 5)] : row_start[rows - int(t0)]] - c0) < half_w
-        idx = np.arange(row_start[max(0, rows - 1 - int(t0) - 5)], row_start[rows - int(t0)])[near]
-        if idx.size and np.mean(owner[idx] >= 0) > 0.3:
-            continue
-        k = len(tracks)
-        sin_turn = math.sin(math.radians(p.max_heading_deg))
-        widen = math.tan(math.radians(p.gap_heading_deg))
+    steep = _steep_rows(geometry)
+    relax_after = max(1, int(math.ceil(p.max_bar_m / p.step_m)))
+    sin_turn = math.sin(math.radians(p.max_heading_deg))
+    widen = math.tan(math.radians(p.gap_heading_deg))
+    out = np.empty((4, 401))
+
+    def run(t0, c0, psi0, k, guide):
+        """Follow from a seed up the BEV and down; the track's record and its window centres."""
         args = (
             step,
             half_w,
@@ -595,23 +718,56 @@ def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None):
             p.base_m / res,
             owner,
             k,
+            steep,
+            relax_after,
+            *guide,
+            guide.shape[1],
+            p.guide_m / res,
         )
-        w_up, n_up, lo_up, hi_up, turn_up = _follow_kernel(t, cf, th, row_start, t0, c0, psi0, *args)
-        w_dn, n_dn, lo_dn, hi_dn, _ = _follow_kernel(t, cf, th, row_start, t0, c0, psi0 + math.pi, *args)
-        n = n_up + n_dn
-        if n == 0:
+        w_up, n_up, lo_up, hi_up, turn_up, h_up = _follow_kernel(
+            t, cf, th, row_start, t0, c0, psi0, *args, *out
+        )
+        centres = out[:, :h_up].copy()
+        w_dn, n_dn, lo_dn, hi_dn, _, h_dn = _follow_kernel(
+            t, cf, th, row_start, t0, c0, psi0 + math.pi, *args, *out
+        )
+        track = {
+            "id": k,
+            "n": n_up + n_dn,
+            "windows": w_up + w_dn,
+            "t_lo": min(lo_up, lo_dn),
+            "t_hi": max(hi_up, hi_dn),
+            "t_turn": turn_up,
+            "psi": psi0,
+            "seed": (t0, c0, psi0),
+            "guides": guide.shape[1],
+        }
+        centres = np.concatenate([centres, out[:, :h_dn]], axis=1)
+        along = (centres[0] - c0) * math.cos(psi0) + (centres[1] - t0) * math.sin(psi0)
+        track["span"] = float(along.max() - along.min()) * res if along.size else 0.0
+        return track, centres
+
+    band = max(1, int(round(p.seed_band_m / res)))
+    guide = np.zeros((4, 0))
+    for t0, c0, psi0, _votes in seeds:
+        # a seed on a line already followed: the features of its band that voted for it (moved
+        # along the seed's heading to the band's lower edge) are taken
+        i0, i1 = row_start[max(0, rows - int(t0) - band)], row_start[rows - int(t0)]
+        moved = cf[i0:i1] - (t[i0:i1] - t0) * (math.cos(psi0) / max(math.sin(psi0), 1e-3))
+        idx = np.arange(i0, i1)[np.abs(moved - c0) < half_w]
+        if idx.size and np.mean(owner[idx] >= 0) > 0.3:
             continue
-        tracks.append(
-            {
-                "id": k,
-                "n": n,
-                "windows": w_up + w_dn,
-                "t_lo": min(lo_up, lo_dn),
-                "t_hi": max(hi_up, hi_dn),
-                "t_turn": turn_up,
-                "psi": psi0,
-            }
-        )
+        track, centres = run(t0, c0, psi0, len(tracks), guide)
+        if track["span"] >= p.guide_min_m:  # a long line (not a hatching bar) guides the next ones
+            guide = np.ascontiguousarray(np.concatenate([guide, centres], axis=1))
+        if track["n"]:
+            tracks.append(track)
+    # a short track (a dash) followed before the long lines beside it were is followed again with
+    # them as guides: across its gaps it keeps parallel to them
+    for i, tr in enumerate(tracks):
+        if tr["windows"] < relax_after and tr["guides"] < guide.shape[1]:
+            owner[owner == tr["id"]] = -1
+            tracks[i], _ = run(*tr["seed"], tr["id"], guide)
     if debug is not None:
         debug.update(tracks=tracks, owner=owner, t=t, c=cf)
     if not tracks:

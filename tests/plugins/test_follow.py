@@ -63,21 +63,31 @@ def follow_twin(
     base,
     owner,
     track,
+    steep,
+    relax_after,
+    guide,
+    guide_max,
     rows,
 ):
     """NumPy twin of ``_follow_kernel``: every window's features selected with array operations over
-    all the features, the same updates."""
+    all the features, the same updates; ``guide``: a (4, n) array of the guides' centres, headings
+    and curvatures. Returns the kernel's tuple and the (4, k) centres, headings and curvatures."""
     x, y, psi, kappa, gap = c0, t0, psi0, 0.0, 0.0
     windows = taken = 0
     t_lo, t_hi, t_turn, prev_psi = 1e9, -1e9, 1e9, psi0
     centres = []  # the centres of the windows with features, in order
+    recorded = []  # (x, y, heading, curvature) of each
     has_theta = theta >= 0
+    steep_at = steep[(rows - 1 - t).astype(np.int64)] > 0
     for _ in range(400):
         cp, sp = math.cos(psi), math.sin(psi)
         dx, dy = c - x, t - y
         u = dx * cp + dy * sp
         v = -dx * sp + dy * cp
-        ok_theta = ~has_theta | (np.abs(np.cos(theta - psi)) >= cos_max)
+        o_psi = psi % math.pi
+        lo, hi = min(o_psi, math.pi / 2), max(o_psi, math.pi / 2)
+        staircase = (windows >= relax_after) & steep_at & (theta >= lo) & (theta <= hi)
+        ok_theta = ~has_theta | (np.abs(np.cos(theta - psi)) >= cos_max) | staircase
         ok_theta &= (owner < 0) | (owner == track)
         hw = half_w + widen * gap
         sel = (u >= 0) & (u <= step) & (np.abs(v - 0.5 * kappa * u * u) <= hw) & ok_theta
@@ -107,6 +117,7 @@ def follow_twin(
                 new_psi = psi + (d + math.pi) % (2 * math.pi) - math.pi
             else:
                 kappa = min(max(0.7 * kappa + 0.3 * (new_psi - prev_psi) / step, -max_kappa), max_kappa)
+            recorded.append((*h[last], new_psi - kappa * (step - mu), kappa))
             mark = (u >= 0) & (u <= step) & (np.abs(v - a - b * u) <= half_w) & ok_theta & (owner < 0)
             owner[mark] = track
             taken += int(mark.sum())
@@ -123,19 +134,49 @@ def follow_twin(
             gap += step
             if gap > max_gap:
                 break
+        found = guide_twin(x, y, prev_psi, guide, guide_max, step, cos_max, max_kappa)
+        if found is not None:
+            psi, kappa = found
         if abs(math.cos(psi)) > sin_turn and t_turn > 1e8:
             t_turn = y
         if y < 0.0 or y > rows - 1:
             break
-    return windows, taken, t_lo, t_hi, t_turn
+    return (windows, taken, t_lo, t_hi, t_turn, len(recorded)), np.array(recorded).reshape(-1, 4).T
+
+
+def guide_twin(x, y, psi, guide, guide_max, step, cos_max, max_kappa):
+    """NumPy twin of ``_guide_at``: (heading, curvature) of the curve parallel to the nearest guide
+    centre facing ``(x, y)``, or None."""
+    gx, gy, gp, gk = guide
+    u = (x - gx) * np.cos(gp) + (y - gy) * np.sin(gp)
+    n = np.abs(-(x - gx) * np.sin(gp) + (y - gy) * np.cos(gp))
+    ok = (np.abs(np.cos(gp - psi)) >= cos_max) & (np.abs(u) <= 0.5 * step) & (n <= guide_max)
+    if not ok.any():
+        return None
+    k = np.flatnonzero(ok & (n == n[ok].min()))[-1]  # the kernel keeps the last of equals
+    g, kg = gp[k], gk[k]
+    if math.cos(g - psi) < 0:
+        g, kg = g + math.pi, -kg
+    gu = (x - gx[k]) * math.cos(g) + (y - gy[k]) * math.sin(g)
+    gn = -(x - gx[k]) * math.sin(g) + (y - gy[k]) * math.cos(g)
+    d = g + kg * gu - psi
+    den = 1.0 - kg * gn
+    return psi + (d + math.pi) % (2 * math.pi) - math.pi, min(
+        max(kg / den if den > 0.5 else kg, -max_kappa), max_kappa
+    )
 
 
 @pytest.mark.parametrize("radius_m", [30.0, -80.0, 1e6])
 def test_follow_kernel_matches_numpy_twin(radius_m):
+    """A solid line followed first, then a dashed line 70 px beside it with the solid one's centres
+    as its guide; the upper half of the BEV's rows stretched (``steep``)."""
     rows, cols = 400, 300
     bev = np.full((rows, cols), 80, np.uint8)
     c, t = arc(100.0, radius_m)
     draw(bev, c, t)
+    c2, t2 = arc(170.0, radius_m - 70 * RES * math.copysign(1.0, radius_m))  # concentric, 3.5 m right
+    dash = (np.arange(c2.size) * 0.2 // 60) % 3 == 0  # 3 m dashes, 6 m gaps
+    draw(bev, c2[dash], t2[dash])
     # hatching bars beside it and noise features
     for k in range(6):
         draw(bev, 220 + np.arange(0, 40, 0.5), 60 + 30 * k + np.arange(0, 40, 0.5))
@@ -147,6 +188,12 @@ def test_follow_kernel_matches_numpy_twin(radius_m):
     tt = (rows - 1 - r).astype(np.float64)
     cf = cc.astype(np.float64)
     row_start = np.searchsorted(r, np.arange(rows + 1)).astype(np.int64)
+    steep = np.zeros(rows, np.uint8)
+    steep[: rows // 2] = 1
+    # the staircase of stretched rows: the features there read nearly straight ahead (on the 30 m
+    # bend more than 25 degrees off the line: taken only as a staircase's)
+    up = (r < rows // 2) & (th >= 0)
+    th[up] = 0.1 * th[up] + 0.9 * math.pi / 2
     args = (
         20.0,
         5.0,
@@ -158,16 +205,28 @@ def test_follow_kernel_matches_numpy_twin(radius_m):
         0.1,
         200.0,
     )
-    for psi0 in (math.pi / 2, math.pi / 2 + math.pi):
+    guide = np.zeros((4, 0))
+    for c0, psi0 in ((100.0, math.pi / 2), (170.0, math.pi / 2), (170.0, math.pi / 2 + math.pi)):
         o1 = np.full(r.shape, -1, np.int32)
         o1[::7] = 1  # another track's features
         o2 = o1.copy()
-        got = _follow_kernel(tt, cf, th, row_start, 0.0, 100.0, psi0, *args, o1, 0)
-        exp = follow_twin(tt, cf, th, 0.0, 100.0, psi0, *args, o2, 0, rows)
-        assert got[:2] == exp[:2]
-        np.testing.assert_allclose(got[2:], exp[2:], atol=1e-6)
+        out = np.zeros((4, 401))
+        g = np.ascontiguousarray(guide)
+        got = _follow_kernel(
+            tt, cf, th, row_start, 0.0, c0, psi0, *args, o1, 0, steep, 3, *g, g.shape[1], 90.0, *out
+        )
+        exp, centres = follow_twin(tt, cf, th, 0.0, c0, psi0, *args, o2, 0, steep, 3, g, 90.0, rows)
+        assert got[:2] == exp[:2] and got[5] == exp[5]
+        np.testing.assert_allclose(got[2:5], exp[2:5], atol=1e-6)
+        np.testing.assert_allclose(out[:, : got[5]], centres, atol=1e-6)
         np.testing.assert_array_equal(o1, o2)
-    assert got[0] >= 0
+        assert got[0] >= 0
+        if c0 == 100.0:
+            guide = centres  # the solid line guides the dashed one
+            assert got[0] > 5
+            if radius_m == 30.0:  # the staircase's features counted: the line followed to the top
+                assert got[3] > 0.9 * rows
+    assert guide.shape[1] > 5
 
 
 # ----------------------------------------------------------------------------- the node
@@ -200,6 +259,42 @@ def test_follow_keeps_both_lines_of_a_bend_on_the_part_that_is_seen(radius_m):
         assert np.abs(lane_cols(ln, t[seen]) - c[seen]).max() < (6.0 if abs(radius_m) < 100 else 2.5)
         assert np.abs(lane_cols(ln, t[seen]) - c[seen]).mean() < 3.0
         assert ln.extra["followed"]
+
+
+@pytest.mark.parametrize("radius_m", [30.0, -30.0, 45.0, 60.0])
+@pytest.mark.parametrize("phase_m", [1.0, 2.5])
+def test_follow_keeps_a_dashed_line_parallel_to_the_solid_lines_across_its_gaps(radius_m, phase_m):
+    """A dashed line (3 m dashes, 9 m gaps) between two solid lines on a bend, among scattered
+    noise features, only a metre or two of its first dash in the BEV: its own curvature over a dash
+    is noise, and without the solid lines as guides (``guide_m`` 0) it is lost on some bends; with
+    them it is followed across its gaps, its lane within 5 px (25 cm) of the line where seen."""
+    rows, cols = 800, 400
+    bev = np.full((rows, cols), 80, np.uint8)
+    for c0 in (95.0, 165.0, 235.0):  # concentric, 3.5 m apart; the dashed one 1.75 m left
+        c, t = arc(c0, radius_m - (c0 - 200.0) * RES)
+        if c0 == 165.0:
+            keep = (np.arange(c.size) * 0.2 * RES + phase_m) % 12.0 < 3.0
+            truth = c, t
+            c, t = c[keep], t[keep]
+        draw(bev, c, t)
+    rng = np.random.default_rng(5)
+    bev[rng.integers(0, rows, 600), rng.integers(0, cols, 600)] = 200
+    f = features_of(bev)
+
+    def left_lane(params):
+        return [
+            ln
+            for ln in follow(params, features=f, geometry=geometry(rows, cols))["lanes"]
+            if ln.side == "left"
+        ]
+
+    (ln,) = left_lane(FollowParams())
+    c, t = truth
+    seen = (t <= rows - 1 - ln.bev_rows[0]) & (np.abs(np.gradient(c, t)) < math.tan(math.radians(60)))
+    assert t[seen].max() > 12.0 / RES  # beyond the first gap
+    assert np.abs(lane_cols(ln, t[seen]) - c[seen]).max() < 5.0
+    if (radius_m, phase_m) == (45.0, 1.0):
+        assert left_lane(FollowParams(guide_m=0.0)) == []  # what the guides change
 
 
 def test_follow_drops_hatching_bars_and_keeps_the_gore_border_line():
@@ -312,3 +407,24 @@ def test_merge_replaces_first_then_adds_and_prefers_the_shorter_closer_followed_
         f,
     )
     assert out[0].bev_rows == (0, 799)
+
+
+def test_merge_counts_a_crossing_lanes_support_within_half_a_marking():
+    """A Hough lane on the same curving line near the car that leaves it far ahead (0.2 m apart on
+    average, 0.6 m at the far end: one parabola over a changing curvature): within a whole
+    marking's width it keeps nearly as many features as the followed lane (1.18 times fewer:
+    kept before), within half of it clearly fewer: replaced."""
+    g = geometry()
+    rows = np.arange(800)
+    t = 799.0 - rows
+    c = 240.0 + 2e-4 * t * t
+    near = t < 400  # a marking 3 px wide near, one feature on every 4th row far
+    rr = np.concatenate([np.repeat(rows[near], 3), rows[~near & (rows % 4 == 0)]])
+    cc = np.concatenate([np.repeat(c[near], 3) + np.tile([-1, 0, 1], near.sum()), c[~near & (rows % 4 == 0)]])
+    order = np.argsort(rr, kind="stable")
+    f = FeatureMap.from_points((800, 400), rr[order], cc[order].round())
+    followed = Lane((240.0, 0.0, 2e-4), (0, 799), "right", 1.0)
+    hough = Lane((240.0, 0.0, 2.2e-4), (0, 799), "right", 1.0)
+    assert merge([hough], [followed], g, MergeParams(), f) == [followed]
+    # the Hough lane on the line, the followed one leaving it: kept
+    assert merge([followed], [hough], g, MergeParams(), f) == [followed]
