@@ -11,9 +11,14 @@ falls on all of them alike):
 
 For each: the wall time, the time to the first line the command prints (stdout or stderr), and
 whether its ``lanes.jsonl`` is byte-identical to the warm run's. Prints the medians, the ratios to
-the warm run and the load average before and after.
+the warm run (the median and each round's: a shared machine's load changes between rounds) and the
+load average before and after.
 
-    python benchmarks/bench_first_run.py --rounds 3
+``--baseline PYTHON`` measures another install in the same sitting, its runs interleaved with these
+(``PYTHON -m lanegraph.cli run``: e.g. the Python an older checkout is installed in); its lanes must
+be identical too.
+
+    python benchmarks/bench_first_run.py --rounds 3 [--baseline /path/to/before/python]
 """
 
 from __future__ import annotations
@@ -29,11 +34,15 @@ from pathlib import Path
 from statistics import median
 
 
-def run_once(env: dict[str, str], out: Path, args: list[str]) -> tuple[float, float, bytes]:
-    """(wall s, s to the first line, lanes.jsonl) of one piped ``lanegraph run``."""
-    cmd = [sys.executable, "-m", "lanegraph.cli", "run", "--out", str(out), *args]
+def run_once(
+    env: dict[str, str], out: Path, args: list[str], python: str = sys.executable
+) -> tuple[float, float, bytes]:
+    """(wall s, s to the first line, lanes.jsonl) of one piped ``lanegraph run`` (of ``python``)."""
+    cmd = [python, "-m", "lanegraph.cli", "run", "--out", str(out), *args]
     t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    # from the output's folder: ``-m`` imports from the working folder first (never this checkout's
+    # lanegraph in place of the baseline's)
+    proc = subprocess.Popen(cmd, env=env, cwd=out.parent, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     first = None
     sel = selectors.DefaultSelector()
     assert proc.stdout is not None and proc.stderr is not None
@@ -58,58 +67,80 @@ def run_once(env: dict[str, str], out: Path, args: list[str]) -> tuple[float, fl
     return wall, first if first is not None else wall, (out / "lanes.jsonl").read_bytes()
 
 
+KINDS = ("first on this machine", "new cache folder", "warm")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--rounds", type=int, default=3, help="runs of each kind (default 3)")
+    ap.add_argument(
+        "--baseline", metavar="PYTHON", help="also measure the lanegraph of this Python, interleaved"
+    )
     ap.add_argument("args", nargs="*", help="more arguments for lanegraph run (e.g. a graph)")
     opt = ap.parse_args()
-    base = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "LANEGRAPH_CACHE_DIR")}
+    base = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in ("NUMBA_CACHE_DIR", "LANEGRAPH_CACHE_DIR", "LANEGRAPH_KERNEL_CACHE")
+    }
     print(f"load average before: {' '.join(f'{x:.2f}' for x in os.getloadavg())} ({os.cpu_count()} cores)")
-    rows: dict[str, list[tuple[float, float, bool]]] = {
-        "first on this machine": [],
-        "new cache folder": [],
-        "warm": [],
+    installs = {"this": sys.executable, **({"baseline": opt.baseline} if opt.baseline else {})}
+    rows: dict[tuple[str, str], list[tuple[float, float, bool]]] = {
+        (i, k): [] for i in installs for k in KINDS
     }
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
-        shared_kernels = root / "kernels-shared"
-        warm_env = {
-            **base,
-            "LANEGRAPH_CACHE_DIR": str(root / "warm-cache"),
-            "LANEGRAPH_KERNEL_CACHE": str(shared_kernels),
-        }
-        _, _, reference = run_once(warm_env, root / "out-prime", opt.args)  # fills the shared kernels
+        warm_env, reference = {}, None
+        for inst, python in installs.items():
+            warm_env[inst] = {
+                **base,
+                "LANEGRAPH_CACHE_DIR": str(root / f"{inst}-warm-cache"),
+                "LANEGRAPH_KERNEL_CACHE": str(root / f"{inst}-kernels-shared"),
+            }
+            _, _, lanes = run_once(
+                warm_env[inst], root / f"{inst}-out-prime", opt.args, python
+            )  # the kernels
+            reference = reference if reference is not None else lanes
+            if lanes != reference:
+                print(f"  {inst}: lanes DIFFERENT from this install's", flush=True)
         for k in range(opt.rounds):
-            for kind in rows:
-                if kind == "first on this machine":
-                    env = {
-                        **base,
-                        "LANEGRAPH_CACHE_DIR": str(root / f"c{k}"),
-                        "LANEGRAPH_KERNEL_CACHE": str(root / f"k{k}"),
-                    }
-                elif kind == "new cache folder":
-                    env = {
-                        **base,
-                        "LANEGRAPH_CACHE_DIR": str(root / f"n{k}"),
-                        "LANEGRAPH_KERNEL_CACHE": str(shared_kernels),
-                    }
-                else:
-                    env = warm_env
-                wall, first, lanes = run_once(env, root / f"out-{kind[:3]}-{k}", opt.args)
-                rows[kind].append((wall, first, lanes == reference))
-                print(
-                    f"  round {k + 1} {kind:22s} wall {wall:6.2f} s, first line after {first:5.2f} s, "
-                    f"lanes {'identical' if lanes == reference else 'DIFFERENT'}",
-                    flush=True,
-                )
-    warm = median(w for w, _, _ in rows["warm"])
+            for inst, python in installs.items():
+                for kind in KINDS:
+                    if kind == "first on this machine":
+                        env = {
+                            **base,
+                            "LANEGRAPH_CACHE_DIR": str(root / f"{inst}-c{k}"),
+                            "LANEGRAPH_KERNEL_CACHE": str(root / f"{inst}-k{k}"),
+                        }
+                    elif kind == "new cache folder":
+                        env = {**warm_env[inst], "LANEGRAPH_CACHE_DIR": str(root / f"{inst}-n{k}")}
+                    else:
+                        env = warm_env[inst]
+                    load = os.getloadavg()[0]
+                    wall, first, lanes = run_once(env, root / f"{inst}-out-{kind[:3]}-{k}", opt.args, python)
+                    rows[inst, kind].append((wall, first, lanes == reference))
+                    print(
+                        f"  round {k + 1} {inst:8s} {kind:22s} wall {wall:6.2f} s, first line after "
+                        f"{first:5.2f} s, lanes {'identical' if lanes == reference else 'DIFFERENT'}, "
+                        f"load {load:.2f}",
+                        flush=True,
+                    )
     print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
-    print(f"{'run':24s} {'median wall':>12s} {'x warm':>7s} {'first line':>11s}  lanes")
-    for kind, rs in rows.items():
-        wall = median(w for w, _, _ in rs)
-        first = median(f for _, f, _ in rs)
-        same = "identical" if all(s for _, _, s in rs) else "DIFFERENT"
-        print(f"{kind:24s} {wall:10.2f} s {wall / warm:6.1f}x {first:9.2f} s  {same}")
+    print(
+        f"{'install':9s}{'run':24s} {'median wall':>12s} {'x warm':>7s} {'per round':>18s} {'first line':>11s}  lanes"
+    )
+    for inst in installs:
+        warm_walls = [w for w, _, _ in rows[inst, "warm"]]
+        warm = median(warm_walls)
+        for kind in KINDS:
+            rs = rows[inst, kind]
+            wall = median(w for w, _, _ in rs)
+            first = median(f for _, f, _ in rs)
+            per_round = ", ".join(f"{w / ww:.1f}" for (w, _, _), ww in zip(rs, warm_walls))
+            same = "identical" if all(s for _, _, s in rs) else "DIFFERENT"
+            print(
+                f"{inst:9s}{kind:24s} {wall:10.2f} s {wall / warm:6.1f}x {per_round:>18s} {first:9.2f} s  {same}"
+            )
 
 
 if __name__ == "__main__":

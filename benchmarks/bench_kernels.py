@@ -189,8 +189,8 @@ def road_kernels(rng: np.random.Generator) -> None:
     w = rng.integers(100, 600, v.size).astype(np.float64)  # the rows' pixel counts, as the profile gives them
     ii, jj = profile._sample_pairs(v.size, 300, 0)
     row(
-        "_line_fit_kernel",
-        timed(lambda: profile._line_fit_kernel(v, dv, w, ii, jj, 1.0, 4, 0.0)),
+        "_line_fit",
+        timed(lambda: profile._line_fit(v, dv, w, ii, jj, 1.0, 4, 0.0)),
         timed(lambda: tr.line_fit_np(v, dv, w, 1.0, 300)),
         "(255 rows, 300 RANSAC samples, 4 rounds at most)",
     )

@@ -1,15 +1,18 @@
-"""Write the kernel list of the first run's helper process (lanegraph.kernel_cache): the kernels the
-default ``lanegraph run`` calls from Python, with their argument types, in the order it compiles
-them. Run it after changing a kernel's signature or adding one to the default graph (a stale list
-costs the first run time, never a result):
+"""Write the kernel list of the first run (lanegraph.kernel_cache): the kernels the default
+``lanegraph run`` calls from Python, with their argument types, longest compilation first (the run
+and its helper process take them from the front: the longest first balances the two). Each one's
+compilation is timed alone (CPU seconds, a fresh process with an empty kernel folder, ``--rounds``
+times, the least kept) and written beside it. Run it after changing a kernel, its signature or the
+default graph's kernels (a stale list costs the first run time, never a result):
 
-    python benchmarks/record_kernels.py [lanegraph/data/kernels.json] [-- RUN ARGS]
+    python benchmarks/record_kernels.py [lanegraph/data/kernels.json] [--rounds N] [-- RUN ARGS]
 """
 
 from __future__ import annotations
 
 import json
 import os
+import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -54,15 +57,62 @@ def record(argv: list[str]) -> list[dict]:
     return entries
 
 
+#: compiles one entry (argv[1], JSON) in a fresh process after a small kernel (numba's own start-up
+#: is not the entry's) and prints the CPU seconds of its compilation
+_TIME_ONE = """
+import json, sys, time
+import numpy as np
+from lanegraph import jit
+from lanegraph.kernel_cache import decode_type
+import importlib
+
+@jit(cache=False)
+def _first(a):
+    return a[0]
+
+_first(np.zeros(1))
+e = json.loads(sys.argv[1])
+kernel = getattr(importlib.import_module(e["module"]), e["name"])
+sig = tuple(decode_type(a) for a in e["args"])
+t = time.process_time()
+kernel.compile(sig)
+print(time.process_time() - t)
+"""
+
+
+def compile_seconds(entry: dict, rounds: int) -> float:
+    """The least CPU time of ``rounds`` compilations of ``entry`` alone (with what it calls), each in
+    a fresh process with an empty kernel folder."""
+    best = float("inf")
+    for _ in range(rounds):
+        with tempfile.TemporaryDirectory() as tmp:
+            env = {**os.environ, "NUMBA_CACHE_DIR": tmp, "LANEGRAPH_PRECOMPILE": "0"}
+            out = subprocess.run(
+                [sys.executable, "-c", _TIME_ONE, json.dumps(entry)],
+                env=env, capture_output=True, text=True, check=True, cwd=ROOT,
+            )  # fmt: skip
+            best = min(best, float(out.stdout.split()[-1]))
+    return best
+
+
 def main() -> None:
     args = sys.argv[1:]
     run_args = args[args.index("--") + 1 :] if "--" in args else []
     args = args[: args.index("--")] if "--" in args else args
+    rounds = 1
+    if "--rounds" in args:
+        k = args.index("--rounds")
+        rounds = int(args[k + 1])
+        del args[k : k + 2]
     out = Path(args[0]) if args else ROOT / "lanegraph" / "data" / "kernels.json"
     entries = record(run_args)
+    for e in entries:
+        e["seconds"] = round(compile_seconds(e, rounds), 2)
+        print(f"{e['seconds']:6.2f} s  {e['module']}.{e['name']}", flush=True)
+    entries.sort(key=lambda e: -e["seconds"])  # longest first; sort is stable: the run's order on a tie
     text = ",\n".join(json.dumps(e) for e in entries)  # one kernel a line
     out.write_text(f"[\n{text}\n]\n", encoding="utf-8")
-    print(f"{len(entries)} kernels -> {out}")
+    print(f"{len(entries)} kernels, {sum(e['seconds'] for e in entries):.1f} s of compilation -> {out}")
 
 
 if __name__ == "__main__":

@@ -14,13 +14,17 @@ and numba have compiled them on this machine), and, from then on, says so at the
 of the process if the stamp was wrong (a plugin changed, the cache was emptied).
 
 On that first run, with two CPUs or more, :func:`first_run_notice` also starts a second process
-(``python -m lanegraph.kernel_cache LIST``) that compiles the kernels the default run needs
+(``python -m lanegraph.kernel_cache LIST CLAIMS``) that compiles the kernels the default run needs
 (``lanegraph/data/kernels.json``: module, name and argument types of each, written by
-``benchmarks/record_kernels.py``) into the same folder, in the reverse of the order
-the run needs them: the run compiles the first ones while the helper compiles the last ones, and
-loads each kernel the helper has already saved instead of compiling it. The run stops the helper
-when it ends. A list that no longer matches the code costs only the time: a kernel it does not
-name is compiled by the run as before, a name or a type it cannot resolve is skipped.
+``benchmarks/record_kernels.py`` longest compilation first) into the same folder. Once the run has
+read its graph (before its first frame), :func:`compile_share` has the run take its part of the same
+list: the two processes take the kernels one at a time from the front of the list, each claiming one
+(an exclusive file in the folder ``CLAIMS``, made by the run) before it compiles it, so no kernel is
+compiled twice and both CPUs stay busy to the end (longest first: neither is left with a long one
+at the end). The run then waits for the kernels the helper is still compiling, and loads those from
+the kernel folder when it calls them. The run stops the helper and removes ``CLAIMS`` when it ends.
+A list that no longer matches the code costs only the time: a kernel it does not name is compiled
+by the run as before, a name or a type it cannot resolve is skipped.
 """
 
 from __future__ import annotations
@@ -31,11 +35,14 @@ import json
 import os
 import platform
 import re
+import shutil
 import subprocess
 import sys
+import tempfile
+import time
 from pathlib import Path
 
-_STATE = {"said": False, "armed": False}
+_STATE: dict = {"said": False, "armed": False, "helper": None, "claims": None}
 
 #: the kernels of the default run (module, name, argument types), for the first run's helper
 KERNEL_LIST = Path(__file__).resolve().parent / "data" / "kernels.json"
@@ -181,8 +188,12 @@ def _start_helper() -> None:
     ):
         return
     try:
+        claims = tempfile.mkdtemp(prefix="lanegraph-claims-")
+    except OSError:
+        return
+    try:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "lanegraph.kernel_cache", str(KERNEL_LIST)],
+            [sys.executable, "-m", "lanegraph.kernel_cache", str(KERNEL_LIST), claims],
             # ``-m`` puts the working folder first on the child's import path: started from the
             # folder lanegraph is installed in, a module lying in the user's folder (an input or
             # output folder, say) can never be imported in its place
@@ -192,17 +203,39 @@ def _start_helper() -> None:
             stderr=subprocess.DEVNULL,
         )
     except OSError:
+        shutil.rmtree(claims, ignore_errors=True)
         return
-    atexit.register(_stop_helper, proc)
+    _STATE["helper"], _STATE["claims"] = proc, claims
+    atexit.register(_stop_helper, proc, claims)
 
 
-def _stop_helper(proc: subprocess.Popen) -> None:
+def _stop_helper(proc: subprocess.Popen, claims: str | None = None) -> None:
     if proc.poll() is None:
         proc.terminate()  # numba writes a cache entry to a temporary file first: none is left half-written
         try:
             proc.wait(timeout=5)
         except subprocess.TimeoutExpired:  # pragma: no cover - terminate is honoured
             proc.kill()
+    if claims:
+        shutil.rmtree(claims, ignore_errors=True)
+
+
+def compile_share() -> int:
+    """The run's part of the first run's compilation, once its graph is read: the kernels of the list
+    that the helper has not claimed, then a wait for those it is still compiling (see the module's
+    text). Returns how many the run compiled; 0 (at once) when no helper was started."""
+    proc, claims = _STATE["helper"], _STATE["claims"]
+    if proc is None or claims is None:
+        return 0
+    _STATE["helper"] = None  # once
+    entries = _read_list(KERNEL_LIST)
+    folder = Path(claims)
+    done = precompile(entries, folder)
+    while proc.poll() is None:  # the helper's kernels in progress: loaded from the folder when called
+        if all((folder / f"{i}.done").exists() for i in range(len(entries))):
+            break
+        time.sleep(0.01)
+    return done
 
 
 _ARRAY = re.compile(r"array\((\w+), (\d+), ([CFA])(, readonly)?\)")
@@ -236,14 +269,37 @@ def decode_type(text: str):
     return numba.from_dtype(np.dtype(text))
 
 
-def precompile(entries: list[dict]) -> int:
+def _claim(claims: Path | None, i: int) -> bool:
+    """Whether this process takes the list's entry ``i`` (an exclusive file in ``claims``; always
+    without a claims folder)."""
+    if claims is None:
+        return True
+    try:
+        os.close(os.open(claims / str(i), os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600))
+        return True
+    except OSError:  # claimed by the other process, or the folder is gone (the run has ended)
+        return False
+
+
+def _done(claims: Path | None, i: int) -> None:
+    if claims is not None:
+        try:
+            (claims / f"{i}.done").write_bytes(b"")
+        except OSError:
+            pass
+
+
+def precompile(entries: list[dict], claims: Path | None = None) -> int:
     """Compile (or load from the kernel folder) each ``{"module", "name", "args"}`` of ``entries`` in
-    the reverse order; returns how many were compiled or loaded. An entry whose module, kernel or
-    types cannot be resolved is skipped: the list is a hint, the run compiles what it needs."""
+    order, each one this process claims in the folder ``claims`` (every one without it); returns how
+    many were compiled or loaded. An entry whose module, kernel or types cannot be resolved is
+    skipped: the list is a hint, the run compiles what it needs."""
     import importlib  # the kernels' modules load lanegraph._numba: numba's cache folder, as the run's
 
     done = 0
-    for entry in reversed(entries):
+    for i, entry in enumerate(entries):
+        if not _claim(claims, i):
+            continue
         try:
             if str(entry["module"]).split(".")[0] not in _KERNEL_PACKAGES:
                 continue  # the list names lanegraph's own kernels only
@@ -256,24 +312,40 @@ def precompile(entries: list[dict]) -> int:
             done += 1
         except Exception:  # noqa: BLE001 - a stale entry: the run compiles it itself
             continue
+        finally:
+            _done(claims, i)
     return done
 
 
-def _main(argv: list[str]) -> int:
-    if len(argv) != 1:
-        print("usage: python -m lanegraph.kernel_cache LIST", file=sys.stderr)
-        return 2
-    if hasattr(os, "nice"):
-        os.nice(10)  # where the CPUs are busy, the run's own compilation goes first
+def _read_list(path: Path) -> list[dict]:
+    """The kernel list's entries ([] for a file that cannot be read)."""
     try:
-        entries = json.loads(Path(argv[0]).read_text(encoding="utf-8"))
+        entries = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError):
+        return []
+    return [e for e in entries if isinstance(e, dict)] if isinstance(entries, list) else []
+
+
+def _main(argv: list[str]) -> int:
+    if len(argv) not in (1, 2):
+        print("usage: python -m lanegraph.kernel_cache LIST [CLAIMS]", file=sys.stderr)
+        return 2
+    entries = _read_list(Path(argv[0]))
+    if not entries:
         return 1
-    precompile([e for e in entries if isinstance(e, dict)] if isinstance(entries, list) else [])
+    precompile(entries, Path(argv[1]) if len(argv) == 2 else None)
     return 0
 
 
-__all__ = ["cache_root", "decode_type", "encode_type", "first_run_notice", "kernel_cache_dir", "precompile"]
+__all__ = [
+    "cache_root",
+    "compile_share",
+    "decode_type",
+    "encode_type",
+    "first_run_notice",
+    "kernel_cache_dir",
+    "precompile",
+]
 
 if __name__ == "__main__":
     sys.exit(_main(sys.argv[1:]))

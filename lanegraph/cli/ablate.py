@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from ..kernel_cache import first_run_notice
+from ..kernel_cache import compile_share, first_run_notice
 from ._common import FOLDER, dataset_option, keeping_options, parse_frames, scale_out_options, session
 from ._errors import handled
 
@@ -86,6 +86,7 @@ def ablate(
     runner = s.runner(scheduler)
     runs = ablation_variants(base, variants, sweeps)
     dataset = dataset_option(dataset_path, input_path, gt_path)
+    compile_share()  # the first run on a machine: its part of the kernels, beside the helper's
     return s.ablate(
         runs, dataset, out_dir, frames=parse_frames(frames), cache_dir=cache_dir, cache_max_gb=cache_max_gb,
         no_cache=no_cache, runner=runner, chunk_frames=chunk_frames, warmup=warmup, make_report=make_report,

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from ..errors import UsageError
-from ..kernel_cache import first_run_notice
+from ..kernel_cache import compile_share, first_run_notice
 from ._common import FOLDER, keeping_options, parse_frames, scale_out_options, session
 from ._errors import handled
 
@@ -94,6 +94,7 @@ def run(
         runner = s.runner(scheduler)
         dataset = load_dataset(dataset_path)
         graph_ = s.open_graph(graph, sets)
+        compile_share()  # the first run on a machine: its part of the kernels, beside the helper's
         return s.run_dataset(
             graph_, dataset, out_dir, frames=parse_frames(frames), runner=runner,
             chunk_frames=chunk_frames, warmup=warmup,
@@ -106,7 +107,9 @@ def run(
         if given is not None:
             raise UsageError(f"{flag} runs the sequences of a --dataset: give --dataset FILE")
     s = session(quiet, verbose, overwrite, track)
+    graph_ = s.open_graph(graph, sets)
+    compile_share()  # the first run on a machine: its part of the kernels, beside the helper's
     return s.run(
-        s.open_graph(graph, sets), input_path=input_path, out_dir=out_dir, frames=parse_frames(frames),
+        graph_, input_path=input_path, out_dir=out_dir, frames=parse_frames(frames),
         resume=resume, debug_dir=debug_dir, debug_frames=debug_frames, make_report=make_report,
     )  # fmt: skip

@@ -123,20 +123,6 @@ def _eslt_borders(gx, gy, mag2, r, c, lo, hi, cos2_max, out_mask, out_theta):
 
 
 @jit
-def _slt_clipped(img, csum, r, c, window, cols, threshold, where, use_where, slt):
-    """SLT at ``(r, c)`` with its windows clipped at the row's ends (an empty one: no feature)."""
-    lo = max(c - window, 0)
-    hi = min(c + 1 + window, cols)
-    nl = c - lo
-    nr = hi - (c + 1)
-    if nl == 0 or nr == 0 or (use_where and where[r, c] == 0):
-        return
-    v = img[r, c] - threshold
-    if v * nl > csum[c] - csum[lo] and v * nr > csum[hi] - csum[c + 1]:
-        slt[c] = 1
-
-
-@jit
 def _row_csum(img, r, cols, zero, csum):
     """``csum[c] = img[r, :c].sum()``; ``zero``: an int64 0 for an integer image (an integer running
     sum: one-cycle adds instead of a chain of float additions, the same exact sums), a float64 0
@@ -153,7 +139,7 @@ def _slt_span(img, csum, r, c0, c1, window, cols, threshold, where, use_where, s
     """SLT (``v n_l > sum_l`` and ``v n_r > sum_r``, ``v = I - T``) at the columns ``[c0, c1)`` of
     row ``r`` into the 0/1 row ``slt``, which must be 0 there. Where both windows are whole the test
     runs on row slices (contiguous views, a loop without branches: it vectorises); the few columns
-    near the row's ends go through :func:`_slt_clipped`. ``csum``: the row's :func:`_row_csum`."""
+    near the row's ends with their windows clipped. ``csum``: the row's :func:`_row_csum`."""
     w = min(window, cols)
     a = max(c0, w)
     b = max(min(c1, cols - w), a)
@@ -174,10 +160,22 @@ def _slt_span(img, csum, r, c0, c1, window, cols, threshold, where, use_where, s
         for k in range(n):
             v = iv[k] - threshold
             ov[k] = (v * wf > mid0[k] - left[k]) & (v * wf > right[k] - mid1[k])
-    for k in range(c0, a):  # clipped windows: the ends of the row
-        _slt_clipped(img, csum, r, k, window, cols, threshold, where, use_where, slt)
-    for k in range(max(b, c0), c1):
-        _slt_clipped(img, csum, r, k, window, cols, threshold, where, use_where, slt)
+    # the columns near the row's ends, ``[c0, a)`` then ``[max(b, c0), c1)``: the windows clipped
+    # there (an empty one: no feature); written here, not in a function of their own (one more for
+    # numba to compile on the first run's path)
+    for part in range(2):
+        k0 = c0 if part == 0 else max(b, c0)
+        k1 = a if part == 0 else c1
+        for c in range(k0, k1):
+            lo = max(c - window, 0)
+            hi = min(c + 1 + window, cols)
+            nl = c - lo
+            nr = hi - (c + 1)
+            if nl == 0 or nr == 0 or (use_where and where[r, c] == 0):
+                continue
+            v = img[r, c] - threshold
+            if v * nl > csum[c] - csum[lo] and v * nr > csum[hi] - csum[c + 1]:
+                slt[c] = 1
 
 
 @jit(parallel=True)
@@ -189,7 +187,9 @@ def _slt(img, window, threshold, where, out):
     boundaries (a test by division could round the other way). Rows in parallel."""
     rows, cols = img.shape
     use_where = where.shape[0] > 0
-    zero = np.zeros(1, img.dtype)[0] + np.int64(0)  # int64 for an integer image, float64 for a float one
+    zbuf = np.empty(1, img.dtype)  # not np.zeros: one function less to compile (first run)
+    zbuf[0] = 0
+    zero = zbuf[0] + np.int64(0)  # int64 for an integer image, float64 for a float one
     for r in prange(rows):
         row = out[r]
         for c in range(cols):
@@ -235,11 +235,15 @@ def _eslt_rows(img, gx, gy, window, threshold, max_angle, where, out_mask, out_t
     cmax = math.cos(max_angle)
     cos2_max = cmax * cmax if max_angle < math.pi / 2 else 0.0
     use_where = where.shape[0] > 0
-    zero = np.zeros(1, img.dtype)[0] + np.int64(0)  # int64 for an integer image, float64 for a float one
+    zbuf = np.empty(1, img.dtype)  # not np.zeros: one function less to compile (first run)
+    zbuf[0] = 0
+    zero = zbuf[0] + np.int64(0)  # int64 for an integer image, float64 for a float one
     words = (cols + 7) // 8
     csum = np.empty(cols + 1, np.float64)
     mag2 = np.empty(cols, np.float32)
-    slt = np.zeros(8 * words, np.uint8)
+    slt = np.empty(8 * words, np.uint8)
+    for c in range(8 * words):
+        slt[c] = 0
     slt_words = slt.view(np.uint64)
     for t in range(t0, t1):
         for r in range(t * _CHUNK, min(rows, (t + 1) * _CHUNK)):

@@ -204,35 +204,61 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px, scale_of, prior):
     half = 0.5 * (hi - lo)
     if half <= 0.0:
         half = 1.0
+    # every array is np.empty(n) or np.empty((r, c)) and filled by a loop, powers are products and
+    # the polynomial is written out (no np.zeros, np.ones, copy, ** or small helper kernels): each of
+    # those is one more function for numba to compile, and this kernel's compilation is on the first
+    # run's path (the same values: products of at most three factors are ``**``'s own)
     x = np.empty(n)
     for i in range(n):
         x[i] = (t[i] - mid) / half
     # x^j = sum_i C(j, i) t^i (-mid)^(j - i) / half^j: T[i, j] maps x-coefficients to t-coefficients
-    T = np.zeros((m, m))
+    pm = np.empty(m)  # (-mid)**e
+    ph = np.empty(m)  # half**e
+    pm[0] = 1.0
+    ph[0] = 1.0
+    for e in range(1, m):
+        pm[e] = pm[e - 1] * -mid
+        ph[e] = ph[e - 1] * half
+    T = np.empty((m, m))
+    for i in range(m):
+        for j in range(m):
+            T[i, j] = 0.0
     for j in range(m):
         binom = 1.0
         for i in range(j + 1):
-            T[i, j] = binom * (-mid) ** (j - i) / half**j
+            T[i, j] = binom * pm[j - i] / ph[j]
             binom = binom * (j - i) / (i + 1)
-    ks = np.ones(n)
-    if scale_of.size == n:
-        for i in range(n):
-            ks[i] = scale_of[i]
-    pw = np.ones(n)  # the fixed part of the system's weights
+    ks = np.empty(n)
+    pw = np.empty(n)  # the fixed part of the system's weights
+    w = np.empty(n)  # the robust weights
+    sw = np.empty(n)  # the system's weights
     for i in range(n):
+        ks[i] = scale_of[i] if scale_of.size == n else 1.0
         pw[i] = ks[i] * ks[i] * (prior[i] if prior.size == n else 1.0)
-    w = np.ones(n)  # the robust weights
-    sw = pw.copy()  # the system's weights
-    coef = np.zeros(m)
-    a = np.zeros(m)
+        w[i] = 1.0
+        sw[i] = pw[i]
+    coef = np.empty(m)
+    a = np.empty(m)
+    for j in range(m):
+        coef[j] = 0.0
+        a[j] = 0.0
     res = np.empty(n)
     dev = np.empty(n)
     M = np.empty((m, m + 1))
     for it in range(iterations + 1):
         if it > 0:
-            ca = _coeffs4(a)
+            c0 = a[0]  # _poly4(_coeffs4(a), x), written out
+            c1 = a[1] if m > 1 else 0.0
+            c2 = a[2] if m > 2 else 0.0
+            c3 = a[3] if m > 3 else 0.0
             for i in range(n):
-                res[i] = (y[i] - _poly4(ca, x[i])) * ks[i]
+                xi = x[i]
+                p = 0.0
+                p = p * xi + c3
+                p = p * xi + c2
+                p = p * xi + c1
+                p = p * xi + c0
+                res[i] = (y[i] - p) * ks[i]
             for i in range(n):
                 dev[i] = res[i]
             med = median_inplace(dev, n)  # np.median's value (lanegraph_lanes._select)
@@ -258,10 +284,13 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px, scale_of, prior):
             for i in range(n):
                 sw[i] = w[i] * pw[i]
         _normal_equations(x, sw, y, m, M)
-        new_a = np.zeros(m)
+        new_a = np.empty(m)
+        new = np.empty(m)
+        for i in range(m):
+            new_a[i] = 0.0
+            new[i] = 0.0
         if not _solve_augmented(M, 1e-12 * max(1.0, abs(M[0, 0])), new_a):
             return False, coef, w
-        new = np.zeros(m)
         for i in range(m):
             for j in range(m):
                 new[i] += T[i, j] * new_a[j]
@@ -274,10 +303,19 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px, scale_of, prior):
             step = np.empty(m)
             for i in range(m):
                 step[i] = new_a[i] - a[i]
-            cs = _coeffs4(step)
+            c0 = step[0]  # _poly4(_coeffs4(step), x), written out
+            c1 = step[1] if m > 1 else 0.0
+            c2 = step[2] if m > 2 else 0.0
+            c3 = step[3] if m > 3 else 0.0
             moved = 0.0
             for i in range(n):
-                moved = max(moved, abs(_poly4(cs, x[i])))
+                xi = x[i]
+                p = 0.0
+                p = p * xi + c3
+                p = p * xi + c2
+                p = p * xi + c1
+                p = p * xi + c0
+                moved = max(moved, abs(p))
             a = new_a
             coef = new
             if moved <= tol_px:

@@ -66,26 +66,19 @@ def kth_smallest(a, n, k):
 
 
 @jit
-def _kth_pair(a, n, k):
-    """The ``k``-th and ``(k + 1)``-th smallest of ``a[:n]`` (``k + 1 < n``), reordering it."""
-    lower = kth_smallest(a, n, k)
-    upper = a[k + 1]
-    for i in range(k + 2, n):
-        upper = min(upper, a[i])
-    return lower, upper
-
-
-@jit
 def median_inplace(a, n):
     """``np.median(a[:n])`` (the mean of the two middle values when ``n`` is even; NaN when ``n`` is
     0), reordering ``a[:n]``."""
     if n == 0:
         return math.nan
     half = n >> 1
-    if n & 1 == 0:
-        lower, upper = _kth_pair(a, n, half - 1)
-        return (lower + upper) / 2
-    return kth_smallest(a, n, half)
+    if n & 1:
+        return kth_smallest(a, n, half)
+    lower = kth_smallest(a, n, half - 1)  # and the next one: the least of a[half:n] (>= lower)
+    upper = a[half]
+    for i in range(half + 1, n):
+        upper = upper if upper <= a[i] else a[i]
+    return (lower + upper) / 2
 
 
 @jit
@@ -101,5 +94,9 @@ def percentile_inplace(a, n, q):
     rank = 1 + (n - 1) * (q / 100.0)
     f = math.floor(rank)
     m = rank - f
-    lower, upper = _kth_pair(a, n, int(f - 1))
+    k = int(f - 1)  # k + 1 < n: the value at rank k and the next one, the least of a[k + 1:n]
+    lower = kth_smallest(a, n, k)
+    upper = a[k + 1]
+    for i in range(k + 2, n):
+        upper = upper if upper <= a[i] else a[i]
     return lower * (1 - m) + upper * m

@@ -58,7 +58,8 @@ def _dp_path_kernel(score, max_step, smoothness):
     cur = np.empty(D, np.float64)
     best = np.empty(D, np.float64)
     arg = np.empty(D, np.uint8)
-    back = np.zeros((H, D), np.uint8)
+    back = np.empty((H, D), np.uint8)  # every row but the last is written below (no np.zeros: one
+    # function less to compile)
     for k in range(D):
         prev[k] = score[H - 1, k]
     for v in range(H - 2, -1, -1):
@@ -76,7 +77,7 @@ def _dp_path_kernel(score, max_step, smoothness):
             cur[k] = score[v, k] + best[k]
             back[v, k] = arg[k]
         prev, cur = cur, prev
-    path = np.zeros(H, np.int32)
+    path = np.empty(H, np.int32)
     k = 0
     top = -1e300
     for j in range(D):
@@ -141,46 +142,6 @@ def _row_runs(rows):
     return starts, nr
 
 
-@jit
-def _refine_runs(rows, d, starts, nr, centre, radius):
-    """:func:`_row_refine_kernel` over the runs of :func:`_row_runs`."""
-    H = centre.size
-    total = np.zeros(H, np.float64)
-    count = np.zeros(H, np.float64)
-    # a run of pixels of one row (they come in image-row order) is summed in registers, in two
-    # interleaved accumulators (one floating-point sum would make every addition wait for the last);
-    # without branches (which pixel is in is unpredictable): adding 0.0 to a sum of positive
-    # disparities leaves it unchanged
-    for q in range(nr):
-        a = starts[q]
-        b = starts[q + 1]
-        r = rows[a]
-        c = centre[r]
-        rad = radius[r]
-        t0 = 0.0
-        t1 = 0.0
-        n0 = 0
-        n1 = 0
-        e = a + ((b - a) // 2) * 2
-        for j in range(a, e, 2):
-            d0 = np.float64(d[j])
-            d1 = np.float64(d[j + 1])
-            in0 = abs(d0 - c) <= rad
-            in1 = abs(d1 - c) <= rad
-            t0 += d0 if in0 else 0.0
-            t1 += d1 if in1 else 0.0
-            n0 += in0
-            n1 += in1
-        if e < b:  # the run's last pixel, when its length is odd
-            dj = np.float64(d[e])
-            if abs(dj - c) <= rad:
-                t0 += dj
-                n0 += 1
-        total[r] += t0 + t1
-        count[r] += n0 + n1
-    return total, count
-
-
 #: disparities that are multiples of 1/256 (KITTI's PNGs; OpenCV's 1/16 pixels) below 2**23 are
 #: refined as integers in 1/256 pixels
 _FIXED = 256.0
@@ -203,13 +164,22 @@ def _fixed_point(d):
 
 
 @jit
-def _refine_runs_fixed(rows, dq, starts, nr, centre, radius):
-    """:func:`_refine_runs` on the fixed-point disparities of :func:`_fixed_point`: each pixel's
+def _refine(rows, d, fixed, dq, starts, nr, centre, radius, total, count):
+    """Per row ``v``, the sum ``total[v]`` and the count ``count[v]`` (float64, ``H``) of the selected
+    pixels' disparities (:func:`_select_kernel`, in runs of one row: :func:`_row_runs`) within
+    ``radius[v]`` of ``centre[v]``.
+
+    With ``fixed`` (:func:`_fixed_point`) on the fixed-point disparities ``dq``: each pixel's
     disparity ``dq / 256`` is the float one exactly, and the sums of the ones within the radius are
-    integers (exact in any order, so the loop over a run vectorises): the same totals and counts."""
+    integers (exact in any order, so the loop over a run vectorises): the same totals and counts.
+    Else on ``d``: a run of pixels of one row is summed in registers, in two interleaved accumulators
+    (one floating-point sum would make every addition wait for the last); without branches (which
+    pixel is in is unpredictable): adding 0.0 to a sum of positive disparities leaves it unchanged.
+    One function for both (each was one more for numba to compile on the first run's path)."""
     H = centre.size
-    total = np.zeros(H, np.int64)
-    count = np.zeros(H, np.int64)
+    for v in range(H):
+        total[v] = 0.0
+        count[v] = 0.0
     inv = 1.0 / _FIXED
     for q in range(nr):
         a = starts[q]
@@ -217,30 +187,40 @@ def _refine_runs_fixed(rows, dq, starts, nr, centre, radius):
         r = rows[a]
         c = centre[r]
         rad = radius[r]
-        t = 0
-        n = 0
-        for j in range(a, b):
-            x = dq[j]
-            inside = abs(x * inv - c) <= rad
-            t += x if inside else 0
-            n += inside
-        total[r] += t
-        count[r] += n
-    out_t = np.empty(H, np.float64)
-    out_n = np.empty(H, np.float64)
-    for v in range(H):
-        out_t[v] = total[v] * inv
-        out_n[v] = count[v]
-    return out_t, out_n
-
-
-@jit
-def _refine(rows, d, fixed, dq, starts, nr, centre, radius):
-    """:func:`_refine_runs_fixed` on ``dq`` when ``fixed`` (:func:`_fixed_point`), else
-    :func:`_refine_runs` on ``d``: ``(total, count)`` per row, float64."""
-    if fixed:
-        return _refine_runs_fixed(rows, dq, starts, nr, centre, radius)
-    return _refine_runs(rows, d, starts, nr, centre, radius)
+        if fixed:
+            t = 0
+            n = 0
+            for j in range(a, b):
+                x = dq[j]
+                inside = abs(x * inv - c) <= rad
+                t += x if inside else 0
+                n += inside
+            # t / 256 and the sums of such values are exact in float64 (far below 2**45): the
+            # same totals as an integer sum per row divided once
+            total[r] += t * inv
+            count[r] += n
+            continue
+        t0 = 0.0
+        t1 = 0.0
+        n0 = 0
+        n1 = 0
+        e = a + ((b - a) // 2) * 2
+        for j in range(a, e, 2):
+            d0 = np.float64(d[j])
+            d1 = np.float64(d[j + 1])
+            in0 = abs(d0 - c) <= rad
+            in1 = abs(d1 - c) <= rad
+            t0 += d0 if in0 else 0.0
+            t1 += d1 if in1 else 0.0
+            n0 += in0
+            n1 += in1
+        if e < b:  # the run's last pixel, when its length is odd
+            dj = np.float64(d[e])
+            if abs(dj - c) <= rad:
+                t0 += dj
+                n0 += 1
+        total[r] += t0 + t1
+        count[r] += n0 + n1
 
 
 @jit
@@ -249,7 +229,10 @@ def _row_refine_kernel(rows, d, centre, radius):
     within ``radius[row]`` of ``centre[row]`` (in fixed point when the disparities allow it)."""
     starts, nr = _row_runs(rows)
     fixed, dq = _fixed_point(d)
-    return _refine(rows, d, fixed, dq, starts, nr, centre, radius)
+    total = np.empty(centre.size, np.float64)
+    count = np.empty(centre.size, np.float64)
+    _refine(rows, d, fixed, dq, starts, nr, centre, radius, total, count)
+    return total, count
 
 
 @jit
@@ -312,20 +295,22 @@ def _profile_kernel(
         centre[v] = (np.float64(sub[max(v - v0, 0)]) + 0.5) * bin_size
     starts, nr = _row_runs(rows)  # the list is read three times in pass 2
     fixed, dq = _fixed_point(d)
-    total, count = _refine(rows, d, fixed, dq, starts, nr, centre, radius)
+    total = np.empty(H, np.float64)
+    count = np.empty(H, np.float64)
+    _refine(rows, d, fixed, dq, starts, nr, centre, radius, total, count)
     if height > 0.0:
         for _ in range(2):
             for v in range(H):
                 if count[v] > 0:
                     centre[v] = total[v] / max(count[v], 1.0)
                 radius[v] = max(plane_tol * centre[v] / height, min_tol)
-            total, count = _refine(rows, d, fixed, dq, starts, nr, centre, radius)
+            _refine(rows, d, fixed, dq, starts, nr, centre, radius, total, count)
     profile = np.empty(H, np.float32)
-    for v in range(H):
-        profile[v] = -1.0
-    use = np.zeros(H, np.bool_)
+    use = np.empty(H, np.bool_)
     n = 0
     for v in range(H):
+        profile[v] = -1.0
+        use[v] = False
         if count[v] * step >= min_row_count:  # full-resolution pixels
             profile[v] = np.float32(total[v] / count[v])
             if profile[v] >= min_fit_disp:
@@ -402,10 +387,9 @@ def _ransac_line_kernel(v, d, w, i, j, tol, min_slope):
             best_a0 = a0
             best_a1 = a1
             found = True
-    inl = np.zeros(n, np.bool_)
-    if found:
-        for p in range(n):
-            inl[p] = abs(d[p] - (best_a0 + best_a1 * v[p])) < tol
+    inl = np.empty(n, np.bool_)
+    for p in range(n):
+        inl[p] = found and abs(d[p] - (best_a0 + best_a1 * v[p])) < tol
     return found, inl
 
 
@@ -465,17 +449,14 @@ def _line_refit_kernel(v, d, w, inl, tol, rounds):
     return ok, a0, a1, inl
 
 
-@jit
-def _line_fit_kernel(v, d, w, i, j, tol, rounds, min_slope):
+def _line_fit(v, d, w, i, j, tol, rounds, min_slope):
     """The robust line of a pass: RANSAC over the pairs ``(i, j)`` (:func:`_ransac_line_kernel`, slopes
     above ``min_slope``), then up to ``rounds`` least-squares rounds (:func:`_line_refit_kernel`).
     Returns ``(status, a0, a1, inliers)``: status 0 when RANSAC found no line or fewer than two
-    inliers, 1 when the least squares failed (``inliers``: the last ones), 2 for a line."""
+    inliers, 1 when the least squares failed (``inliers``: the last ones), 2 for a line. Two kernels
+    called from Python (one kernel calling both compiled them twice over, on the first run's path)."""
     found, inl = _ransac_line_kernel(v, d, w, i, j, tol, min_slope)
-    count = 0
-    for k in range(inl.size):  # np.count_nonzero(inl), in a loop that compiles at once
-        count += inl[k]
-    if not found or count < 2:
+    if not found or np.count_nonzero(inl) < 2:
         return 0, 0.0, 0.0, inl
     ok, a0, a1, inl = _line_refit_kernel(v, d, w, inl, tol, rounds)
     return (2 if ok else 1), a0, a1, inl
@@ -878,7 +859,7 @@ def _robust_fit(
 ):
     """RANSAC (for the line: ``iterations`` pairs drawn by :func:`_sample_pairs`, slopes above
     ``min_slope``) then least squares with inlier re-selection (four rounds at most); with ``init``
-    (inliers) only the least squares. The line is one kernel (:func:`_line_fit_kernel`). Returns
+    (inliers) only the least squares. The line: :func:`_line_fit`. Returns
     (coef, inliers), coef None when no fit (inliers None when RANSAC found none)."""
     v = np.ascontiguousarray(v, dtype=np.float64)
     d = np.ascontiguousarray(d, dtype=np.float64)
@@ -889,7 +870,7 @@ def _robust_fit(
         if v.size < 2:
             return None, None
         i, j = _sample_pairs(v.size, int(iterations), int(seed))
-        status, a0, a1, inl = _line_fit_kernel(v, d, w, i, j, float(tol), 4, float(min_slope))
+        status, a0, a1, inl = _line_fit(v, d, w, i, j, float(tol), 4, float(min_slope))
         if status == 0:
             return None, None
         return (np.array([a0, a1]), inl) if status == 2 else (None, inl)
@@ -939,8 +920,8 @@ def _profile_pass(
     disparities within ``plane_tolerance_m`` (metric, eq. 4) of the first mean, so that a kerb or
     a low object next to the road does not pull the far rows.
 
-    Two kernels: :func:`_profile_kernel` (DP, refinements, profile, fit rows) and
-    :func:`_line_fit_kernel` (through :func:`_robust_fit`), whose lines rise by more than
+    Kernels: :func:`_profile_kernel` (DP, refinements, profile, fit rows) and
+    :func:`_line_fit` (through :func:`_robust_fit`), whose lines rise by more than
     ``min_slope`` disparity per row: a flatter line is a camera higher than ``max_height_m``, the
     wall of trees or a hillside far beyond the road, not the road.
 

@@ -22,7 +22,9 @@ def fresh(monkeypatch, tmp_path):
     monkeypatch.delenv("LANEGRAPH_KERNEL_CACHE", raising=False)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "home-cache"))
     monkeypatch.setenv("LANEGRAPH_CACHE_DIR", str(tmp_path / "results-a"))
-    monkeypatch.setattr(kernel_cache, "_STATE", {"said": False, "armed": False})
+    monkeypatch.setattr(
+        kernel_cache, "_STATE", {"said": False, "armed": False, "helper": None, "claims": None}
+    )
     monkeypatch.setattr(kernel_cache, "_listen", lambda where: None)
     stamps = []
     monkeypatch.setattr(kernel_cache.atexit, "register", lambda fn, *a: stamps.append((fn, a)))
@@ -94,8 +96,14 @@ def test_the_first_run_starts_the_helper_beside_it(fresh, monkeypatch):
     monkeypatch.setattr(kernel_cache.subprocess, "Popen", _Popen)
     monkeypatch.setattr("lanegraph._runtime.available_cpus", lambda: 2)
     kernel_cache.first_run_notice(quiet=True)
-    assert started == [[sys.executable, "-m", "lanegraph.kernel_cache", str(kernel_cache.KERNEL_LIST)]]
+    claims = kernel_cache._STATE["claims"]
+    assert started == [
+        [sys.executable, "-m", "lanegraph.kernel_cache", str(kernel_cache.KERNEL_LIST), claims]
+    ]
+    assert Path(claims).is_dir() and not os.listdir(claims)  # the claims folder, made by the run
     assert [fn for fn, _ in fresh] == [kernel_cache._stop_helper, kernel_cache._write_stamp]
+    os.rmdir(claims)
+    kernel_cache._STATE["helper"] = None
     started.clear()
     monkeypatch.setattr("lanegraph._runtime.available_cpus", lambda: 1)  # it would take the run's CPU
     kernel_cache._STATE.update(said=False, armed=False)
@@ -107,10 +115,56 @@ def test_the_first_run_starts_the_helper_beside_it(fresh, monkeypatch):
     assert started == []
 
 
-def test_the_run_stops_the_helper_at_exit():
+def test_the_run_stops_the_helper_at_exit(tmp_path):
     proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
-    kernel_cache._stop_helper(proc)
+    (tmp_path / "claims").mkdir()
+    kernel_cache._stop_helper(proc, str(tmp_path / "claims"))
     assert proc.poll() is not None
+    assert not (tmp_path / "claims").exists()  # the claims folder goes with it
+
+
+_GOOD = {
+    "module": "lanegraph_lanes._select",
+    "name": "kth_smallest",
+    "args": ["array(float64, 1, C)", "int64", "int64"],
+}
+
+
+def test_two_processes_share_the_list_through_claims(tmp_path):
+    """Each entry is compiled by the one process that claims it first; every entry ends done."""
+    claims = tmp_path / "claims"
+    claims.mkdir()
+    (claims / "1").write_bytes(b"")  # the other process has entry 1
+    stale = {"module": "lanegraph_lanes._select", "name": "no_such_kernel", "args": []}
+    assert kernel_cache.precompile([_GOOD, _GOOD, stale], claims) == 1
+    assert sorted(os.listdir(claims)) == ["0", "0.done", "1", "2", "2.done"]  # a stale entry is done too
+    assert kernel_cache.precompile([_GOOD, _GOOD, stale], claims) == 0  # all taken: nothing twice
+
+
+def test_the_run_takes_its_part_then_waits_for_the_helper(fresh, tmp_path, monkeypatch):
+    """compile_share: the run compiles what the helper has not claimed, then waits while the helper
+    compiles what it has; at once without a helper."""
+    assert kernel_cache.compile_share() == 0
+    listed = tmp_path / "kernels.json"
+    listed.write_text(json.dumps([_GOOD, _GOOD]), encoding="utf-8")
+    monkeypatch.setattr(kernel_cache, "KERNEL_LIST", listed)
+    claims = tmp_path / "claims"
+    claims.mkdir()
+    (claims / "0").write_bytes(b"")  # the helper compiles entry 0: done when it ends
+    helper = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            f"import time, pathlib; time.sleep(0.5); pathlib.Path({str(claims / '0.done')!r}).touch()",
+        ]
+    )
+    kernel_cache._STATE.update(helper=helper, claims=str(claims))
+    try:
+        assert kernel_cache.compile_share() == 1  # entry 1
+        assert (claims / "0.done").exists() and (claims / "1.done").exists()
+        assert kernel_cache.compile_share() == 0  # once
+    finally:
+        helper.wait()
 
 
 def test_the_kernel_list_names_kernels_and_types_it_can_read():
@@ -124,14 +178,12 @@ def test_the_kernel_list_names_kernels_and_types_it_can_read():
         sig = tuple(kernel_cache.decode_type(a) for a in e["args"])
         assert [kernel_cache.encode_type(t) for t in sig] == e["args"]
         assert len(sig) == kernel.py_func.__code__.co_argcount, e["name"]
+    seconds = [e["seconds"] for e in entries]  # longest compilation first: the two processes balance
+    assert seconds == sorted(seconds, reverse=True)
 
 
 def test_precompile_skips_what_it_cannot_resolve():
-    good = {
-        "module": "lanegraph_lanes._select",
-        "name": "kth_smallest",
-        "args": ["array(float64, 1, C)", "int64", "int64"],
-    }
+    good = _GOOD
     bad = [
         {"module": "lanegraph_no_such_module", "name": "k", "args": []},
         {"module": "lanegraph_lanes._select", "name": "no_such_kernel", "args": []},

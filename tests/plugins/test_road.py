@@ -516,7 +516,7 @@ def ransac_kernel(v, d, w, tol, iterations, min_slope=0.0):
 
 
 def line_fit_np(v, d, w, tol, iterations, min_slope=0.0):
-    """NumPy twin of ``_line_fit_kernel``: ``(status, coef, inliers)`` of RANSAC then the least squares."""
+    """NumPy twin of ``_line_fit``: ``(status, coef, inliers)`` of RANSAC then the least squares."""
     inl = ransac_line_np(v, d, w, tol, iterations, min_slope=min_slope)
     if inl is None or np.count_nonzero(inl) < 2:
         return 0, None, None
@@ -524,7 +524,7 @@ def line_fit_np(v, d, w, tol, iterations, min_slope=0.0):
     return (2 if coef is not None else 1), coef, inl
 
 
-def test_line_fit_kernel_matches_numpy():
+def test_line_fit_matches_numpy():
     """RANSAC + least squares in one kernel (and ``_robust_fit`` around it) against the twins."""
     rng = np.random.default_rng(11)
     for n in (2, 3, 30, 200):
@@ -537,7 +537,7 @@ def test_line_fit_kernel_matches_numpy():
             # keep every sum exact, so the twin's order gives the same scores)
             for w in (counts, counts + 0.5):
                 i, j = profile._sample_pairs(n, iterations, 0)
-                status, a0, a1, inl = profile._line_fit_kernel(v, d, w, i, j, 1.0, 4, 0.0)
+                status, a0, a1, inl = profile._line_fit(v, d, w, i, j, 1.0, 4, 0.0)
                 ref_status, ref, ref_inl = line_fit_np(v, d, w, 1.0, iterations)
                 assert status == ref_status
                 coef, fit_inl = profile._robust_fit(v, d, w, 1, 1.0, iterations, None)
@@ -554,7 +554,7 @@ def test_line_fit_kernel_matches_numpy():
     assert profile._robust_fit(v, -v, np.ones(10), 1, 1.0, 20, None) == (None, None)
     assert profile._robust_fit(v[:1], v[:1], np.ones(1), 1, 1.0, 20, None) == (None, None)
     i, j = profile._sample_pairs(5, 20, 0)
-    assert profile._line_fit_kernel(np.full(5, 3.0), np.arange(5.0), np.ones(5), i, j, 1.0, 4, 0.0)[0] == 0
+    assert profile._line_fit(np.full(5, 3.0), np.arange(5.0), np.ones(5), i, j, 1.0, 4, 0.0)[0] == 0
 
 
 def test_line_refit_kernel_matches_numpy():
