@@ -124,68 +124,6 @@ def _free_space_kernel(labels, min_run, unknown_is_road):
     return out
 
 
-@jit
-def _fill_holes_kernel(mask, holes, n, classes, max_above):
-    """``mask`` with the components ``1..n-1`` of the label image ``holes`` filled when they touch
-    no image border and at most ``max_above`` of their pixels have the class ``ABOVE`` (2).
-    Label 0 (the mask itself) is skipped. The components touching the border (the large
-    background) are ruled out first, so only the pixels of the candidate holes are counted; a run
-    of one label along a row is counted in registers (consecutive pixels mostly share a label).
-    Only the rows between the first and the last row of a filled hole are written."""
-    H, W = holes.shape
-    cand = np.ones(n, np.bool_)
-    cand[0] = False
-    for u in range(W):
-        cand[holes[0, u]] = False
-        cand[holes[H - 1, u]] = False
-    for v in range(H):
-        cand[holes[v, 0]] = False
-        cand[holes[v, W - 1]] = False
-    out = mask.copy()
-    if not cand.any():
-        return out
-    size = np.zeros(n, np.int64)
-    above = np.zeros(n, np.int64)
-    first = np.full(n, H, np.int64)  # first and last row of each candidate
-    last = np.zeros(n, np.int64)
-    for v in range(H):
-        cur = 0
-        run = 0
-        run_above = 0
-        for u in range(W):
-            lab = holes[v, u]
-            if lab != cur:
-                if run > 0:
-                    size[cur] += run
-                    above[cur] += run_above
-                    first[cur] = min(first[cur], v)
-                    last[cur] = v
-                cur = lab
-                run = 0
-                run_above = 0
-            if cand[lab]:
-                run += 1
-                run_above += classes[v, u] == 2
-        if run > 0:
-            size[cur] += run
-            above[cur] += run_above
-            first[cur] = min(first[cur], v)
-            last[cur] = v
-    fill = np.zeros(n, np.bool_)
-    v_lo = H
-    v_hi = -1
-    for lab in range(1, n):
-        fill[lab] = cand[lab] and above[lab] <= max_above * size[lab]
-        if fill[lab]:
-            v_lo = min(v_lo, first[lab])
-            v_hi = max(v_hi, last[lab])
-    for v in range(v_lo, v_hi + 1):
-        for u in range(W):
-            if fill[holes[v, u]]:
-                out[v, u] = True
-    return out
-
-
 def widen_columns(mask: np.ndarray, step: int, width: int) -> np.ndarray:
     """An ``H x width`` mask from one computed on every ``step``-th column (column ``k`` is image
     column ``step k``): those columns keep their value, a column between two computed ones is set
@@ -311,11 +249,31 @@ def _keep_components(
 
 def _fill_holes(mask: np.ndarray, classes: np.ndarray, max_above: float) -> np.ndarray:
     """Fill the regions of ``~mask`` that do not touch the image border and whose share of
-    above-road pixels (``classes == ABOVE``) is at most ``max_above``."""
-    n, labels = cv2.connectedComponents(np.logical_not(mask).view(np.uint8), connectivity=4)
-    if n <= 1:
+    above-road pixels (``classes == ABOVE``) is at most ``max_above``.
+
+    The holes are what a flood fill of ``~mask`` from the image border (through a frame of
+    background around it, 4-connected) leaves; only their bounding box is then labelled (4-connected:
+    the regions of ``~mask`` that touch the border are none of them) and counted (pixels, and
+    above-road pixels): half the time of labelling every region of ``~mask``."""
+    mask = np.ascontiguousarray(mask, dtype=bool)
+    if mask.size == 0:
         return mask
-    return _fill_holes_kernel(np.ascontiguousarray(mask), labels, n, classes, float(max_above))
+    framed = cv2.copyMakeBorder(np.logical_not(mask).view(np.uint8), 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=1)
+    cv2.floodFill(framed, None, (0, 0), 0, flags=4)
+    x, y, w, h = cv2.boundingRect(framed)  # of the holes, in the framed image
+    if w == 0:
+        return mask
+    n, labels = cv2.connectedComponents(framed[y : y + h, x : x + w], connectivity=4)
+    rows, cols = slice(y - 1, y - 1 + h), slice(x - 1, x - 1 + w)
+    size = np.bincount(labels.ravel(), minlength=n)
+    above = np.bincount(labels[classes[rows, cols] == ABOVE], minlength=n)
+    fill = above <= max_above * size
+    fill[0] = False  # not a hole
+    if not fill.any():
+        return mask
+    out = mask.copy()
+    out[rows, cols] |= fill[labels]
+    return out
 
 
 def road_mask_array(

@@ -155,8 +155,8 @@ def fill_holes_np(mask, classes, max_above):
 
 
 def fill_holes_labels_np(mask, labels, n, classes, max_above):
-    """NumPy twin of ``_fill_holes_kernel``: given the labels of ``~mask``, fill the components
-    1..n-1 off the border with few above-road pixels."""
+    """Given the labels of ``~mask``, fill the components 1..n-1 off the border with few
+    above-road pixels (the reference for ``_fill_holes``, which labels only the holes)."""
     border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
     n_above = np.bincount(labels[classes == mask_mod.ABOVE], minlength=n)
     fill = n_above <= max_above * np.bincount(labels.ravel(), minlength=n)
