@@ -18,12 +18,13 @@
 
 from __future__ import annotations
 
-import functools
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from .. import interrupts
 from .._runtime import tune_allocator
@@ -53,6 +54,10 @@ from .warmup import WarmUp
 
 class _SkipFrame(Exception):
     pass
+
+
+#: output types that carry no ``valid`` flag (RunResult.invalid_outputs counts the others' flags)
+_NO_VALID = frozenset({np.ndarray, list, tuple, dict, str, int, float, bool, type(None)})
 
 
 @dataclass
@@ -129,6 +134,8 @@ class Executor:
         self.result: RunResult | None = None  # set when the run starts: a caller keeps it if the run stops
         self._closed = False
         self.constant_nodes: set[str] = self._constant_nodes()
+        self._plan: list[tuple[str, GraphNode, tuple, tuple, bool]] | None = None  # _frame_plan()
+        self._node_hooks = (True, True)  # (before, after): _refresh_node_hooks()
 
     # -- compile -------------------------------------------------------------
     def _select_source(self) -> None:
@@ -171,19 +178,19 @@ class Executor:
         result: RunResult,
         key: str | None = None,
     ) -> dict:
-        self._hook(
-            "lanegraph_before_node", node_id=node.id, node_type=node.type.name, frame=frame, inputs=inputs
-        )
-        after = functools.partial(
-            self._hook, "lanegraph_after_node", node_id=node.id, node_type=node.type.name, frame=frame
-        )
+        before, after = self._node_hooks
+        if before:
+            self._hook(
+                "lanegraph_before_node", node_id=node.id, node_type=node.type.name, frame=frame, inputs=inputs
+            )
         use_cache = self.cache is not None and key is not None and node.id in self.cache_nodes
         if use_cache:
             hit = self.cache.get(key)
             if hit is not self.cache.MISS:
                 result.timings_ms.setdefault(node.id, []).append(hit["ms"])  # the time it took to compute
                 result.cache_hits[node.id] = result.cache_hits.get(node.id, 0) + 1
-                after(outputs=hit["outputs"], elapsed_ms=hit["ms"], error=None)
+                if after:
+                    self._after_node(node, frame, hit["outputs"], hit["ms"], None)
                 return hit["outputs"]
         t0 = time.perf_counter()
         try:
@@ -197,8 +204,8 @@ class Executor:
                 raise TypeError(
                     f"node function returned {type(out).__name__}, expected a dict of output ports"
                 )
-            missing = set(node.type.outputs) - set(out)
-            if missing and not node.type.sink:
+            if not node.type.sink and not out.keys() >= node.type.outputs.keys():
+                missing = set(node.type.outputs) - set(out)
                 raise TypeError(f"node function did not return output port(s) {sorted(missing)}")
         except BaseException as exc:  # SystemExit, KeyboardInterrupt too: the node's failure, located
             if interrupts.is_interruption(exc):
@@ -209,7 +216,8 @@ class Executor:
         elapsed = (time.perf_counter() - t0) * 1000.0
         result.timings_ms.setdefault(node.id, []).append(elapsed)
         if err is not None:
-            after(outputs=None, elapsed_ms=elapsed, error=err)
+            if after:
+                self._after_node(node, frame, None, elapsed, err)
             if node.on_error == "fail" or (node.on_error == "skip" and index < 0):  # index -1: runs once
                 raise NodeError(node.id, node.type.name, frame, err) from err
             result.failures.append(
@@ -221,8 +229,32 @@ class Executor:
         if use_cache:
             self.cache.put(key, {"outputs": out, "ms": elapsed})
             result.cache_misses[node.id] = result.cache_misses.get(node.id, 0) + 1
-        after(outputs=out, elapsed_ms=elapsed, error=None)
+        if after:
+            self._after_node(node, frame, out, elapsed, None)
         return out
+
+    def _after_node(
+        self, node: GraphNode, frame: str | None, outputs: Any, elapsed: float, error: BaseException | None
+    ) -> None:
+        self._hook(
+            "lanegraph_after_node",
+            node_id=node.id,
+            node_type=node.type.name,
+            frame=frame,
+            outputs=outputs,
+            elapsed_ms=elapsed,
+            error=error,
+        )
+
+    def _refresh_node_hooks(self) -> None:
+        """Whether any plugin implements ``lanegraph_before_node`` / ``lanegraph_after_node``, looked
+        up once per frame (a plugin registered between frames is called from the next one): a
+        hook without implementations is not called at all, 18 times per frame."""
+        hook = self.pm.hook
+        self._node_hooks = (
+            bool(hook.lanegraph_before_node.get_hookimpls()),
+            bool(hook.lanegraph_after_node.get_hookimpls()),
+        )
 
     def _write_checkpoint(
         self, position: int, frame: str | None, previous: dict, prev_keys: dict, complete: bool = False
@@ -353,6 +385,7 @@ class Executor:
                 if caching
                 else None
             )
+        self._refresh_node_hooks()
         if consts:
             self._hook(
                 "lanegraph_after_node",
@@ -445,11 +478,13 @@ class Executor:
         src_id = g.source.id
         warming = self.warming.warming(index)
         frame = frame_out.get("frame")
+        self._refresh_node_hooks()
         cur = dict(values)
         cur_keys = dict(keys)
         src = self.instances[src_id]
-        frame_key = src.frame_key if isinstance(src, KeyedFrames) else None
-        identity = frame_key(frame) if (self.cache is not None and frame_key is not None) else None
+        # (a runtime protocol check costs tens of microseconds: only with a cache)
+        keyed = self.cache is not None and isinstance(src, KeyedFrames)
+        identity = src.frame_key(frame) if keyed else None
         src_params = g.source.params.model_dump(mode="json") if identity is not None else None
         for port, v in frame_out.items():
             cur[(src_id, port)] = v
@@ -459,44 +494,46 @@ class Executor:
                 else digest(g.source.type.name, g.source.type.code_version, src_params, identity, port)
             )
         # the source is an iterator read ahead, so it fires only the after-node hook
-        src_ms = (self.result.timings_ms.get(src_id) or [0.0])[-1]
-        self._hook(
-            "lanegraph_after_node",
-            node_id=src_id,
-            node_type=g.source.type.name,
-            frame=frame,
-            outputs=frame_out,
-            elapsed_ms=src_ms,
-            error=None,
-        )
-        for nid in g.order:
-            if nid == src_id or nid in self.constant_nodes:
+        if self._node_hooks[1]:
+            src_ms = (self.result.timings_ms.get(src_id) or [0.0])[-1]
+            self._after_node(g.source, frame, frame_out, src_ms, None)
+        caching = self.caching
+        for nid, n, wiring, unwired, sink in self._frame_plan():
+            if warming and sink:
                 continue
-            n = g.nodes[nid]
-            if warming and n.type.sink:
-                continue
-            ins = {
-                p: (
-                    previous.get((e.src_node, e.src_port))
-                    if e.previous
-                    else cur.get((e.src_node, e.src_port))
-                )
-                for p, e in n.inputs.items()
-            }
-            for p, port in n.type.inputs.items():
-                if p not in ins and port.optional:
-                    ins[p] = None
-            key = self.caching.key(n, cur_keys, prev_keys) if self.caching is not None else None
+            ins = {p: (previous if prev else cur).get(out_of) for p, out_of, prev in wiring}
+            for p in unwired:
+                ins[p] = None
+            key = caching.key(n, cur_keys, prev_keys) if caching is not None else None
             out = self._call(n, ins, frame, index, res, key)
             for port, v in out.items():
                 cur[(nid, port)] = v
                 cur_keys[(nid, port)] = None if key is None else digest(key, port)
+                if type(v) in _NO_VALID:  # no `valid` flag to count (getattr would raise inside)
+                    continue
                 valid = getattr(v, "valid", None)
                 if isinstance(valid, bool):
                     counts = res.invalid_outputs.setdefault(f"{nid}.{port}", [0, 0])
                     counts[0] += not valid
                     counts[1] += 1
         return cur, cur_keys
+
+    def _frame_plan(self) -> list[tuple[str, GraphNode, tuple, tuple, bool]]:
+        """The per-frame nodes in order, each with its wiring worked out once per run: ``(id,
+        node, ((port, (src node, src port), feedback?), ...), optional ports left unconnected,
+        sink?)``."""
+        if self._plan is None:
+            g = self.graph
+            plan = []
+            for nid in g.order:
+                if nid == g.source.id or nid in self.constant_nodes:
+                    continue
+                n = g.nodes[nid]
+                wiring = tuple((p, (e.src_node, e.src_port), e.previous) for p, e in n.inputs.items())
+                unwired = tuple(p for p, port in n.type.inputs.items() if p not in n.inputs and port.optional)
+                plan.append((nid, n, wiring, unwired, bool(n.type.sink)))
+            self._plan = plan
+        return self._plan
 
     def _frames(
         self, source: Any, src_id: str, result: RunResult, start: int = 0, drop: int = 0
