@@ -24,8 +24,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from .. import interrupts
 from .._runtime import tune_allocator
 from ..errors import HookError, InputError, LanegraphError, NodeError
@@ -45,6 +43,7 @@ from ..plugins import PluginManager, call_hook, get_plugin_manager
 from .cache import Caching, ResultCache, digest
 from .checkpointing import Checkpointer, OpenedInput, run_identity
 from .outcome import FrameFailure, RunResult
+from .plan import NO_VALID_FLAG, Step, frame_plan
 from .prefetch import Prefetch
 from .results import graph_result_files
 from .resume import Checkpoint, input_identity
@@ -54,10 +53,6 @@ from .warmup import WarmUp
 
 class _SkipFrame(Exception):
     pass
-
-
-#: output types that carry no ``valid`` flag (RunResult.invalid_outputs counts the others' flags)
-_NO_VALID = frozenset({np.ndarray, list, tuple, dict, str, int, float, bool, type(None)})
 
 
 @dataclass
@@ -134,7 +129,7 @@ class Executor:
         self.result: RunResult | None = None  # set when the run starts: a caller keeps it if the run stops
         self._closed = False
         self.constant_nodes: set[str] = self._constant_nodes()
-        self._plan: list[tuple[str, GraphNode, tuple, tuple, bool]] | None = None  # _frame_plan()
+        self._plan: list[Step] | None = None  # plan.frame_plan(), made by the first frame
         self._node_hooks = (True, True)  # (before, after): _refresh_node_hooks()
 
     # -- compile -------------------------------------------------------------
@@ -233,18 +228,9 @@ class Executor:
             self._after_node(node, frame, out, elapsed, None)
         return out
 
-    def _after_node(
-        self, node: GraphNode, frame: str | None, outputs: Any, elapsed: float, error: BaseException | None
-    ) -> None:
-        self._hook(
-            "lanegraph_after_node",
-            node_id=node.id,
-            node_type=node.type.name,
-            frame=frame,
-            outputs=outputs,
-            elapsed_ms=elapsed,
-            error=error,
-        )
+    def _after_node(self, node: GraphNode, frame: str | None, outputs: Any, ms: float, error: Any) -> None:
+        kw = {"node_id": node.id, "node_type": node.type.name, "frame": frame, "outputs": outputs}
+        self._hook("lanegraph_after_node", **kw, elapsed_ms=ms, error=error)
 
     def _refresh_node_hooks(self) -> None:
         """Whether any plugin implements ``lanegraph_before_node`` / ``lanegraph_after_node``, looked
@@ -498,7 +484,9 @@ class Executor:
             src_ms = (self.result.timings_ms.get(src_id) or [0.0])[-1]
             self._after_node(g.source, frame, frame_out, src_ms, None)
         caching = self.caching
-        for nid, n, wiring, unwired, sink in self._frame_plan():
+        if self._plan is None:
+            self._plan = frame_plan(g, self.constant_nodes)
+        for nid, n, wiring, unwired, sink in self._plan:
             if warming and sink:
                 continue
             ins = {p: (previous if prev else cur).get(out_of) for p, out_of, prev in wiring}
@@ -509,7 +497,7 @@ class Executor:
             for port, v in out.items():
                 cur[(nid, port)] = v
                 cur_keys[(nid, port)] = None if key is None else digest(key, port)
-                if type(v) in _NO_VALID:  # no `valid` flag to count (getattr would raise inside)
+                if type(v) in NO_VALID_FLAG:  # no `valid` flag to count (getattr would raise inside)
                     continue
                 valid = getattr(v, "valid", None)
                 if isinstance(valid, bool):
@@ -517,23 +505,6 @@ class Executor:
                     counts[0] += not valid
                     counts[1] += 1
         return cur, cur_keys
-
-    def _frame_plan(self) -> list[tuple[str, GraphNode, tuple, tuple, bool]]:
-        """The per-frame nodes in order, each with its wiring worked out once per run: ``(id,
-        node, ((port, (src node, src port), feedback?), ...), optional ports left unconnected,
-        sink?)``."""
-        if self._plan is None:
-            g = self.graph
-            plan = []
-            for nid in g.order:
-                if nid == g.source.id or nid in self.constant_nodes:
-                    continue
-                n = g.nodes[nid]
-                wiring = tuple((p, (e.src_node, e.src_port), e.previous) for p, e in n.inputs.items())
-                unwired = tuple(p for p, port in n.type.inputs.items() if p not in n.inputs and port.optional)
-                plan.append((nid, n, wiring, unwired, bool(n.type.sink)))
-            self._plan = plan
-        return self._plan
 
     def _frames(
         self, source: Any, src_id: str, result: RunResult, start: int = 0, drop: int = 0
