@@ -17,6 +17,22 @@ SHARED = Path(os.environ.get("LANEGRAPH_SHARED_DATA", ROOT.parent / "shared" / "
 KITTI_DRIVE = SHARED / "kitti_raw" / "2011_09_26" / "2011_09_26_drive_0001_sync"
 
 
+@pytest.fixture(autouse=True)
+def ctrl_c_not_ignored():
+    """Every test starts with Ctrl-C as a terminal's: not ignored. The full suite has been seen to
+    reach the Ctrl-C tests (tests/test_hostile*.py) with SIGINT ignored (SIG_IGN, left by something
+    earlier in the process), which lanegraph keeps as nohup's wish: the Ctrl-C they send was lost
+    and their runs went on to the end."""
+    import signal
+
+    before = signal.getsignal(signal.SIGINT)
+    if before == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    if before == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, before)
+
+
 @pytest.fixture(scope="session")
 def kitti_drive() -> Path:
     """The real KITTI raw drive 0001 folder; the test is skipped when ../shared/data is absent."""

@@ -130,7 +130,6 @@ class Executor:
         self._closed = False
         self.constant_nodes: set[str] = self._constant_nodes()
         self._plan: list[Step] | None = None  # plan.frame_plan(), made by the first frame
-        self._node_hooks = (True, True)  # (before, after): _refresh_node_hooks()
 
     # -- compile -------------------------------------------------------------
     def _select_source(self) -> None:
@@ -173,19 +172,16 @@ class Executor:
         result: RunResult,
         key: str | None = None,
     ) -> dict:
-        before, after = self._node_hooks
-        if before:
-            self._hook(
-                "lanegraph_before_node", node_id=node.id, node_type=node.type.name, frame=frame, inputs=inputs
-            )
+        self._hook(
+            "lanegraph_before_node", node_id=node.id, node_type=node.type.name, frame=frame, inputs=inputs
+        )
         use_cache = self.cache is not None and key is not None and node.id in self.cache_nodes
         if use_cache:
             hit = self.cache.get(key)
             if hit is not self.cache.MISS:
                 result.timings_ms.setdefault(node.id, []).append(hit["ms"])  # the time it took to compute
                 result.cache_hits[node.id] = result.cache_hits.get(node.id, 0) + 1
-                if after:
-                    self._after_node(node, frame, hit["outputs"], hit["ms"], None)
+                self._after_node(node, frame, hit["outputs"], hit["ms"], None)
                 return hit["outputs"]
         t0 = time.perf_counter()
         try:
@@ -211,8 +207,7 @@ class Executor:
         elapsed = (time.perf_counter() - t0) * 1000.0
         result.timings_ms.setdefault(node.id, []).append(elapsed)
         if err is not None:
-            if after:
-                self._after_node(node, frame, None, elapsed, err)
+            self._after_node(node, frame, None, elapsed, err)
             if node.on_error == "fail" or (node.on_error == "skip" and index < 0):  # index -1: runs once
                 raise NodeError(node.id, node.type.name, frame, err) from err
             result.failures.append(
@@ -224,23 +219,12 @@ class Executor:
         if use_cache:
             self.cache.put(key, {"outputs": out, "ms": elapsed})
             result.cache_misses[node.id] = result.cache_misses.get(node.id, 0) + 1
-        if after:
-            self._after_node(node, frame, out, elapsed, None)
+        self._after_node(node, frame, out, elapsed, None)
         return out
 
     def _after_node(self, node: GraphNode, frame: str | None, outputs: Any, ms: float, error: Any) -> None:
         kw = {"node_id": node.id, "node_type": node.type.name, "frame": frame, "outputs": outputs}
         self._hook("lanegraph_after_node", **kw, elapsed_ms=ms, error=error)
-
-    def _refresh_node_hooks(self) -> None:
-        """Whether any plugin implements ``lanegraph_before_node`` / ``lanegraph_after_node``, looked
-        up once per frame (a plugin registered between frames is called from the next one): a
-        hook without implementations is not called at all, 18 times per frame."""
-        hook = self.pm.hook
-        self._node_hooks = (
-            bool(hook.lanegraph_before_node.get_hookimpls()),
-            bool(hook.lanegraph_after_node.get_hookimpls()),
-        )
 
     def _write_checkpoint(
         self, position: int, frame: str | None, previous: dict, prev_keys: dict, complete: bool = False
@@ -371,7 +355,6 @@ class Executor:
                 if caching
                 else None
             )
-        self._refresh_node_hooks()
         if consts:
             self._hook(
                 "lanegraph_after_node",
@@ -464,7 +447,6 @@ class Executor:
         src_id = g.source.id
         warming = self.warming.warming(index)
         frame = frame_out.get("frame")
-        self._refresh_node_hooks()
         cur = dict(values)
         cur_keys = dict(keys)
         src = self.instances[src_id]
@@ -480,9 +462,8 @@ class Executor:
                 else digest(g.source.type.name, g.source.type.code_version, src_params, identity, port)
             )
         # the source is an iterator read ahead, so it fires only the after-node hook
-        if self._node_hooks[1]:
-            src_ms = (self.result.timings_ms.get(src_id) or [0.0])[-1]
-            self._after_node(g.source, frame, frame_out, src_ms, None)
+        src_ms = (self.result.timings_ms.get(src_id) or [0.0])[-1]
+        self._after_node(g.source, frame, frame_out, src_ms, None)
         caching = self.caching
         if self._plan is None:
             self._plan = frame_plan(g, self.constant_nodes)
