@@ -19,7 +19,6 @@ import sys
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -214,19 +213,6 @@ def road_kernels(rng: np.random.Generator) -> None:
         timed(lambda: mask._free_space_kernel(labels, 4, True)),
         timed(lambda: tr.free_space_np(sl, 4, True), 1) * (labels.size / sl.size),
         "(twin on 60 columns, scaled)",
-    )
-    # a road-like mask: one big region with a few hundred small holes
-    m = np.ones((187, 1242), bool)
-    m[:20] = False
-    for y, x in zip(rng.integers(25, 180, 300), rng.integers(5, 1230, 300)):
-        m[y : y + 4, x : x + 6] = False
-    classes = rng.integers(0, 4, m.shape).astype(np.uint8)
-    n, holes = cv2.connectedComponents((~m).view(np.uint8), connectivity=4)
-    row(
-        "_fill_holes_kernel",
-        timed(lambda: mask._fill_holes_kernel(m, holes, n, classes, 0.1)),
-        timed(lambda: tr.fill_holes_labels_np(m, holes, n, classes, 0.1)),
-        f"(given the labels of {n - 1} regions)",
     )
     score = rng.random((255, 128))
     sc = score[:, :40]

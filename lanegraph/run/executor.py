@@ -18,7 +18,6 @@
 
 from __future__ import annotations
 
-import functools
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -44,6 +43,7 @@ from ..plugins import PluginManager, call_hook, get_plugin_manager
 from .cache import Caching, ResultCache, digest
 from .checkpointing import Checkpointer, OpenedInput, run_identity
 from .outcome import FrameFailure, RunResult
+from .plan import NO_VALID_FLAG, Step, frame_plan
 from .prefetch import Prefetch
 from .results import graph_result_files
 from .resume import Checkpoint, input_identity
@@ -129,6 +129,7 @@ class Executor:
         self.result: RunResult | None = None  # set when the run starts: a caller keeps it if the run stops
         self._closed = False
         self.constant_nodes: set[str] = self._constant_nodes()
+        self._plan: list[Step] | None = None  # plan.frame_plan(), made by the first frame
 
     # -- compile -------------------------------------------------------------
     def _select_source(self) -> None:
@@ -174,16 +175,13 @@ class Executor:
         self._hook(
             "lanegraph_before_node", node_id=node.id, node_type=node.type.name, frame=frame, inputs=inputs
         )
-        after = functools.partial(
-            self._hook, "lanegraph_after_node", node_id=node.id, node_type=node.type.name, frame=frame
-        )
         use_cache = self.cache is not None and key is not None and node.id in self.cache_nodes
         if use_cache:
             hit = self.cache.get(key)
             if hit is not self.cache.MISS:
                 result.timings_ms.setdefault(node.id, []).append(hit["ms"])  # the time it took to compute
                 result.cache_hits[node.id] = result.cache_hits.get(node.id, 0) + 1
-                after(outputs=hit["outputs"], elapsed_ms=hit["ms"], error=None)
+                self._after_node(node, frame, hit["outputs"], hit["ms"], None)
                 return hit["outputs"]
         t0 = time.perf_counter()
         try:
@@ -197,8 +195,8 @@ class Executor:
                 raise TypeError(
                     f"node function returned {type(out).__name__}, expected a dict of output ports"
                 )
-            missing = set(node.type.outputs) - set(out)
-            if missing and not node.type.sink:
+            if not node.type.sink and not out.keys() >= node.type.outputs.keys():
+                missing = set(node.type.outputs) - set(out)
                 raise TypeError(f"node function did not return output port(s) {sorted(missing)}")
         except BaseException as exc:  # SystemExit, KeyboardInterrupt too: the node's failure, located
             if interrupts.is_interruption(exc):
@@ -209,7 +207,7 @@ class Executor:
         elapsed = (time.perf_counter() - t0) * 1000.0
         result.timings_ms.setdefault(node.id, []).append(elapsed)
         if err is not None:
-            after(outputs=None, elapsed_ms=elapsed, error=err)
+            self._after_node(node, frame, None, elapsed, err)
             if node.on_error == "fail" or (node.on_error == "skip" and index < 0):  # index -1: runs once
                 raise NodeError(node.id, node.type.name, frame, err) from err
             result.failures.append(
@@ -221,8 +219,12 @@ class Executor:
         if use_cache:
             self.cache.put(key, {"outputs": out, "ms": elapsed})
             result.cache_misses[node.id] = result.cache_misses.get(node.id, 0) + 1
-        after(outputs=out, elapsed_ms=elapsed, error=None)
+        self._after_node(node, frame, out, elapsed, None)
         return out
+
+    def _after_node(self, node: GraphNode, frame: str | None, outputs: Any, ms: float, error: Any) -> None:
+        kw = {"node_id": node.id, "node_type": node.type.name, "frame": frame, "outputs": outputs}
+        self._hook("lanegraph_after_node", **kw, elapsed_ms=ms, error=error)
 
     def _write_checkpoint(
         self, position: int, frame: str | None, previous: dict, prev_keys: dict, complete: bool = False
@@ -448,8 +450,9 @@ class Executor:
         cur = dict(values)
         cur_keys = dict(keys)
         src = self.instances[src_id]
-        frame_key = src.frame_key if isinstance(src, KeyedFrames) else None
-        identity = frame_key(frame) if (self.cache is not None and frame_key is not None) else None
+        # (a runtime protocol check costs tens of microseconds: only with a cache)
+        keyed = self.cache is not None and isinstance(src, KeyedFrames)
+        identity = src.frame_key(frame) if keyed else None
         src_params = g.source.params.model_dump(mode="json") if identity is not None else None
         for port, v in frame_out.items():
             cur[(src_id, port)] = v
@@ -460,37 +463,23 @@ class Executor:
             )
         # the source is an iterator read ahead, so it fires only the after-node hook
         src_ms = (self.result.timings_ms.get(src_id) or [0.0])[-1]
-        self._hook(
-            "lanegraph_after_node",
-            node_id=src_id,
-            node_type=g.source.type.name,
-            frame=frame,
-            outputs=frame_out,
-            elapsed_ms=src_ms,
-            error=None,
-        )
-        for nid in g.order:
-            if nid == src_id or nid in self.constant_nodes:
+        self._after_node(g.source, frame, frame_out, src_ms, None)
+        caching = self.caching
+        if self._plan is None:
+            self._plan = frame_plan(g, self.constant_nodes)
+        for nid, n, wiring, unwired, sink in self._plan:
+            if warming and sink:
                 continue
-            n = g.nodes[nid]
-            if warming and n.type.sink:
-                continue
-            ins = {
-                p: (
-                    previous.get((e.src_node, e.src_port))
-                    if e.previous
-                    else cur.get((e.src_node, e.src_port))
-                )
-                for p, e in n.inputs.items()
-            }
-            for p, port in n.type.inputs.items():
-                if p not in ins and port.optional:
-                    ins[p] = None
-            key = self.caching.key(n, cur_keys, prev_keys) if self.caching is not None else None
+            ins = {p: (previous if prev else cur).get(out_of) for p, out_of, prev in wiring}
+            for p in unwired:
+                ins[p] = None
+            key = caching.key(n, cur_keys, prev_keys) if caching is not None else None
             out = self._call(n, ins, frame, index, res, key)
             for port, v in out.items():
                 cur[(nid, port)] = v
                 cur_keys[(nid, port)] = None if key is None else digest(key, port)
+                if type(v) in NO_VALID_FLAG:  # no `valid` flag to count (getattr would raise inside)
+                    continue
                 valid = getattr(v, "valid", None)
                 if isinstance(valid, bool):
                     counts = res.invalid_outputs.setdefault(f"{nid}.{port}", [0, 0])

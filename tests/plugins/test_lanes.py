@@ -1054,6 +1054,28 @@ def test_paint_rows_kernel_matches_twin(dtype):
         np.testing.assert_allclose(rat[:painted], ref[5], rtol=1e-12)
 
 
+def test_median_is_numpys_bit_for_bit():
+    """``_verify._median`` (one partition) gives ``np.median``'s value exactly: odd and even
+    lengths, ties, infinities, and NaN wherever one is."""
+    rng = np.random.default_rng(17)
+    for n in (1, 2, 3, 4, 26, 213, 400):
+        for case in range(40):
+            a = rng.normal(size=n) * rng.choice([1e-3, 1.0, 1e9])
+            if case % 3 == 0:
+                a = np.round(a)  # ties
+            if case % 5 == 0:
+                a[rng.integers(0, n)] = rng.choice([np.inf, -np.inf])
+            want = np.median(a)
+            got = _verify._median(a)
+            assert np.float64(got).tobytes() == np.float64(want).tobytes()
+            if case % 7 == 0:
+                a[rng.integers(0, n, size=rng.integers(1, n + 1))] = np.nan
+                assert np.isnan(_verify._median(a)) and np.isnan(np.median(a))
+    for a in ([-0.0], [-0.0, -0.0], [0.0, -0.0], [-0.0, 1.0, -0.0], [np.inf, -np.inf]):
+        a = np.array(a)
+        assert np.float64(_verify._median(a)).tobytes() == np.float64(np.median(a)).tobytes()
+
+
 def test_column_medians_match_numpy():
     """``_column_medians`` (selection in place) against ``np.median(..., axis=0)``: odd and even
     row counts, ties, one row."""

@@ -155,8 +155,8 @@ def fill_holes_np(mask, classes, max_above):
 
 
 def fill_holes_labels_np(mask, labels, n, classes, max_above):
-    """NumPy twin of ``_fill_holes_kernel``: given the labels of ``~mask``, fill the components
-    1..n-1 off the border with few above-road pixels."""
+    """Given the labels of ``~mask``, fill the components 1..n-1 off the border with few
+    above-road pixels (the reference for ``_fill_holes``, which labels only the holes)."""
     border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
     n_above = np.bincount(labels[classes == mask_mod.ABOVE], minlength=n)
     fill = n_above <= max_above * np.bincount(labels.ravel(), minlength=n)
@@ -797,6 +797,27 @@ def test_keep_components_one_or_several():
     np.testing.assert_array_equal(mask._keep_components(m, "bottom", 0.15, 30.0), left | right)
     # without any component in the band: unchanged
     np.testing.assert_array_equal(mask._keep_components(m[:20], "bottom", 0.15, 30.0), m[:20])
+    # many components kept (the lookup path): five blocks along the bottom band, a far speck
+    many = np.zeros((40, 60), bool)
+    for k in range(5):
+        many[34:40, 12 * k : 12 * k + 8] = True
+    kept = many.copy()
+    many[2:6, 28:32] = True
+    np.testing.assert_array_equal(mask._keep_components(many, "bottom", 0.15, 30.0), kept)
+
+
+def test_label_type_holds_every_component():
+    """16-bit labels only where even a checkerboard's components fit: the labels are those of
+    32-bit labelling."""
+    assert mask._label_type((217, 621), 8) == cv2.CV_16U
+    assert mask._label_type((375, 1242), 8) == cv2.CV_32S  # up to 116 000 components
+    assert mask._label_type((300, 500), 4) == cv2.CV_32S
+    board = (np.indices((255, 255)).sum(axis=0) % 2 == 0).astype(np.uint8)  # 32 513 pixels set
+    for conn in (4, 8):
+        ltype = mask._label_type(board.shape, conn)
+        n16, l16 = cv2.connectedComponents(board, connectivity=conn, ltype=ltype)
+        n32, l32 = cv2.connectedComponents(board, connectivity=conn, ltype=cv2.CV_32S)
+        assert n16 == n32 and np.array_equal(l16, l32)
 
 
 # --------------------------------------------------------------------------- geometry
