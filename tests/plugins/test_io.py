@@ -288,8 +288,14 @@ def test_auto_read_ahead_follows_the_free_cpus(tmp_path, monkeypatch):
     src = open_source(KittiRawSource, {}, drive)
     monkeypatch.setattr(_sources, "available_cpus", lambda: 1)
     assert src.reading_plan() == (0, 0)  # one CPU: one image after the other, in the caller's thread
+    monkeypatch.setattr(_sources, "available_cpus", lambda: 2)
+    assert src.reading_plan() == (2, 1)  # the decoders beside the nodes' thread: one CPU left for them
     monkeypatch.setattr(_sources, "available_cpus", lambda: 4)
-    assert src.reading_plan() == (2, 4)
+    assert src.reading_plan() == (2, 3)
+    monkeypatch.setattr(_sources, "available_cpus", lambda: 16)
+    assert src.reading_plan() == (2, 6)  # at most two a frame in flight
+    src.params = src.params.model_copy(update={"read_ahead": 0})
+    assert src.reading_plan() == (0, 2)  # nothing ahead: a pair's two images at once
     assert [i["frame"] for i in src] == ["0000000000", "0000000001"]
 
 
