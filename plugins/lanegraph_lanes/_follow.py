@@ -55,6 +55,10 @@ from lanegraph.types import BevGeometry, FeatureMap, Lane
 
 from ._fit import irls_fit
 
+#: the most windows one call of the follow kernel takes: the length (+ 1) of its centres' buffers,
+#: its own and the caller's (``out_x`` ...)
+MAX_WINDOWS = 400
+
 
 @jit
 def _guide_at(x, y, psi, gx, gy, gpsi, gk, n_guide, guide_max, step, cos_max, max_kappa):
@@ -145,7 +149,7 @@ def _follow_kernel(
     within ``guide_max`` pixels across (a centre within half a window's length along it, its
     heading within ``acos(cos_max)`` of the track's heading before the window), when there is one:
     lane markings are parallel, and the parallel curve at a distance ``n`` to the left of a guide of
-    curvature ``k`` has curvature ``k / (1 - k n)``; the window's features still place the track. ``out_x``, ``out_y``, ``out_psi``, ``out_k`` (length 401) receive this
+    curvature ``k`` has curvature ``k / (1 - k n)``; the window's features still place the track. ``out_x``, ``out_y``, ``out_psi``, ``out_k`` (length ``MAX_WINDOWS + 1``) receive this
     track's window centres, headings and curvatures.
 
     Returns ``(windows with features, features taken, lowest and highest t taken, t where the
@@ -164,10 +168,10 @@ def _follow_kernel(
     t_turn = 1e9
     prev_psi = psi0
     steps = 0
-    hx = np.empty(401)
-    hy = np.empty(401)
+    hx = np.empty(MAX_WINDOWS + 1)
+    hy = np.empty(MAX_WINDOWS + 1)
     nh = 0
-    while steps < 400:
+    while steps < MAX_WINDOWS:
         steps += 1
         cp = math.cos(psi)
         sp = math.sin(psi)
@@ -702,7 +706,7 @@ def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None):
     relax_after = max(1, int(math.ceil(p.max_bar_m / p.step_m)))
     sin_turn = math.sin(math.radians(p.max_heading_deg))
     widen = math.tan(math.radians(p.gap_heading_deg))
-    out = np.empty((4, 401))
+    out = np.empty((4, MAX_WINDOWS + 1))
 
     def run(t0, c0, psi0, k, guide):
         """Follow from a seed up the BEV and down; the track's record and its window centres."""

@@ -8,7 +8,15 @@ import math
 import numpy as np
 import pytest
 from lanegraph_lanes._features import EsltParams, eslt
-from lanegraph_lanes._follow import FollowParams, MergeParams, _follow_kernel, follow, merge, merge_node
+from lanegraph_lanes._follow import (
+    MAX_WINDOWS,
+    FollowParams,
+    MergeParams,
+    _follow_kernel,
+    follow,
+    merge,
+    merge_node,
+)
 
 from lanegraph.testing import check_node_type
 from lanegraph.types import BevGeometry, FeatureMap, Lane
@@ -210,7 +218,7 @@ def test_follow_kernel_matches_numpy_twin(radius_m):
         o1 = np.full(r.shape, -1, np.int32)
         o1[::7] = 1  # another track's features
         o2 = o1.copy()
-        out = np.zeros((4, 401))
+        out = np.zeros((4, MAX_WINDOWS + 1))
         g = np.ascontiguousarray(guide)
         got = _follow_kernel(
             tt, cf, th, row_start, 0.0, c0, psi0, *args, o1, 0, steep, 3, *g, g.shape[1], 90.0, *out
