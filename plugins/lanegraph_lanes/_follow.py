@@ -474,46 +474,49 @@ def _steep_rows(geometry: BevGeometry) -> np.ndarray:
 
 
 def _seeds(t, c, theta, row_start, rows, cols, p: FollowParams, res: float):
-    """(t, column, orientation, votes) of the seeds, nearest band first."""
+    """(t, column, orientation, votes) of the seeds, nearest band first.
+
+    Every band in one pass over the features of the near bands (each feature's band is its ``t``
+    over the band's height): each band's counts are those of its features, taken in the same order,
+    as a pass over that band alone would make them."""
     band = max(1, int(round(p.seed_band_m / res)))
     bin_px = max(1, int(round(0.25 / res)))
     n_bins = cols // bin_px + 2
+    n_bands = min(p.seed_bands, -(-rows // band))  # the bands that start inside the BEV
+    # the features of the bands' BEV rows: (rows - n_bands band, rows - 1]
+    i0, i1 = row_start[max(0, rows - n_bands * band)], row_start[rows]
+    tt, cc, th = t[i0:i1], c[i0:i1], theta[i0:i1]
+    j = (tt // band).astype(np.int64)  # the band of each feature (t: whole rows above the bottom one)
+    n_band = np.bincount(j, minlength=n_bands)
+    ok = th > math.radians(20.0)
+    ok &= th < math.radians(160.0)
+    tt, cc, th, j = tt[ok], cc[ok], th[ok], j[ok]
+    t_b = j * band  # each feature's band's lower edge
+    col_b = cc - (tt - t_b) * np.cos(th) / np.sin(th)
+    b = np.floor(col_b / bin_px).astype(np.int64)
+    keep = (b >= 0) & (b < n_bins)
+    b, th, j = b[keep], th[keep], j[keep]
+    n_kept = np.bincount(j, minlength=n_bands)
+    cell = j * n_bins + b
+    hist = np.bincount(cell, minlength=n_bands * n_bins).astype(np.float64).reshape(n_bands, n_bins)
+    s2 = np.bincount(cell, weights=np.sin(2 * th), minlength=n_bands * n_bins).reshape(n_bands, n_bins)
+    c2 = np.bincount(cell, weights=np.cos(2 * th), minlength=n_bands * n_bins).reshape(n_bands, n_bins)
+    h3 = hist.copy()
+    h3[:, 1:] += hist[:, :-1]
+    h3[:, :-1] += hist[:, 1:]
+    # the peaks: enough votes, no fewer than either neighbour, and more than the left one (a
+    # plateau: its first bin); a band with fewer features than a seed's votes has none
+    peak = h3 >= p.min_seed_votes
+    peak[:, :-1] &= h3[:, :-1] >= h3[:, 1:]
+    peak[:, 1:] &= h3[:, 1:] > h3[:, :-1]
+    peak[(n_band < p.min_seed_votes) | (n_kept < p.min_seed_votes)] = False
     out = []
-    for j in range(p.seed_bands):
-        t_b = j * band
-        if t_b >= rows:
-            break
-        r_hi = rows - 1 - t_b  # BEV rows of the band: (r_hi - band, r_hi]
-        r_lo = max(0, r_hi - band + 1)
-        i0, i1 = row_start[r_lo], row_start[r_hi + 1]
-        if i1 - i0 < p.min_seed_votes:
-            continue
-        tt, cc, th = t[i0:i1], c[i0:i1], theta[i0:i1]
-        ok = th > math.radians(20.0)
-        ok &= th < math.radians(160.0)
-        tt, cc, th = tt[ok], cc[ok], th[ok]
-        col_b = cc - (tt - t_b) * np.cos(th) / np.sin(th)
-        b = np.floor(col_b / bin_px).astype(np.int64)
-        keep = (b >= 0) & (b < n_bins)
-        b, th = b[keep], th[keep]
-        if b.size < p.min_seed_votes:
-            continue
-        hist = np.bincount(b, minlength=n_bins).astype(np.float64)
-        s2 = np.bincount(b, weights=np.sin(2 * th), minlength=n_bins)
-        c2 = np.bincount(b, weights=np.cos(2 * th), minlength=n_bins)
-        h3 = hist.copy()
-        h3[1:] += hist[:-1]
-        h3[:-1] += hist[1:]
-        for k in np.flatnonzero(h3 >= p.min_seed_votes):
-            if h3[k] < h3[max(0, k - 1)] or h3[k] < h3[min(n_bins - 1, k + 1)]:
-                continue
-            if k > 0 and h3[k] == h3[k - 1]:
-                continue  # a plateau: its first bin
-            lo, hi = max(0, k - 1), min(n_bins, k + 2)
-            psi = 0.5 * math.atan2(float(s2[lo:hi].sum()), float(c2[lo:hi].sum()))
-            if psi < 0:
-                psi += math.pi
-            out.append((float(t_b), (k + 0.5) * bin_px, psi, float(h3[k])))
+    for jb, k in zip(*(x.tolist() for x in np.nonzero(peak))):  # nearest band first, then by column
+        lo, hi = max(0, k - 1), min(n_bins, k + 2)
+        psi = 0.5 * math.atan2(float(s2[jb, lo:hi].sum()), float(c2[jb, lo:hi].sum()))
+        if psi < 0:
+            psi += math.pi
+        out.append((float(jb * band), (k + 0.5) * bin_px, psi, float(h3[jb, k])))
     return out
 
 
@@ -691,7 +694,9 @@ def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None):
     t = (rows - 1 - r).astype(np.float64)
     cf = c.astype(np.float64)
     th = np.ascontiguousarray(theta, dtype=np.float64)
-    row_start = np.searchsorted(r, np.arange(rows + 1)).astype(np.int64)
+    # the first feature of each BEV row (the points are in row-major order): the counts per row summed
+    row_start = np.zeros(rows + 1, np.int64)
+    np.cumsum(np.bincount(r, minlength=rows)[:rows], out=row_start[1:])
     owner = np.full(r.shape, -1, np.int32)
     tracks = []
     step = p.step_m / res
@@ -755,12 +760,14 @@ def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None):
     guide = np.zeros((4, 0))
     for t0, c0, psi0, _votes in seeds:
         # a seed on a line already followed: the features of its band that voted for it (moved
-        # along the seed's heading to the band's lower edge) are taken
-        i0, i1 = row_start[max(0, rows - int(t0) - band)], row_start[rows - int(t0)]
-        moved = cf[i0:i1] - (t[i0:i1] - t0) * (math.cos(psi0) / max(math.sin(psi0), 1e-3))
-        idx = np.arange(i0, i1)[np.abs(moved - c0) < half_w]
-        if idx.size and np.mean(owner[idx] >= 0) > 0.3:
-            continue
+        # along the seed's heading to the band's lower edge) are taken (none before the first track)
+        if tracks:
+            i0, i1 = row_start[max(0, rows - int(t0) - band)], row_start[rows - int(t0)]
+            moved = cf[i0:i1] - (t[i0:i1] - t0) * (math.cos(psi0) / max(math.sin(psi0), 1e-3))
+            voted = np.abs(moved - c0) < half_w
+            n_voted = np.count_nonzero(voted)
+            if n_voted and np.count_nonzero(owner[i0:i1][voted] >= 0) / n_voted > 0.3:
+                continue
         track, centres = run(t0, c0, psi0, len(tracks), guide)
         if track["span"] >= p.guide_min_m:  # a long line (not a hatching bar) guides the next ones
             guide = np.ascontiguousarray(np.concatenate([guide, centres], axis=1))
@@ -795,7 +802,9 @@ def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None):
     for tr in tracks:
         if tr["bar"] or tr["n"] < p.min_inliers:
             continue
-        sel = owner == tr["id"]
+        # the track's features, in the points' row-major order: t does not increase along them, so
+        # the near part, the inliers' ends and the farthest feature on the parabola are ends of runs
+        sel = np.flatnonzero(owner == tr["id"])
         tt, cc = t[sel], cf[sel]
         if tr["t_turn"] < 1e8:
             keep = tt <= tr["t_turn"]
@@ -804,28 +813,33 @@ def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None):
         if p.near_fit_m is not None:
             # a road's curvature changes (entering a bend, an S-bend), a parabola's does not: the
             # near part, where the image shows the line largest, when it is seen over half of it
-            near = tt * res <= p.near_fit_m
-            if near.any() and (tt[near].max() - tt[near].min()) * res >= 0.5 * p.near_fit_m:
-                tt, cc = tt[near], cc[near]
+            j = tt.size - int(np.count_nonzero(tt * res <= p.near_fit_m))  # the near part: tt[j:]
+            if j < tt.size and (tt[j] - tt[-1]) * res >= 0.5 * p.near_fit_m:
+                tt, cc = tt[j:], cc[j:]
         if tt.size < p.min_inliers:
             continue
         coef, w = irls_fit(tt, cc, 2)
         inl = w > 0.5
-        if inl.sum() < max(p.min_inliers, p.min_inlier_fraction * tt.size):
+        n_inl = int(np.count_nonzero(inl))
+        if n_inl < max(p.min_inliers, p.min_inlier_fraction * tt.size):
             continue  # one parabola does not describe the track: it strayed onto other features
-        extent = (tt[inl].max() - tt[inl].min()) * res
-        if extent < p.min_extent_m or tt[inl].min() * res > p.max_start_m:
+        t_in = tt[inl]  # from the farthest inlier to the nearest
+        extent = (t_in[0] - t_in[-1]) * res
+        if extent < p.min_extent_m or t_in[-1] * res > p.max_start_m:
             continue
         # the path's curvature where it is seen nearest (x(z)'s second derivative over (1 + x'^2)^1.5)
-        t_near = float(tt[inl].min())
+        t_near = float(t_in[-1])
         slope = coef[1] + 2 * coef[2] * t_near
         if abs(2 * coef[2] / res) / (1 + slope * slope) ** 1.5 > p.max_curvature:
             coef, w = irls_fit(tt, cc, 1)
             coef = np.array([coef[0], coef[1], 0.0])
             inl = w > 0.5
+            n_inl = int(np.count_nonzero(inl))
+            t_in = tt[inl]
         # the lane reaches as far as the line's features stay on the parabola (a marking's width)
         on = np.abs(coef[0] + coef[1] * t_all + coef[2] * t_all * t_all - c_all) <= p.extend_px
-        t_top = float(max(tt[inl].max(), t_all[on].max() if on.any() else 0.0))
+        i_on = int(on.argmax())  # the farthest feature on it (when any is)
+        t_top = float(max(t_in[0], t_all[i_on] if on[i_on] else 0.0))
         # the parabola's slope must stay within max_heading_deg over its fitted rows
         if abs(coef[1] + 2 * coef[2] * t_top) > tan_max and abs(coef[1]) > tan_max:
             continue
@@ -839,8 +853,8 @@ def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None):
                     coeffs=(float(coef[0]), float(coef[1]), float(coef[2])),
                     bev_rows=(rows - 1 - int(t_top), rows - 1),
                     side="left" if lateral < 0 else "right",
-                    score=float(min(1.0, inl.sum() / max(1.0, (t_top + 1) * 2.0))),
-                    extra={"support": int(inl.sum()), "extent_m": round(float(extent), 2), "followed": True},
+                    score=float(min(1.0, n_inl / max(1.0, (t_top + 1) * 2.0))),
+                    extra={"support": n_inl, "extent_m": round(float(extent), 2), "followed": True},
                 ),
             )
         )
