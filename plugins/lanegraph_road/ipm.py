@@ -166,9 +166,10 @@ def warp_to_bev(
     bev_mask = code > (0 if mask is None else 1)
     # keep only BEV pixels in front of the camera (w > 0), as bev_maps() does. w is linear in the
     # BEV pixel: when it is positive at the four corners it is positive everywhere.
-    corners_c = np.array([0.0, geom.cols - 1.0, 0.0, geom.cols - 1.0])
-    corners_r = np.array([0.0, 0.0, geom.rows - 1.0, geom.rows - 1.0])
-    if not np.all(Hm[2, 0] * corners_c + Hm[2, 1] * corners_r + Hm[2, 2] > 1e-9):
+    h20, h21, h22 = (float(x) for x in Hm[2])
+    if not all(
+        h20 * c + h21 * r + h22 > 1e-9 for c in (0.0, geom.cols - 1.0) for r in (0.0, geom.rows - 1.0)
+    ):
         r = np.arange(geom.rows, dtype=np.float64)[:, None]
         c = np.arange(geom.cols, dtype=np.float64)[None, :]
         ahead = (Hm[2, 0] * c + Hm[2, 1] * r + Hm[2, 2]) > 1e-9

@@ -239,8 +239,9 @@ def _keep_components(
     seeds = ([band[:, lo:hi]] if keep == "bottom_centre" else []) + [band]
     for region in seeds:
         overlap = np.bincount(region.ravel(), minlength=n)[1:]
-        if overlap.max() > 0:
-            kept = (np.flatnonzero(overlap >= 0.1 * overlap.max()) + 1).astype(labels.dtype)
+        most = overlap.max()
+        if most > 0:
+            kept = (np.flatnonzero(overlap >= 0.1 * most) + 1).astype(labels.dtype)
             if kept.size <= 3:  # the usual case, the road alone: comparison passes (3x faster)
                 out = np.equal(labels, kept[0])
                 for k in kept[1:]:
