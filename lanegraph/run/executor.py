@@ -55,6 +55,10 @@ class _SkipFrame(Exception):
     pass
 
 
+#: the hooks fired around every node call
+_NODE_HOOKS = frozenset({"lanegraph_before_node", "lanegraph_after_node"})
+
+
 @dataclass
 class _Position:
     """How far a run's stream got: frames of the selection consumed, the last frame done, and the
@@ -130,6 +134,9 @@ class Executor:
         self._closed = False
         self.constant_nodes: set[str] = self._constant_nodes()
         self._plan: list[Step] | None = None  # plan.frame_plan(), made by the first frame
+        # the node hooks some plugin implements (_live_node_hooks(), looked up again every frame):
+        # a call of a hook without implementations does nothing but costs 3-4 us a node
+        self._node_hooks: frozenset[str] = _NODE_HOOKS
 
     # -- compile -------------------------------------------------------------
     def _select_source(self) -> None:
@@ -172,9 +179,10 @@ class Executor:
         result: RunResult,
         key: str | None = None,
     ) -> dict:
-        self._hook(
-            "lanegraph_before_node", node_id=node.id, node_type=node.type.name, frame=frame, inputs=inputs
-        )
+        if "lanegraph_before_node" in self._node_hooks:
+            self._hook(
+                "lanegraph_before_node", node_id=node.id, node_type=node.type.name, frame=frame, inputs=inputs
+            )
         use_cache = self.cache is not None and key is not None and node.id in self.cache_nodes
         if use_cache:
             hit = self.cache.get(key)
@@ -223,6 +231,8 @@ class Executor:
         return out
 
     def _after_node(self, node: GraphNode, frame: str | None, outputs: Any, ms: float, error: Any) -> None:
+        if "lanegraph_after_node" not in self._node_hooks:
+            return
         kw = {"node_id": node.id, "node_type": node.type.name, "frame": frame, "outputs": outputs}
         self._hook("lanegraph_after_node", **kw, elapsed_ms=ms, error=error)
 
@@ -319,6 +329,13 @@ class Executor:
                 result.notes.append(str(exc))  # the run's own error comes first
         return result
 
+    def _live_node_hooks(self) -> frozenset[str]:
+        """The node hooks (:data:`_NODE_HOOKS`) that some registered plugin implements: only those
+        are called around the nodes. Looked up before the constant nodes and again before every
+        frame, so a plugin registered between frames is called from the next one on; a hook without
+        implementations has nothing to call (pluggy's tracing and monitoring see no call of it either)."""
+        return frozenset(n for n in _NODE_HOOKS if getattr(self.pm.hook, n).get_hookimpls())
+
     def _hook(self, name: str, **kwargs: Any) -> Any:
         """Hook ``name`` called guarded (:func:`lanegraph.plugins.call_hook`): a hook implementation
         that raises or misbehaves is a :class:`~lanegraph.errors.HookError` naming its plugin."""
@@ -341,6 +358,7 @@ class Executor:
         """The source's constants and the outputs of the nodes that run once (constant inputs
         only), with their cache keys."""
         g, result = self.graph, self.result
+        self._node_hooks = self._live_node_hooks()
         src = g.source
         source = self.instances[src.id]
         values: dict[tuple[str, str], Any] = {}
@@ -445,6 +463,7 @@ class Executor:
         key. Raises :class:`_SkipFrame` when a node under ``on_error: skip`` failed."""
         g = self.graph
         src_id = g.source.id
+        self._node_hooks = self._live_node_hooks()
         warming = self.warming.warming(index)
         frame = frame_out.get("frame")
         cur = dict(values)

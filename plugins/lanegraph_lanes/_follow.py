@@ -510,13 +510,28 @@ def _seeds(t, c, theta, row_start, rows, cols, p: FollowParams, res: float):
     peak[:, :-1] &= h3[:, :-1] >= h3[:, 1:]
     peak[:, 1:] &= h3[:, 1:] > h3[:, :-1]
     peak[(n_band < p.min_seed_votes) | (n_kept < p.min_seed_votes)] = False
+    # the orientation of a peak: its bin's and its neighbours' doubled angles, each sum as NumPy sums
+    # the (two or three) bins, from 0.0 in their order (a 0.0 beyond either end adds nothing)
+    s3 = _window_sums(s2)[peak].tolist()
+    c3 = _window_sums(c2)[peak].tolist()
     out = []
-    for jb, k in zip(*(x.tolist() for x in np.nonzero(peak))):  # nearest band first, then by column
-        lo, hi = max(0, k - 1), min(n_bins, k + 2)
-        psi = 0.5 * math.atan2(float(s2[jb, lo:hi].sum()), float(c2[jb, lo:hi].sum()))
+    jj, kk = np.nonzero(peak)  # nearest band first, then by column
+    for jb, k, s, co, votes in zip(jj.tolist(), kk.tolist(), s3, c3, h3[peak].tolist()):
+        psi = 0.5 * math.atan2(s, co)
         if psi < 0:
             psi += math.pi
-        out.append((float(jb * band), (k + 0.5) * bin_px, psi, float(h3[jb, k])))
+        out.append((float(jb * band), (k + 0.5) * bin_px, psi, votes))
+    return out
+
+
+def _window_sums(a: np.ndarray) -> np.ndarray:
+    """Per row of ``a``, each value plus its left and right neighbours (two at the ends), added as
+    ``a[j, k - 1 : k + 2].sum()`` adds them: from 0.0, left to right."""
+    pad = np.zeros((a.shape[0], a.shape[1] + 2))
+    pad[:, 1:-1] = a
+    out = 0.0 + pad[:, :-2]
+    out += pad[:, 1:-1]
+    out += pad[:, 2:]
     return out
 
 

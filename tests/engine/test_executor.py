@@ -76,6 +76,33 @@ def test_hooks_fire_around_every_node(tmp_path, pm):
     assert all(s[2] for s in seen if s[0] == "after")
 
 
+def test_a_node_hook_registered_between_frames_is_called_from_the_next_frame(tmp_path, pm):
+    """Only the node hooks some plugin implements are called, looked up every frame: a tracer
+    registered after frame 0001 and unregistered after 0002 sees frame 0002 alone (its after-node
+    hook, the one it has)."""
+    seen = []
+
+    class AfterOnly:
+        @hookimpl
+        def lanegraph_after_node(self, node_id, frame):
+            seen.append((node_id, frame))
+
+    tracer = AfterOnly()
+
+    def on_frame(index, frame):
+        if frame == "0001":
+            pm.register(tracer)
+        elif frame == "0002":
+            pm.unregister(tracer)
+
+    ex = Executor(load(tmp_path, pm), RunContext(), pm)
+    ex.run(on_frame=on_frame)
+    assert {f for _, f in seen} == {"0002"}
+    # the source's after-node, then the three per-frame nodes
+    assert [n for n, _ in seen] == ["src", "double", "acc", "sink"]
+    assert ex._node_hooks == frozenset()
+
+
 def test_failure_policy_fail_names_node_and_frame(tmp_path, pm):
     g = load(tmp_path, pm, sets=["double.fail_on=2"])
     with pytest.raises(NodeError) as info:

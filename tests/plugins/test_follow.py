@@ -13,6 +13,8 @@ from lanegraph_lanes._follow import (
     FollowParams,
     MergeParams,
     _follow_kernel,
+    _seeds,
+    _window_sums,
     follow,
     merge,
     merge_node,
@@ -235,6 +237,84 @@ def test_follow_kernel_matches_numpy_twin(radius_m):
             if radius_m == 30.0:  # the staircase's features counted: the line followed to the top
                 assert got[3] > 0.9 * rows
     assert guide.shape[1] > 5
+
+
+def seeds_band_by_band(t, c, theta, row_start, rows, cols, p, res):
+    """The seeds as ``_seeds`` defines them, one band at a time with a loop over its histogram's
+    bins (the reference of its one pass over every band)."""
+    band = max(1, int(round(p.seed_band_m / res)))
+    bin_px = max(1, int(round(0.25 / res)))
+    n_bins = cols // bin_px + 2
+    out = []
+    for j in range(p.seed_bands):
+        t_b = j * band
+        if t_b >= rows:
+            break
+        r_hi = rows - 1 - t_b
+        i0, i1 = row_start[max(0, r_hi - band + 1)], row_start[r_hi + 1]
+        if i1 - i0 < p.min_seed_votes:
+            continue
+        tt, cc, th = t[i0:i1], c[i0:i1], theta[i0:i1]
+        ok = (th > math.radians(20.0)) & (th < math.radians(160.0))
+        tt, cc, th = tt[ok], cc[ok], th[ok]
+        b = np.floor((cc - (tt - t_b) * np.cos(th) / np.sin(th)) / bin_px).astype(np.int64)
+        keep = (b >= 0) & (b < n_bins)
+        b, th = b[keep], th[keep]
+        if b.size < p.min_seed_votes:
+            continue
+        hist = np.bincount(b, minlength=n_bins).astype(np.float64)
+        s2 = np.bincount(b, weights=np.sin(2 * th), minlength=n_bins)
+        c2 = np.bincount(b, weights=np.cos(2 * th), minlength=n_bins)
+        h3 = hist.copy()
+        h3[1:] += hist[:-1]
+        h3[:-1] += hist[1:]
+        for k in np.flatnonzero(h3 >= p.min_seed_votes):
+            if h3[k] < h3[max(0, k - 1)] or h3[k] < h3[min(n_bins - 1, k + 1)]:
+                continue
+            if k > 0 and h3[k] == h3[k - 1]:
+                continue  # a plateau: its first bin
+            lo, hi = max(0, k - 1), min(n_bins, k + 2)
+            psi = 0.5 * math.atan2(float(s2[lo:hi].sum()), float(c2[lo:hi].sum()))
+            out.append((float(t_b), (k + 0.5) * bin_px, psi + math.pi if psi < 0 else psi, float(h3[k])))
+    return out
+
+
+@pytest.mark.parametrize("rows", [800, 150, 30])
+def test_seeds_of_every_band_at_once_are_those_band_by_band(rows):
+    """Solid and dashed lines, hatching bars and noise (and BEVs shorter than the seed bands): the
+    seeds of the one pass over every band are those of the band-by-band loop, bit for bit."""
+    cols = 400
+    bev = np.full((rows, cols), 80, np.uint8)
+    for c0, radius_m in ((120.0, 60.0), (190.0, 60.0), (300.0, -250.0)):
+        c, t = arc(c0, radius_m)
+        draw(bev, c, t)
+    for k in range(5):
+        draw(bev, 320 + np.arange(0, 30, 0.5), 10 + 25 * k + np.arange(0, 30, 0.5))
+    rng = np.random.default_rng(5)
+    bev[rng.integers(0, rows, 500), rng.integers(0, cols, 500)] = 200
+    f = features_of(bev)
+    r, cc = f.points()
+    th = np.ascontiguousarray(f.point_orientations(), dtype=np.float64)
+    t = (rows - 1 - r).astype(np.float64)
+    cf = cc.astype(np.float64)
+    row_start = np.searchsorted(r, np.arange(rows + 1)).astype(np.int64)
+    for p in (FollowParams(), FollowParams(min_seed_votes=5, seed_bands=9), FollowParams(seed_band_m=0.7)):
+        got = _seeds(t, cf, th, row_start, rows, cols, p, RES)
+        exp = seeds_band_by_band(t, cf, th, row_start, rows, cols, p, RES)
+        assert got == exp
+        assert rows < 100 or len(got) >= 3  # the lines' seeds at least
+
+
+def test_window_sums_add_as_numpy_sums_a_slice():
+    """Each value with its neighbours, bit for bit ``a[j, k - 1 : k + 2].sum()`` (a -0.0 included)."""
+    rng = np.random.default_rng(2)
+    for a in (
+        rng.normal(size=(3, 40)) * 10.0 ** rng.uniform(-8, 8, size=(3, 40)),
+        rng.choice([0.0, -0.0, 1e16, -1e16, 1.0, 3.5], size=(3, 40)),
+    ):
+        got = _window_sums(a)
+        exp = np.array([[a[j, max(0, k - 1) : k + 2].sum() for k in range(a.shape[1])] for j in range(3)])
+        assert np.array_equal(got, exp) and np.array_equal(np.signbit(got), np.signbit(exp))
 
 
 # ----------------------------------------------------------------------------- the node
