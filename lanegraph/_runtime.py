@@ -98,11 +98,28 @@ if hasattr(os, "register_at_fork"):  # a forked child has none of the parent's t
     os.register_at_fork(after_in_child=_pools.clear)
 
 
-def _leave_signals_to_the_main_thread() -> None:
+def leave_signals_to_the_main_thread() -> None:
     """A pool thread blocks Ctrl-C, SIGTERM and SIGHUP: the kernel then delivers a signal sent to
     the process to the main thread, where Python handles it, at once."""
     if hasattr(signal, "pthread_sigmask"):
         signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM, signal.SIGHUP})
+
+
+def lower_thread_priority(increment: int) -> bool:
+    """Lower the calling thread's scheduling priority by ``increment`` nice steps (at most to 19);
+    returns whether it changed. On Linux only, where ``setpriority`` of a thread id applies to that
+    thread alone (elsewhere it would lower the whole process: nothing is done). A process may always
+    lower a priority, never raise it back: meant for a pool's threads (``initializer``), which end
+    with the pool."""
+    if increment <= 0 or not sys.platform.startswith("linux") or not hasattr(threading, "get_native_id"):
+        return False
+    tid = threading.get_native_id()
+    try:
+        now = os.getpriority(os.PRIO_PROCESS, tid)
+        os.setpriority(os.PRIO_PROCESS, tid, min(19, now + int(increment)))
+    except OSError:  # a sandbox that forbids it: the thread keeps the run's priority
+        return False
+    return True
 
 
 def worker_pool(name: str, n: int) -> ThreadPoolExecutor:
@@ -114,6 +131,6 @@ def worker_pool(name: str, n: int) -> ThreadPoolExecutor:
             pool = _pools[(name, n)] = ThreadPoolExecutor(
                 max_workers=n,
                 thread_name_prefix=f"lanegraph-{name}",
-                initializer=_leave_signals_to_the_main_thread,
+                initializer=leave_signals_to_the_main_thread,
             )
         return pool

@@ -23,7 +23,7 @@ import numpy as np
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from lanegraph import NodeParams, Port, RunContext, node_type
-from lanegraph._runtime import available_cpus
+from lanegraph._runtime import available_cpus, leave_signals_to_the_main_thread, lower_thread_priority
 from lanegraph.errors import InputError, UsageError
 from lanegraph.frames import parse_frames as _parse_frames
 from lanegraph.frames import select_frames, selection_text
@@ -215,6 +215,19 @@ def _read_ahead_field():
     )
 
 
+def _read_nice_field():
+    return Field(
+        0,
+        ge=0,
+        le=19,
+        description="reading ahead, how many nice steps (Linux scheduling priority) the decoding threads run "
+        "below the nodes: they then take the CPU the nodes leave idle instead of sharing it with the nodes' "
+        "threads. It pays where the nodes' threads are the longest part of a frame (paper.yaml's SGBM bands "
+        "on two CPUs: 10) and costs where the decoding is (half_res.yaml: 0). 0 = the nodes' priority; not "
+        "on other systems than Linux, nor without reading ahead",
+    )
+
+
 class StereoSourceParams(NodeParams):
     """Params shared by the file-based stereo sources."""
 
@@ -246,6 +259,7 @@ class StereoSourceParams(NodeParams):
         description="refuse an input whose first readable pair matches at negative disparities (left and right swapped)",
     )
     read_ahead: int = _read_ahead_field()
+    read_nice: int = _read_nice_field()
 
     @model_validator(mode="after")
     def _baseline_range(self):
@@ -419,7 +433,13 @@ class _PairSource:
                     continue
                 yield item
             return
-        pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="lanegraph-read")
+        nice = self.params.read_nice if ahead > 0 else 0
+        pool = ThreadPoolExecutor(
+            max_workers=threads,
+            thread_name_prefix="lanegraph-read",
+            initializer=_reader_thread,
+            initargs=(nice,),
+        )
         pending: deque = deque()
         pairs = iter(self.pairs)
 
@@ -447,6 +467,14 @@ class _PairSource:
                 yield item
         finally:
             pool.shutdown(wait=False, cancel_futures=True)
+
+
+def _reader_thread(nice: int) -> None:
+    """A decoding thread: signals left to the main thread, and ``nice`` steps below the nodes'
+    priority (``read_nice``: on two CPUs the disparity's two threads and a decoder otherwise share
+    them while the nodes after it leave one idle)."""
+    leave_signals_to_the_main_thread()
+    lower_thread_priority(nice)
 
 
 def _resolved(p: str) -> str:
@@ -594,14 +622,15 @@ def detect_source(path: Path) -> str | None:
 
 
 class AutoParams(NodeParams):
-    """Params of ``io.auto``. A field it shares with the source it chooses (``read_ahead``) is
-    passed on to that source when the graph sets it; the synthetic scene has none."""
+    """Params of ``io.auto``. A field it shares with the source it chooses (``read_ahead``,
+    ``read_nice``) is passed on to that source when the graph sets it; the synthetic scene has none."""
 
     default: str = Field(
         "io.synthetic",
         description="source node type used when no --input is given (an installed source type)",
     )
     read_ahead: int = _read_ahead_field()
+    read_nice: int = _read_nice_field()
 
     @field_validator("default")
     @classmethod

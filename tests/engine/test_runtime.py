@@ -132,3 +132,27 @@ def test_a_forked_child_gets_new_pools():
         os._exit(0 if ok else 1)
     _, status = os.waitpid(pid, 0)
     assert os.waitstatus_to_exitcode(status) == 0
+
+
+def test_lower_thread_priority_lowers_the_calling_thread_only():
+    import os
+    import threading
+
+    from lanegraph._runtime import lower_thread_priority
+
+    base = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+    got = {}
+
+    def work():
+        got["changed"] = lower_thread_priority(5)
+        got["nice"] = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+        got["zero"] = lower_thread_priority(0)
+
+    th = threading.Thread(target=work)
+    th.start()
+    th.join()
+    if sys.platform.startswith("linux"):
+        assert got == {"changed": True, "nice": min(19, base + 5), "zero": False}
+    else:  # nothing changed where a thread's priority cannot be set alone
+        assert got == {"changed": False, "nice": base, "zero": False}
+    assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == base

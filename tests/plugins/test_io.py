@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import cv2
@@ -361,3 +362,39 @@ def test_a_value_the_chosen_source_refuses_is_a_located_graph_error():
         chosen_params(chosen, AutoParams(read_ahead=3), file="g.yaml", node="src")
     assert str(info.value).startswith("g.yaml: node 'src' (toy.narrow): params.read_ahead: ")
     assert "less than or equal to 2" in str(info.value)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread priorities are Linux's")
+@pytest.mark.parametrize(("read_ahead", "read_nice", "expected"), [(2, 7, 7), (2, 0, 0), (0, 7, 0)])
+def test_reading_ahead_the_decoders_run_below_the_nodes_priority(
+    tmp_path, monkeypatch, read_ahead, read_nice, expected
+):
+    """Reading ahead, each decoding thread runs ``read_nice`` steps below the run's priority (and
+    leaves signals to the main thread); the caller's thread keeps its own. Without reading ahead
+    the run waits for the decoders: they keep its priority."""
+    import os
+    import signal
+    import threading
+
+    from lanegraph_io import _sources
+
+    seen = []
+    real = _sources.read_image
+
+    def spy(*args, **kwargs):
+        if threading.current_thread() is not threading.main_thread():
+            blocked = signal.pthread_sigmask(signal.SIG_BLOCK, set())
+            seen.append(
+                (os.getpriority(os.PRIO_PROCESS, threading.get_native_id()), signal.SIGINT in blocked)
+            )
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(_sources, "read_image", spy)
+    monkeypatch.setattr(_sources, "available_cpus", lambda: 2)
+    base = os.getpriority(os.PRIO_PROCESS, 0)
+    drive = kitti_raw(tmp_path, n=3)
+    src = open_source(KittiRawSource, {"read_ahead": read_ahead, "read_nice": read_nice}, drive)
+    assert [i["frame"] for i in src] == [f"{i:010d}" for i in range(3)]
+    assert len(seen) == 6  # every image decoded on a pool thread (two CPUs)
+    assert {p for p, _ in seen} == {min(19, base + expected)} and all(b for _, b in seen)
+    assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == base  # the caller's thread
