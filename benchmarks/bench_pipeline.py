@@ -30,9 +30,11 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -95,6 +97,55 @@ def plain_sgbm_ms(graph, drive: Path, sel: slice, calls: int) -> tuple[float, st
     return float(np.median(times)), what
 
 
+#: the kind of a thread that is not Python's (OpenCV's and numba's workers)
+OTHER = "other (OpenCV, numba)"
+
+
+def thread_cpu() -> dict[int, tuple[str, float]]:
+    """Each live thread of this process: native id -> (kind, CPU seconds so far). The kind is
+    lanegraph's thread name without its number (``lanegraph-bands``, ``lanegraph-read``, ...),
+    ``main``, or ``other (OpenCV, numba)`` for the native workers. Empty where ``/proc/self/task``
+    is missing (not Linux)."""
+    if not os.path.isdir("/proc/self/task"):
+        return {}
+    names = {th.native_id: re.sub(r"_\d+$", "", th.name) for th in threading.enumerate()}
+    main = threading.main_thread().native_id
+    tick = os.sysconf("SC_CLK_TCK")
+    out = {}
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            with open(f"/proc/self/task/{tid}/stat") as fh:
+                fields = fh.read().rsplit(")", 1)[1].split()
+        except OSError:  # the thread ended meanwhile
+            continue
+        kind = "main" if int(tid) == main else names.get(int(tid), OTHER)
+        out[int(tid)] = (kind, (int(fields[11]) + int(fields[12])) / tick)  # utime + stime
+    return out
+
+
+class ThreadClock:
+    """The CPU time of a run by kind of thread (:func:`thread_cpu`), sampled after every frame
+    (about 0.1 ms): a thread that ends before the run does (the reading pool's) keeps its last
+    sample."""
+
+    def __init__(self) -> None:
+        self.before = thread_cpu()
+        self.seen: dict[int, tuple[str, float]] = {}
+
+    def __call__(self, index: int, frame: object) -> None:
+        for tid, (kind, cpu) in thread_cpu().items():
+            known = self.seen.get(tid)
+            # a thread whose Python part has ended is still in /proc for a moment, nameless
+            self.seen[tid] = (known[0] if known and kind == OTHER else kind, cpu)
+
+    def by_kind(self) -> dict[str, float]:
+        self(-1, None)
+        out: dict[str, float] = {}
+        for tid, (kind, cpu) in self.seen.items():
+            out[kind] = out.get(kind, 0.0) + cpu - self.before.get(tid, (kind, 0.0))[1]
+        return out
+
+
 def bench(
     graph_path: str,
     drive: Path,
@@ -142,15 +193,17 @@ def bench(
     res = min(runs, key=lambda r: float(np.median(per_frame(r, [i for i in g.nodes if i != src]))))
     # 2. end to end, as `lanegraph run` does it: the next frame is read while this one is
     #    computed; best of `repeat` runs
-    walls, cpus = [], []
+    walls, cpus, by_thread = [], [], []
     for _ in range(repeat):
         ex = Executor(load_graph(graph_path), RunContext(input_path=drive, out_dir=out_dir, frames=sel))
         if read_ahead is not None and "read_ahead" in type(ex.graph.source.params).model_fields:
             ex.graph.source.params = ex.graph.source.params.model_copy(update={"read_ahead": read_ahead})
+        clock = ThreadClock()
         t0, c0 = time.perf_counter(), time.process_time()
-        e2e = ex.run()
+        e2e = ex.run(on_frame=clock)
         walls.append(time.perf_counter() - t0)
         cpus.append(time.process_time() - c0)
+        by_thread.append(clock.by_kind())
     wall = min(walls)
     n = res.frames
     print(f"\n== {graph_path}: {n} frames of {drive.name} (best of {repeat} runs; {start_load} at the start)")
@@ -178,6 +231,13 @@ def bench(
         f"  CPU time per frame, end to end (all threads, least of the runs): {cpu_ms:.1f} ms; "
         f"{n_cpu} CPUs busy all the time would give at most {1000.0 * n_cpu / cpu_ms:.1f} frames/s"
     )
+    threads = by_thread[cpus.index(min(cpus))]
+    if threads:
+        parts = sorted(((v, k) for k, v in threads.items() if v > 0), reverse=True)
+        print(
+            "  of which, by thread (that run, sampled after each frame; clock ticks of 10 ms): "
+            + ", ".join(f"{k} {1000.0 * v / max(e2e.frames, 1):.1f} ms" for v, k in parts)
+        )
     compute = sum(
         float(np.median(ts))
         for nid, ts in res.timings_ms.items()
