@@ -9,7 +9,9 @@ falls on all of them alike):
   (the kernels are shared by every cache folder: :mod:`lanegraph.kernel_cache`);
 - **warm**: the same cache folder again.
 
-For each: the wall time, the time to the first line the command prints (stdout or stderr), and
+For each: the wall time, the CPU time (user + system, of the run and of every process it waited
+for: the first run's helper included; on a shared machine the steadier figure, as the load
+stretches the walls), the time to the first line the command prints (stdout or stderr), and
 whether its ``lanes.jsonl`` is byte-identical to the warm run's. Prints the medians, the ratios to
 the warm run (the median and each round's: a shared machine's load changes between rounds) and the
 load average before and after.
@@ -25,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import selectors
 import subprocess
 import sys
@@ -36,9 +39,11 @@ from statistics import median
 
 def run_once(
     env: dict[str, str], out: Path, args: list[str], python: str = sys.executable
-) -> tuple[float, float, bytes]:
-    """(wall s, s to the first line, lanes.jsonl) of one piped ``lanegraph run`` (of ``python``)."""
+) -> tuple[float, float, bytes, float]:
+    """(wall s, s to the first line, lanes.jsonl, CPU s) of one piped ``lanegraph run`` (of
+    ``python``; the CPU of the run and of the processes it waited for, its helper included)."""
     cmd = [python, "-m", "lanegraph.cli", "run", "--out", str(out), *args]
+    ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     # from the output's folder: ``-m`` imports from the working folder first (never this checkout's
     # lanegraph in place of the baseline's)
@@ -62,9 +67,11 @@ def run_once(
                 first = time.perf_counter() - t0
     code = proc.wait()
     wall = time.perf_counter() - t0
+    ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
     if code != 0:
         raise SystemExit(f"lanegraph run failed ({code}): {tail.decode(errors='replace')}")
-    return wall, first if first is not None else wall, (out / "lanes.jsonl").read_bytes()
+    return wall, first if first is not None else wall, (out / "lanes.jsonl").read_bytes(), cpu
 
 
 KINDS = ("first on this machine", "new cache folder", "warm")
@@ -85,7 +92,7 @@ def main() -> None:
     }
     print(f"load average before: {' '.join(f'{x:.2f}' for x in os.getloadavg())} ({os.cpu_count()} cores)")
     installs = {"this": sys.executable, **({"baseline": opt.baseline} if opt.baseline else {})}
-    rows: dict[tuple[str, str], list[tuple[float, float, bool]]] = {
+    rows: dict[tuple[str, str], list[tuple[float, float, bool, float]]] = {
         (i, k): [] for i in installs for k in KINDS
     }
     with tempfile.TemporaryDirectory() as tmp:
@@ -97,7 +104,7 @@ def main() -> None:
                 "LANEGRAPH_CACHE_DIR": str(root / f"{inst}-warm-cache"),
                 "LANEGRAPH_KERNEL_CACHE": str(root / f"{inst}-kernels-shared"),
             }
-            _, _, lanes = run_once(
+            _, _, lanes, _ = run_once(
                 warm_env[inst], root / f"{inst}-out-prime", opt.args, python
             )  # the kernels
             reference = reference if reference is not None else lanes
@@ -117,29 +124,34 @@ def main() -> None:
                     else:
                         env = warm_env[inst]
                     load = os.getloadavg()[0]
-                    wall, first, lanes = run_once(env, root / f"{inst}-out-{kind[:3]}-{k}", opt.args, python)
-                    rows[inst, kind].append((wall, first, lanes == reference))
+                    wall, first, lanes, cpu = run_once(
+                        env, root / f"{inst}-out-{kind[:3]}-{k}", opt.args, python
+                    )
+                    rows[inst, kind].append((wall, first, lanes == reference, cpu))
                     print(
-                        f"  round {k + 1} {inst:8s} {kind:22s} wall {wall:6.2f} s, first line after "
+                        f"  round {k + 1} {inst:8s} {kind:22s} wall {wall:6.2f} s, CPU {cpu:6.2f} s, first line after "
                         f"{first:5.2f} s, lanes {'identical' if lanes == reference else 'DIFFERENT'}, "
                         f"load {load:.2f}",
                         flush=True,
                     )
     print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     print(
-        f"{'install':9s}{'run':24s} {'median wall':>12s} {'x warm':>7s} {'per round':>18s} {'first line':>11s}  lanes"
+        f"{'install':9s}{'run':24s} {'median wall':>12s} {'x warm':>7s} {'per round':>18s} {'median CPU':>11s} "
+        f"{'first line':>11s}  lanes"
     )
     for inst in installs:
-        warm_walls = [w for w, _, _ in rows[inst, "warm"]]
+        warm_walls = [r[0] for r in rows[inst, "warm"]]
         warm = median(warm_walls)
         for kind in KINDS:
             rs = rows[inst, kind]
-            wall = median(w for w, _, _ in rs)
-            first = median(f for _, f, _ in rs)
-            per_round = ", ".join(f"{w / ww:.1f}" for (w, _, _), ww in zip(rs, warm_walls))
-            same = "identical" if all(s for _, _, s in rs) else "DIFFERENT"
+            wall = median(r[0] for r in rs)
+            first = median(r[1] for r in rs)
+            cpu = median(r[3] for r in rs)
+            per_round = ", ".join(f"{r[0] / ww:.1f}" for r, ww in zip(rs, warm_walls))
+            same = "identical" if all(r[2] for r in rs) else "DIFFERENT"
             print(
-                f"{inst:9s}{kind:24s} {wall:10.2f} s {wall / warm:6.1f}x {per_round:>18s} {first:9.2f} s  {same}"
+                f"{inst:9s}{kind:24s} {wall:10.2f} s {wall / warm:6.1f}x {per_round:>18s} {cpu:9.2f} s "
+                f"{first:9.2f} s  {same}"
             )
 
 

@@ -38,6 +38,10 @@ JIT_OPTIONS = {
     "cache": os.environ.get("LANEGRAPH_NUMBA_CACHE", "1") != "0",
     "nogil": True,
     "fastmath": False,
+    # no C-callable wrapper beside each function (only a function passed as a first-class value
+    # would use it; lanegraph passes none): one function less to lower, optimise and turn into
+    # machine code for every kernel and helper, and for every one of numba's own functions they call
+    "no_cfunc_wrapper": True,
 }
 
 

@@ -204,22 +204,23 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px, scale_of, prior):
     half = 0.5 * (hi - lo)
     if half <= 0.0:
         half = 1.0
-    # every array is np.empty(n) or np.empty((r, c)) and filled by a loop, powers are products and
+    # every array is np.empty(n, np.float64) or np.empty((r, c), np.float64) (the dtype named: the same
+    # np.empty as the other kernels') and filled by a loop, powers are products and
     # the polynomial is written out (no np.zeros, np.ones, copy, ** or small helper kernels): each of
     # those is one more function for numba to compile, and this kernel's compilation is on the first
     # run's path (the same values: products of at most three factors are ``**``'s own)
-    x = np.empty(n)
+    x = np.empty(n, np.float64)
     for i in range(n):
         x[i] = (t[i] - mid) / half
     # x^j = sum_i C(j, i) t^i (-mid)^(j - i) / half^j: T[i, j] maps x-coefficients to t-coefficients
-    pm = np.empty(m)  # (-mid)**e
-    ph = np.empty(m)  # half**e
+    pm = np.empty(m, np.float64)  # (-mid)**e
+    ph = np.empty(m, np.float64)  # half**e
     pm[0] = 1.0
     ph[0] = 1.0
     for e in range(1, m):
         pm[e] = pm[e - 1] * -mid
         ph[e] = ph[e - 1] * half
-    T = np.empty((m, m))
+    T = np.empty((m, m), np.float64)
     for i in range(m):
         for j in range(m):
             T[i, j] = 0.0
@@ -228,23 +229,23 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px, scale_of, prior):
         for i in range(j + 1):
             T[i, j] = binom * pm[j - i] / ph[j]
             binom = binom * (j - i) / (i + 1)
-    ks = np.empty(n)
-    pw = np.empty(n)  # the fixed part of the system's weights
-    w = np.empty(n)  # the robust weights
-    sw = np.empty(n)  # the system's weights
+    ks = np.empty(n, np.float64)
+    pw = np.empty(n, np.float64)  # the fixed part of the system's weights
+    w = np.empty(n, np.float64)  # the robust weights
+    sw = np.empty(n, np.float64)  # the system's weights
     for i in range(n):
         ks[i] = scale_of[i] if scale_of.size == n else 1.0
         pw[i] = ks[i] * ks[i] * (prior[i] if prior.size == n else 1.0)
         w[i] = 1.0
         sw[i] = pw[i]
-    coef = np.empty(m)
-    a = np.empty(m)
+    coef = np.empty(m, np.float64)
+    a = np.empty(m, np.float64)
     for j in range(m):
         coef[j] = 0.0
         a[j] = 0.0
-    res = np.empty(n)
-    dev = np.empty(n)
-    M = np.empty((m, m + 1))
+    res = np.empty(n, np.float64)
+    dev = np.empty(n, np.float64)
+    M = np.empty((m, m + 1), np.float64)
     for it in range(iterations + 1):
         if it > 0:
             c0 = a[0]  # _poly4(_coeffs4(a), x), written out
@@ -284,8 +285,8 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px, scale_of, prior):
             for i in range(n):
                 sw[i] = w[i] * pw[i]
         _normal_equations(x, sw, y, m, M)
-        new_a = np.empty(m)
-        new = np.empty(m)
+        new_a = np.empty(m, np.float64)
+        new = np.empty(m, np.float64)
         for i in range(m):
             new_a[i] = 0.0
             new[i] = 0.0
@@ -300,7 +301,7 @@ def _irls_kernel(t, y, degree, iterations, tukey, k, tol_px, scale_of, prior):
         if not finite:
             return False, coef, w
         if it > 0:
-            step = np.empty(m)
+            step = np.empty(m, np.float64)
             for i in range(m):
                 step[i] = new_a[i] - a[i]
             c0 = step[0]  # _poly4(_coeffs4(step), x), written out

@@ -168,8 +168,8 @@ def _follow_kernel(
     t_turn = 1e9
     prev_psi = psi0
     steps = 0
-    hx = np.empty(MAX_WINDOWS + 1)
-    hy = np.empty(MAX_WINDOWS + 1)
+    hx = np.empty(MAX_WINDOWS + 1, np.float64)  # the dtype named: the other kernels' np.empty
+    hy = np.empty(MAX_WINDOWS + 1, np.float64)
     nh = 0
     while steps < MAX_WINDOWS:
         steps += 1

@@ -399,7 +399,7 @@ def _select(buf, n, k):
 def _column_medians(strips, n, out):
     """The median of each column of ``strips[:n]`` (``n >= 1``) into ``out``, as ``np.median(strips[:n],
     axis=0)`` (the mean of the two middle values when ``n`` is even), by selection."""
-    buf = np.empty(n)
+    buf = np.empty(n, np.float64)
     k1 = (n - 1) // 2
     k2 = n // 2
     for j in range(strips.shape[1]):
@@ -722,8 +722,8 @@ def _bar_profile_kernel(img, r0, r1, c0, c1, c2, band_px, min_contrast):
     nmax = (r1 - r0) // 2 + 1 if r1 >= r0 else 0
     start = np.empty(nmax, np.int64)
     rr = np.empty(nmax, np.int64)
-    base = np.empty(nmax)
-    contrast = np.empty(nmax)
+    base = np.empty(nmax, np.float64)
+    contrast = np.empty(nmax, np.float64)
     m = 0
     for r in range(r0, r1 + 1, 2):
         t = rows - 1 - r
@@ -740,10 +740,12 @@ def _bar_profile_kernel(img, r0, r1, c0, c1, c2, band_px, min_contrast):
         base[m] = b
         contrast[m] = c
         m += 1
-    profile = np.zeros(w)
+    profile = np.empty(w, np.float64)  # np.zeros(w) as a loop: numba compiles no np.zeros (first run)
+    for i in range(w):
+        profile[i] = 0.0
     if m < 10:
         return profile, 0
-    work = np.empty(m)
+    work = np.empty(m, np.float64)
     for i in range(m):
         work[i] = contrast[i]
     thr = max(min_contrast, 0.5 * percentile_inplace(work, work.size, 90.0))  # np.percentile's value
@@ -774,14 +776,16 @@ def _bar_offsets_kernel(profile, band_px, min_offset_px, max_bar_px, min_contras
     left side from its outer end."""
     n = profile.size
     L = max_bar_px + 1
-    eroded = np.empty(n + L - 1)  # eroded[e]: the minimum over offsets e - L + 1 .. e (ends repeated)
+    eroded = np.empty(
+        n + L - 1, np.float64
+    )  # eroded[e]: the minimum over offsets e - L + 1 .. e (ends repeated)
     for e in range(n + L - 1):
         lo = e - (L - 1)
         v = profile[min(max(lo, 0), n - 1)]
         for q in range(lo + 1, e + 1):
             v = min(v, profile[min(max(q, 0), n - 1)])
         eroded[e] = v
-    tophat = np.empty(n)
+    tophat = np.empty(n, np.float64)
     for j in range(n):
         v = eroded[j]
         for e in range(j + 1, j + L):
@@ -789,7 +793,7 @@ def _bar_offsets_kernel(profile, band_px, min_offset_px, max_bar_px, min_contras
         tophat[j] = profile[j] - v
     lane = max(tophat[band_px - 1], tophat[band_px], tophat[band_px + 1])
     thr = max(lane / 3.0, 0.5 * min_contrast)
-    centres = np.empty(n)
+    centres = np.empty(n, np.float64)
     bars = 0
     for lo, hi in ((band_px + min_offset_px, n), (0, band_px - min_offset_px + 1)):
         start = -1

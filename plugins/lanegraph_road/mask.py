@@ -59,7 +59,10 @@ def _height_class_kernel(
     row first. One thread: rows in parallel were slower on the 2-core reference machine."""
     H = disp.shape[0]
     W = (disp.shape[1] + step - 1) // step
-    out = np.zeros((H, W), np.uint8)
+    out = np.empty((H, W), np.uint8)  # np.zeros as a loop: numba compiles no np.zeros (first run)
+    for v in range(H):
+        for u in range(W):
+            out[v, u] = 0
     row = np.empty(W, disp.dtype)
     first = H
     for v in range(H):
@@ -102,7 +105,10 @@ def _free_space_kernel(labels, min_run, unknown_is_road):
     run); everything above it is dropped. Pixels with no disparity below the column's first road
     pixel (the bottom rows of a smooth road) are road too."""
     H, W = labels.shape
-    out = np.zeros((H, W), np.bool_)
+    out = np.empty((H, W), np.bool_)  # np.zeros as a loop: numba compiles no np.zeros (first run)
+    for v in range(H):
+        for u in range(W):
+            out[v, u] = False
     for u in range(W):
         run = 0
         seen = False
