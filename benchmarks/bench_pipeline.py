@@ -19,7 +19,9 @@ disturbed one):
   pairs): the ratio the speed target is stated in;
 - the process's CPU time per frame in those runs (every thread) and the frames/s the CPUs free to
   it would give at most if they were always busy: on a shared machine a steadier figure than the
-  frames/s, and the ceiling the overlap of reading, matching and the nodes works towards;
+  frames/s, and the ceiling the overlap of reading, matching and the nodes works towards; and that
+  CPU time by thread in the first of those runs (Linux: the SGBM bands' pool, the decoders, the main
+  thread, OpenCV's and numba's workers), to see which part of a frame is the longest;
 - the load average beside the figures (the machines are shared: a figure taken under load is
   not an idle machine's);
 - with --cold-start: the wall time of a fresh `lanegraph run --frames 0:1` process, twice (the
@@ -193,17 +195,20 @@ def bench(
     res = min(runs, key=lambda r: float(np.median(per_frame(r, [i for i in g.nodes if i != src]))))
     # 2. end to end, as `lanegraph run` does it: the next frame is read while this one is
     #    computed; best of `repeat` runs
-    walls, cpus, by_thread = [], [], []
-    for _ in range(repeat):
+    walls, cpus, threads = [], [], {}
+    for k in range(repeat):
         ex = Executor(load_graph(graph_path), RunContext(input_path=drive, out_dir=out_dir, frames=sel))
         if read_ahead is not None and "read_ahead" in type(ex.graph.source.params).model_fields:
             ex.graph.source.params = ex.graph.source.params.model_copy(update={"read_ahead": read_ahead})
-        clock = ThreadClock()
+        # the CPU by thread in the first run only (sampled after every frame, about 0.1 ms): the
+        # others are timed undisturbed
+        clock = ThreadClock() if k == 0 else None
         t0, c0 = time.perf_counter(), time.process_time()
         e2e = ex.run(on_frame=clock)
         walls.append(time.perf_counter() - t0)
         cpus.append(time.process_time() - c0)
-        by_thread.append(clock.by_kind())
+        if clock is not None:
+            threads = clock.by_kind()
     wall = min(walls)
     n = res.frames
     print(f"\n== {graph_path}: {n} frames of {drive.name} (best of {repeat} runs; {start_load} at the start)")
@@ -231,11 +236,10 @@ def bench(
         f"  CPU time per frame, end to end (all threads, least of the runs): {cpu_ms:.1f} ms; "
         f"{n_cpu} CPUs busy all the time would give at most {1000.0 * n_cpu / cpu_ms:.1f} frames/s"
     )
-    threads = by_thread[cpus.index(min(cpus))]
     if threads:
         parts = sorted(((v, k) for k, v in threads.items() if v > 0), reverse=True)
         print(
-            "  of which, by thread (that run, sampled after each frame; clock ticks of 10 ms): "
+            "  CPU a frame by thread (the first run, sampled after each frame; clock ticks of 10 ms): "
             + ", ".join(f"{k} {1000.0 * v / max(e2e.frames, 1):.1f} ms" for v, k in parts)
         )
     compute = sum(
