@@ -55,6 +55,18 @@ def features_of(bev: np.ndarray):
 
 
 # ----------------------------------------------------------------------------- the kernel's twin
+def feature_arrays(bev: np.ndarray):
+    """The ESLT features of ``bev`` as the follow kernel and the seeds take them: ``(t, c, theta,
+    row_start)``, ``t`` the rows counted up from the bottom, ``row_start`` each BEV row's first
+    feature (the features in row-major order)."""
+    rows = bev.shape[0]
+    f = features_of(bev)
+    r, cc = f.points()
+    th = np.ascontiguousarray(f.point_orientations(), dtype=np.float64)
+    row_start = np.searchsorted(r, np.arange(rows + 1)).astype(np.int64)
+    return (rows - 1 - r).astype(np.float64), cc.astype(np.float64), th, row_start
+
+
 def follow_twin(
     t,
     c,
@@ -192,17 +204,12 @@ def test_follow_kernel_matches_numpy_twin(radius_m):
         draw(bev, 220 + np.arange(0, 40, 0.5), 60 + 30 * k + np.arange(0, 40, 0.5))
     rng = np.random.default_rng(3)
     bev[rng.integers(0, rows, 300), rng.integers(0, cols, 300)] = 200
-    f = features_of(bev)
-    r, cc = f.points()
-    th = np.ascontiguousarray(f.point_orientations(), dtype=np.float64)
-    tt = (rows - 1 - r).astype(np.float64)
-    cf = cc.astype(np.float64)
-    row_start = np.searchsorted(r, np.arange(rows + 1)).astype(np.int64)
+    tt, cf, th, row_start = feature_arrays(bev)
     steep = np.zeros(rows, np.uint8)
     steep[: rows // 2] = 1
     # the staircase of stretched rows: the features there read nearly straight ahead (on the 30 m
     # bend more than 25 degrees off the line: taken only as a staircase's)
-    up = (r < rows // 2) & (th >= 0)
+    up = (rows - 1 - tt < rows // 2) & (th >= 0)  # the far half: image rows above the middle
     th[up] = 0.1 * th[up] + 0.9 * math.pi / 2
     args = (
         20.0,
@@ -217,7 +224,7 @@ def test_follow_kernel_matches_numpy_twin(radius_m):
     )
     guide = np.zeros((4, 0))
     for c0, psi0 in ((100.0, math.pi / 2), (170.0, math.pi / 2), (170.0, math.pi / 2 + math.pi)):
-        o1 = np.full(r.shape, -1, np.int32)
+        o1 = np.full(tt.shape, -1, np.int32)
         o1[::7] = 1  # another track's features
         o2 = o1.copy()
         out = np.zeros((4, MAX_WINDOWS + 1))
@@ -292,12 +299,7 @@ def test_seeds_of_every_band_at_once_are_those_band_by_band(rows):
         draw(bev, 320 + np.arange(0, 30, 0.5), 10 + 25 * k + np.arange(0, 30, 0.5))
     rng = np.random.default_rng(5)
     bev[rng.integers(0, rows, 500), rng.integers(0, cols, 500)] = 200
-    f = features_of(bev)
-    r, cc = f.points()
-    th = np.ascontiguousarray(f.point_orientations(), dtype=np.float64)
-    t = (rows - 1 - r).astype(np.float64)
-    cf = cc.astype(np.float64)
-    row_start = np.searchsorted(r, np.arange(rows + 1)).astype(np.int64)
+    t, cf, th, row_start = feature_arrays(bev)
     for p in (FollowParams(), FollowParams(min_seed_votes=5, seed_bands=9), FollowParams(seed_band_m=0.7)):
         got = _seeds(t, cf, th, row_start, rows, cols, p, RES)
         exp = seeds_band_by_band(t, cf, th, row_start, rows, cols, p, RES)
