@@ -107,10 +107,11 @@ def leave_signals_to_the_main_thread() -> None:
 
 def lower_thread_priority(increment: int) -> bool:
     """Lower the calling thread's scheduling priority by ``increment`` nice steps (at most to 19);
-    returns whether it changed. On Linux only, where ``setpriority`` of a thread id applies to that
-    thread alone (elsewhere it would lower the whole process: nothing is done). A process may always
-    lower a priority, never raise it back: meant for a pool's threads (``initializer``), which end
-    with the pool."""
+    returns whether the priority was set (True also for a thread already at 19, which stays
+    there). On Linux only, where ``setpriority`` of a thread id applies to that thread alone
+    (elsewhere it would lower the whole process: nothing is done). A process may always lower a
+    priority, never raise it back: meant for a pool's threads (``initializer``), which end with
+    the pool."""
     if increment <= 0 or not sys.platform.startswith("linux") or not hasattr(threading, "get_native_id"):
         return False
     tid = threading.get_native_id()
