@@ -74,6 +74,14 @@ class DisparityParams(NodeParams):
     )
 
 
+def odd_pixels(name: str, v: int) -> int:
+    """``v`` when it is odd (a window of pixels centred on one); else ValueError naming the field
+    ``name`` and the odd numbers beside it. For the params' field validators."""
+    if v % 2 == 0:
+        raise ValueError(f"{name}: expected an odd number of pixels, got {v} (hint: use {v - 1} or {v + 1})")
+    return v
+
+
 def to_gray(image: np.ndarray, port: str) -> np.ndarray:
     """A gray uint8 HxW view of ``image``.
 

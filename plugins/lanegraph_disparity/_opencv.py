@@ -15,7 +15,7 @@ from pydantic import Field, field_validator, model_validator
 
 from lanegraph import InputError, node_type
 
-from ._common import DisparityParams, right_by_flipping, run_backend, scaled_disparities
+from ._common import DisparityParams, odd_pixels, right_by_flipping, run_backend, scaled_disparities
 
 _SGBM_MODES = {
     "sgbm": cv2.StereoSGBM_MODE_SGBM,
@@ -23,12 +23,6 @@ _SGBM_MODES = {
     "hh": cv2.StereoSGBM_MODE_HH,
     "hh4": cv2.StereoSGBM_MODE_HH4,
 }
-
-
-def _odd(name: str, v: int) -> int:
-    if v % 2 == 0:
-        raise ValueError(f"{name}: expected an odd number of pixels, got {v} (hint: use {v - 1} or {v + 1})")
-    return v
 
 
 class OpenCVDisparityParams(DisparityParams):
@@ -87,7 +81,7 @@ class OpenCVDisparityParams(DisparityParams):
     @field_validator("block_size")
     @classmethod
     def _odd_block(cls, v: int) -> int:
-        return _odd("block_size", v)
+        return odd_pixels("block_size", v)
 
 
 class SgbmParams(OpenCVDisparityParams):
@@ -162,7 +156,7 @@ class BmParams(OpenCVDisparityParams):
     @field_validator("prefilter_size")
     @classmethod
     def _odd_prefilter(cls, v: int) -> int:
-        return _odd("prefilter_size", v)
+        return odd_pixels("prefilter_size", v)
 
 
 def _ximgproc() -> Any:

@@ -23,7 +23,7 @@ from pydantic import Field, field_validator, model_validator
 
 from lanegraph import jit, node_type, prange
 
-from ._common import DisparityParams, run_backend, scaled_disparities
+from ._common import DisparityParams, odd_pixels, run_backend, scaled_disparities
 
 #: (d_row, d_col) steps of the aggregation directions: the predecessor of pixel (r, c) is
 #: (r - d_row, c - d_col). The first four are the horizontal and vertical ones.
@@ -307,12 +307,6 @@ def _wta(total, uniqueness, subpixel, right_view):
 # --------------------------------------------------------------------------- node
 
 
-def _odd(name: str, v: int) -> int:
-    if v % 2 == 0:
-        raise ValueError(f"{name}: expected an odd number of pixels, got {v} (hint: use {v - 1} or {v + 1})")
-    return v
-
-
 class SgmParams(DisparityParams):
     """Params of ``disparity.sgm`` (census + semi-global matching, numba)."""
 
@@ -353,7 +347,7 @@ class SgmParams(DisparityParams):
     @field_validator("census_width", "census_height")
     @classmethod
     def _odd_window(cls, v: int, info) -> int:
-        return _odd(info.field_name, v)
+        return odd_pixels(info.field_name, v)
 
     @field_validator("median_size")
     @classmethod

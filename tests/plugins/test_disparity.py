@@ -737,3 +737,21 @@ def test_sgbm_with_a_min_disparity_reports_no_disparity_below_it():
     d = run(ld.sgbm, ld.SgbmParams(num_disparities=16, min_disparity=8), left, right)
     assert (d > 0).any() and not ((d > 0) & (d < 8)).any()
     assert np.median(d[d > 0]) == pytest.approx(12.0, abs=0.5)
+
+
+@pytest.mark.parametrize(
+    "make, field",
+    [
+        (lambda v: ld.SgbmParams(block_size=v), "block_size"),
+        (lambda v: ld.BmParams(block_size=v), "block_size"),
+        (lambda v: ld.BmParams(prefilter_size=v), "prefilter_size"),
+        (lambda v: ld.SgmParams(census_width=v), "census_width"),
+        (lambda v: ld.SgmParams(census_height=v), "census_height"),
+    ],
+)
+def test_an_even_window_names_its_field_and_the_odd_sizes_beside_it(make, field):
+    """Every backend's window params go through one check (``_common.odd_pixels``)."""
+    assert getattr(make(7), field) == 7
+    with pytest.raises(ValidationError) as err:
+        make(8)
+    assert f"{field}: expected an odd number of pixels, got 8 (hint: use 7 or 9)" in str(err.value)
