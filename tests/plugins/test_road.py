@@ -802,6 +802,12 @@ def test_widen_columns_matches_numpy(step):
         for rows in (1, 5):
             red = rng.random((rows, n)) < 0.6
             np.testing.assert_array_equal(mask.widen_columns(red, step, width), widen_np(red, step, width))
+            # into the rows of a given array (OpenCV interleaves straight into it when width = n step)
+            out = np.ones((rows + 2, width), bool)
+            got = mask.widen_columns(red, step, width, out[2:])
+            assert np.shares_memory(got, out)
+            np.testing.assert_array_equal(out[2:], widen_np(red, step, width))
+            assert out[:2].all()
 
 
 def test_keep_components_one_or_several():
@@ -844,7 +850,8 @@ def test_components_kernel_matches_labelling(shape):
                 cx = rng.uniform(-0.5, 1.5) * shape[1]
                 band, rows = rng.uniform(0.01, 1.0), shape[0] + int(rng.integers(0, 5))
                 np.testing.assert_array_equal(
-                    mask._keep_components(m, keep, band, cx, rows), keep_components_np(m, keep, band, cx, rows)
+                    mask._keep_components(m, keep, band, cx, rows),
+                    keep_components_np(m, keep, band, cx, rows),
                 )
     # diagonal neighbours: one component (8-connected) to keep, two holes (4-connected) to fill
     diag = np.zeros((6, 6), bool)
