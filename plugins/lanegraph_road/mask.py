@@ -414,9 +414,12 @@ def _fill_holes(mask: np.ndarray, classes: np.ndarray, max_above: float) -> np.n
     (:func:`_components_kernel`)."""
     m = np.ascontiguousarray(mask, dtype=bool)
     H, W = m.shape
-    cl = np.ascontiguousarray(classes, dtype=np.uint8).reshape(-1)
-    if cl.size != m.size:
-        raise ValueError(f"classes: expected shape {m.shape}, got {np.shape(classes)}")
+    classes = np.asarray(classes)
+    if classes.shape != m.shape:
+        raise ValueError(f"classes: expected shape {m.shape}, got {classes.shape}")
+    if classes.dtype != np.uint8:  # the labels of _height_class_kernel are; anything else as its ABOVE
+        classes = (classes == ABOVE).astype(np.uint8) * np.uint8(ABOVE)
+    cl = np.ascontiguousarray(classes).reshape(-1)
     changed, out = _components_kernel(
         m.view(np.uint8).reshape(-1), H, W, True, cl, float(max_above), 0, 0, 0, False
     )

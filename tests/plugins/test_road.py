@@ -864,6 +864,13 @@ def test_components_kernel_matches_labelling(shape):
     ring_above = np.zeros((5, 6), np.uint8)
     ring_above[3, 4] = mask.ABOVE  # a hole made of an above-road pixel stays
     np.testing.assert_array_equal(mask._fill_holes(ring, ring_above, 0.5), ring_above != mask.ABOVE)
+    # classes of another dtype: compared as they are (258 is not ABOVE, as uint8 it would be)
+    wide = ring_above.astype(np.int64)
+    wide[3, 4] = 256 + mask.ABOVE
+    assert mask._fill_holes(ring, wide, 0.5).all()
+    np.testing.assert_array_equal(
+        mask._fill_holes(ring, ring_above.astype(float), 0.5), ring_above != mask.ABOVE
+    )
 
 
 # --------------------------------------------------------------------------- geometry
