@@ -165,6 +165,26 @@ def fill_holes_labels_np(mask, labels, n, classes, max_above):
     return mask | fill[labels]
 
 
+def keep_components_np(m, keep, band_frac, cx, image_rows=None):
+    """The former OpenCV ``_keep_components``: every pixel labelled (8-connected), the components
+    with at least a tenth of the largest overlap with the seed (the band's central half, then the
+    band) kept."""
+    H, W = m.shape
+    image_rows = H if image_rows is None else image_rows
+    n, labels = cv2.connectedComponents(m.astype(np.uint8), connectivity=8)
+    if n <= 1:
+        return m
+    band = labels[max(0, H - max(1, int(round(band_frac * image_rows)))) :]
+    lo, hi = int(max(0, cx - W / 4)), int(min(W, cx + W / 4 + 1))
+    for region in ([band[:, lo:hi]] if keep == "bottom_centre" else []) + [band]:
+        overlap = np.bincount(region.ravel(), minlength=n)[1:]
+        if overlap.max() > 0:
+            kept = np.zeros(n, bool)
+            kept[1:] = overlap >= 0.1 * overlap.max()
+            return kept[labels]
+    return m
+
+
 def random_disparity(rng, shape, max_d=40.0, invalid=0.2):
     d = rng.uniform(-2.0, max_d * 1.2, shape).astype(np.float32)
     d[rng.random(shape) < invalid] = 0.0
@@ -782,6 +802,12 @@ def test_widen_columns_matches_numpy(step):
         for rows in (1, 5):
             red = rng.random((rows, n)) < 0.6
             np.testing.assert_array_equal(mask.widen_columns(red, step, width), widen_np(red, step, width))
+            # into the rows of a given array (OpenCV interleaves straight into it when width = n step)
+            out = np.ones((rows + 2, width), bool)
+            got = mask.widen_columns(red, step, width, out[2:])
+            assert np.shares_memory(got, out)
+            np.testing.assert_array_equal(out[2:], widen_np(red, step, width))
+            assert out[:2].all()
 
 
 def test_keep_components_one_or_several():
@@ -806,18 +832,45 @@ def test_keep_components_one_or_several():
     np.testing.assert_array_equal(mask._keep_components(many, "bottom", 0.15, 30.0), kept)
 
 
-def test_label_type_holds_every_component():
-    """16-bit labels only where even a checkerboard's components fit: the labels are those of
-    32-bit labelling."""
-    assert mask._label_type((217, 621), 8) == cv2.CV_16U
-    assert mask._label_type((375, 1242), 8) == cv2.CV_32S  # up to 116 000 components
-    assert mask._label_type((300, 500), 4) == cv2.CV_32S
-    board = (np.indices((255, 255)).sum(axis=0) % 2 == 0).astype(np.uint8)  # 32 513 pixels set
-    for conn in (4, 8):
-        ltype = mask._label_type(board.shape, conn)
-        n16, l16 = cv2.connectedComponents(board, connectivity=conn, ltype=ltype)
-        n32, l32 = cv2.connectedComponents(board, connectivity=conn, ltype=cv2.CV_32S)
-        assert n16 == n32 and np.array_equal(l16, l32)
+@pytest.mark.parametrize("shape", EDGE_SHAPES + [(30, 41), (12, 70)])
+def test_components_kernel_matches_labelling(shape):
+    """``_components_kernel`` (runs joined by union-find) against OpenCV's labelling of every pixel:
+    random masks of every density (many small components, specks, thin diagonal links), seed
+    columns partly or wholly outside the image, bands of one row to all of them."""
+    rng = np.random.default_rng(21)
+    for density in (0.05, 0.3, 0.5, 0.7, 0.95):
+        for _ in range(4):
+            m = rng.random(shape) < density
+            classes = rng.integers(0, 5, shape).astype(np.uint8)
+            for max_above in (0.0, 0.1, 0.5):
+                np.testing.assert_array_equal(
+                    mask._fill_holes(m, classes, max_above), fill_holes_np(m, classes, max_above)
+                )
+            for keep in ("bottom", "bottom_centre"):
+                cx = rng.uniform(-0.5, 1.5) * shape[1]
+                band, rows = rng.uniform(0.01, 1.0), shape[0] + int(rng.integers(0, 5))
+                np.testing.assert_array_equal(
+                    mask._keep_components(m, keep, band, cx, rows),
+                    keep_components_np(m, keep, band, cx, rows),
+                )
+    # diagonal neighbours: one component (8-connected) to keep, two holes (4-connected) to fill
+    diag = np.zeros((6, 6), bool)
+    diag[np.arange(6), np.arange(6)] = True
+    np.testing.assert_array_equal(mask._keep_components(diag, "bottom", 0.2, 3.0), diag)
+    ring = np.ones((5, 6), bool)
+    ring[1, 1] = ring[2, 2] = ring[3, 4] = False  # (1, 1) and (2, 2) touch only diagonally
+    filled = mask._fill_holes(ring, np.zeros((5, 6), np.uint8), 0.0)
+    assert filled.all()
+    ring_above = np.zeros((5, 6), np.uint8)
+    ring_above[3, 4] = mask.ABOVE  # a hole made of an above-road pixel stays
+    np.testing.assert_array_equal(mask._fill_holes(ring, ring_above, 0.5), ring_above != mask.ABOVE)
+    # classes of another dtype: compared as they are (258 is not ABOVE, as uint8 it would be)
+    wide = ring_above.astype(np.int64)
+    wide[3, 4] = 256 + mask.ABOVE
+    assert mask._fill_holes(ring, wide, 0.5).all()
+    np.testing.assert_array_equal(
+        mask._fill_holes(ring, ring_above.astype(float), 0.5), ring_above != mask.ABOVE
+    )
 
 
 # --------------------------------------------------------------------------- geometry
