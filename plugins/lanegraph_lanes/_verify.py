@@ -49,6 +49,7 @@ pavement beyond a kerb is one wide bright region, not a bar. ``crossing_check`` 
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Literal
@@ -284,7 +285,20 @@ def side_texture(
 
 
 @jit
-def _paint_rows_kernel(
+def _strip_median(values, hist, work):
+    """The median of the 1-D ``values`` (a slice of an image row), as :func:`_small_median` takes it:
+    with a 256-bin ``hist`` (a uint8 image) by counting, read in place; else copied into ``work`` (at
+    least as long) and sorted there."""
+    n = values.size
+    if hist.size > 0:
+        return _small_median(values, n, hist)
+    for i in range(n):
+        work[i] = values[i]
+    return _small_median(work, n, hist)
+
+
+@jit
+def _paint_rows(
     img,
     r0,
     r1,
@@ -297,25 +311,28 @@ def _paint_rows_kernel(
     min_row_contrast,
     sat_level,
     hist,
-    profile,
+    row,
+    start,
+    inv_level,
     contrast,
     ratio,
 ):
     """The painted rows of the lane ``col = c0 + c1 t + c2 t^2`` (``t = rows - 1 - row``) over the rows
-    ``r0 .. r1``, for :func:`paint_cues`. Per row: the lane's column rounded, moved to the brightest
-    pixel within ``align_px`` (a fit is a pixel or two off the paint); the strip of columns
+    ``r0 .. r1``, for :func:`_paint_cues_kernel`. Per row: the lane's column rounded, moved to the
+    brightest pixel within ``align_px`` (a fit is a pixel or two off the paint); the strip of columns
     ``-band_px .. band_px`` around it, skipped when it leaves the image or holds a 0 (outside the
     camera's view); the side levels ``L``, ``R``: the medians of the columns ``-band_px .. -gap_px``
     and ``gap_px .. band_px`` (``hist``: see :func:`_small_median`). A row is painted when its centre
-    is ``min_row_contrast`` (relative) brighter than the brighter side: then the strip divided by
-    that side's level is written to ``profile[k]`` (``2 band_px + 1`` values) for the ``k``-th painted row, and
-    ``contrast[k]`` = centre / brighter side - 1 and ``ratio[k]`` = darker side / brighter side are
-    written for the ``k``-th painted row. Returns ``(strips inside the image, painted rows, painted
-    rows whose centre is at ``sat_level`` or above: saturated)``."""
+    is ``min_row_contrast`` (relative) brighter than the brighter side: for the ``k``-th painted row,
+    ``row[k]``, ``start[k]`` (its strip's first column) and ``inv_level[k]`` (1 / the brighter side's
+    level: the strip divided by that level is its profile), ``contrast[k]`` = centre / brighter side
+    - 1 and ``ratio[k]`` = darker side / brighter side are written. Returns ``(strips inside the
+    image, painted rows, painted rows whose centre is at ``sat_level`` or above: saturated)``."""
     rows, cols = img.shape
     w = 2 * band_px + 1
     ns = band_px - gap_px + 1
     side = np.empty(ns, np.float64)
+    counting = hist.size > 0  # a uint8 image: medians by counting, and a zero is its least value
     inside = 0
     painted = 0
     saturated = 0
@@ -324,81 +341,92 @@ def _paint_rows_kernel(
         ce = int(np.rint(c0 + c1 * t + c2 * t * t))
         if ce - band_px - align_px < 0 or ce + band_px + align_px >= cols:
             continue
+        # the loops read the row as a 1-D array: they vectorise, as loops over img[r, j] do not
+        line = img[r]
         best = ce - align_px  # the first brightest, from the left
         for c in range(ce - align_px + 1, ce + align_px + 1):
-            if img[r, c] > img[r, best]:
+            if line[c] > line[best]:
                 best = c
         a = best - band_px
-        dark = False
-        for j in range(w):
-            if img[r, a + j] == 0:
-                dark = True
-                break
-        if dark:
-            continue
+        strip = line[a : a + w]
+        if counting:
+            least = strip[0]
+            for j in range(1, w):
+                least = min(least, strip[j])
+            if least == 0:
+                continue
+        else:
+            zeros = 0
+            for j in range(w):
+                zeros += strip[j] == 0
+            if zeros:
+                continue
         inside += 1
-        for j in range(ns):
-            side[j] = img[r, a + j]
-        left = _small_median(side, ns, hist)
-        centre = img[r, best]
+        left = _strip_median(line[a : a + ns], hist, side)
+        centre = line[best]
         if left > 0.0 and centre >= 0 and centre / left - 1.0 < min_row_contrast:
             # not painted against the left side: nor against the brighter of the two (a quotient
             # by a larger level is no larger), so the right side's median is not needed
             continue
-        for j in range(ns):
-            side[j] = img[r, best + gap_px + j]
-        right = _small_median(side, ns, hist)
+        right = _strip_median(line[best + gap_px : best + gap_px + ns], hist, side)
         hi = max(left, right)
         if hi <= 0.0:
             continue
-        c_rel = img[r, best] / hi - 1.0
+        c_rel = centre / hi - 1.0
         if c_rel < min_row_contrast:
             continue
         inv = 1.0 / hi
-        for j in range(w):
-            profile[painted, j] = img[r, a + j] * inv
+        row[painted] = r
+        start[painted] = a
+        inv_level[painted] = inv
         contrast[painted] = c_rel
         ratio[painted] = min(left, right) * inv
         painted += 1
-        if img[r, best] >= sat_level:
+        if centre >= sat_level:
             saturated += 1
     return inside, painted, saturated
 
 
 @jit
 def _select(buf, n, k):
-    """The ``k``-th smallest of ``buf[:n]`` (0-based), reordering ``buf[:n]`` in place (Hoare's
-    selection: linear time on average, no allocation)."""
+    """The ``k``-th smallest of ``buf[:n]`` (0-based; no NaN), reordering ``buf[:n]`` in place so that
+    ``buf[:k]`` holds values ``<=`` it. Quickselect with branch-free partitions (every element
+    swapped, the boundary moved by the comparison's outcome: no mispredicted branch per element, the
+    cost of a selection over unordered values), each level in two: below the pivot (the median of
+    three), then equal to it (ties, as the many 1.0 of a profile's side bands, end a level)."""
     lo = 0
     hi = n - 1
     while lo < hi:
-        pivot = buf[(lo + hi) // 2]
-        i = lo
-        j = hi
-        while i <= j:
-            while buf[i] < pivot:
-                i += 1
-            while buf[j] > pivot:
-                j -= 1
-            if i <= j:
-                tmp = buf[i]
-                buf[i] = buf[j]
-                buf[j] = tmp
-                i += 1
-                j -= 1
-        if k <= j:
-            hi = j
-        elif k >= i:
-            lo = i
-        else:
-            break
+        x = buf[lo]
+        y = buf[(lo + hi) >> 1]
+        z = buf[hi]
+        pivot = max(min(x, y), min(max(x, y), z))
+        store = lo
+        for i in range(lo, hi + 1):
+            v = buf[i]
+            buf[i] = buf[store]
+            buf[store] = v
+            store += v < pivot
+        if k < store:
+            hi = store - 1
+            continue
+        top = store
+        for i in range(store, hi + 1):
+            v = buf[i]
+            buf[i] = buf[top]
+            buf[top] = v
+            top += v <= pivot
+        if k < top:
+            return pivot
+        lo = top
     return buf[k]
 
 
 @jit
 def _column_medians(strips, n, out):
-    """The median of each column of ``strips[:n]`` (``n >= 1``) into ``out``, as ``np.median(strips[:n],
-    axis=0)`` (the mean of the two middle values when ``n`` is even), by selection."""
+    """The median of each column of ``strips[:n]`` (``n >= 1``; no NaN) into ``out``, as
+    ``np.median(strips[:n], axis=0)`` (the mean of the two middle values when ``n`` is even), by
+    selection."""
     buf = np.empty(n, np.float64)
     k1 = (n - 1) // 2
     k2 = n // 2
@@ -410,26 +438,30 @@ def _column_medians(strips, n, out):
         if k1 != k2:  # the largest below the k2-th: after the selection, all of buf[:k2] is <= it
             lo = buf[0]
             for i in range(1, k2):
-                if buf[i] > lo:
-                    lo = buf[i]
+                lo = max(lo, buf[i])
         out[j] = 0.5 * (lo + hi)
 
 
-def _median(a: np.ndarray) -> float:
-    """``np.median`` of a non-empty 1-D float array, the same value bit for bit: the same partition
-    (the middle indices and the last, where a NaN would sort), then the middle value or ``(x + y) /
-    2`` summed as ``np.mean`` sums; NaN when the last is one. Without ``np.median``'s generic machinery: a third of its time on
-    the few dozen to few hundred values of a lane's profile and rows."""
-    n = a.size
+@jit
+def _median(buf, n):
+    """``np.median(buf[:n])`` (``n >= 1``) bit for bit, reordering ``buf[:n]``: NaN when one is NaN,
+    else the middle value or the two middle ones summed from 0.0 (as ``np.mean`` sums: a -0.0 turns
+    into 0.0) and halved."""
+    for i in range(n):
+        if math.isnan(buf[i]):
+            return math.nan
     k = n // 2
-    part = np.partition(a, [k - 1, k, -1] if n % 2 == 0 else [k, -1])
-    if np.isnan(part[-1]):
-        return float("nan")
-    # np.mean's sum starts from 0.0 (which turns a -0.0 into 0.0)
-    return float(0.0 + part[k]) if n % 2 else float((0.0 + part[k - 1] + part[k]) / 2)
+    hi = _select(buf, n, k)
+    if n % 2:
+        return 0.0 + hi
+    lo = buf[0]  # the largest below the k-th: after the selection, all of buf[:k] is <= it
+    for i in range(1, k):
+        lo = max(lo, buf[i])
+    return (0.0 + lo + hi) / 2
 
 
-def _crossing_width(profile: np.ndarray, centre: int, level: float) -> float:
+@jit
+def _crossing_width(profile, centre, level):
     """Width (pixels, sub-pixel) of the run of ``profile`` at or above ``level`` around ``centre``
     (linear interpolation at both ends; a run reaching the profile's end ends there)."""
     n = profile.size
@@ -439,17 +471,85 @@ def _crossing_width(profile: np.ndarray, centre: int, level: float) -> float:
     b = centre
     while b < n - 1 and profile[b + 1] >= level:
         b += 1
-    left = (
-        a - (profile[a] - level) / (profile[a] - profile[a - 1])
-        if a > 0 and profile[a] > profile[a - 1]
-        else float(a)
+    left = float(a)
+    if a > 0 and profile[a] > profile[a - 1]:
+        left = a - (profile[a] - level) / (profile[a] - profile[a - 1])
+    right = float(b)
+    if b < n - 1 and profile[b] > profile[b + 1]:
+        right = b + (profile[b] - level) / (profile[b] - profile[b + 1])
+    return right - left
+
+
+@jit
+def _paint_cues_kernel(
+    img, r0, r1, c0, c1, c2, band_px, gap_px, align_px, min_row_contrast, sat_level, min_rows, hist
+):
+    """:func:`paint_cues` in one call, widths in BEV pixels: the painted rows (:func:`_paint_rows`),
+    their median contrast and side ratio, and the median profile over every ``k``-th painted row
+    (``k = painted // 64``, at least 1: 64 to 127 of them), its base (the brighter of its two side
+    bands' medians) and its widths at half and a quarter of its height above the base. Returns
+    ``(inside, painted, saturated, contrast, side ratio, width, foot width)``: NaN for the four
+    measures with fewer than ``min_rows`` (at least 1) painted rows, for the widths when the
+    profile's centre is not above its base."""
+    n = r1 - r0 + 1 if r1 >= r0 else 0
+    row = np.empty(n, np.int64)
+    start = np.empty(n, np.int64)
+    inv_level = np.empty(n, np.float64)
+    contrast = np.empty(n, np.float64)
+    ratio = np.empty(n, np.float64)
+    inside, painted, saturated = _paint_rows(
+        img,
+        r0,
+        r1,
+        c0,
+        c1,
+        c2,
+        band_px,
+        gap_px,
+        align_px,
+        min_row_contrast,
+        sat_level,
+        hist,
+        row,
+        start,
+        inv_level,
+        contrast,
+        ratio,
     )
-    right = (
-        b + (profile[b] - level) / (profile[b] - profile[b + 1])
-        if b < n - 1 and profile[b] > profile[b + 1]
-        else float(b)
-    )
-    return float(right - left)
+    if painted < max(min_rows, 1):
+        return inside, painted, saturated, math.nan, math.nan, math.nan, math.nan
+    # the median profile over every k-th painted row, 64 to 127 of them: as good a median for a
+    # width, at the cost of a mean (a median over all 300-400 near rows cost 0.1-0.2 ms a lane);
+    # only those rows' strips are divided by their level
+    w = 2 * band_px + 1
+    step = max(1, painted // 64)
+    m = (painted + step - 1) // step
+    strips = np.empty((m, w), np.float64)
+    for i in range(m):
+        r = row[i * step]
+        a = start[i * step]
+        inv = inv_level[i * step]
+        for j in range(w):
+            strips[i, j] = img[r, a + j] * inv
+    profile = np.empty(w, np.float64)
+    _column_medians(strips, m, profile)
+    ns = band_px - gap_px + 1
+    buf = np.empty(ns, np.float64)
+    for j in range(ns):
+        buf[j] = profile[j]
+    left = _median(buf, ns)
+    for j in range(ns):
+        buf[j] = profile[band_px + gap_px + j]
+    right = _median(buf, ns)
+    base = right if right > left else left  # max(left, right) as Python takes it (a NaN left stays)
+    height = profile[band_px] - base
+    c_med = _median(contrast, painted)
+    r_med = _median(ratio, painted)
+    if height <= 0.0:
+        return inside, painted, saturated, c_med, r_med, math.nan, math.nan
+    half = _crossing_width(profile, band_px, base + 0.5 * height)
+    foot = _crossing_width(profile, band_px, base + 0.25 * height)
+    return inside, painted, saturated, c_med, r_med, half, foot
 
 
 @dataclass(frozen=True)
@@ -467,6 +567,12 @@ class PaintCues:
     foot_width_m: float  # full width at a quarter of its height
 
 
+@functools.cache
+def _saturation(dtype: np.dtype) -> float:
+    """The largest grey level of an image of ``dtype`` (an integer type's largest; inf for a float)."""
+    return float(np.iinfo(dtype).max) if dtype.kind in "ui" else math.inf
+
+
 def paint_cues(
     image: np.ndarray,
     lane: Lane,
@@ -480,13 +586,13 @@ def paint_cues(
     min_rows: int = 10,
 ) -> PaintCues:
     """The cross profile of ``lane`` in the grey BEV ``image``, on its rows nearer than
-    ``max_distance_m``: its painted rows (:func:`_paint_rows_kernel`: the centre ``min_row_contrast``
+    ``max_distance_m``: its painted rows (:func:`_paint_rows`: the centre ``min_row_contrast``
     brighter than the brighter side band, ``gap_m .. band_m`` away), their median contrast and side
     ratio, and the widths of their median profile (each row divided by its brighter side's level;
     the median over the rows, offset by offset, of 64 to 127 of them spread evenly: a sun patch
     that a minority of the rows cross, a metre or more across, does not widen it as it widens
     their mean) at half and a quarter of its height above its base (the brighter of the profile's
-    two side levels)."""
+    two side levels). One kernel call, :func:`_paint_cues_kernel`."""
     img, r0, r1 = _lane_rows_in(image, lane)
     res = float(geometry.resolution)
     near = int(math.floor(geometry.metric_to_bev(0.0, max_distance_m)[1]))
@@ -495,12 +601,7 @@ def paint_cues(
     gap = min(max(int(round(gap_m / res)), 1), band - 1)
     align = max(int(round(align_m / res)), 0)
     c0, c1, c2 = (float(c) for c in lane.coeffs)
-    n = max(r1 - r0 + 1, 0)
-    strips = np.empty((n, 2 * band + 1))
-    contrast = np.empty(n)
-    ratio = np.empty(n)
-    sat = float(np.iinfo(img.dtype).max) if img.dtype.kind in "ui" else math.inf
-    inside, painted, saturated = _paint_rows_kernel(
+    inside, painted, saturated, contrast, ratio, width, foot = _paint_cues_kernel(
         img,
         r0,
         r1,
@@ -511,40 +612,12 @@ def paint_cues(
         gap,
         align,
         float(min_row_contrast),
-        sat,
+        _saturation(img.dtype),
+        int(min_rows),
         _median_hist(img),
-        strips,
-        contrast,
-        ratio,
     )
-    nan = float("nan")
-    if painted < max(min_rows, 1):
-        return PaintCues(int(inside), int(painted), int(saturated), nan, nan, nan, nan)
-    # the median profile over every k-th painted row, 64 to 127 of them: as good a median for a
-    # width, at the cost of a mean (a median over all 300-400 near rows cost 0.1-0.2 ms a lane)
-    rows_used = np.ascontiguousarray(strips[: painted : max(1, painted // 64)])
-    profile = np.empty(2 * band + 1)
-    _column_medians(rows_used, rows_used.shape[0], profile)
-    base = max(_median(profile[: band - gap + 1]), _median(profile[band + gap :]))
-    height = profile[band] - base
-    if height <= 0.0:
-        return PaintCues(
-            int(inside),
-            int(painted),
-            int(saturated),
-            _median(contrast[:painted]),
-            _median(ratio[:painted]),
-            nan,
-            nan,
-        )
     return PaintCues(
-        int(inside),
-        int(painted),
-        int(saturated),
-        _median(contrast[:painted]),
-        _median(ratio[:painted]),
-        _crossing_width(profile, band, base + 0.5 * height) * res,
-        _crossing_width(profile, band, base + 0.25 * height) * res,
+        int(inside), int(painted), int(saturated), float(contrast), float(ratio), width * res, foot * res
     )
 
 
