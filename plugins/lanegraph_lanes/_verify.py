@@ -60,7 +60,7 @@ from pydantic import Field, model_validator
 from lanegraph import InputError, NodeParams, Port, jit, node_type
 from lanegraph.types import BevGeometry, Lane
 
-from ._select import percentile_inplace
+from ._select import kth_smallest, percentile_inplace
 
 #: the texture measures, as the kernels number them
 _MEASURES = {"std": 0, "diff": 1, "mdiff": 2}
@@ -388,41 +388,6 @@ def _paint_rows(
 
 
 @jit
-def _select(buf, n, k):
-    """The ``k``-th smallest of ``buf[:n]`` (0-based; no NaN), reordering ``buf[:n]`` in place so that
-    ``buf[:k]`` holds values ``<=`` it. Quickselect with branch-free partitions (every element
-    swapped, the boundary moved by the comparison's outcome: no mispredicted branch per element, the
-    cost of a selection over unordered values), each level in two: below the pivot (the median of
-    three), then equal to it (ties, as the many 1.0 of a profile's side bands, end a level)."""
-    lo = 0
-    hi = n - 1
-    while lo < hi:
-        x = buf[lo]
-        y = buf[(lo + hi) >> 1]
-        z = buf[hi]
-        pivot = max(min(x, y), min(max(x, y), z))
-        store = lo
-        for i in range(lo, hi + 1):
-            v = buf[i]
-            buf[i] = buf[store]
-            buf[store] = v
-            store += v < pivot
-        if k < store:
-            hi = store - 1
-            continue
-        top = store
-        for i in range(store, hi + 1):
-            v = buf[i]
-            buf[i] = buf[top]
-            buf[top] = v
-            top += v <= pivot
-        if k < top:
-            return pivot
-        lo = top
-    return buf[k]
-
-
-@jit
 def _column_medians(strips, n, out):
     """The median of each column of ``strips[:n]`` (``n >= 1``; no NaN) into ``out``, as
     ``np.median(strips[:n], axis=0)`` (the mean of the two middle values when ``n`` is even), by
@@ -433,7 +398,7 @@ def _column_medians(strips, n, out):
     for j in range(strips.shape[1]):
         for i in range(n):
             buf[i] = strips[i, j]
-        hi = _select(buf, n, k2)
+        hi = kth_smallest(buf, n, k2)
         lo = hi
         if k1 != k2:  # the largest below the k2-th: after the selection, all of buf[:k2] is <= it
             lo = buf[0]
@@ -451,7 +416,7 @@ def _median(buf, n):
         if math.isnan(buf[i]):
             return math.nan
     k = n // 2
-    hi = _select(buf, n, k)
+    hi = kth_smallest(buf, n, k)
     if n % 2:
         return 0.0 + hi
     lo = buf[0]  # the largest below the k-th: after the selection, all of buf[:k] is <= it

@@ -1169,20 +1169,6 @@ def test_column_medians_match_numpy():
             np.testing.assert_allclose(out, np.median(strips[:n], axis=0), rtol=0, atol=0)
 
 
-def test_select_finds_the_kth_with_ties():
-    """``_select`` (branch-free quickselect) returns the k-th smallest and leaves every value before
-    it no larger, also among many equal values (a profile's side bands: many exactly 1.0)."""
-    rng = np.random.default_rng(12)
-    for n in (1, 2, 3, 5, 26, 100):
-        for levels in (1, 2, 4, 1000):
-            a = rng.integers(0, levels, n) / 3.0
-            for k in {0, n // 2, n - 1, int(rng.integers(0, n))}:
-                buf = a.copy()
-                assert _verify._select(buf, n, k) == np.sort(a)[k] == buf[k]
-                assert (buf[:k] <= buf[k]).all() and (buf[k:] >= buf[k]).all()
-                assert np.array_equal(np.sort(buf), np.sort(a))
-
-
 def _road_bev(rows=600, cols=200, level=100.0, noise=3.0, seed=0):
     """A BEV of asphalt (5 cm pixels, 30 m of road from 5 m) and its geometry."""
     rng = np.random.default_rng(seed)
