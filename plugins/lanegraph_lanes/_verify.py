@@ -769,10 +769,12 @@ def _bar_profile_kernel(img, r0, r1, c0, c1, c2, band_px, min_contrast):
         if ce - band_px < 0 or ce + band_px >= cols:
             continue
         a = ce - band_px
-        b = img[r, a] + 0.0
+        strip = img[r, a : a + w]  # a 1-D slice: the loops over it vectorise
+        least = strip[0]  # in the image's own type (exact, and it vectorises), then as a float
         for j in range(1, w):
-            b = min(b, img[r, a + j] + 0.0)
-        c = max(img[r, ce - 1], img[r, ce], img[r, ce + 1]) - b
+            least = min(least, strip[j])
+        b = least + 0.0
+        c = max(strip[band_px - 1], strip[band_px], strip[band_px + 1]) - b
         start[m] = a
         rr[m] = r
         base[m] = b
@@ -791,11 +793,10 @@ def _bar_profile_kernel(img, r0, r1, c0, c1, c2, band_px, min_contrast):
     for i in range(m):
         if contrast[i] >= thr:
             n += 1
-            r = rr[i]
-            a = start[i]
+            strip = img[rr[i], start[i] : start[i] + w]
             b = base[i]
             for j in range(w):
-                profile[j] += img[r, a + j] - b
+                profile[j] += strip[j] - b
     if n > 0:
         for j in range(w):
             profile[j] = profile[j] / n
