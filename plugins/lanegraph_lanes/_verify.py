@@ -285,20 +285,7 @@ def side_texture(
 
 
 @jit
-def _strip_median(values, hist, work):
-    """The median of the 1-D ``values`` (a slice of an image row), as :func:`_small_median` takes it:
-    with a 256-bin ``hist`` (a uint8 image) by counting, read in place; else copied into ``work`` (at
-    least as long) and sorted there."""
-    n = values.size
-    if hist.size > 0:
-        return _small_median(values, n, hist)
-    for i in range(n):
-        work[i] = values[i]
-    return _small_median(work, n, hist)
-
-
-@jit
-def _paint_rows(
+def _paint_rows_kernel(
     img,
     r0,
     r1,
@@ -318,21 +305,22 @@ def _paint_rows(
     ratio,
 ):
     """The painted rows of the lane ``col = c0 + c1 t + c2 t^2`` (``t = rows - 1 - row``) over the rows
-    ``r0 .. r1``, for :func:`_paint_cues_kernel`. Per row: the lane's column rounded, moved to the
-    brightest pixel within ``align_px`` (a fit is a pixel or two off the paint); the strip of columns
+    ``r0 .. r1``, for :func:`paint_cues`. Per row: the lane's column rounded, moved to the brightest
+    pixel within ``align_px`` (a fit is a pixel or two off the paint); the strip of columns
     ``-band_px .. band_px`` around it, skipped when it leaves the image or holds a 0 (outside the
-    camera's view); the side levels ``L``, ``R``: the medians of the columns ``-band_px .. -gap_px``
-    and ``gap_px .. band_px`` (``hist``: see :func:`_small_median`). A row is painted when its centre
-    is ``min_row_contrast`` (relative) brighter than the brighter side: for the ``k``-th painted row,
-    ``row[k]``, ``start[k]`` (its strip's first column) and ``inv_level[k]`` (1 / the brighter side's
-    level: the strip divided by that level is its profile), ``contrast[k]`` = centre / brighter side
-    - 1 and ``ratio[k]`` = darker side / brighter side are written. Returns ``(strips inside the
-    image, painted rows, painted rows whose centre is at ``sat_level`` or above: saturated)``."""
+    camera's view); the side levels ``L``, ``R``: the medians of the columns ``-band_px ..
+    -gap_px`` and ``gap_px .. band_px`` (``hist``: see :func:`_small_median`). A row is painted when
+    its centre is ``min_row_contrast`` (relative) brighter than the brighter side: for the ``k``-th
+    painted row, ``row[k]``, ``start[k]`` (its strip's first column) and ``inv_level[k]`` (1 / the
+    brighter side's level: the strip times it is the row's profile), ``contrast[k]`` = centre /
+    brighter side - 1 and ``ratio[k]`` = darker side / brighter side are written (only the rows of
+    the median profile are divided, after). Returns ``(strips inside the image, painted rows,
+    painted rows whose centre is at ``sat_level`` or above: saturated)``."""
     rows, cols = img.shape
     w = 2 * band_px + 1
     ns = band_px - gap_px + 1
     side = np.empty(ns, np.float64)
-    counting = hist.size > 0  # a uint8 image: medians by counting, and a zero is its least value
+    counting = hist.size > 0  # a uint8 image: a zero is its least value
     inside = 0
     painted = 0
     saturated = 0
@@ -348,27 +336,31 @@ def _paint_rows(
             if line[c] > line[best]:
                 best = c
         a = best - band_px
-        strip = line[a : a + w]
+        dark = False
         if counting:
-            least = strip[0]
-            for j in range(1, w):
-                least = min(least, strip[j])
-            if least == 0:
-                continue
+            least = line[a]
+            for j in range(a + 1, a + w):
+                least = min(least, line[j])
+            dark = least == 0
         else:
             zeros = 0
-            for j in range(w):
-                zeros += strip[j] == 0
-            if zeros:
-                continue
+            for j in range(a, a + w):
+                zeros += line[j] == 0
+            dark = zeros > 0
+        if dark:
+            continue
         inside += 1
-        left = _strip_median(line[a : a + ns], hist, side)
+        for j in range(ns):
+            side[j] = line[a + j]
+        left = _small_median(side, ns, hist)
         centre = line[best]
         if left > 0.0 and centre >= 0 and centre / left - 1.0 < min_row_contrast:
             # not painted against the left side: nor against the brighter of the two (a quotient
             # by a larger level is no larger), so the right side's median is not needed
             continue
-        right = _strip_median(line[best + gap_px : best + gap_px + ns], hist, side)
+        for j in range(ns):
+            side[j] = line[best + gap_px + j]
+        right = _small_median(side, ns, hist)
         hi = max(left, right)
         if hi <= 0.0:
             continue
@@ -407,26 +399,21 @@ def _column_medians(strips, n, out):
         out[j] = 0.5 * (lo + hi)
 
 
-@jit
-def _median(buf, n):
-    """``np.median(buf[:n])`` (``n >= 1``) bit for bit, reordering ``buf[:n]``: NaN when one is NaN,
-    else the middle value or the two middle ones summed from 0.0 (as ``np.mean`` sums: a -0.0 turns
-    into 0.0) and halved."""
-    for i in range(n):
-        if math.isnan(buf[i]):
-            return math.nan
+def _median(a: np.ndarray) -> float:
+    """``np.median`` of a non-empty 1-D float array, the same value bit for bit: the same partition
+    (the middle indices and the last, where a NaN would sort), then the middle value or ``(x + y) /
+    2`` summed as ``np.mean`` sums; NaN when the last is one. Without ``np.median``'s generic machinery: a third of its time on
+    the few dozen to few hundred values of a lane's profile and rows."""
+    n = a.size
     k = n // 2
-    hi = kth_smallest(buf, n, k)
-    if n % 2:
-        return 0.0 + hi
-    lo = buf[0]  # the largest below the k-th: after the selection, all of buf[:k] is <= it
-    for i in range(1, k):
-        lo = max(lo, buf[i])
-    return (0.0 + lo + hi) / 2
+    part = np.partition(a, [k - 1, k, -1] if n % 2 == 0 else [k, -1])
+    if np.isnan(part[-1]):
+        return float("nan")
+    # np.mean's sum starts from 0.0 (which turns a -0.0 into 0.0)
+    return float(0.0 + part[k]) if n % 2 else float((0.0 + part[k - 1] + part[k]) / 2)
 
 
-@jit
-def _crossing_width(profile, centre, level):
+def _crossing_width(profile: np.ndarray, centre: int, level: float) -> float:
     """Width (pixels, sub-pixel) of the run of ``profile`` at or above ``level`` around ``centre``
     (linear interpolation at both ends; a run reaching the profile's end ends there)."""
     n = profile.size
@@ -436,85 +423,17 @@ def _crossing_width(profile, centre, level):
     b = centre
     while b < n - 1 and profile[b + 1] >= level:
         b += 1
-    left = float(a)
-    if a > 0 and profile[a] > profile[a - 1]:
-        left = a - (profile[a] - level) / (profile[a] - profile[a - 1])
-    right = float(b)
-    if b < n - 1 and profile[b] > profile[b + 1]:
-        right = b + (profile[b] - level) / (profile[b] - profile[b + 1])
-    return right - left
-
-
-@jit
-def _paint_cues_kernel(
-    img, r0, r1, c0, c1, c2, band_px, gap_px, align_px, min_row_contrast, sat_level, min_rows, hist
-):
-    """:func:`paint_cues` in one call, widths in BEV pixels: the painted rows (:func:`_paint_rows`),
-    their median contrast and side ratio, and the median profile over every ``k``-th painted row
-    (``k = painted // 64``, at least 1: 64 to 127 of them), its base (the brighter of its two side
-    bands' medians) and its widths at half and a quarter of its height above the base. Returns
-    ``(inside, painted, saturated, contrast, side ratio, width, foot width)``: NaN for the four
-    measures with fewer than ``min_rows`` (at least 1) painted rows, for the widths when the
-    profile's centre is not above its base."""
-    n = r1 - r0 + 1 if r1 >= r0 else 0
-    row = np.empty(n, np.int64)
-    start = np.empty(n, np.int64)
-    inv_level = np.empty(n, np.float64)
-    contrast = np.empty(n, np.float64)
-    ratio = np.empty(n, np.float64)
-    inside, painted, saturated = _paint_rows(
-        img,
-        r0,
-        r1,
-        c0,
-        c1,
-        c2,
-        band_px,
-        gap_px,
-        align_px,
-        min_row_contrast,
-        sat_level,
-        hist,
-        row,
-        start,
-        inv_level,
-        contrast,
-        ratio,
+    left = (
+        a - (profile[a] - level) / (profile[a] - profile[a - 1])
+        if a > 0 and profile[a] > profile[a - 1]
+        else float(a)
     )
-    if painted < max(min_rows, 1):
-        return inside, painted, saturated, math.nan, math.nan, math.nan, math.nan
-    # the median profile over every k-th painted row, 64 to 127 of them: as good a median for a
-    # width, at the cost of a mean (a median over all 300-400 near rows cost 0.1-0.2 ms a lane);
-    # only those rows' strips are divided by their level
-    w = 2 * band_px + 1
-    step = max(1, painted // 64)
-    m = (painted + step - 1) // step
-    strips = np.empty((m, w), np.float64)
-    for i in range(m):
-        r = row[i * step]
-        a = start[i * step]
-        inv = inv_level[i * step]
-        for j in range(w):
-            strips[i, j] = img[r, a + j] * inv
-    profile = np.empty(w, np.float64)
-    _column_medians(strips, m, profile)
-    ns = band_px - gap_px + 1
-    buf = np.empty(ns, np.float64)
-    for j in range(ns):
-        buf[j] = profile[j]
-    left = _median(buf, ns)
-    for j in range(ns):
-        buf[j] = profile[band_px + gap_px + j]
-    right = _median(buf, ns)
-    base = right if right > left else left  # max(left, right) as Python takes it (a NaN left stays)
-    height = profile[band_px] - base
-    c_med = _median(contrast, painted)
-    r_med = _median(ratio, painted)
-    if height <= 0.0:
-        return inside, painted, saturated, c_med, r_med, math.nan, math.nan
-    half = _crossing_width(profile, band_px, base + 0.5 * height)
-    foot = _crossing_width(profile, band_px, base + 0.25 * height)
-    return inside, painted, saturated, c_med, r_med, half, foot
+    right = (
+        b + (profile[b] - level) / (profile[b] - profile[b + 1])
+        if b < n - 1 and profile[b] > profile[b + 1]
+        else float(b)
+    )
+    return float(right - left)
 
 
 @dataclass(frozen=True)
@@ -551,13 +470,13 @@ def paint_cues(
     min_rows: int = 10,
 ) -> PaintCues:
     """The cross profile of ``lane`` in the grey BEV ``image``, on its rows nearer than
-    ``max_distance_m``: its painted rows (:func:`_paint_rows`: the centre ``min_row_contrast``
+    ``max_distance_m``: its painted rows (:func:`_paint_rows_kernel`: the centre ``min_row_contrast``
     brighter than the brighter side band, ``gap_m .. band_m`` away), their median contrast and side
     ratio, and the widths of their median profile (each row divided by its brighter side's level;
     the median over the rows, offset by offset, of 64 to 127 of them spread evenly: a sun patch
     that a minority of the rows cross, a metre or more across, does not widen it as it widens
     their mean) at half and a quarter of its height above its base (the brighter of the profile's
-    two side levels). One kernel call, :func:`_paint_cues_kernel`."""
+    two side levels). The rows by :func:`_paint_rows_kernel`."""
     img, r0, r1 = _lane_rows_in(image, lane)
     res = float(geometry.resolution)
     near = int(math.floor(geometry.metric_to_bev(0.0, max_distance_m)[1]))
@@ -566,7 +485,13 @@ def paint_cues(
     gap = min(max(int(round(gap_m / res)), 1), band - 1)
     align = max(int(round(align_m / res)), 0)
     c0, c1, c2 = (float(c) for c in lane.coeffs)
-    inside, painted, saturated, contrast, ratio, width, foot = _paint_cues_kernel(
+    n = max(r1 - r0 + 1, 0)
+    row = np.empty(n, np.int64)
+    start = np.empty(n, np.int64)
+    inv_level = np.empty(n)
+    contrast = np.empty(n)
+    ratio = np.empty(n)
+    inside, painted, saturated = _paint_rows_kernel(
         img,
         r0,
         r1,
@@ -578,11 +503,36 @@ def paint_cues(
         align,
         float(min_row_contrast),
         _saturation(img.dtype),
-        int(min_rows),
         _median_hist(img),
+        row,
+        start,
+        inv_level,
+        contrast,
+        ratio,
     )
+    nan = float("nan")
+    if painted < max(min_rows, 1):
+        return PaintCues(int(inside), int(painted), int(saturated), nan, nan, nan, nan)
+    # the median profile over every k-th painted row, 64 to 127 of them: as good a median for a
+    # width, at the cost of a mean (a median over all 300-400 near rows cost 0.1-0.2 ms a lane);
+    # only those rows' strips are read and divided by their level
+    k = slice(0, painted, max(1, painted // 64))
+    strips = img[row[k, None], start[k, None] + np.arange(2 * band + 1)] * inv_level[k, None]
+    profile = np.empty(2 * band + 1)
+    _column_medians(strips, strips.shape[0], profile)
+    base = max(_median(profile[: band - gap + 1]), _median(profile[band + gap :]))
+    height = profile[band] - base
+    c_med, r_med = _median(contrast[:painted]), _median(ratio[:painted])
+    if height <= 0.0:
+        return PaintCues(int(inside), int(painted), int(saturated), c_med, r_med, nan, nan)
     return PaintCues(
-        int(inside), int(painted), int(saturated), float(contrast), float(ratio), width * res, foot * res
+        int(inside),
+        int(painted),
+        int(saturated),
+        c_med,
+        r_med,
+        _crossing_width(profile, band, base + 0.5 * height) * res,
+        _crossing_width(profile, band, base + 0.25 * height) * res,
     )
 
 

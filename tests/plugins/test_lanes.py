@@ -996,8 +996,8 @@ def test_mdiff_ignores_a_few_sharp_edges():
 
 
 def paint_rows_twin(img, r0, r1, coeffs, band, gap, align, min_row_contrast, sat):
-    """NumPy twin of ``_paint_rows``: ``(inside, painted, saturated, painted rows' strips divided by
-    their level, contrasts, ratios)``."""
+    """NumPy twin of ``_paint_rows_kernel``: ``(inside, painted, saturated, painted rows' strips divided
+    by their level, contrasts, ratios)``."""
     rows, cols = img.shape
     c0, c1, c2 = coeffs
     prof = []
@@ -1025,33 +1025,10 @@ def paint_rows_twin(img, r0, r1, coeffs, band, gap, align, min_row_contrast, sat
 
 
 def painted_strips(img, band, painted, row, start, inv):
-    """The strips of ``_paint_rows``'s painted rows, each divided by its level (as its records say)."""
+    """The strips of ``_paint_rows_kernel``'s painted rows, each divided by its level (as its records say)."""
     return np.array(
         [img[row[k], start[k] : start[k] + 2 * band + 1] * inv[k] for k in range(painted)]
     ).reshape(painted, 2 * band + 1)
-
-
-def crossing_width_twin(profile, centre, level):
-    """NumPy twin of ``_crossing_width``: the run at or above ``level`` around ``centre`` by its
-    ends, each end interpolated linearly to where the profile crosses ``level``."""
-    above = profile >= level
-    a = centre
-    while a > 0 and above[a - 1]:
-        a -= 1
-    b = centre
-    while b < profile.size - 1 and above[b + 1]:
-        b += 1
-    left = (
-        np.interp(level, [profile[a - 1], profile[a]], [a - 1, a])
-        if a > 0 and profile[a] > profile[a - 1]
-        else a
-    )
-    right = (
-        np.interp(level, [profile[b + 1], profile[b]], [b + 1, b])
-        if b < profile.size - 1 and profile[b] > profile[b + 1]
-        else b
-    )
-    return float(right - left)
 
 
 def random_paint_case(rng, dtype):
@@ -1082,7 +1059,7 @@ def test_paint_rows_kernel_matches_twin(dtype):
         inv, con, rat = np.empty(n), np.empty(n), np.empty(n)
         hist = _verify._median_hist(img)
         sat = 250.0
-        got = _verify._paint_rows(
+        got = _verify._paint_rows_kernel(
             img, r0, r1, *coeffs, band, gap, align, mrc, sat, hist, row, start, inv, con, rat
         )
         ref = paint_rows_twin(img, r0, r1, coeffs, band, gap, align, mrc, sat)
@@ -1094,47 +1071,8 @@ def test_paint_rows_kernel_matches_twin(dtype):
         assert not hist.any()  # the counting buffer is left empty
 
 
-@pytest.mark.parametrize("dtype", [np.uint8, np.float32])
-def test_paint_cues_kernel_matches_twin(dtype):
-    """``_paint_cues_kernel`` (one call a lane) against NumPy: the row pass's twin, ``np.median`` of
-    the contrasts, the ratios and every k-th painted row's strip (64 to 127 of them), the widths
-    of that profile at half and a quarter of its height above its base; NaN below ``min_rows``."""
-    rng = np.random.default_rng(8)
-    checked = 0
-    for case in range(60):
-        img, r0, r1, coeffs, band, gap, align, mrc = random_paint_case(rng, dtype)
-        if case % 3 == 0:  # many painted rows: every k-th of them in the profile (k > 1)
-            img = np.repeat(img, 6, axis=0)
-            r0, r1 = r0 * 6, r1 * 6 + 5
-            coeffs = (coeffs[0], coeffs[1] / 6, coeffs[2] / 36)
-        min_rows = int(rng.choice([1, 10, 40]))
-        got = _verify._paint_cues_kernel(
-            img, r0, r1, *coeffs, band, gap, align, mrc, 250.0, min_rows, _verify._median_hist(img)
-        )
-        inside, painted, saturated, strips, con, rat = paint_rows_twin(
-            img, r0, r1, coeffs, band, gap, align, mrc, 250.0
-        )
-        assert got[:3] == (inside, painted, saturated)
-        if painted < max(min_rows, 1):
-            assert np.isnan(got[3:]).all()
-            continue
-        checked += 1
-        # the kernel divides by a level as a product with its inverse: equal up to rounding
-        assert got[3] == pytest.approx(np.median(con), rel=1e-12)
-        assert got[4] == pytest.approx(np.median(rat), rel=1e-12)
-        profile = np.median(strips[:: max(1, painted // 64)], axis=0)
-        base = max(np.median(profile[: band - gap + 1]), np.median(profile[band + gap :]))
-        height = profile[band] - base
-        if height <= 0:
-            assert np.isnan(got[5:]).all()
-            continue
-        for width, level in zip(got[5:], (base + 0.5 * height, base + 0.25 * height)):
-            assert width == pytest.approx(crossing_width_twin(profile, band, level), abs=1e-9)
-    assert checked >= 10
-
-
 def test_median_is_numpys_bit_for_bit():
-    """``_verify._median`` (a selection in place) gives ``np.median``'s value exactly: odd and even
+    """``_verify._median`` (one partition) gives ``np.median``'s value exactly: odd and even
     lengths, ties, infinities, and NaN wherever one is."""
     rng = np.random.default_rng(17)
     for n in (1, 2, 3, 4, 26, 213, 400):
@@ -1145,14 +1083,14 @@ def test_median_is_numpys_bit_for_bit():
             if case % 5 == 0:
                 a[rng.integers(0, n)] = rng.choice([np.inf, -np.inf])
             want = np.median(a)
-            got = _verify._median(a.copy(), a.size)
+            got = _verify._median(a)
             assert np.float64(got).tobytes() == np.float64(want).tobytes()
             if case % 7 == 0:
                 a[rng.integers(0, n, size=rng.integers(1, n + 1))] = np.nan
-                assert np.isnan(_verify._median(a.copy(), a.size)) and np.isnan(np.median(a))
+                assert np.isnan(_verify._median(a)) and np.isnan(np.median(a))
     for a in ([-0.0], [-0.0, -0.0], [0.0, -0.0], [-0.0, 1.0, -0.0], [np.inf, -np.inf]):
         a = np.array(a)
-        assert np.float64(_verify._median(a.copy(), a.size)).tobytes() == np.float64(np.median(a)).tobytes()
+        assert np.float64(_verify._median(a)).tobytes() == np.float64(np.median(a)).tobytes()
 
 
 def test_column_medians_match_numpy():
@@ -1283,7 +1221,7 @@ def test_sun_patches_do_not_widen_the_paint():
     strips = paint_rows_twin(img, 0, n - 1, lane.coeffs, band, gap, 2, 0.15, 255.0)[3]
     mean = strips.mean(axis=0)
     base = max(np.median(mean[: band - gap + 1]), np.median(mean[band + gap :]))
-    foot = crossing_width_twin(mean, band, base + 0.25 * (mean[band] - base)) * g.resolution
+    foot = _verify._crossing_width(mean, band, base + 0.25 * (mean[band] - base)) * g.resolution
     assert foot > VerifyParams().max_foot_width_m
 
 
