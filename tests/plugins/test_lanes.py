@@ -616,6 +616,22 @@ def _clothoid_bev(dashed: bool, rows: int = 800, cols: int = 240) -> tuple[np.nd
     return bev, centre
 
 
+def test_near_fit_counts_the_rows_as_np_unique():
+    """``_near_fit`` counts the near rows its ROI points cover where ``t`` changes (the ROI
+    kernel's row-major order): the count ``np.unique`` gives, so the same points are kept."""
+    from lanegraph_lanes._fit import _near_fit, _roi_kernel
+
+    rng = np.random.default_rng(3)
+    for _ in range(30):
+        mask = rng.random((200, 120)) < rng.uniform(0.02, 0.5)
+        t, y = _roi_kernel(mask, float(rng.uniform(20, 100)), float(rng.uniform(-0.2, 0.2)), 0.0, 20.0)
+        for t_near, coverage in ((50.0, 0.7), (120.0, 0.9), (30.0, 0.2), (300.0, 0.5)):
+            want = t.size and t.max() >= t_near and np.unique(t[t < t_near]).size >= coverage * t_near
+            got_t, got_y = _near_fit(t, y, t_near, coverage)
+            assert got_t.size == (np.count_nonzero(t < t_near) if want else t.size)
+            assert np.array_equal(got_y, y[t < t_near] if want else y)
+
+
 @pytest.mark.parametrize("node", [fit_irls, fit_ransac])
 def test_near_fit_follows_a_solid_line_whose_curvature_changes(node):
     """A parabola over 5-45 m misses the near part of a clothoid; fitted to the near 25 m it does
