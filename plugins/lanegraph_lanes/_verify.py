@@ -301,20 +301,19 @@ def _paint_rows_kernel(
     row,
     start,
     inv_level,
-    contrast,
-    ratio,
+    measures,
 ):
     """The painted rows of the lane ``col = c0 + c1 t + c2 t^2`` (``t = rows - 1 - row``) over the rows
     ``r0 .. r1``, for :func:`paint_cues`. Per row: the lane's column rounded, moved to the brightest
     pixel within ``align_px`` (a fit is a pixel or two off the paint); the strip of columns
     ``-band_px .. band_px`` around it, skipped when it leaves the image or holds a 0 (outside the
-    camera's view); the side levels ``L``, ``R``: the medians of the columns ``-band_px ..
+    camera's view; in a float image also a NaN); the side levels ``L``, ``R``: the medians of the columns ``-band_px ..
     -gap_px`` and ``gap_px .. band_px`` (``hist``: see :func:`_small_median`). A row is painted when
     its centre is ``min_row_contrast`` (relative) brighter than the brighter side: for the ``k``-th
     painted row, ``row[k]``, ``start[k]`` (its strip's first column) and ``inv_level[k]`` (1 / the
-    brighter side's level: the strip times it is the row's profile), ``contrast[k]`` = centre /
-    brighter side - 1 and ``ratio[k]`` = darker side / brighter side are written (only the rows of
-    the median profile are divided, after). Returns ``(strips inside the image, painted rows,
+    brighter side's level: the strip times it is the row's profile) and ``measures[k]`` = (centre /
+    brighter side - 1, darker side / brighter side) are written (only the rows of the median
+    profile are divided, after). Returns ``(strips inside the image, painted rows,
     painted rows whose centre is at ``sat_level`` or above: saturated)``."""
     rows, cols = img.shape
     w = 2 * band_px + 1
@@ -345,7 +344,7 @@ def _paint_rows_kernel(
         else:
             zeros = 0
             for j in range(a, a + w):
-                zeros += line[j] == 0
+                zeros += line[j] == 0 or line[j] != line[j]  # a 0, or a NaN
             dark = zeros > 0
         if dark:
             continue
@@ -371,8 +370,8 @@ def _paint_rows_kernel(
         row[painted] = r
         start[painted] = a
         inv_level[painted] = inv
-        contrast[painted] = c_rel
-        ratio[painted] = min(left, right) * inv
+        measures[painted, 0] = c_rel
+        measures[painted, 1] = min(left, right) * inv
         painted += 1
         if centre >= sat_level:
             saturated += 1
@@ -397,20 +396,6 @@ def _column_medians(strips, n, out):
             for i in range(1, k2):
                 lo = max(lo, buf[i])
         out[j] = 0.5 * (lo + hi)
-
-
-def _median(a: np.ndarray) -> float:
-    """``np.median`` of a non-empty 1-D float array, the same value bit for bit: the same partition
-    (the middle indices and the last, where a NaN would sort), then the middle value or ``(x + y) /
-    2`` summed as ``np.mean`` sums; NaN when the last is one. Without ``np.median``'s generic machinery: a third of its time on
-    the few dozen to few hundred values of a lane's profile and rows."""
-    n = a.size
-    k = n // 2
-    part = np.partition(a, [k - 1, k, -1] if n % 2 == 0 else [k, -1])
-    if np.isnan(part[-1]):
-        return float("nan")
-    # np.mean's sum starts from 0.0 (which turns a -0.0 into 0.0)
-    return float(0.0 + part[k]) if n % 2 else float((0.0 + part[k - 1] + part[k]) / 2)
 
 
 def _crossing_width(profile: np.ndarray, centre: int, level: float) -> float:
@@ -489,8 +474,7 @@ def paint_cues(
     row = np.empty(n, np.int64)
     start = np.empty(n, np.int64)
     inv_level = np.empty(n)
-    contrast = np.empty(n)
-    ratio = np.empty(n)
+    measures = np.empty((n, 2))  # per painted row: its contrast and side ratio
     inside, painted, saturated = _paint_rows_kernel(
         img,
         r0,
@@ -507,8 +491,7 @@ def paint_cues(
         row,
         start,
         inv_level,
-        contrast,
-        ratio,
+        measures,
     )
     nan = float("nan")
     if painted < max(min_rows, 1):
@@ -520,9 +503,17 @@ def paint_cues(
     strips = img[row[k, None], start[k, None] + np.arange(2 * band + 1)] * inv_level[k, None]
     profile = np.empty(2 * band + 1)
     _column_medians(strips, strips.shape[0], profile)
-    base = max(_median(profile[: band - gap + 1]), _median(profile[band + gap :]))
+    # the other medians as columns too (np.median's values, the rows hold no NaN): the two side
+    # bands' levels of the profile, the painted rows' contrast and side ratio
+    levels = np.empty(2)
+    _column_medians(
+        np.stack((profile[: band - gap + 1], profile[band + gap :]), axis=1), band - gap + 1, levels
+    )
+    base = max(float(levels[0]), float(levels[1]))
     height = profile[band] - base
-    c_med, r_med = _median(contrast[:painted]), _median(ratio[:painted])
+    meds = np.empty(2)
+    _column_medians(measures, painted, meds)
+    c_med, r_med = float(meds[0]), float(meds[1])
     if height <= 0.0:
         return PaintCues(int(inside), int(painted), int(saturated), c_med, r_med, nan, nan)
     return PaintCues(
