@@ -690,13 +690,17 @@ def _plausible_tracked(lateral: float, others: list[float], p: FitParams) -> boo
 
 def _near_fit(t: np.ndarray, y: np.ndarray, t_near: float, coverage: float) -> tuple[np.ndarray, np.ndarray]:
     """The ROI points ``(t, y)`` to fit: those below BEV row height ``t_near`` when they cover at
-    least ``coverage`` of those rows (a line seen continuously there), else all of them."""
+    least ``coverage`` of those rows (a line seen continuously there), else all of them. ``t`` in
+    the ROI kernel's row-major order (a row's points together): the rows covered are counted where
+    ``t`` changes (``np.unique``'s count, without its sort)."""
     if not t.size or not math.isfinite(t_near) or t.max() < t_near:
         return t, y
     keep = t < t_near
-    if np.unique(t[keep]).size < coverage * t_near:
+    near = t[keep]
+    covered = np.count_nonzero(near[1:] != near[:-1]) + 1 if near.size else 0
+    if covered < coverage * t_near:
         return t, y
-    return t[keep], y[keep]
+    return near, y[keep]
 
 
 def _fit_lanes(

@@ -17,51 +17,38 @@ from lanegraph import jit
 @jit
 def kth_smallest(a, n, k):
     """The ``k``-th smallest (0-based, ``0 <= k < n``) of ``a[:n]``, by quickselect in place: on
-    return ``a[k]`` is it, ``a[:k]`` holds values ``<=`` it and ``a[k + 1:n]`` values ``>=`` it."""
+    return ``a[k]`` is it, ``a[:k]`` holds values ``<=`` it and ``a[k + 1:n]`` values ``>=`` it.
+
+    Each level partitions without a branch per element (every element swapped with the boundary,
+    the boundary moved by the comparison's outcome: over unordered values a branch on it was
+    mispredicted half the time, most of a selection's cost), in two passes around the pivot (the
+    median of three): below it, then equal to it (ties end a level). A NaN ends the search (its
+    result is then undefined, never an endless loop)."""
     lo = 0
     hi = n - 1
-    while hi > lo + 1:
-        mid = (lo + hi) >> 1
-        t = a[mid]
-        a[mid] = a[lo + 1]
-        a[lo + 1] = t
-        if a[lo] > a[hi]:  # median of three: a[lo] <= a[lo + 1] <= a[hi], the scans' sentinels
-            t = a[lo]
-            a[lo] = a[hi]
-            a[hi] = t
-        if a[lo + 1] > a[hi]:
-            t = a[lo + 1]
-            a[lo + 1] = a[hi]
-            a[hi] = t
-        if a[lo] > a[lo + 1]:
-            t = a[lo]
-            a[lo] = a[lo + 1]
-            a[lo + 1] = t
-        x = a[lo + 1]
-        i = lo + 1
-        j = hi
-        while True:
-            i += 1
-            while i < hi and a[i] < x:
-                i += 1
-            j -= 1
-            while j > lo and a[j] > x:
-                j -= 1
-            if j < i:
-                break
-            t = a[i]
-            a[i] = a[j]
-            a[j] = t
-        a[lo + 1] = a[j]
-        a[j] = x
-        if j >= k:
-            hi = j - 1
-        if j <= k:
-            lo = i
-    if hi == lo + 1 and a[hi] < a[lo]:
-        t = a[lo]
-        a[lo] = a[hi]
-        a[hi] = t
+    while lo < hi:
+        x = a[lo]
+        y = a[(lo + hi) >> 1]
+        z = a[hi]
+        pivot = max(min(x, y), min(max(x, y), z))
+        store = lo
+        for i in range(lo, hi + 1):
+            v = a[i]
+            a[i] = a[store]
+            a[store] = v
+            store += v < pivot
+        if k < store:
+            hi = store - 1
+            continue
+        top = store
+        for i in range(store, hi + 1):
+            v = a[i]
+            a[i] = a[top]
+            a[top] = v
+            top += v <= pivot
+        if k < top or top == lo:  # a[store:top] are the pivot; top == lo: a NaN pivot
+            break
+        lo = top
     return a[k]
 
 

@@ -49,6 +49,7 @@ pavement beyond a kerb is one wide bright region, not a bar. ``crossing_check`` 
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Literal
@@ -59,7 +60,7 @@ from pydantic import Field, model_validator
 from lanegraph import InputError, NodeParams, Port, jit, node_type
 from lanegraph.types import BevGeometry, Lane
 
-from ._select import percentile_inplace
+from ._select import kth_smallest, percentile_inplace
 
 #: the texture measures, as the kernels number them
 _MEASURES = {"std": 0, "diff": 1, "mdiff": 2}
@@ -297,25 +298,28 @@ def _paint_rows_kernel(
     min_row_contrast,
     sat_level,
     hist,
-    profile,
-    contrast,
-    ratio,
+    row,
+    start,
+    inv_level,
+    measures,
 ):
     """The painted rows of the lane ``col = c0 + c1 t + c2 t^2`` (``t = rows - 1 - row``) over the rows
     ``r0 .. r1``, for :func:`paint_cues`. Per row: the lane's column rounded, moved to the brightest
     pixel within ``align_px`` (a fit is a pixel or two off the paint); the strip of columns
     ``-band_px .. band_px`` around it, skipped when it leaves the image or holds a 0 (outside the
-    camera's view); the side levels ``L``, ``R``: the medians of the columns ``-band_px .. -gap_px``
-    and ``gap_px .. band_px`` (``hist``: see :func:`_small_median`). A row is painted when its centre
-    is ``min_row_contrast`` (relative) brighter than the brighter side: then the strip divided by
-    that side's level is written to ``profile[k]`` (``2 band_px + 1`` values) for the ``k``-th painted row, and
-    ``contrast[k]`` = centre / brighter side - 1 and ``ratio[k]`` = darker side / brighter side are
-    written for the ``k``-th painted row. Returns ``(strips inside the image, painted rows, painted
-    rows whose centre is at ``sat_level`` or above: saturated)``."""
+    camera's view; in a float image also a NaN); the side levels ``L``, ``R``: the medians of the columns ``-band_px ..
+    -gap_px`` and ``gap_px .. band_px`` (``hist``: see :func:`_small_median`). A row is painted when
+    its centre is ``min_row_contrast`` (relative) brighter than the brighter side: for the ``k``-th
+    painted row, ``row[k]``, ``start[k]`` (its strip's first column) and ``inv_level[k]`` (1 / the
+    brighter side's level: the strip times it is the row's profile) and ``measures[k]`` = (centre /
+    brighter side - 1, darker side / brighter side) are written (only the rows of the median
+    profile are divided, after). Returns ``(strips inside the image, painted rows,
+    painted rows whose centre is at ``sat_level`` or above: saturated)``."""
     rows, cols = img.shape
     w = 2 * band_px + 1
     ns = band_px - gap_px + 1
     side = np.empty(ns, np.float64)
+    counting = hist.size > 0  # a uint8 image: a zero is its least value
     inside = 0
     painted = 0
     saturated = 0
@@ -324,109 +328,74 @@ def _paint_rows_kernel(
         ce = int(np.rint(c0 + c1 * t + c2 * t * t))
         if ce - band_px - align_px < 0 or ce + band_px + align_px >= cols:
             continue
+        # the loops read the row as a 1-D array: they vectorise, as loops over img[r, j] do not
+        line = img[r]
         best = ce - align_px  # the first brightest, from the left
         for c in range(ce - align_px + 1, ce + align_px + 1):
-            if img[r, c] > img[r, best]:
+            if line[c] > line[best]:
                 best = c
         a = best - band_px
         dark = False
-        for j in range(w):
-            if img[r, a + j] == 0:
-                dark = True
-                break
+        if counting:
+            least = line[a]
+            for j in range(a + 1, a + w):
+                least = min(least, line[j])
+            dark = least == 0
+        else:
+            zeros = 0
+            for j in range(a, a + w):
+                zeros += line[j] == 0 or line[j] != line[j]  # a 0, or a NaN
+            dark = zeros > 0
         if dark:
             continue
         inside += 1
         for j in range(ns):
-            side[j] = img[r, a + j]
+            side[j] = line[a + j]
         left = _small_median(side, ns, hist)
-        centre = img[r, best]
+        centre = line[best]
         if left > 0.0 and centre >= 0 and centre / left - 1.0 < min_row_contrast:
             # not painted against the left side: nor against the brighter of the two (a quotient
             # by a larger level is no larger), so the right side's median is not needed
             continue
         for j in range(ns):
-            side[j] = img[r, best + gap_px + j]
+            side[j] = line[best + gap_px + j]
         right = _small_median(side, ns, hist)
         hi = max(left, right)
         if hi <= 0.0:
             continue
-        c_rel = img[r, best] / hi - 1.0
+        c_rel = centre / hi - 1.0
         if c_rel < min_row_contrast:
             continue
         inv = 1.0 / hi
-        for j in range(w):
-            profile[painted, j] = img[r, a + j] * inv
-        contrast[painted] = c_rel
-        ratio[painted] = min(left, right) * inv
+        row[painted] = r
+        start[painted] = a
+        inv_level[painted] = inv
+        measures[painted, 0] = c_rel
+        measures[painted, 1] = min(left, right) * inv
         painted += 1
-        if img[r, best] >= sat_level:
+        if centre >= sat_level:
             saturated += 1
     return inside, painted, saturated
 
 
 @jit
-def _select(buf, n, k):
-    """The ``k``-th smallest of ``buf[:n]`` (0-based), reordering ``buf[:n]`` in place (Hoare's
-    selection: linear time on average, no allocation)."""
-    lo = 0
-    hi = n - 1
-    while lo < hi:
-        pivot = buf[(lo + hi) // 2]
-        i = lo
-        j = hi
-        while i <= j:
-            while buf[i] < pivot:
-                i += 1
-            while buf[j] > pivot:
-                j -= 1
-            if i <= j:
-                tmp = buf[i]
-                buf[i] = buf[j]
-                buf[j] = tmp
-                i += 1
-                j -= 1
-        if k <= j:
-            hi = j
-        elif k >= i:
-            lo = i
-        else:
-            break
-    return buf[k]
-
-
-@jit
 def _column_medians(strips, n, out):
-    """The median of each column of ``strips[:n]`` (``n >= 1``) into ``out``, as ``np.median(strips[:n],
-    axis=0)`` (the mean of the two middle values when ``n`` is even), by selection."""
+    """The median of each column of ``strips[:n]`` (``n >= 1``; no NaN) into ``out``, as
+    ``np.median(strips[:n], axis=0)`` (the mean of the two middle values when ``n`` is even), by
+    selection."""
     buf = np.empty(n, np.float64)
     k1 = (n - 1) // 2
     k2 = n // 2
     for j in range(strips.shape[1]):
         for i in range(n):
             buf[i] = strips[i, j]
-        hi = _select(buf, n, k2)
+        hi = kth_smallest(buf, n, k2)
         lo = hi
         if k1 != k2:  # the largest below the k2-th: after the selection, all of buf[:k2] is <= it
             lo = buf[0]
             for i in range(1, k2):
-                if buf[i] > lo:
-                    lo = buf[i]
+                lo = max(lo, buf[i])
         out[j] = 0.5 * (lo + hi)
-
-
-def _median(a: np.ndarray) -> float:
-    """``np.median`` of a non-empty 1-D float array, the same value bit for bit: the same partition
-    (the middle indices and the last, where a NaN would sort), then the middle value or ``(x + y) /
-    2`` summed as ``np.mean`` sums; NaN when the last is one. Without ``np.median``'s generic machinery: a third of its time on
-    the few dozen to few hundred values of a lane's profile and rows."""
-    n = a.size
-    k = n // 2
-    part = np.partition(a, [k - 1, k, -1] if n % 2 == 0 else [k, -1])
-    if np.isnan(part[-1]):
-        return float("nan")
-    # np.mean's sum starts from 0.0 (which turns a -0.0 into 0.0)
-    return float(0.0 + part[k]) if n % 2 else float((0.0 + part[k - 1] + part[k]) / 2)
 
 
 def _crossing_width(profile: np.ndarray, centre: int, level: float) -> float:
@@ -467,6 +436,12 @@ class PaintCues:
     foot_width_m: float  # full width at a quarter of its height
 
 
+@functools.cache
+def _saturation(dtype: np.dtype) -> float:
+    """The largest grey level of an image of ``dtype`` (an integer type's largest; inf for a float)."""
+    return float(np.iinfo(dtype).max) if dtype.kind in "ui" else math.inf
+
+
 def paint_cues(
     image: np.ndarray,
     lane: Lane,
@@ -486,7 +461,7 @@ def paint_cues(
     the median over the rows, offset by offset, of 64 to 127 of them spread evenly: a sun patch
     that a minority of the rows cross, a metre or more across, does not widen it as it widens
     their mean) at half and a quarter of its height above its base (the brighter of the profile's
-    two side levels)."""
+    two side levels). The rows by :func:`_paint_rows_kernel`."""
     img, r0, r1 = _lane_rows_in(image, lane)
     res = float(geometry.resolution)
     near = int(math.floor(geometry.metric_to_bev(0.0, max_distance_m)[1]))
@@ -496,10 +471,10 @@ def paint_cues(
     align = max(int(round(align_m / res)), 0)
     c0, c1, c2 = (float(c) for c in lane.coeffs)
     n = max(r1 - r0 + 1, 0)
-    strips = np.empty((n, 2 * band + 1))
-    contrast = np.empty(n)
-    ratio = np.empty(n)
-    sat = float(np.iinfo(img.dtype).max) if img.dtype.kind in "ui" else math.inf
+    row = np.empty(n, np.int64)
+    start = np.empty(n, np.int64)
+    inv_level = np.empty(n)
+    measures = np.empty((n, 2))  # per painted row: its contrast and side ratio
     inside, painted, saturated = _paint_rows_kernel(
         img,
         r0,
@@ -511,38 +486,42 @@ def paint_cues(
         gap,
         align,
         float(min_row_contrast),
-        sat,
+        _saturation(img.dtype),
         _median_hist(img),
-        strips,
-        contrast,
-        ratio,
+        row,
+        start,
+        inv_level,
+        measures,
     )
     nan = float("nan")
     if painted < max(min_rows, 1):
         return PaintCues(int(inside), int(painted), int(saturated), nan, nan, nan, nan)
     # the median profile over every k-th painted row, 64 to 127 of them: as good a median for a
-    # width, at the cost of a mean (a median over all 300-400 near rows cost 0.1-0.2 ms a lane)
-    rows_used = np.ascontiguousarray(strips[: painted : max(1, painted // 64)])
+    # width, at the cost of a mean (a median over all 300-400 near rows cost 0.1-0.2 ms a lane);
+    # only those rows' strips are read and divided by their level
+    k = slice(0, painted, max(1, painted // 64))
+    strips = img[row[k, None], start[k, None] + np.arange(2 * band + 1)] * inv_level[k, None]
     profile = np.empty(2 * band + 1)
-    _column_medians(rows_used, rows_used.shape[0], profile)
-    base = max(_median(profile[: band - gap + 1]), _median(profile[band + gap :]))
+    _column_medians(strips, strips.shape[0], profile)
+    # the other medians as columns too (np.median's values, the rows hold no NaN): the two side
+    # bands' levels of the profile, the painted rows' contrast and side ratio
+    levels = np.empty(2)
+    _column_medians(
+        np.stack((profile[: band - gap + 1], profile[band + gap :]), axis=1), band - gap + 1, levels
+    )
+    base = max(float(levels[0]), float(levels[1]))
     height = profile[band] - base
+    meds = np.empty(2)
+    _column_medians(measures, painted, meds)
+    c_med, r_med = float(meds[0]), float(meds[1])
     if height <= 0.0:
-        return PaintCues(
-            int(inside),
-            int(painted),
-            int(saturated),
-            _median(contrast[:painted]),
-            _median(ratio[:painted]),
-            nan,
-            nan,
-        )
+        return PaintCues(int(inside), int(painted), int(saturated), c_med, r_med, nan, nan)
     return PaintCues(
         int(inside),
         int(painted),
         int(saturated),
-        _median(contrast[:painted]),
-        _median(ratio[:painted]),
+        c_med,
+        r_med,
         _crossing_width(profile, band, base + 0.5 * height) * res,
         _crossing_width(profile, band, base + 0.25 * height) * res,
     )
@@ -731,10 +710,12 @@ def _bar_profile_kernel(img, r0, r1, c0, c1, c2, band_px, min_contrast):
         if ce - band_px < 0 or ce + band_px >= cols:
             continue
         a = ce - band_px
-        b = img[r, a] + 0.0
+        strip = img[r, a : a + w]  # a 1-D slice: the loops over it vectorise
+        least = strip[0]  # in the image's own type (exact, and it vectorises), then as a float
         for j in range(1, w):
-            b = min(b, img[r, a + j] + 0.0)
-        c = max(img[r, ce - 1], img[r, ce], img[r, ce + 1]) - b
+            least = min(least, strip[j])
+        b = least + 0.0
+        c = max(strip[band_px - 1], strip[band_px], strip[band_px + 1]) - b
         start[m] = a
         rr[m] = r
         base[m] = b
@@ -753,11 +734,10 @@ def _bar_profile_kernel(img, r0, r1, c0, c1, c2, band_px, min_contrast):
     for i in range(m):
         if contrast[i] >= thr:
             n += 1
-            r = rr[i]
-            a = start[i]
+            strip = img[rr[i], start[i] : start[i] + w]
             b = base[i]
             for j in range(w):
-                profile[j] += img[r, a + j] - b
+                profile[j] += strip[j] - b
     if n > 0:
         for j in range(w):
             profile[j] = profile[j] / n

@@ -616,6 +616,22 @@ def _clothoid_bev(dashed: bool, rows: int = 800, cols: int = 240) -> tuple[np.nd
     return bev, centre
 
 
+def test_near_fit_counts_the_rows_as_np_unique():
+    """``_near_fit`` counts the near rows its ROI points cover where ``t`` changes (the ROI
+    kernel's row-major order): the count ``np.unique`` gives, so the same points are kept."""
+    from lanegraph_lanes._fit import _near_fit, _roi_kernel
+
+    rng = np.random.default_rng(3)
+    for _ in range(30):
+        mask = rng.random((200, 120)) < rng.uniform(0.02, 0.5)
+        t, y = _roi_kernel(mask, float(rng.uniform(20, 100)), float(rng.uniform(-0.2, 0.2)), 0.0, 20.0)
+        for t_near, coverage in ((50.0, 0.7), (120.0, 0.9), (30.0, 0.2), (300.0, 0.5)):
+            want = t.size and t.max() >= t_near and np.unique(t[t < t_near]).size >= coverage * t_near
+            got_t, got_y = _near_fit(t, y, t_near, coverage)
+            assert got_t.size == (np.count_nonzero(t < t_near) if want else t.size)
+            assert np.array_equal(got_y, y[t < t_near] if want else y)
+
+
 @pytest.mark.parametrize("node", [fit_irls, fit_ransac])
 def test_near_fit_follows_a_solid_line_whose_curvature_changes(node):
     """A parabola over 5-45 m misses the near part of a clothoid; fitted to the near 25 m it does
@@ -996,7 +1012,8 @@ def test_mdiff_ignores_a_few_sharp_edges():
 
 
 def paint_rows_twin(img, r0, r1, coeffs, band, gap, align, min_row_contrast, sat):
-    """NumPy twin of ``_paint_rows_kernel``: ``(inside, painted, saturated, painted rows' strips, contrasts, ratios)``."""
+    """NumPy twin of ``_paint_rows_kernel``: ``(inside, painted, saturated, painted rows' strips divided
+    by their level, contrasts, ratios)``."""
     rows, cols = img.shape
     c0, c1, c2 = coeffs
     prof = []
@@ -1009,7 +1026,7 @@ def paint_rows_twin(img, r0, r1, coeffs, band, gap, align, min_row_contrast, sat
             continue
         best = ce - align + int(np.argmax(img[r, ce - align : ce + align + 1]))  # the first brightest
         strip = img[r, best - band : best + band + 1].astype(np.float64)
-        if (strip == 0).any():
+        if (strip == 0).any() or np.isnan(strip).any():  # outside the camera's view
             continue
         inside += 1
         left, right = np.median(strip[: band - gap + 1]), np.median(strip[band + gap :])
@@ -1023,57 +1040,53 @@ def paint_rows_twin(img, r0, r1, coeffs, band, gap, align, min_row_contrast, sat
     return inside, len(con), saturated, np.reshape(prof, (-1, 2 * band + 1)), np.array(con), np.array(rat)
 
 
+def painted_strips(img, band, painted, row, start, inv):
+    """The strips of ``_paint_rows_kernel``'s painted rows, each divided by its level (as its records say)."""
+    return np.array(
+        [img[row[k], start[k] : start[k] + 2 * band + 1] * inv[k] for k in range(painted)]
+    ).reshape(painted, 2 * band + 1)
+
+
+def random_paint_case(rng, dtype):
+    """A random image with a bright line and zeros (outside the camera's view), and the row pass's
+    arguments: ``(img, r0, r1, coeffs, band, gap, align, min_row_contrast)``."""
+    rows, cols = int(rng.integers(20, 90)), int(rng.integers(30, 120))
+    img = rng.integers(0, 256, (rows, cols)).astype(dtype)
+    img[rng.random((rows, cols)) < 0.02] = 0  # outside the camera's view
+    if img.dtype.kind == "f":
+        img[rng.random((rows, cols)) < 0.01] = np.nan  # so is a NaN
+    c = float(rng.uniform(-5, cols + 5))
+    col = np.clip(np.rint(c).astype(int), 0, cols - 1)
+    img[:, max(col - 1, 0) : col + 2] = np.maximum(img[:, max(col - 1, 0) : col + 2], 200)  # a line
+    coeffs = (c, float(rng.uniform(-0.2, 0.2)), float(rng.uniform(-1e-3, 1e-3)))
+    band = int(rng.integers(3, 20))
+    gap = int(rng.integers(1, band))
+    align = int(rng.integers(0, 3))
+    r0, r1 = int(rng.integers(-5, rows // 2)), int(rng.integers(rows // 2, rows + 5))
+    mrc = float(rng.choice([0.0, 0.15, 0.5]))
+    return img, r0, r1, coeffs, band, gap, align, mrc
+
+
 @pytest.mark.parametrize("dtype", [np.uint8, np.float32])
 def test_paint_rows_kernel_matches_twin(dtype):
     rng = np.random.default_rng(21)
     for _ in range(25):
-        rows, cols = int(rng.integers(20, 90)), int(rng.integers(30, 120))
-        img = rng.integers(0, 256, (rows, cols)).astype(dtype)
-        img[rng.random((rows, cols)) < 0.02] = 0  # outside the camera's view
-        c = float(rng.uniform(-5, cols + 5))
-        col = np.clip(np.rint(c).astype(int), 0, cols - 1)
-        img[:, max(col - 1, 0) : col + 2] = np.maximum(img[:, max(col - 1, 0) : col + 2], 200)  # a line
-        coeffs = (c, float(rng.uniform(-0.2, 0.2)), float(rng.uniform(-1e-3, 1e-3)))
-        band = int(rng.integers(3, 20))
-        gap = int(rng.integers(1, band))
-        align = int(rng.integers(0, 3))
-        r0, r1 = int(rng.integers(-5, rows // 2)), int(rng.integers(rows // 2, rows + 5))
-        mrc = float(rng.choice([0.0, 0.15, 0.5]))
+        img, r0, r1, coeffs, band, gap, align, mrc = random_paint_case(rng, dtype)
         n = max(r1 - r0 + 1, 0)
-        prof, con, rat = np.empty((n, 2 * band + 1)), np.empty(n), np.empty(n)
+        row, start = np.empty(n, np.int64), np.empty(n, np.int64)
+        inv, measures = np.empty(n), np.empty((n, 2))
         hist = _verify._median_hist(img)
         sat = 250.0
         got = _verify._paint_rows_kernel(
-            img, r0, r1, *coeffs, band, gap, align, mrc, sat, hist, prof, con, rat
+            img, r0, r1, *coeffs, band, gap, align, mrc, sat, hist, row, start, inv, measures
         )
         ref = paint_rows_twin(img, r0, r1, coeffs, band, gap, align, mrc, sat)
         assert got == ref[:3]
         painted = got[1]
-        np.testing.assert_allclose(prof[:painted], ref[3], rtol=1e-12)
-        np.testing.assert_allclose(con[:painted], ref[4], rtol=1e-12)
-        np.testing.assert_allclose(rat[:painted], ref[5], rtol=1e-12)
-
-
-def test_median_is_numpys_bit_for_bit():
-    """``_verify._median`` (one partition) gives ``np.median``'s value exactly: odd and even
-    lengths, ties, infinities, and NaN wherever one is."""
-    rng = np.random.default_rng(17)
-    for n in (1, 2, 3, 4, 26, 213, 400):
-        for case in range(40):
-            a = rng.normal(size=n) * rng.choice([1e-3, 1.0, 1e9])
-            if case % 3 == 0:
-                a = np.round(a)  # ties
-            if case % 5 == 0:
-                a[rng.integers(0, n)] = rng.choice([np.inf, -np.inf])
-            want = np.median(a)
-            got = _verify._median(a)
-            assert np.float64(got).tobytes() == np.float64(want).tobytes()
-            if case % 7 == 0:
-                a[rng.integers(0, n, size=rng.integers(1, n + 1))] = np.nan
-                assert np.isnan(_verify._median(a)) and np.isnan(np.median(a))
-    for a in ([-0.0], [-0.0, -0.0], [0.0, -0.0], [-0.0, 1.0, -0.0], [np.inf, -np.inf]):
-        a = np.array(a)
-        assert np.float64(_verify._median(a)).tobytes() == np.float64(np.median(a)).tobytes()
+        np.testing.assert_allclose(painted_strips(img, band, painted, row, start, inv), ref[3], rtol=1e-12)
+        np.testing.assert_allclose(measures[:painted, 0], ref[4], rtol=1e-12)
+        np.testing.assert_allclose(measures[:painted, 1], ref[5], rtol=1e-12)
+        assert not hist.any()  # the counting buffer is left empty
 
 
 def test_column_medians_match_numpy():
@@ -1201,11 +1214,8 @@ def test_sun_patches_do_not_widen_the_paint():
     # their mean profile (as before issue 28) is wider than paint at a quarter height
     band, gap = 30, 5
     n = img.shape[0]
-    strips, con, rat = np.empty((n, 2 * band + 1)), np.empty(n), np.empty(n)
-    painted = _verify._paint_rows_kernel(
-        img, 0, n - 1, *lane.coeffs, band, gap, 2, 0.15, 255.0, _verify._median_hist(img), strips, con, rat
-    )[1]
-    mean = strips[:painted].mean(axis=0)
+    strips = paint_rows_twin(img, 0, n - 1, lane.coeffs, band, gap, 2, 0.15, 255.0)[3]
+    mean = strips.mean(axis=0)
     base = max(np.median(mean[: band - gap + 1]), np.median(mean[band + gap :]))
     foot = _verify._crossing_width(mean, band, base + 0.25 * (mean[band] - base)) * g.resolution
     assert foot > VerifyParams().max_foot_width_m

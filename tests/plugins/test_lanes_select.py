@@ -14,6 +14,8 @@ def _samples():
     for n in (1, 2, 3, 4, 5, 10, 11, 64, 257):
         yield rng.normal(size=n)  # distinct values
         yield rng.integers(0, 4, size=n).astype(np.float64)  # many ties
+        yield np.where(rng.random(n) < 0.8, 1.0, rng.random(n))  # mostly one value (a profile's 1.0)
+        yield np.full(n, 2.5)  # one value only
         yield np.sort(rng.normal(size=n))  # sorted, and reversed: quickselect's bad cases
         yield np.sort(rng.normal(size=n))[::-1].copy()
 
@@ -37,6 +39,13 @@ def test_kth_smallest_is_the_sorted_value_and_partitions():
             assert kth_smallest(work, len(a), k) == np.sort(a)[k]
             assert (work[:k] <= work[k]).all() and (work[k + 1 :] >= work[k]).all()
             assert sorted(work) == sorted(a)  # a permutation
+
+
+def test_kth_smallest_ends_on_a_nan():
+    """A NaN (which no kernel passes) makes the result undefined but never loops for ever."""
+    for a in ([np.nan] * 5, [1.0, np.nan, 0.0, np.nan, 3.0], [np.nan, 2.0, 1.0]):
+        for k in range(len(a)):
+            kth_smallest(np.array(a), len(a), k)
 
 
 def test_median_is_numpys():
