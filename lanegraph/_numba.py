@@ -7,6 +7,14 @@ machine pays the compilation, also when the install directory is read-only.
 ``LANEGRAPH_NUMBA_CACHE=0`` turns the disk cache off; ``NUMBA_DISABLE_JIT=1`` turns every kernel
 into plain Python (for coverage and debugging).
 
+numba keeps a cached kernel while its own source file is unchanged, but a kernel holds the machine
+code of every function it calls, compiled in: after an edit of a helper in another file (a shared
+quickselect, say) the callers would go on running the old helper from the cache. A kernel made by
+:func:`jit` is therefore kept only while *every* Python file of its package folder is unchanged
+(and this file, whose flags shape the code): :class:`_PackageLocator`. Editing one file of
+``lanegraph_lanes`` compiles that package's kernels again on the next run; a kernel that calls
+into another package is not covered (the built-in plugins' kernels call none).
+
 The parallel kernels' worker threads (numba's OpenMP layer) sleep as soon as a kernel ends
 (``OMP_WAIT_POLICY=PASSIVE``, set unless the environment already sets it, before the OpenMP
 runtime starts): spinning, they took a core from the next node's OpenCV threads and from the
@@ -18,6 +26,8 @@ spikes of 4-8 ms on a frame in eight gone, end to end 10.3 -> 11.2-12.0 frames/s
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import os
 
 from .kernel_cache import cache_root, kernel_cache_dir  # noqa: F401 - cache_root: lanegraph.cache uses it
@@ -31,6 +41,50 @@ import numba  # noqa: E402 - after NUMBA_CACHE_DIR is set
 
 if not numba.config.CACHE_DIR:
     numba.config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]
+
+from numba.core import caching as _caching  # noqa: E402
+
+
+@functools.cache
+def package_digest(folder: str) -> str:
+    """SHA-256 of the Python files of ``folder`` (not its subfolders; names and contents, in name
+    order) and of this file: what a cached kernel of that folder depends on. Read once per process."""
+    h = hashlib.sha256()
+    files = sorted(f for f in os.listdir(folder) if f.endswith(".py")) if os.path.isdir(folder) else []
+    for name in files:
+        h.update(name.encode() + b"\0")
+        with open(os.path.join(folder, name), "rb") as fh:
+            h.update(hashlib.sha256(fh.read()).digest())
+    with open(__file__, "rb") as fh:
+        h.update(hashlib.sha256(fh.read()).digest())
+    return h.hexdigest()
+
+
+class _PackageLocator(_caching.UserProvidedCacheLocator):
+    """numba's locator of the cache folder (``numba.config.CACHE_DIR``) for the kernels made by
+    :func:`jit`, whose source stamp also covers the other files of the kernel's package
+    (:func:`package_digest`): see the module's text."""
+
+    def get_source_stamp(self):
+        own = super().get_source_stamp()
+        return (own, package_digest(os.path.dirname(os.path.abspath(self._py_file))))
+
+    @classmethod
+    def from_function(cls, py_func, py_file):
+        if not getattr(py_func, "_lanegraph_kernel", False):
+            return None  # not lanegraph's: numba's own locators
+        return super().from_function(py_func, py_file)
+
+
+if _PackageLocator not in _caching.CacheImpl._locator_classes:
+    _caching.CacheImpl._locator_classes.insert(0, _PackageLocator)
+
+
+def _marked(func):
+    """``func`` marked as a lanegraph kernel (:class:`_PackageLocator` keeps its cache)."""
+    func._lanegraph_kernel = True
+    return func
+
 
 #: flags shared by every lanegraph kernel
 JIT_OPTIONS = {
@@ -49,8 +103,9 @@ def jit(*args, **overrides):
     """``numba.jit`` with the project's flags; use as ``@jit`` or ``@jit(parallel=True)``."""
     opts = {**JIT_OPTIONS, **overrides}
     if args and callable(args[0]):
-        return numba.jit(**opts)(args[0])
-    return numba.jit(*args, **opts)
+        return numba.jit(**opts)(_marked(args[0]))
+    decorate = numba.jit(*args, **opts)
+    return lambda func: decorate(_marked(func))
 
 
 prange = numba.prange

@@ -5,8 +5,10 @@ by every lanegraph cache folder: ``$LANEGRAPH_KERNEL_CACHE``, else ``<user cache
 (``$XDG_CACHE_HOME`` or ``~/.cache``), whatever ``$LANEGRAPH_CACHE_DIR`` says; where that folder cannot
 be written, ``$LANEGRAPH_CACHE_DIR/numba``. ``NUMBA_CACHE_DIR`` wins when set. One folder serves every
 machine and version: numba keeps each kernel per source file, Python version, CPU and numba version,
-and drops entries of another numba or of a changed source file (so a new ``LANEGRAPH_CACHE_DIR`` no
-longer compiles again; a home folder shared by several machines holds each machine's kernels).
+and drops entries of another numba or of a changed source file, lanegraph's kernels also when any
+file of their package changed (:mod:`lanegraph._numba`: a kernel holds the code of the helpers it
+calls) (so a new ``LANEGRAPH_CACHE_DIR`` no longer compiles again; a home folder shared by several
+machines holds each machine's kernels).
 
 This module does not import numba: :func:`first_run_notice` says, before anything is loaded, that
 the kernels are about to be compiled (a stamp file in the kernel folder records that this lanegraph

@@ -207,3 +207,52 @@ def test_precompile_imports_lanegraph_modules_only(tmp_path, monkeypatch):
     monkeypatch.delenv("STRANGER_RAN", raising=False)
     assert kernel_cache.precompile([{"module": "stranger_kernels", "name": "k", "args": []}]) == 0
     assert "STRANGER_RAN" not in os.environ and "stranger_kernels" not in sys.modules
+
+
+_CALLER = """
+from lanegraph._numba import jit
+from {pkg}.helper import step
+
+@jit
+def kernel(x):
+    return step(x) * 10
+"""
+
+_HELPER = """
+from lanegraph._numba import jit
+
+@jit
+def step(x):
+    return x + {add}
+"""
+
+
+def _call_kernel(root: Path, pkg: str, cache: Path) -> tuple[int, bool]:
+    """``kernel(1)`` of the package in a fresh process, and whether it came from the cache."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), "PYTHONPATH": str(root), "LANEGRAPH_PRECOMPILE": "0"}
+    code = (
+        f"from {pkg}.caller import kernel; v = kernel(1); "
+        "print(v, kernel.stats.cache_hits.get(kernel.signatures[0], 0) > 0)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    v, hit = out.stdout.split()
+    return int(v), hit == "True"
+
+
+def test_a_cached_kernel_is_compiled_again_when_a_function_it_calls_changes(tmp_path):
+    """numba keeps a cached kernel while its own file is unchanged; the machine code of the functions
+    it calls is compiled into it, so an edit of a callee in another file of the package must not
+    leave the caller running the old callee (lanegraph._numba._PackageLocator)."""
+    pkg = "lg_stale_probe"
+    folder = tmp_path / "src" / pkg
+    folder.mkdir(parents=True)
+    (folder / "__init__.py").write_text("")
+    (folder / "caller.py").write_text(_CALLER.format(pkg=pkg))
+    (folder / "helper.py").write_text(_HELPER.format(add=1))
+    cache = tmp_path / "kernels"
+    assert _call_kernel(tmp_path / "src", pkg, cache) == (20, False)  # compiled
+    assert _call_kernel(tmp_path / "src", pkg, cache) == (20, True)  # from the cache
+    (folder / "helper.py").write_text(_HELPER.format(add=2))  # caller.py itself unchanged
+    assert _call_kernel(tmp_path / "src", pkg, cache) == (30, False)  # not the stale 20
+    assert _call_kernel(tmp_path / "src", pkg, cache) == (30, True)
