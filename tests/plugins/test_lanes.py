@@ -105,10 +105,14 @@ def test_eslt_kernel_matches_twin(w):
     gx, gy = _features.sobel(img)
     mask = np.zeros(img.shape, np.uint8)
     ori = np.empty(img.shape, np.float32)
-    _features._eslt(img, gx, gy, w, 8.0, math.radians(15), _features._EVERYWHERE, mask, ori)
+    r, c, v = _features._eslt(img, gx, gy, w, 8.0, math.radians(15), _features._EVERYWHERE, mask, ori)
     tm, to = eslt_twin(img, gx, gy, w, 8.0, math.radians(15))
     np.testing.assert_array_equal(mask, tm)
     np.testing.assert_allclose(ori, to, atol=1e-5)
+    # the features' list: the twin's points in row-major order, the dense map's orientations
+    assert r.dtype == c.dtype == np.int64 and v.dtype == np.float32
+    np.testing.assert_array_equal(np.stack([r, c]), np.stack(np.nonzero(tm)))
+    np.testing.assert_array_equal(v, ori[tm == 1])
 
 
 @pytest.mark.parametrize("w", [2, 4, 30])
@@ -123,15 +127,16 @@ def test_eslt_kernel_on_uint8_and_int16_gradients_matches_twin(w):
     tm, to = eslt_twin(f32, gx.astype(np.float32), gy.astype(np.float32), w, 8.0, math.radians(15))
     np.testing.assert_array_equal(mask, tm)
     np.testing.assert_allclose(ori, to, atol=1e-5)
-    # the node's call: orientations written at the features only, the rest of ori left alone
+    # the node's call: no dense orientation written (ori2 left alone), the features' list only
     mask2 = np.ones(img.shape, np.uint8)
     ori2 = np.full(img.shape, 7.0, np.float32)
-    _features._eslt(
+    r, c, v = _features._eslt(
         img.astype(np.uint8), gx, gy, w, 8.0, math.radians(15), _features._EVERYWHERE, mask2, ori2, False
     )
     np.testing.assert_array_equal(mask2, tm)
-    np.testing.assert_array_equal(ori2[tm == 1], ori[tm == 1])
-    assert np.all(ori2[tm == 0] == 7.0)
+    assert np.all(ori2 == 7.0)
+    np.testing.assert_array_equal(np.stack([r, c]), np.stack(np.nonzero(tm)))
+    np.testing.assert_array_equal(v, ori[tm == 1])
 
 
 @pytest.mark.parametrize("shape", [(2, 2), (3, 5), (2, 9), (24, 40), (1, 7), (7, 1)])
@@ -1706,8 +1711,9 @@ def test_eslt_gives_the_same_maps_on_any_number_of_threads(threads, monkeypatch)
         monkeypatch.setattr(_features, "_threads", lambda n=n: n)
         mask = np.full(img.shape, 9, np.uint8)
         ori = np.full(img.shape, 9.0, np.float32)
-        _features._eslt(img, gx, gy, 6, 10.0, math.radians(15), where, mask, ori, True)
-        maps.append((mask, ori))
+        points = _features._eslt(img, gx, gy, 6, 10.0, math.radians(15), where, mask, ori, True)
+        maps.append((mask, ori, *points))
     assert maps[0][0].any() and set(np.unique(maps[0][0])) <= {0, 1}  # every row written
-    np.testing.assert_array_equal(maps[0][0], maps[1][0])
-    np.testing.assert_array_equal(maps[0][1], maps[1][1])
+    for a, b in zip(maps[0], maps[1]):  # the maps and the features' list, blocks joined in order
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(np.stack(maps[1][2:4]), np.stack(np.nonzero(maps[1][0])))
