@@ -486,7 +486,8 @@ def test_parabola_recovered_with_30_percent_outliers(fit):
 
 
 def roi_points_np(features, line, width_px):
-    """The NumPy twin of ``roi_points`` (its numba kernel)."""
+    """The plain twin of ``roi_points``: from the dense mask's pixels (the node reads the map's
+    points and builds no mask)."""
     rows = features.mask.shape[0]
     r, c = np.nonzero(features.mask)
     inv_tan = np.cos(line.theta) / max(np.sin(line.theta), 1e-6)
@@ -495,16 +496,22 @@ def roi_points_np(features, line, width_px):
     return (rows - 1 - r[keep]).astype(np.float64), c[keep].astype(np.float64)
 
 
-def test_roi_kernel_matches_numpy_twin():
+@pytest.mark.parametrize("sparse", [False, True])
+def test_roi_points_match_the_twin(sparse):
     from lanegraph_lanes._fit import roi_points
 
     rng = np.random.default_rng(12)
-    feats = FeatureMap(mask=rng.random((60, 45)) < 0.3, orientation=None)
+    dense = FeatureMap(mask=rng.random((60, 45)) < 0.3, orientation=None)
     for theta in (np.pi / 2, 1.3, 1.9, 0.2, 3.0, 0.0, 1e-9):
         for rho in (-30.0, 0.0, 12.3, 22.0, 44.5, 80.0):
             for width in (4.0, 9.0, 40.0):
                 line = Line(rho=rho, theta=theta, side="left")
-                got, ref = roi_points(feats, line, width), roi_points_np(feats, line, width)
+                # a map of points (features.mask's output): no dense mask is built for the ROI
+                feats = FeatureMap.from_points((60, 45), *np.nonzero(dense.mask)) if sparse else dense
+                got = roi_points(feats, line, width)
+                assert "mask" in vars(feats) or sparse
+                assert "mask" not in vars(feats) or not sparse
+                ref = roi_points_np(dense, line, width)
                 np.testing.assert_array_equal(got[0], ref[0])
                 np.testing.assert_array_equal(got[1], ref[1])
 
@@ -551,7 +558,7 @@ def test_ransac_kernel_matches_numpy_twin(degree):
 
 
 def lane_roi_points_np(features, lane, width_px):
-    """The NumPy twin of ``lane_roi_points`` (the same kernel, around a parabola)."""
+    """The plain twin of ``lane_roi_points`` (around a parabola), from the dense mask's pixels."""
     rows = features.mask.shape[0]
     r, c = np.nonzero(features.mask)
     t = rows - 1 - r
@@ -561,7 +568,7 @@ def lane_roi_points_np(features, lane, width_px):
     return t[keep].astype(np.float64), c[keep].astype(np.float64)
 
 
-def test_lane_roi_kernel_matches_numpy_twin():
+def test_lane_roi_points_match_the_twin():
     from lanegraph_lanes._fit import lane_roi_points
 
     rng = np.random.default_rng(13)
@@ -677,14 +684,15 @@ def _clothoid_bev(dashed: bool, rows: int = 800, cols: int = 240) -> tuple[np.nd
 
 
 def test_near_fit_counts_the_rows_as_np_unique():
-    """``_near_fit`` counts the near rows its ROI points cover where ``t`` changes (the ROI
-    kernel's row-major order): the count ``np.unique`` gives, so the same points are kept."""
-    from lanegraph_lanes._fit import _near_fit, _roi_kernel
+    """``_near_fit`` counts the near rows its ROI points cover where ``t`` changes (the ROI's
+    row-major order): the count ``np.unique`` gives, so the same points are kept."""
+    from lanegraph_lanes._fit import _near_fit, _roi_points
 
     rng = np.random.default_rng(3)
     for _ in range(30):
         mask = rng.random((200, 120)) < rng.uniform(0.02, 0.5)
-        t, y = _roi_kernel(mask, float(rng.uniform(20, 100)), float(rng.uniform(-0.2, 0.2)), 0.0, 20.0)
+        feats = FeatureMap(mask=mask)
+        t, y = _roi_points(feats, float(rng.uniform(20, 100)), float(rng.uniform(-0.2, 0.2)), 0.0, 20.0)
         for t_near, coverage in ((50.0, 0.7), (120.0, 0.9), (30.0, 0.2), (300.0, 0.5)):
             want = t.size and t.max() >= t_near and np.unique(t[t < t_near]).size >= coverage * t_near
             got_t, got_y = _near_fit(t, y, t_near, coverage)
