@@ -316,11 +316,10 @@ def _eslt_rows(
             hi = min(c1 + window, cols)
             if inline:
                 _row_gradient(img, r, lo, hi, gxr, gyr, vs, vd)
-            else:
-                gxr[lo:hi] = gx[r, lo:hi]
-                gyr[lo:hi] = gy[r, lo:hi]
-            gxs = gxr[lo:hi]
-            gys = gyr[lo:hi]
+            gxrow = gxr if inline else gx[r]
+            gyrow = gyr if inline else gy[r]
+            gxs = gxrow[lo:hi]
+            gys = gyrow[lo:hi]
             ms = mag2[lo:hi]
             for k in range(hi - lo):  # from 0: no negative index to wrap, the loop vectorises
                 ms[k] = gxs[k] * gxs[k] + gys[k] * gys[k]
@@ -333,7 +332,7 @@ def _eslt_rows(
                     if slt[c]:
                         slt[c] = 0
                         m = _eslt_borders(
-                            gxr, gyr, mag2, c, max(c - window, 0), min(c + 1 + window, cols), cos2_max
+                            gxrow, gyrow, mag2, c, max(c - window, 0), min(c + 1 + window, cols), cos2_max
                         )
                         if m >= 0.0:
                             if dense:
