@@ -81,54 +81,10 @@ def atan2_fast(y, x):
 
 
 @jit
-def _row_gradient(img, r, lo, hi, gxr, gyr, vs, vd):
-    """``cv2.spatialGradient(img, ksize=3)`` (3x3 Sobel, BORDER_REFLECT_101) of row ``r`` at the
-    columns ``[lo, hi)`` into ``gxr`` / ``gyr`` (exact integer sums: the same int16 values);
-    ``img`` has at least 2 rows and 2 columns. Separably: the column sums ``vs = up + 2 mid + dn``
-    and differences ``vd = dn - up`` (int32 buffers of the row's length) over ``[lo - 1, hi + 1)``,
-    then ``gx = vs[c + 1] - vs[c - 1]``, ``gy = vd[c - 1] + 2 vd[c] + vd[c + 1]``, a reflected
-    neighbour at the row's ends."""
-    rows, cols = img.shape
-    up = img[r - 1 if r > 0 else 1]
-    mid = img[r]
-    dn = img[r + 1 if r < rows - 1 else rows - 2]
-    a = max(lo - 1, 0)
-    b = max(min(hi + 1, cols), a)
-    # slices indexed from 0 (no negative index to wrap: the loops vectorise)
-    u = up[a:b]
-    m = mid[a:b]
-    d = dn[a:b]
-    s = vs[a:b]
-    e = vd[a:b]
-    for k in range(b - a):
-        s[k] = np.int32(u[k]) + 2 * np.int32(m[k]) + np.int32(d[k])
-        e[k] = np.int32(d[k]) - np.int32(u[k])
-    i0 = max(lo, 1)
-    i1 = max(min(hi, cols - 1), i0)
-    sl = vs[i0 - 1 : i1 - 1]
-    sr = vs[i0 + 1 : i1 + 1]
-    el = vd[i0 - 1 : i1 - 1]
-    ec = vd[i0:i1]
-    er = vd[i0 + 1 : i1 + 1]
-    ox = gxr[i0:i1]
-    oy = gyr[i0:i1]
-    for k in range(i1 - i0):
-        ox[k] = sr[k] - sl[k]
-        oy[k] = el[k] + 2 * ec[k] + er[k]
-    if lo == 0:  # column -1 reflected to column 1
-        gxr[0] = 0
-        gyr[0] = 2 * vd[1] + 2 * vd[0]
-    if hi == cols and cols > 1:  # column cols reflected to column cols - 2
-        gxr[cols - 1] = 0
-        gyr[cols - 1] = 2 * vd[cols - 2] + 2 * vd[cols - 1]
-
-
-@jit
-def _eslt_borders(gx, gy, mag2, c, lo, hi, cos2_max):
-    """The border test of ESLT at an SLT feature in column ``c`` of a row with the left window
-    ``[lo, c)`` and the right one ``(c, hi)`` (both non-empty); ``gx``, ``gy``, ``mag2``: the row's
-    gradients and squared gradient. Returns the feature's orientation in ``[0, pi]``, or -1 when
-    the borders are not parallel (no feature)."""
+def _eslt_borders(gx, gy, mag2, r, c, lo, hi, cos2_max):
+    """The border test of ESLT at an SLT feature ``(r, c)`` with the left window ``[lo, c)`` and the
+    right one ``(c, hi)`` (both non-empty); ``mag2``: the row's squared gradient. Returns the
+    feature's orientation in ``[0, pi]``, or -1 when the borders are not parallel (no feature)."""
     # strongest gradient in each window, first one on ties; selects rather than branches (which
     # way a comparison goes is unpredictable)
     bl = lo
@@ -147,10 +103,10 @@ def _eslt_borders(gx, gy, mag2, c, lo, hi, cos2_max):
         br = k if gt else br
     if ml <= 0.0 or mr <= 0.0:
         return -1.0
-    ax = float(gx[bl])
-    ay = float(gy[bl])
-    bx = float(gx[br])
-    by = float(gy[br])
+    ax = float(gx[r, bl])
+    ay = float(gy[r, bl])
+    bx = float(gx[r, br])
+    by = float(gy[r, br])
     na = ax * ax + ay * ay
     nb = bx * bx + by * by
     dot = ax * bx + ay * by
@@ -290,11 +246,6 @@ def _eslt_rows(
     words = (cols + 7) // 8
     csum = np.empty(cols + 1, np.float64)
     mag2 = np.empty(cols, np.float32)
-    inline = gx.shape[0] == 0  # the gradients computed here (a uint8 image), row by row
-    gxr = np.empty(cols, gx.dtype)
-    gyr = np.empty(cols, gy.dtype)
-    vs = np.empty(cols, np.int32)
-    vd = np.empty(cols, np.int32)
     slt = np.empty(8 * words, np.uint8)
     for c in range(8 * words):
         slt[c] = 0
@@ -310,19 +261,10 @@ def _eslt_rows(
             c0, c1 = _row_span(where, r, cols)
             if c0 >= c1:
                 continue
+            # the whole row (from a span's start, LLVM no longer vectorised these loops)
             _row_csum(img, r, cols, zero, csum)
-            # the gradients where the span's windows reach
-            lo = max(c0 - window, 0)
-            hi = min(c1 + window, cols)
-            if inline:
-                _row_gradient(img, r, lo, hi, gxr, gyr, vs, vd)
-            gxrow = gxr if inline else gx[r]
-            gyrow = gyr if inline else gy[r]
-            gxs = gxrow[lo:hi]
-            gys = gyrow[lo:hi]
-            ms = mag2[lo:hi]
-            for k in range(hi - lo):  # from 0: no negative index to wrap, the loop vectorises
-                ms[k] = gxs[k] * gxs[k] + gys[k] * gys[k]
+            for c in range(cols):
+                mag2[c] = gx[r, c] * gx[r, c] + gy[r, c] * gy[r, c]
             _slt_span(img, csum, r, c0, c1, window, cols, threshold, where, use_where, slt)
             # the border test at the SLT features: eight flags at a time, most words are 0
             for q in range(c0 // 8, (c1 + 7) // 8):
@@ -332,7 +274,7 @@ def _eslt_rows(
                     if slt[c]:
                         slt[c] = 0
                         m = _eslt_borders(
-                            gxrow, gyrow, mag2, c, max(c - window, 0), min(c + 1 + window, cols), cos2_max
+                            gx, gy, mag2, r, c, max(c - window, 0), min(c + 1 + window, cols), cos2_max
                         )
                         if m >= 0.0:
                             if dense:
@@ -344,10 +286,6 @@ def _eslt_rows(
                             n += 1
     return n
 
-
-#: the gradients of :func:`_eslt` for a uint8 image of at least 2 x 2 pixels: computed in the kernel
-#: (:func:`_row_gradient`, ``cv2.spatialGradient``'s)
-_INLINE_GRADIENT = np.empty((0, 0), np.int16)
 
 #: the dense maps :func:`_eslt` does not write (``dense`` False)
 _NO_MASK = np.empty((0, 0), np.uint8)
@@ -523,11 +461,10 @@ def eslt(params: EsltParams, image: np.ndarray, where: np.ndarray | None = None)
     k = params.sobel_ksize
     raw = np.asarray(image)
     if raw.dtype == np.uint8 and raw.ndim == 2 and k == 3 and min(raw.shape) >= 2:
-        # a grey uint8 BEV (the usual case): the kernel reads the uint8 grey levels directly and
-        # computes cv2.spatialGradient's integer 3x3 Sobel gradients (exactly the float32 ones, |g|
-        # <= 1020) itself, row by row where the windows reach: no two 640 kB gradient images
+        # a grey uint8 BEV (the usual case): integer 3x3 Sobel gradients in one pass, exactly the
+        # float32 ones (|g| <= 1020), and the kernel reads the uint8 grey levels directly
         img = np.ascontiguousarray(raw)
-        gx = gy = _INLINE_GRADIENT
+        gx, gy = cv2.spatialGradient(img, ksize=3)
     else:
         img = _as_gray32(image, "features.eslt")
         if img.size == 0:  # an empty BEV: no features (cv2.Sobel refuses empty images)

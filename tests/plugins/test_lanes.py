@@ -115,62 +115,6 @@ def test_eslt_kernel_matches_twin(w):
     np.testing.assert_array_equal(v, ori[tm == 1])
 
 
-def sobel3_twin(img):
-    """cv2.spatialGradient(img, ksize=3) in plain NumPy: 3x3 Sobel, BORDER_REFLECT_101 (NumPy's
-    'reflect': the edge pixel not repeated), int16."""
-    p = np.pad(img.astype(np.int32), 1, mode="reflect")
-    up, mid, dn = p[:-2], p[1:-1], p[2:]
-    s = up + 2 * mid + dn
-    d = dn - up
-    gx = s[:, 2:] - s[:, :-2]
-    gy = d[:, :-2] + 2 * d[:, 1:-1] + d[:, 2:]
-    return gx.astype(np.int16), gy.astype(np.int16)
-
-
-@pytest.mark.parametrize("shape", [(2, 2), (2, 9), (9, 2), (3, 3), (17, 40)])
-def test_row_gradient_matches_spatial_gradient_and_twin(shape):
-    """ESLT's gradients of a uint8 image, computed in the kernel row by row over a column range,
-    are cv2.spatialGradient's (which the node called before) and the NumPy twin's, at every border."""
-    rng = np.random.default_rng(sum(shape))
-    img = rng.integers(0, 256, shape).astype(np.uint8)
-    tx, ty = sobel3_twin(img)
-    cx, cy = cv2.spatialGradient(img, ksize=3)
-    np.testing.assert_array_equal(tx, cx)
-    np.testing.assert_array_equal(ty, cy)
-    rows, cols = shape
-    ranges = {(0, cols), (0, 1), (cols - 1, cols), (1, max(cols - 1, 1)), (cols // 2, cols)}
-    for r in range(rows):
-        for lo, hi in ranges:
-            gx = np.full(cols, 9999, np.int16)
-            gy = np.full(cols, 9999, np.int16)
-            _features._row_gradient(
-                img, r, lo, hi, gx, gy, np.empty(cols, np.int32), np.empty(cols, np.int32)
-            )
-            np.testing.assert_array_equal(gx[lo:hi], tx[r, lo:hi])
-            np.testing.assert_array_equal(gy[lo:hi], ty[r, lo:hi])
-            assert (gx[:lo] == 9999).all() and (gx[hi:] == 9999).all()  # nothing outside the range
-
-
-@pytest.mark.parametrize("w", [1, 3, 6, 30])
-def test_eslt_kernel_with_its_own_gradients_equals_spatial_gradient(w):
-    """A uint8 image without gradient arrays (the node's call): the kernel's own gradients give
-    the features and orientations cv2.spatialGradient's arrays give, with and without 'where'."""
-    img = make_bev_image(rows=40, cols=50, lane_cols=(14.0, 36.0), slope=0.25, noise=12.0, seed=8)
-    img = np.ascontiguousarray(img, dtype=np.uint8)
-    gx, gy = cv2.spatialGradient(img, ksize=3)
-    for where in (_features._EVERYWHERE, _random_where(img.shape, 2), _random_where(img.shape, 5)):
-        a = _features._eslt(
-            img, gx, gy, w, 8.0, math.radians(15), where, _features._NO_MASK, _features._NO_THETA, False
-        )
-        g = _features._INLINE_GRADIENT
-        b = _features._eslt(
-            img, g, g, w, 8.0, math.radians(15), where, _features._NO_MASK, _features._NO_THETA, False
-        )
-        assert a[0].size > 0
-        for x, y in zip(a, b):
-            np.testing.assert_array_equal(x, y)
-
-
 @pytest.mark.parametrize("w", [2, 4, 30])
 def test_eslt_kernel_on_uint8_and_int16_gradients_matches_twin(w):
     """The node's uint8 path: uint8 grey levels and cv2.spatialGradient's int16 gradients."""
