@@ -216,7 +216,8 @@ def _eslt_rows(
     written. With ``dense`` it also writes the 0/1 mask and the orientation map (-1 where not a
     feature) into ``out_mask`` and ``out_theta``; without, it does not touch them. The node reads
     the list only: written one after the other instead of scattered over a dense 1.3 MB map (800 x
-    400 float32) that is not in the cache, the orientations cost a third of the kernel's time less.
+    400 float32) that is not in the cache, the orientations cost 0.2-0.5 ms a frame less in the
+    graph (docs/pipeline.md, "Round s8").
     Only the pixels where the uint8 map ``where`` is set are tested (their windows may reach
     beyond it); ``where`` of shape (0, 0): every pixel.
 
