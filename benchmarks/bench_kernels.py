@@ -29,7 +29,7 @@ from lanegraph_lanes import _features, _fit, _hough, _temporal, _verify  # noqa:
 from lanegraph_road import mask, profile  # noqa: E402
 
 from lanegraph.testing import make_bev_image, make_disparity  # noqa: E402
-from lanegraph.types import FeatureMap, Lane, Line  # noqa: E402
+from lanegraph.types import FeatureMap, Lane  # noqa: E402
 from tests.plugins import test_disparity as td  # noqa: E402
 from tests.plugins import test_lanes as tl  # noqa: E402
 from tests.plugins import test_road as tr  # noqa: E402
@@ -97,13 +97,6 @@ def bev_kernels(rng: np.random.Generator) -> None:
         "(20000 features, 121 thetas)",
     )
     feats = FeatureMap(mask=rng.random((800, 400)) < 0.05)
-    line = Line(rho=150.0, theta=1.5, side="left")
-    row(
-        "_roi_kernel",
-        timed(lambda: _fit.roi_points(feats, line, 40.0)),
-        timed(lambda: tl.roi_points_np(feats, line, 40.0)),
-        "(5 % features)",
-    )
     t, y, _ = tl.parabola_with_outliers(n=3000, seed=1)
     row(
         "_irls_kernel",

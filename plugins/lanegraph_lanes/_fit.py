@@ -28,52 +28,30 @@ from lanegraph.types import BevGeometry, FeatureMap, Lane, Line
 from ._select import median_inplace
 
 
-@jit
-def _roi_kernel(mask, a, b, c, half_width):
-    """The features of ``mask`` with ``|col - x(row)| <= half_width`` around the centre curve
+def _roi_points(features: FeatureMap, a: float, b: float, c: float, half_width: float):
+    """The features with ``|col - x(row)| <= half_width`` around the centre curve
     ``x(row) = a + b (rows - row) + c (rows - 1 - row)^2`` (a Hough line: ``a = rho``,
     ``b = 1 / tan(theta)``, ``c = 0``; a lane ``col = c0 + c1 t + c2 t^2``: ``a = c0 - c1``, ``b = c1``,
-    ``c = c2``), in row-major order: ``(rows - 1 - row, col)`` as float64. Scans only the columns
-    near the curve in each row."""
-    rows, cols = mask.shape
-    cap = rows * (int(2.0 * half_width) + 4)
-    t = np.empty(cap, np.float64)
-    x = np.empty(cap, np.float64)
-    n = 0
-    for r in range(rows):
-        tr = rows - 1 - r
-        x_line = a + (rows - r) * b + c * tr * tr
-        lo = x_line - half_width - 1.0
-        hi = x_line + half_width + 2.0
-        if not (hi > 0.0 and lo < cols):  # also a NaN curve
-            continue
-        c_lo = max(int(math.floor(lo)), 0)
-        c_hi = min(int(math.ceil(hi)), cols)
-        for cc in range(c_lo, c_hi):
-            if mask[r, cc] and abs(cc - x_line) <= half_width:
-                t[n] = tr
-                x[n] = cc
-                n += 1
-    return t[:n].copy(), x[:n].copy()
-
-
-def _as_mask(features: FeatureMap) -> np.ndarray:
-    mask = np.ascontiguousarray(features.mask, dtype=bool)
-    if mask.ndim != 2:
-        raise ValueError(f"features mask must be 2-D, got shape {mask.shape}")
-    return mask
+    ``c = c2``), in the points' row-major order: ``(rows - 1 - row, col)`` as float64. From the map's
+    points: no dense mask is built (a NaN curve keeps none)."""
+    r, col = features.points()
+    rows = features.shape[0]
+    tr = rows - 1 - r
+    x_line = a + (rows - r) * b + c * tr * tr
+    keep = np.abs(col - x_line) <= half_width
+    return tr[keep].astype(np.float64), col[keep].astype(np.float64)
 
 
 def roi_points(features: FeatureMap, line: Line, width_px: float) -> tuple[np.ndarray, np.ndarray]:
     """(t, col) of the features within ``width_px / 2`` of ``line`` (measured along the row)."""
     inv_tan = np.cos(line.theta) / max(np.sin(line.theta), 1e-6)
-    return _roi_kernel(_as_mask(features), float(line.rho), float(inv_tan), 0.0, float(width_px / 2))
+    return _roi_points(features, float(line.rho), float(inv_tan), 0.0, float(width_px / 2))
 
 
 def lane_roi_points(features: FeatureMap, lane: Lane, width_px: float) -> tuple[np.ndarray, np.ndarray]:
     """(t, col) of the features within ``width_px / 2`` of a lane's parabola (along the row)."""
     c0, c1, c2 = (float(v) for v in lane.coeffs)
-    return _roi_kernel(_as_mask(features), c0 - c1, c1, c2, float(width_px / 2))
+    return _roi_points(features, c0 - c1, c1, c2, float(width_px / 2))
 
 
 def _design(t: np.ndarray, degree: int) -> np.ndarray:
@@ -711,7 +689,7 @@ def _fit_lanes(
     fitter,
     previous: list[Lane] | None = None,
 ) -> list[Lane]:
-    rows = features.mask.shape[0]
+    rows = features.shape[0]
     res = geometry.resolution
     lanes = []
     t_near = math.inf if p.near_fit_m is None else (p.near_fit_m - geometry.z_min) / res

@@ -105,10 +105,14 @@ def test_eslt_kernel_matches_twin(w):
     gx, gy = _features.sobel(img)
     mask = np.zeros(img.shape, np.uint8)
     ori = np.empty(img.shape, np.float32)
-    _features._eslt(img, gx, gy, w, 8.0, math.radians(15), _features._EVERYWHERE, mask, ori)
+    r, c, v = _features._eslt(img, gx, gy, w, 8.0, math.radians(15), _features._EVERYWHERE, mask, ori)
     tm, to = eslt_twin(img, gx, gy, w, 8.0, math.radians(15))
     np.testing.assert_array_equal(mask, tm)
     np.testing.assert_allclose(ori, to, atol=1e-5)
+    # the features' list: the twin's points in row-major order, the dense map's orientations
+    assert r.dtype == c.dtype == np.int64 and v.dtype == np.float32
+    np.testing.assert_array_equal(np.stack([r, c]), np.stack(np.nonzero(tm)))
+    np.testing.assert_array_equal(v, ori[tm == 1])
 
 
 @pytest.mark.parametrize("w", [2, 4, 30])
@@ -123,15 +127,15 @@ def test_eslt_kernel_on_uint8_and_int16_gradients_matches_twin(w):
     tm, to = eslt_twin(f32, gx.astype(np.float32), gy.astype(np.float32), w, 8.0, math.radians(15))
     np.testing.assert_array_equal(mask, tm)
     np.testing.assert_allclose(ori, to, atol=1e-5)
-    # the node's call: orientations written at the features only, the rest of ori left alone
-    mask2 = np.ones(img.shape, np.uint8)
+    # the node's call: no dense map written (mask2 and ori2 left alone), the features' list only
+    mask2 = np.full(img.shape, 3, np.uint8)
     ori2 = np.full(img.shape, 7.0, np.float32)
-    _features._eslt(
+    r, c, v = _features._eslt(
         img.astype(np.uint8), gx, gy, w, 8.0, math.radians(15), _features._EVERYWHERE, mask2, ori2, False
     )
-    np.testing.assert_array_equal(mask2, tm)
-    np.testing.assert_array_equal(ori2[tm == 1], ori[tm == 1])
-    assert np.all(ori2[tm == 0] == 7.0)
+    assert np.all(mask2 == 3) and np.all(ori2 == 7.0)
+    np.testing.assert_array_equal(np.stack([r, c]), np.stack(np.nonzero(tm)))
+    np.testing.assert_array_equal(v, ori[tm == 1])
 
 
 @pytest.mark.parametrize("shape", [(2, 2), (3, 5), (2, 9), (24, 40), (1, 7), (7, 1)])
@@ -426,7 +430,8 @@ def test_parabola_recovered_with_30_percent_outliers(fit):
 
 
 def roi_points_np(features, line, width_px):
-    """The NumPy twin of ``roi_points`` (its numba kernel)."""
+    """The plain twin of ``roi_points``: from the dense mask's pixels (the node reads the map's
+    points and builds no mask)."""
     rows = features.mask.shape[0]
     r, c = np.nonzero(features.mask)
     inv_tan = np.cos(line.theta) / max(np.sin(line.theta), 1e-6)
@@ -435,16 +440,22 @@ def roi_points_np(features, line, width_px):
     return (rows - 1 - r[keep]).astype(np.float64), c[keep].astype(np.float64)
 
 
-def test_roi_kernel_matches_numpy_twin():
+@pytest.mark.parametrize("sparse", [False, True])
+def test_roi_points_match_the_twin(sparse):
     from lanegraph_lanes._fit import roi_points
 
     rng = np.random.default_rng(12)
-    feats = FeatureMap(mask=rng.random((60, 45)) < 0.3, orientation=None)
+    dense = FeatureMap(mask=rng.random((60, 45)) < 0.3, orientation=None)
     for theta in (np.pi / 2, 1.3, 1.9, 0.2, 3.0, 0.0, 1e-9):
         for rho in (-30.0, 0.0, 12.3, 22.0, 44.5, 80.0):
             for width in (4.0, 9.0, 40.0):
                 line = Line(rho=rho, theta=theta, side="left")
-                got, ref = roi_points(feats, line, width), roi_points_np(feats, line, width)
+                # a map of points (features.mask's output): no dense mask is built for the ROI
+                feats = FeatureMap.from_points((60, 45), *np.nonzero(dense.mask)) if sparse else dense
+                got = roi_points(feats, line, width)
+                assert "mask" in vars(feats) or sparse
+                assert "mask" not in vars(feats) or not sparse
+                ref = roi_points_np(dense, line, width)
                 np.testing.assert_array_equal(got[0], ref[0])
                 np.testing.assert_array_equal(got[1], ref[1])
 
@@ -491,7 +502,7 @@ def test_ransac_kernel_matches_numpy_twin(degree):
 
 
 def lane_roi_points_np(features, lane, width_px):
-    """The NumPy twin of ``lane_roi_points`` (the same kernel, around a parabola)."""
+    """The plain twin of ``lane_roi_points`` (around a parabola), from the dense mask's pixels."""
     rows = features.mask.shape[0]
     r, c = np.nonzero(features.mask)
     t = rows - 1 - r
@@ -501,7 +512,7 @@ def lane_roi_points_np(features, lane, width_px):
     return t[keep].astype(np.float64), c[keep].astype(np.float64)
 
 
-def test_lane_roi_kernel_matches_numpy_twin():
+def test_lane_roi_points_match_the_twin():
     from lanegraph_lanes._fit import lane_roi_points
 
     rng = np.random.default_rng(13)
@@ -617,14 +628,15 @@ def _clothoid_bev(dashed: bool, rows: int = 800, cols: int = 240) -> tuple[np.nd
 
 
 def test_near_fit_counts_the_rows_as_np_unique():
-    """``_near_fit`` counts the near rows its ROI points cover where ``t`` changes (the ROI
-    kernel's row-major order): the count ``np.unique`` gives, so the same points are kept."""
-    from lanegraph_lanes._fit import _near_fit, _roi_kernel
+    """``_near_fit`` counts the near rows its ROI points cover where ``t`` changes (the ROI's
+    row-major order): the count ``np.unique`` gives, so the same points are kept."""
+    from lanegraph_lanes._fit import _near_fit, _roi_points
 
     rng = np.random.default_rng(3)
     for _ in range(30):
         mask = rng.random((200, 120)) < rng.uniform(0.02, 0.5)
-        t, y = _roi_kernel(mask, float(rng.uniform(20, 100)), float(rng.uniform(-0.2, 0.2)), 0.0, 20.0)
+        feats = FeatureMap(mask=mask)
+        t, y = _roi_points(feats, float(rng.uniform(20, 100)), float(rng.uniform(-0.2, 0.2)), 0.0, 20.0)
         for t_near, coverage in ((50.0, 0.7), (120.0, 0.9), (30.0, 0.2), (300.0, 0.5)):
             want = t.size and t.max() >= t_near and np.unique(t[t < t_near]).size >= coverage * t_near
             got_t, got_y = _near_fit(t, y, t_near, coverage)
@@ -1706,8 +1718,9 @@ def test_eslt_gives_the_same_maps_on_any_number_of_threads(threads, monkeypatch)
         monkeypatch.setattr(_features, "_threads", lambda n=n: n)
         mask = np.full(img.shape, 9, np.uint8)
         ori = np.full(img.shape, 9.0, np.float32)
-        _features._eslt(img, gx, gy, 6, 10.0, math.radians(15), where, mask, ori, True)
-        maps.append((mask, ori))
+        points = _features._eslt(img, gx, gy, 6, 10.0, math.radians(15), where, mask, ori, True)
+        maps.append((mask, ori, *points))
     assert maps[0][0].any() and set(np.unique(maps[0][0])) <= {0, 1}  # every row written
-    np.testing.assert_array_equal(maps[0][0], maps[1][0])
-    np.testing.assert_array_equal(maps[0][1], maps[1][1])
+    for a, b in zip(maps[0], maps[1]):  # the maps and the features' list, blocks joined in order
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(np.stack(maps[1][2:4]), np.stack(np.nonzero(maps[1][0])))
