@@ -126,7 +126,7 @@ def _say(where: Path | None) -> None:
     kept = f"once: they are kept in {where}" if where else "LANEGRAPH_NUMBA_CACHE=0: in every process"
     print(
         f"lanegraph: compiling the numba kernels for this machine ({kept}; "
-        "the first run takes about half a minute longer on 2 cores) ...",
+        "the first run takes about ten seconds longer on 2 free cores, more on a busy machine) ...",
         file=sys.stderr,
         flush=True,
     )
