@@ -139,7 +139,7 @@ def _unfilter_kernel(raw, height, width, channels, mode, out):
     cur = np.empty(n, np.uint8)
     for i in range(n):
         prev[i] = 0
-    wr, wg, wb = 9797, 19234, 3737
+    wr, wg, wb = GRAY_WEIGHTS
     for r in range(height):
         src = raw[r * stride + 1 : (r + 1) * stride]
         kind = raw[r * stride]
@@ -183,10 +183,10 @@ def _unfilter_kernel(raw, height, width, channels, mode, out):
         else:
             return r
         row = out[r]
-        if mode == 0:
+        if mode == AS_STORED:
             for i in range(n):
                 row[i] = cur[i]
-        elif mode == 1:
+        elif mode == BGR:
             for x in range(width):
                 row[3 * x] = cur[3 * x + 2]
                 row[3 * x + 1] = cur[3 * x + 1]

@@ -39,6 +39,7 @@ from ._calib import (
     read_calibration_yaml,
     read_key_rows,
 )
+from ._png import SIGNATURE as PNG_SIGNATURE
 from ._png import decode_png
 
 IMAGE_EXT = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
@@ -83,7 +84,7 @@ def image_size(path: Path) -> tuple[int, int] | None:
             head = fh.read(24)
     except OSError:
         return None
-    if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+    if head[:8] == PNG_SIGNATURE and head[12:16] == b"IHDR":
         w, h = struct.unpack(">II", head[16:24])
         return int(w), int(h)
     try:

@@ -343,16 +343,15 @@ def _eslt(img, gx, gy, window, threshold, max_angle, where, out_mask, out_theta,
     return tuple(np.concatenate([a[p] for p in parts]) for a in (pr, pc, pv))
 
 
-def _feature_map(mask: np.ndarray, theta: np.ndarray | None, dense_theta: bool = True) -> FeatureMap:
+def _feature_map(mask: np.ndarray, theta: np.ndarray | None) -> FeatureMap:
     """The feature nodes' output: the dense uint8 0/1 ``mask`` (and float32 ``theta``) with their
     points gathered once here (``np.flatnonzero`` of the bool view: a kernel was only 1.3x faster),
-    so no consumer scans the map for them again. ``dense_theta`` False: ``theta`` is valid at the
-    features only, and the map's dense orientation is built from the points when first read."""
+    so no consumer scans the map for them again."""
     m = mask.view(bool)
     flat = np.flatnonzero(m)
     r, c = np.divmod(flat, max(mask.shape[1], 1))
     v = None if theta is None else theta.reshape(-1).take(flat)
-    return FeatureMap.from_points(mask.shape, r, c, v, mask=m, orientation=theta if dense_theta else None)
+    return FeatureMap.from_points(mask.shape, r, c, v, mask=m, orientation=theta)
 
 
 def sobel(gray: np.ndarray, ksize: int = 3) -> tuple[np.ndarray, np.ndarray]:

@@ -669,8 +669,8 @@ def _plausible_tracked(lateral: float, others: list[float], p: FitParams) -> boo
 def _near_fit(t: np.ndarray, y: np.ndarray, t_near: float, coverage: float) -> tuple[np.ndarray, np.ndarray]:
     """The ROI points ``(t, y)`` to fit: those below BEV row height ``t_near`` when they cover at
     least ``coverage`` of those rows (a line seen continuously there), else all of them. ``t`` in
-    the ROI kernel's row-major order (a row's points together): the rows covered are counted where
-    ``t`` changes (``np.unique``'s count, without its sort)."""
+    the row-major order :func:`_roi_points` gives (a row's points together): the rows covered are
+    counted where ``t`` changes (``np.unique``'s count, without its sort)."""
     if not t.size or not math.isfinite(t_near) or t.max() < t_near:
         return t, y
     keep = t < t_near
