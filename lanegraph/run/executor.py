@@ -490,6 +490,7 @@ class Executor:
         done = ahead.take(frame_out, previous, self._node_hooks)
         for step, out, ms in done:  # this frame's nodes computed ahead, taken in order
             res.timings_ms.setdefault(step.id, []).append(ms)
+            res.ahead[step.id] = res.ahead.get(step.id, 0) + 1
             for port, v in out.items():
                 cur[(step.id, port)] = v
                 cur_keys[(step.id, port)] = None

@@ -120,6 +120,9 @@ def test_the_next_frame_runs_ahead_with_the_same_results(tmp_path, opm):
     assert [p for _, p, _ in SEEN] == [None] + [z - 1.0 for _, z in seq[:-1]]  # z = fb.y + 1
     assert len(res.timings_ms["match"]) == 6 and res.frames == res_seq.frames == 6
     assert res.timings_json()["nodes"].keys() == res_seq.timings_json()["nodes"].keys()
+    # timings.json says which calls ran ahead (their time overlaps the frame before's later nodes)
+    assert res.timings_json()["nodes"]["match"]["ahead"] == 5
+    assert "ahead" not in res_seq.timings_json()["nodes"]["match"]
 
 
 def test_the_next_frames_node_runs_while_this_frames_later_nodes_run(tmp_path, opm):
