@@ -6,8 +6,9 @@ releases the GIL -- stereo matching) is computed for the next frame, with every 
 that frame, as soon as this frame has computed them and their feedback inputs (``@prev``): on two
 CPUs the SGBM bands of frame n+1 then run beside the road mask, BEV and lane nodes of frame n.
 Every node sees the inputs it would see one node at a time, so the results are the same; each
-node's timings, ``valid`` counts and ``lanegraph_after_node`` calls are taken in frame order when the
-frame's turn comes (:meth:`RunAhead.take`). A frame computed ahead is dropped and computed again in
+node's timings, ``valid`` counts and ``lanegraph_after_node`` calls are taken in its turn in the
+frame's plan (:meth:`RunAhead.take`): in frame and node order, as one node at a time gives them
+(``--debug-dir`` writes the same files). A frame computed ahead is dropped and computed again in
 its turn when its feedback inputs turned out different (the frame before it was dropped under
 ``on_error: skip``) or one of its nodes failed (its error then comes in turn, handled by the node's
 policy). Nothing runs ahead with a result cache, with a ``lanegraph_before_node`` implementation
@@ -189,24 +190,25 @@ class RunAhead:
 
         self._pending = _Pending(frame_out, previous, worker_pool("ahead", 1).submit(compute))
 
-    def take(self, frame_out: dict, previous: dict, hooks: frozenset[str]) -> list[tuple[Step, dict, float]]:
-        """This frame's nodes computed ahead (step, outputs, ms), in plan order; none when nothing
-        was computed ahead for ``frame_out`` with the feedback values ``previous``, when a node
-        failed there, or when a ``lanegraph_before_node`` was registered since (in ``hooks``)."""
+    def take(self, frame_out: dict, previous: dict, hooks: frozenset[str]) -> dict[str, tuple[dict, float]]:
+        """This frame's nodes computed ahead: node id -> (outputs, ms); none when nothing was
+        computed ahead for ``frame_out`` with the feedback values ``previous``, when a node failed
+        there, or when a ``lanegraph_before_node`` was registered since (in ``hooks``). The executor
+        takes each in its turn in the plan (its after-node call among the others')."""
         pending, self._pending = self._pending, None
         if pending is None:
-            return []
+            return {}
         try:
             done = pending.future.result()
         except _Abandon:
-            return []
+            return {}
         if pending.frame_out is not frame_out or any(
             previous.get(k) is not v for k, v in pending.previous.items()
         ):
-            return []  # another frame, or other feedback values (the frame before was dropped)
+            return {}  # another frame, or other feedback values (the frame before was dropped)
         if "lanegraph_before_node" in hooks:
-            return []  # it is called before the node: the node runs again in turn
-        return done
+            return {}  # it is called before the node: the node runs again in turn
+        return {step.id: (out, ms) for step, out, ms in done}
 
     def drop(self) -> None:
         """Wait for a computation ahead that no frame will take (the stream ended or failed)."""

@@ -487,19 +487,21 @@ class Executor:
         if self._plan is None:
             self._plan = frame_plan(g, self.constant_nodes)
             ahead.plan(g, self._plan, caching is not None)
-        done = ahead.take(frame_out, previous, self._node_hooks)
-        for step, out, ms in done:  # this frame's nodes computed ahead, taken in order
-            res.timings_ms.setdefault(step.id, []).append(ms)
-            res.ahead[step.id] = res.ahead.get(step.id, 0) + 1
-            for port, v in out.items():
-                cur[(step.id, port)] = v
-                cur_keys[(step.id, port)] = None
-            count_valid(res, step.id, out)
-            self._after_node(step.node, frame, out, ms, None)
+        done = ahead.take(frame_out, previous, self._node_hooks)  # this frame's nodes computed ahead
         for i, (nid, n, wiring, unwired, sink) in enumerate(self._plan):
             if i == ahead.after:
                 ahead.start(src_id, values, cur, self._node_hooks)
-            if (done and nid in ahead.nodes) or (warming and sink):
+            if nid in done:  # taken in its turn: timings, counts and after-node calls in plan order
+                out, ms = done[nid]
+                res.timings_ms.setdefault(nid, []).append(ms)
+                res.ahead[nid] = res.ahead.get(nid, 0) + 1
+                for port, v in out.items():
+                    cur[(nid, port)] = v
+                    cur_keys[(nid, port)] = None
+                count_valid(res, nid, out)
+                self._after_node(n, frame, out, ms, None)
+                continue
+            if warming and sink:
                 continue
             ins = {p: (previous if prev else cur).get(out_of) for p, out_of, prev in wiring}
             for p in unwired:

@@ -73,8 +73,9 @@ GRAPH = {
     "name": "ovl",
     "nodes": {
         "src": {"type": "toy.count", "params": {"n": 6}},
+        "early": {"type": "toy.scale", "inputs": {"x": "src.value"}},  # before match in the plan
         "match": {"type": "ovl.match", "inputs": {"x": "src.value", "p": "fb.y@prev"}},
-        "fb": {"type": "toy.add", "inputs": {"a": "match.y"}},
+        "fb": {"type": "toy.add", "inputs": {"a": "match.y", "b": "early.y"}},
         "tail": {"type": "ovl.tail", "inputs": {"x": "src.value", "y": "fb.y"}},
         "sink": {"type": "toy.collect", "inputs": {"frame": "src.frame", "x": "tail.z"}},
     },
@@ -173,7 +174,8 @@ def test_after_node_calls_come_in_frame_and_node_order(tmp_path, opm):
     run(tmp_path, opm, overlap=False)
     sequential, seen[:] = list(seen), []
     run(tmp_path, opm)
-    assert seen == sequential
+    assert seen == sequential  # early before match on every frame, match computed ahead or not
+    assert [n for n, f, _, _ in seen if f == "0003"] == ["src", "early", "match", "fb", "tail", "sink"]
     assert any(t.startswith("lanegraph-ahead") for t in threads())
 
 
