@@ -11,7 +11,9 @@ disturbed one):
 - frames/s counting every node but image reading (the source), from the same run;
 - frames/s end to end, image reading included: a second run as ``lanegraph run`` does it (the
   executor reads the next frame while this one is computed, the source decodes ahead as its
-  ``read_ahead`` says: ``--read-ahead N`` sets it);
+  ``read_ahead`` says: ``--read-ahead N`` sets it; the next frame's ``ahead`` nodes, the disparity,
+  run beside this frame's later nodes: :mod:`lanegraph.run.ahead`; the per-node run above
+  computes one node at a time);
 - the graph's compute per frame (the sum of the node medians, every node but ``io.*``: what a
   run's ``timings.json`` gives) over one plain full-frame ``cv2.StereoSGBM`` call with the disparity
   node's matching params (number of disparities, block size, uniqueness, penalties, mode), timed
@@ -223,9 +225,11 @@ def bench(
     print(
         f"  every node but image reading: {1000.0 / np.median(no_src):.1f} frames/s ({np.median(no_src):.1f} ms median per frame)"
     )
+    ahead = ", ".join(sorted(ex.ahead.nodes))
     print(
-        f"  end to end, reading included: {e2e.frames / wall:.1f} frames/s ({1000 * wall / e2e.frames:.1f} ms/frame, next frame read ahead)"
-        f"; runs {', '.join(f'{e2e.frames / w:.1f}' for w in walls)}"
+        f"  end to end, reading included: {e2e.frames / wall:.1f} frames/s ({1000 * wall / e2e.frames:.1f} ms/frame, next frame read ahead"
+        + (f", its {ahead} computed ahead" if ahead else "")
+        + f"); runs {', '.join(f'{e2e.frames / w:.1f}' for w in walls)}"
     )
     # the CPU time of the whole process (every thread: decoding, SGBM bands, nodes) per frame: a
     # figure other load on a shared machine changes little, and with the CPUs free to the process

@@ -23,6 +23,12 @@ and ``obj.close()`` (if defined) at the end. A *source* is stateful and produces
 frames: ``obj.constants()`` returns its constant outputs (e.g. calibration),
 ``iter(obj)`` yields one dict of per-frame outputs per frame.
 
+A stateless node whose work releases the GIL for most of its time (stereo matching in OpenCV or in
+a ``nogil`` kernel) may declare ``ahead=True``: the executor may then compute it for the next frame,
+on a thread, while the current frame's later nodes run (:mod:`lanegraph.run.executor`). Its
+function must not keep anything between calls (no buffer it hands out and reuses: two frames'
+outputs are alive at once) and must be safe to call from another thread.
+
 Capabilities a node class may declare (static methods, called before anything is instantiated):
 
 ``select_source(params, input_path, detect) -> str``
@@ -146,6 +152,8 @@ class NodeType:
     stateful: bool = False
     source: bool = False
     sink: bool = False
+    #: may run for the next frame beside this frame's later nodes (see the module's text)
+    ahead: bool = False
     plugin: str = ""  # filled in by the registry: the distribution / module providing it
 
     def __post_init__(self) -> None:
@@ -160,6 +168,8 @@ class NodeType:
             raise TypeError(f"{self.name}: params must be a pydantic model class")
         if self.source:
             self.stateful = True
+        if self.ahead and (self.stateful or self.sink):
+            raise ValueError(f"{self.name}: ahead=True is for stateless nodes that are not sinks")
         if not self.doc:
             self.doc = inspect.cleandoc(self.func.__doc__ or "")
 
@@ -276,6 +286,7 @@ def node_type(
     stateful: bool = False,
     source: bool = False,
     sink: bool = False,
+    ahead: bool = False,
     doc: str = "",
 ) -> Callable[[F], F]:
     """Decorator declaring a function (or, for stateful nodes, a class) a node type.
@@ -298,6 +309,7 @@ def node_type(
             stateful=stateful or source or inspect.isclass(func),
             source=source,
             sink=sink,
+            ahead=ahead,
         )
         return func
 

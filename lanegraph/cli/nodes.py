@@ -86,6 +86,7 @@ def nodes_markdown(types: dict[str, NodeType], title: str = "Node reference") ->
                 ("source", nt.source),
                 ("sink", nt.sink),
                 ("stateful", nt.stateful and not nt.source),
+                ("runs ahead", nt.ahead),
             )
             if on
         ]
@@ -162,6 +163,7 @@ def nodes(as_json: bool, as_markdown: bool, builtin: bool) -> None:
                     "stateful": nt.stateful,
                     "source": nt.source,
                     "sink": nt.sink,
+                    "ahead": nt.ahead,
                     "inputs": {
                         p: {"type": x.type, "optional": x.optional, "rate": x.rate, "doc": x.doc}
                         for p, x in nt.inputs.items()
@@ -189,6 +191,7 @@ def nodes(as_json: bool, as_markdown: bool, builtin: bool) -> None:
                 ("source", nt.source),
                 ("sink", nt.sink),
                 ("stateful", nt.stateful and not nt.source),
+                ("runs ahead", nt.ahead),
             )
             if on
         )

@@ -11,6 +11,9 @@
 - Error policy per node: ``fail`` stops the run, ``skip`` drops the frame (sinks do not see it),
   ``empty`` passes ``None`` on for the node's outputs. A node that runs once for the whole run
   (constant inputs) has no frame to drop: under ``skip`` its failure stops the run like ``fail``.
+- Running ahead: a node type declared ``ahead=True`` (stereo matching) is computed for the next
+  frame on a thread while this frame's later nodes run, with the same results
+  (:mod:`lanegraph.run.ahead`).
 - A run first tunes glibc's allocator so that the large per-frame arrays reuse memory instead of
   faulting in fresh pages every frame (:mod:`lanegraph._runtime`; ``LANEGRAPH_MALLOC_TUNING=0``
   turns it off).
@@ -40,10 +43,11 @@ from ..lifecycle import (
 )
 from ..nodes import RunContext
 from ..plugins import PluginManager, call_hook, get_plugin_manager
+from .ahead import Lookahead, RunAhead, checked, count_valid
 from .cache import Caching, ResultCache, digest
 from .checkpointing import Checkpointer, OpenedInput, run_identity
 from .outcome import FrameFailure, RunResult
-from .plan import NO_VALID_FLAG, Step, frame_plan
+from .plan import Step, frame_plan
 from .prefetch import Prefetch
 from .results import graph_result_files
 from .resume import Checkpoint, input_identity
@@ -88,6 +92,7 @@ class Executor:
         caching: Caching | None = None,
         prefetcher: Prefetch | None = None,
         warming: WarmUp | None = None,
+        overlap: bool = True,
     ):
         """The jobs around execution are pieces passed in, each of :mod:`lanegraph.run`:
 
@@ -107,7 +112,8 @@ class Executor:
         The flags make them where a piece is not given: ``checkpoint`` (the file) and ``resume``
         (the checkpoint to continue), ``cache`` (a :class:`~lanegraph.run.cache.ResultCache`) and
         ``cache_nodes`` (default: every stateless node), ``prefetch`` (frames ahead, 0: none),
-        ``warmup`` (frames)."""
+        ``warmup`` (frames). ``overlap``: compute the next frame's ``ahead`` nodes while this frame's
+        later nodes run (:mod:`lanegraph.run.ahead`; ``LANEGRAPH_OVERLAP=0`` turns it off too)."""
         self.graph = graph
         self.pm = pm or get_plugin_manager()
         ctx0 = context or RunContext()
@@ -137,6 +143,7 @@ class Executor:
         # the node hooks some plugin implements (_live_node_hooks(), looked up again every frame):
         # a call of a hook without implementations does nothing but costs 3-4 us a node
         self._node_hooks: frozenset[str] = _NODE_HOOKS
+        self.ahead = RunAhead(overlap)  # the next frame's ahead nodes (lanegraph.run.ahead)
 
     # -- compile -------------------------------------------------------------
     def _select_source(self) -> None:
@@ -197,15 +204,7 @@ class Executor:
                 out = self.instances[node.id](**inputs)
             else:
                 out = node.type.func(node.params, **inputs)
-            if out is None:
-                out = {}
-            if not isinstance(out, dict):
-                raise TypeError(
-                    f"node function returned {type(out).__name__}, expected a dict of output ports"
-                )
-            if not node.type.sink and not out.keys() >= node.type.outputs.keys():
-                missing = set(node.type.outputs) - set(out)
-                raise TypeError(f"node function did not return output port(s) {sorted(missing)}")
+            out = checked(node, out)
         except BaseException as exc:  # SystemExit, KeyboardInterrupt too: the node's failure, located
             if interrupts.is_interruption(exc):
                 raise
@@ -484,9 +483,24 @@ class Executor:
         src_ms = (self.result.timings_ms.get(src_id) or [0.0])[-1]
         self._after_node(g.source, frame, frame_out, src_ms, None)
         caching = self.caching
+        ahead = self.ahead
         if self._plan is None:
             self._plan = frame_plan(g, self.constant_nodes)
-        for nid, n, wiring, unwired, sink in self._plan:
+            ahead.plan(g, self._plan, caching is not None)
+        done = ahead.take(frame_out, previous, self._node_hooks)  # this frame's nodes computed ahead
+        for i, (nid, n, wiring, unwired, sink) in enumerate(self._plan):
+            if i == ahead.after:
+                ahead.start(src_id, values, cur, self._node_hooks)
+            if nid in done:  # taken in its turn: timings, counts and after-node calls in plan order
+                out, ms = done[nid]
+                res.timings_ms.setdefault(nid, []).append(ms)
+                res.ahead[nid] = res.ahead.get(nid, 0) + 1
+                for port, v in out.items():
+                    cur[(nid, port)] = v
+                    cur_keys[(nid, port)] = None
+                count_valid(res, nid, out)
+                self._after_node(n, frame, out, ms, None)
+                continue
             if warming and sink:
                 continue
             ins = {p: (previous if prev else cur).get(out_of) for p, out_of, prev in wiring}
@@ -497,13 +511,7 @@ class Executor:
             for port, v in out.items():
                 cur[(nid, port)] = v
                 cur_keys[(nid, port)] = None if key is None else digest(key, port)
-                if type(v) in NO_VALID_FLAG:  # no `valid` flag to count (getattr would raise inside)
-                    continue
-                valid = getattr(v, "valid", None)
-                if isinstance(valid, bool):
-                    counts = res.invalid_outputs.setdefault(f"{nid}.{port}", [0, 0])
-                    counts[0] += not valid
-                    counts[1] += 1
+            count_valid(res, nid, out)
         return cur, cur_keys
 
     def _frames(
@@ -519,7 +527,9 @@ class Executor:
         (image decoding releases the GIL).
         """
         node = self.graph.nodes[src_id]
-        items = self.prefetcher.read(iter(source))
+        items = Lookahead(self.prefetcher.read(iter(source)))
+        # the next frame is looked at ahead only while the source is read on its own thread
+        self.ahead.source = items if self.prefetcher.depth > 0 else None
         try:
             index = start
             scratch = RunResult()  # what warm-up frames record
@@ -554,6 +564,8 @@ class Executor:
                 index += 1
                 yield index - 1, item
         finally:
+            self.ahead.source = None
+            self.ahead.drop()  # no thread computes a frame once the stream has ended
             items.close()  # stop the read-ahead thread and join it, whatever ended the stream
 
     def __len__(self) -> int:

@@ -54,6 +54,9 @@ class RunResult:
     #: the ids of the frames of the selection the run consumed (done or failed), in order: what
     #: ``eval`` and ``report`` score (warm-up frames are not among them)
     frame_ids: list[str] = field(default_factory=list)
+    #: node id -> the frames on which it was computed ahead (lanegraph.run.ahead): its time there
+    #: is the wall time on its own thread, beside the previous frame's later nodes
+    ahead: dict[str, int] = field(default_factory=dict)
 
     def warnings(self) -> list[str]:
         """Things that did not fail a frame but make the result doubtful: an output invalid on every
@@ -78,6 +81,8 @@ class RunResult:
                 "p90_ms": round(float(np.percentile(arr, 90)), 3) if arr.size else None,
                 "calls": int(arr.size),
             }
+            if self.ahead.get(nid):
+                nodes[nid]["ahead"] = self.ahead[nid]
         out: dict[str, Any] = {"frames": self.frames, "nodes": nodes}
         if self.frame_ms:
             total = np.asarray(self.frame_ms)

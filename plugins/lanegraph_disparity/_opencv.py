@@ -251,6 +251,7 @@ def _bm_matcher(params: BmParams, num_disp: int, min_disp: int) -> Any:
     "disparity.sgbm",
     inputs={"left": "image", "right": "image"},
     outputs={"disparity": "disparity"},
+    ahead=True,
 )
 def sgbm(params: SgbmParams, left: np.ndarray, right: np.ndarray) -> dict:
     """Disparity by OpenCV semi-global block matching (StereoSGBM).
@@ -284,6 +285,7 @@ def sgbm(params: SgbmParams, left: np.ndarray, right: np.ndarray) -> dict:
     "disparity.bm",
     inputs={"left": "image", "right": "image"},
     outputs={"disparity": "disparity"},
+    ahead=True,
 )
 def bm(params: BmParams, left: np.ndarray, right: np.ndarray) -> dict:
     """Disparity by OpenCV local block matching (StereoBM): fast, sparse on weak texture.

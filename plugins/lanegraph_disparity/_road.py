@@ -300,6 +300,7 @@ def _band(
         ),
     },
     outputs={"disparity": "disparity"},
+    ahead=True,
 )
 def road_sgbm(
     params: RoadSgbmParams,

@@ -402,6 +402,7 @@ def sgm_volume(gl: np.ndarray, gr: np.ndarray, params: SgmParams, num_disp: int)
     "disparity.sgm",
     inputs={"left": "image", "right": "image"},
     outputs={"disparity": "disparity"},
+    ahead=True,
 )
 def sgm(params: SgmParams, left: np.ndarray, right: np.ndarray) -> dict:
     """Disparity by census transform + semi-global matching (own numba implementation).
