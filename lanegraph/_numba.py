@@ -42,6 +42,11 @@ from .kernel_cache import cache_root, kernel_cache_dir  # noqa: F401 - cache_roo
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # read when the OpenMP runtime loads: see above
 
+# numba's error texts without colorama's escapes (its default theme has no colours anyway): numba
+# formats such a text for each value it tries to type and cannot, about 8,000 times on a first run,
+# and colorama's wrapping of the streams each time cost 0.2-0.3 s of CPU (read when numba loads)
+os.environ.setdefault("NUMBA_DISABLE_ERROR_MESSAGE_HIGHLIGHTING", "1")
+
 if not os.environ.get("NUMBA_CACHE_DIR"):  # shared by every LANEGRAPH_CACHE_DIR: see lanegraph.kernel_cache
     os.environ["NUMBA_CACHE_DIR"] = str(kernel_cache_dir())
 
