@@ -44,7 +44,8 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # read when the OpenMP runt
 
 # numba's error texts without colorama's escapes (its default theme has no colours anyway): numba
 # formats such a text for each value it tries to type and cannot, about 8,000 times on a first run,
-# and colorama's wrapping of the streams each time cost 0.2-0.3 s of CPU (read when numba loads)
+# and colorama's wrapping of the streams each time cost 0.3-0.5 s of CPU for the default run's
+# kernels (read when numba loads)
 os.environ.setdefault("NUMBA_DISABLE_ERROR_MESSAGE_HIGHLIGHTING", "1")
 
 if not os.environ.get("NUMBA_CACHE_DIR"):  # shared by every LANEGRAPH_CACHE_DIR: see lanegraph.kernel_cache

@@ -127,7 +127,7 @@ def _say(where: Path | None) -> None:
     kept = f"once: they are kept in {where}" if where else "LANEGRAPH_NUMBA_CACHE=0: in every process"
     print(
         f"lanegraph: compiling the numba kernels for this machine ({kept}; "
-        "the first run takes about ten seconds longer on 2 free cores, more on a busy machine) ...",
+        "the first run takes about seven seconds longer on 2 free cores, more on a busy machine) ...",
         file=sys.stderr,
         flush=True,
     )
@@ -299,7 +299,7 @@ def precompile(entries: list[dict], claims: Path | None = None) -> int:
     skipped: the list is a hint, the run compiles what it needs.
 
     Python's cyclic garbage collector is off meanwhile: numba's compiler makes millions of objects
-    (its IR, types, LLVM IR builders), and the collections they set off took 6-10 % of the
+    (its IR, types, LLVM IR builders), and the collections they set off took 5-17 % of the
     compilation's CPU; what they would free (at most 60 MB per process for its part of the default
     run's kernels) is collected once it is back on."""
     collecting = gc.isenabled()
