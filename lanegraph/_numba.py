@@ -22,6 +22,14 @@ thread that reads the next frame. On the 2-core reference machine (``bench_pipel
 runs each, default -> passive): after disparity 10.9-11.1 -> 10.4-10.5 ms (paper.yaml), ESLT's
 spikes of 4-8 ms on a frame in eight gone, end to end 10.3 -> 11.2-12.0 frames/s (paper.yaml) and
 33 -> 34-38 frames/s (half_res.yaml). Set ``OMP_WAIT_POLICY=ACTIVE`` to keep the threads spinning.
+
+numba's type inference resolves each call of a built-in function or operator (``a + b``, ``x[i]``,
+``min``, ``np.empty``) by trying that function's typing templates in turn, and does it again at
+every pass over the function's constraints, for every call site: over 9,500 resolutions on a first
+run of the default graph, all but about 380 of them repeats of one already made (the same function
+and argument types). :func:`_remember_call_types` keeps each successful resolution per process, so a
+repeat costs a dictionary look-up: the same signatures, hence the same machine code, for 1.2-1.5 s
+less CPU on the first run (issue 32; ``LANEGRAPH_NUMBA_CALL_MEMO=0`` turns it off).
 """
 
 from __future__ import annotations
@@ -33,6 +41,12 @@ import os
 from .kernel_cache import cache_root, kernel_cache_dir  # noqa: F401 - cache_root: lanegraph.cache uses it
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # read when the OpenMP runtime loads: see above
+
+# numba's error texts without colorama's escapes (its default theme has no colours anyway): numba
+# formats such a text for each value it tries to type and cannot, about 8,000 times on a first run,
+# and colorama's wrapping of the streams each time cost 0.3-0.5 s of CPU for the default run's
+# kernels (read when numba loads)
+os.environ.setdefault("NUMBA_DISABLE_ERROR_MESSAGE_HIGHLIGHTING", "1")
 
 if not os.environ.get("NUMBA_CACHE_DIR"):  # shared by every LANEGRAPH_CACHE_DIR: see lanegraph.kernel_cache
     os.environ["NUMBA_CACHE_DIR"] = str(kernel_cache_dir())
@@ -78,6 +92,47 @@ class _PackageLocator(_caching.UserProvidedCacheLocator):
 
 if _PackageLocator not in _caching.CacheImpl._locator_classes:
     _caching.CacheImpl._locator_classes.insert(0, _PackageLocator)
+
+
+def _remember_call_types() -> bool:
+    """Keep the signatures numba's ``BaseFunction.get_call_type`` resolves (built-in functions and
+    operators: see the module's text), keyed by the function type, the typing context and its target,
+    and the argument types; a repeat returns the kept signature and records its implementation key
+    as the first resolution did. Failures are not kept (they are resolved again, as before). Returns
+    whether it is in place: not where numba's function types lack the attributes it relies on."""
+    from numba.core.target_extension import get_local_target
+    from numba.core.types import functions as _functions
+
+    base = _functions.BaseFunction
+    resolve = base.get_call_type
+    if getattr(resolve, "_lanegraph_memo", False):
+        return True
+    if not callable(resolve) or not hasattr(base, "get_impl_key"):
+        return False
+    kept: dict = {}
+
+    def get_call_type(self, context, args, kws):
+        try:
+            key = (self, context, get_local_target(context), tuple(args), tuple(kws.items()))
+            found = kept.get(key)
+        except TypeError:  # an argument type that cannot be hashed: resolved as numba does
+            return resolve(self, context, args, kws)
+        if found is not None:
+            sig, impl = found
+            self._impl_keys[sig.args] = impl
+            return sig
+        sig = resolve(self, context, args, kws)
+        if sig is not None and sig.args in self._impl_keys:
+            kept[key] = (sig, self._impl_keys[sig.args])
+        return sig
+
+    get_call_type._lanegraph_memo = True
+    base.get_call_type = get_call_type
+    return True
+
+
+if os.environ.get("LANEGRAPH_NUMBA_CALL_MEMO", "1") != "0":
+    _remember_call_types()
 
 
 def _marked(func):

@@ -4,6 +4,7 @@ beside the first run (lanegraph.kernel_cache). One small kernel is compiled here
 
 from __future__ import annotations
 
+import gc
 import importlib
 import json
 import os
@@ -256,3 +257,61 @@ def test_a_cached_kernel_is_compiled_again_when_a_function_it_calls_changes(tmp_
     (folder / "helper.py").write_text(_HELPER.format(add=2))  # caller.py itself unchanged
     assert _call_kernel(tmp_path / "src", pkg, cache) == (30, False)  # not the stale 20
     assert _call_kernel(tmp_path / "src", pkg, cache) == (30, True)
+
+
+def test_precompile_compiles_without_cyclic_garbage_collection(monkeypatch):
+    """The kernel list is compiled with the cyclic collector off (numba's compiler makes millions of
+    objects), and the collector is on again afterwards, also after an entry that failed."""
+    seen = []
+    decode = kernel_cache.decode_type
+
+    def spy(text):
+        seen.append(gc.isenabled())
+        return decode(text)
+
+    monkeypatch.setattr(kernel_cache, "decode_type", spy)
+    assert gc.isenabled()
+    stale = {"module": "lanegraph_lanes._select", "name": "kth_smallest", "args": ["complex128"]}
+    assert kernel_cache.precompile([stale, _GOOD]) == 1
+    assert seen and not any(seen)
+    assert gc.isenabled()
+    gc.disable()  # a caller that had it off keeps it off
+    try:
+        kernel_cache.precompile([_GOOD])
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
+
+
+def test_numba_keeps_the_signatures_it_resolved(monkeypatch):
+    """lanegraph._numba keeps each resolution of a built-in call (the same function and argument
+    types): a repeat returns the kept signature without trying the function's typing templates
+    again, and records its implementation as the first resolution did."""
+    import operator
+
+    from numba.core import types
+    from numba.core.registry import cpu_target
+    from numba.core.types import functions
+    from numba.core.typing import templates
+
+    import lanegraph._numba  # noqa: F401 - puts the memo in place
+
+    assert getattr(functions.BaseFunction.get_call_type, "_lanegraph_memo", False)
+    ctx = cpu_target.typing_context
+    ctx.refresh()
+    add = ctx.resolve_value_type(operator.add)
+    args = (types.int16, types.float32)
+    first = ctx.resolve_function_type(add, args, {})
+    assert first is not None and first.return_type == types.float32
+    tried = []
+    for cls in (templates.AbstractTemplate, templates.ConcreteTemplate):
+        apply = cls.apply
+        monkeypatch.setattr(
+            cls, "apply", lambda self, a, k, _apply=apply: tried.append(a) or _apply(self, a, k)
+        )
+    monkeypatch.setattr(add, "_impl_keys", {})
+    assert ctx.resolve_function_type(add, args, {}) == first
+    assert tried == []  # no template tried again
+    assert add.get_impl_key(first) is not None  # recorded for the lowering, as numba does
+    other = ctx.resolve_function_type(add, (types.int8, types.complex64), {})  # a new one: resolved
+    assert other is not None and tried
