@@ -58,12 +58,13 @@ def record(argv: list[str]) -> list[dict]:
 
 
 #: compiles one entry (argv[1], JSON) in a fresh process after a small kernel (numba's own start-up
-#: is not the entry's), without cyclic garbage collection as the first run's precompile does, and
-#: prints the CPU seconds of its compilation
+#: is not the entry's), without cyclic garbage collection and with numba's resolutions kept, as the
+#: first run's precompile does, and prints the CPU seconds of its compilation
 _TIME_ONE = """
 import gc, json, sys, time
 import numpy as np
 from lanegraph import jit
+from lanegraph._numba import kept_call_types
 from lanegraph.kernel_cache import decode_type
 import importlib
 
@@ -76,9 +77,10 @@ e = json.loads(sys.argv[1])
 kernel = getattr(importlib.import_module(e["module"]), e["name"])
 sig = tuple(decode_type(a) for a in e["args"])
 gc.disable()
-t = time.process_time()
-kernel.compile(sig)
-print(time.process_time() - t)
+with kept_call_types():
+    t = time.process_time()
+    kernel.compile(sig)
+    print(time.process_time() - t)
 """
 
 

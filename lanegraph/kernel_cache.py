@@ -301,11 +301,15 @@ def precompile(entries: list[dict], claims: Path | None = None) -> int:
     Python's cyclic garbage collector is off meanwhile: numba's compiler makes millions of objects
     (its IR, types, LLVM IR builders), and the collections they set off took 5-17 % of the
     compilation's CPU; what they would free (at most 60 MB per process for its part of the default
-    run's kernels) is collected once it is back on."""
+    run's kernels) is collected once it is back on. numba's resolutions of built-in calls are kept
+    meanwhile (:func:`lanegraph._numba.kept_call_types`)."""
+    from ._numba import kept_call_types  # numba's resolutions kept while the list compiles
+
     collecting = gc.isenabled()
     gc.disable()
     try:
-        return _precompile(entries, claims)
+        with kept_call_types():
+            return _precompile(entries, claims)
     finally:
         if collecting:
             gc.enable()

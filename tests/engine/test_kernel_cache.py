@@ -283,10 +283,12 @@ def test_precompile_compiles_without_cyclic_garbage_collection(monkeypatch):
         gc.enable()
 
 
-def test_numba_keeps_the_signatures_it_resolved(monkeypatch):
-    """lanegraph._numba keeps each resolution of a built-in call (the same function and argument
-    types): a repeat returns the kept signature without trying the function's typing templates
-    again, and records its implementation as the first resolution did."""
+def test_numba_keeps_the_signatures_it_resolved_while_lanegraph_compiles(monkeypatch):
+    """Within lanegraph._numba.kept_call_types (the first run's precompile) each resolution of a
+    built-in call (the same function and argument types) is kept: a repeat returns the kept
+    signature without trying the function's typing templates again, and records its implementation
+    as the first resolution did. Outside it numba's own method is back (a user's numba code is
+    compiled as numba does it)."""
     import operator
 
     from numba.core import types
@@ -294,24 +296,45 @@ def test_numba_keeps_the_signatures_it_resolved(monkeypatch):
     from numba.core.types import functions
     from numba.core.typing import templates
 
-    import lanegraph._numba  # noqa: F401 - puts the memo in place
+    from lanegraph._numba import kept_call_types
 
-    assert getattr(functions.BaseFunction.get_call_type, "_lanegraph_memo", False)
+    numbas = functions.BaseFunction.get_call_type
+    assert not getattr(numbas, "_lanegraph_memo", False)
     ctx = cpu_target.typing_context
     ctx.refresh()
     add = ctx.resolve_value_type(operator.add)
     args = (types.int16, types.float32)
-    first = ctx.resolve_function_type(add, args, {})
-    assert first is not None and first.return_type == types.float32
     tried = []
     for cls in (templates.AbstractTemplate, templates.ConcreteTemplate):
         apply = cls.apply
         monkeypatch.setattr(
             cls, "apply", lambda self, a, k, _apply=apply: tried.append(a) or _apply(self, a, k)
         )
-    monkeypatch.setattr(add, "_impl_keys", {})
-    assert ctx.resolve_function_type(add, args, {}) == first
-    assert tried == []  # no template tried again
-    assert add.get_impl_key(first) is not None  # recorded for the lowering, as numba does
-    other = ctx.resolve_function_type(add, (types.int8, types.complex64), {})  # a new one: resolved
-    assert other is not None and tried
+    with kept_call_types() as kept:
+        assert kept and getattr(functions.BaseFunction.get_call_type, "_lanegraph_memo", False)
+        with kept_call_types():  # nested: still in place after the inner block
+            pass
+        assert getattr(functions.BaseFunction.get_call_type, "_lanegraph_memo", False)
+        first = ctx.resolve_function_type(add, args, {})
+        assert first is not None and first.return_type == types.float32
+        tried.clear()
+        monkeypatch.setattr(add, "_impl_keys", {})
+        assert ctx.resolve_function_type(add, args, {}) == first
+        assert tried == []  # no template tried again
+        assert add.get_impl_key(first) is not None  # recorded for the lowering, as numba does
+        other = ctx.resolve_function_type(add, (types.int8, types.complex64), {})  # a new one: resolved
+        assert other is not None and tried
+    assert functions.BaseFunction.get_call_type is numbas  # numba's own again
+    tried.clear()
+    assert ctx.resolve_function_type(add, args, {}) == first and tried  # resolved as numba does
+
+
+def test_numba_resolutions_are_not_kept_when_turned_off(monkeypatch):
+    from numba.core.types import functions
+
+    from lanegraph._numba import kept_call_types
+
+    monkeypatch.setenv("LANEGRAPH_NUMBA_CALL_MEMO", "0")
+    with kept_call_types() as kept:
+        assert not kept
+        assert not getattr(functions.BaseFunction.get_call_type, "_lanegraph_memo", False)
