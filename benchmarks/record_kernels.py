@@ -64,7 +64,7 @@ _TIME_ONE = """
 import gc, json, sys, time
 import numpy as np
 from lanegraph import jit
-from lanegraph._numba import kept_call_types
+from lanegraph.kernel_cache import kept_call_types
 from lanegraph.kernel_cache import decode_type
 import importlib
 

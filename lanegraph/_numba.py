@@ -27,21 +27,18 @@ numba's type inference resolves each call of a built-in function or operator (``
 ``min``, ``np.empty``) by trying that function's typing templates in turn, and does it again at
 every pass over the function's constraints, for every call site: over 9,500 resolutions on a first
 run of the default graph, all but about 380 of them repeats of one already made (the same function
-and argument types). While lanegraph compiles its kernel list, :func:`kept_call_types` keeps each
-successful resolution (per process), so a repeat costs a dictionary look-up: the same signatures,
-hence the same machine code, for 1.2-1.5 s less CPU on the first run (issue 32;
-``LANEGRAPH_NUMBA_CALL_MEMO=0`` turns it off). Outside those compilations numba's own method is in
+and argument types). While lanegraph compiles its kernel list, :func:`lanegraph.kernel_cache.
+kept_call_types` keeps each successful resolution (per process), so a repeat costs a dictionary
+look-up: the same signatures, hence the same machine code, for 1.2-1.5 s less CPU on the first run
+(issue 32; ``LANEGRAPH_NUMBA_CALL_MEMO=0`` turns it off). Outside those compilations numba's own method is in
 place: a user's own numba code is compiled as numba does it.
 """
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import hashlib
 import os
-import threading
-from collections.abc import Iterator
 
 from .kernel_cache import cache_root, kernel_cache_dir  # noqa: F401 - cache_root: lanegraph.cache uses it
 
@@ -97,66 +94,6 @@ class _PackageLocator(_caching.UserProvidedCacheLocator):
 
 if _PackageLocator not in _caching.CacheImpl._locator_classes:
     _caching.CacheImpl._locator_classes.insert(0, _PackageLocator)
-
-
-#: numba's resolutions of built-in calls kept while lanegraph compiles its kernels (kept_call_types)
-_KEPT: dict = {}
-_KEEPING = {"depth": 0, "numba's": None}
-_KEEPING_LOCK = threading.Lock()
-
-
-def _kept_get_call_type(resolve):
-    """numba's ``BaseFunction.get_call_type`` (``resolve``) with each successful resolution kept in
-    :data:`_KEPT`, keyed by the function type, the typing context and its target, and the argument
-    types: a repeat returns the kept signature and records its implementation key as the first
-    resolution did. Failures are not kept (they are resolved again, as numba does)."""
-    from numba.core.target_extension import get_local_target
-
-    def get_call_type(self, context, args, kws):
-        try:
-            key = (self, context, get_local_target(context), tuple(args), tuple(kws.items()))
-            found = _KEPT.get(key)
-        except TypeError:  # an argument type that cannot be hashed: resolved as numba does
-            return resolve(self, context, args, kws)
-        if found is not None:
-            sig, impl = found
-            self._impl_keys[sig.args] = impl
-            return sig
-        sig = resolve(self, context, args, kws)
-        if sig is not None and sig.args in self._impl_keys:
-            _KEPT[key] = (sig, self._impl_keys[sig.args])
-        return sig
-
-    get_call_type._lanegraph_memo = True
-    return get_call_type
-
-
-@contextlib.contextmanager
-def kept_call_types() -> Iterator[bool]:
-    """Within the block, numba's resolutions of built-in calls are kept (see the module's text; the
-    kernel list of a first run is compiled in one: :func:`lanegraph.kernel_cache.precompile`); after
-    it numba's own ``BaseFunction.get_call_type`` is back, so numba code outside lanegraph's
-    compilations (a user's own kernels) never goes through it. Yields whether the resolutions are
-    kept: not with ``LANEGRAPH_NUMBA_CALL_MEMO=0``, nor where numba's function types lack what it
-    relies on. Blocks may nest, also on several threads (numba compiles one function at a time)."""
-    from numba.core.types import functions as _functions
-
-    base = _functions.BaseFunction
-    if os.environ.get("LANEGRAPH_NUMBA_CALL_MEMO", "1") == "0" or not hasattr(base, "get_impl_key"):
-        yield False
-        return
-    with _KEEPING_LOCK:
-        if _KEEPING["depth"] == 0:
-            _KEEPING["numba's"] = base.get_call_type
-            base.get_call_type = _kept_get_call_type(base.get_call_type)
-        _KEEPING["depth"] += 1
-    try:
-        yield True
-    finally:
-        with _KEEPING_LOCK:
-            _KEEPING["depth"] -= 1
-            if _KEEPING["depth"] == 0:
-                base.get_call_type = _KEEPING["numba's"]
 
 
 def _marked(func):

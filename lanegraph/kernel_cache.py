@@ -32,6 +32,7 @@ by the run as before, a name or a type it cannot resolve is skipped.
 from __future__ import annotations
 
 import atexit
+import contextlib
 import gc
 import hashlib
 import json
@@ -42,7 +43,9 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 _STATE: dict = {"said": False, "armed": False, "helper": None, "claims": None}
@@ -292,6 +295,66 @@ def _done(claims: Path | None, i: int) -> None:
             pass
 
 
+#: numba's resolutions of built-in calls kept while lanegraph compiles its kernels (kept_call_types)
+_KEPT: dict = {}
+_KEEPING = {"depth": 0, "numba's": None}
+_KEEPING_LOCK = threading.Lock()
+
+
+def _kept_get_call_type(resolve):
+    """numba's ``BaseFunction.get_call_type`` (``resolve``) with each successful resolution kept in
+    :data:`_KEPT`, keyed by the function type, the typing context and its target, and the argument
+    types: a repeat returns the kept signature and records its implementation key as the first
+    resolution did. Failures are not kept (they are resolved again, as numba does)."""
+    from numba.core.target_extension import get_local_target
+
+    def get_call_type(self, context, args, kws):
+        try:
+            key = (self, context, get_local_target(context), tuple(args), tuple(kws.items()))
+            found = _KEPT.get(key)
+        except TypeError:  # an argument type that cannot be hashed: resolved as numba does
+            return resolve(self, context, args, kws)
+        if found is not None:
+            sig, impl = found
+            self._impl_keys[sig.args] = impl
+            return sig
+        sig = resolve(self, context, args, kws)
+        if sig is not None and sig.args in self._impl_keys:
+            _KEPT[key] = (sig, self._impl_keys[sig.args])
+        return sig
+
+    get_call_type._lanegraph_memo = True
+    return get_call_type
+
+
+@contextlib.contextmanager
+def kept_call_types() -> Iterator[bool]:
+    """Within the block, numba's resolutions of built-in calls are kept (:mod:`lanegraph._numba`'s text;
+    the kernel list of a first run is compiled in one: :func:`precompile`); after
+    it numba's own ``BaseFunction.get_call_type`` is back, so numba code outside lanegraph's
+    compilations (a user's own kernels) never goes through it. Yields whether the resolutions are
+    kept: not with ``LANEGRAPH_NUMBA_CALL_MEMO=0``, nor where numba's function types lack what it
+    relies on. Blocks may nest, also on several threads (numba compiles one function at a time)."""
+    from numba.core.types import functions as _functions
+
+    base = _functions.BaseFunction
+    if os.environ.get("LANEGRAPH_NUMBA_CALL_MEMO", "1") == "0" or not hasattr(base, "get_impl_key"):
+        yield False
+        return
+    with _KEEPING_LOCK:
+        if _KEEPING["depth"] == 0:
+            _KEEPING["numba's"] = base.get_call_type
+            base.get_call_type = _kept_get_call_type(base.get_call_type)
+        _KEEPING["depth"] += 1
+    try:
+        yield True
+    finally:
+        with _KEEPING_LOCK:
+            _KEEPING["depth"] -= 1
+            if _KEEPING["depth"] == 0:
+                base.get_call_type = _KEEPING["numba's"]
+
+
 def precompile(entries: list[dict], claims: Path | None = None) -> int:
     """Compile (or load from the kernel folder) each ``{"module", "name", "args"}`` of ``entries`` in
     order, each one this process claims in the folder ``claims`` (every one without it); returns how
@@ -302,9 +365,7 @@ def precompile(entries: list[dict], claims: Path | None = None) -> int:
     (its IR, types, LLVM IR builders), and the collections they set off took 5-17 % of the
     compilation's CPU; what they would free (at most 60 MB per process for its part of the default
     run's kernels) is collected once it is back on. numba's resolutions of built-in calls are kept
-    meanwhile (:func:`lanegraph._numba.kept_call_types`)."""
-    from ._numba import kept_call_types  # numba's resolutions kept while the list compiles
-
+    meanwhile (:func:`kept_call_types`)."""
     collecting = gc.isenabled()
     gc.disable()
     try:

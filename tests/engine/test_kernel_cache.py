@@ -284,7 +284,7 @@ def test_precompile_compiles_without_cyclic_garbage_collection(monkeypatch):
 
 
 def test_numba_keeps_the_signatures_it_resolved_while_lanegraph_compiles(monkeypatch):
-    """Within lanegraph._numba.kept_call_types (the first run's precompile) each resolution of a
+    """Within lanegraph.kernel_cache.kept_call_types (the first run's precompile) each resolution of a
     built-in call (the same function and argument types) is kept: a repeat returns the kept
     signature without trying the function's typing templates again, and records its implementation
     as the first resolution did. Outside it numba's own method is back (a user's numba code is
@@ -296,7 +296,7 @@ def test_numba_keeps_the_signatures_it_resolved_while_lanegraph_compiles(monkeyp
     from numba.core.types import functions
     from numba.core.typing import templates
 
-    from lanegraph._numba import kept_call_types
+    from lanegraph.kernel_cache import kept_call_types
 
     numbas = functions.BaseFunction.get_call_type
     assert not getattr(numbas, "_lanegraph_memo", False)
@@ -332,7 +332,7 @@ def test_numba_keeps_the_signatures_it_resolved_while_lanegraph_compiles(monkeyp
 def test_numba_resolutions_are_not_kept_when_turned_off(monkeypatch):
     from numba.core.types import functions
 
-    from lanegraph._numba import kept_call_types
+    from lanegraph.kernel_cache import kept_call_types
 
     monkeypatch.setenv("LANEGRAPH_NUMBA_CALL_MEMO", "0")
     with kept_call_types() as kept:
