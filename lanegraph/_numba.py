@@ -27,10 +27,10 @@ numba's type inference resolves each call of a built-in function or operator (``
 ``min``, ``np.empty``) by trying that function's typing templates in turn, and does it again at
 every pass over the function's constraints, for every call site: over 9,500 resolutions on a first
 run of the default graph, all but about 380 of them repeats of one already made (the same function
-and argument types). While lanegraph compiles its kernel list, :func:`lanegraph.kernel_cache.
-kept_call_types` keeps each successful resolution (per process), so a repeat costs a dictionary
-look-up: the same signatures, hence the same machine code, for 1.2-1.5 s less CPU on the first run
-(issue 32; ``LANEGRAPH_NUMBA_CALL_MEMO=0`` turns it off). Outside those compilations numba's own method is in
+and argument types). While lanegraph compiles its kernel list, each successful resolution is
+kept (:func:`lanegraph.kernel_cache.kept_call_types`), so a repeat costs a dictionary look-up: the
+same signatures, hence the same machine code, for 1.2-1.5 s less CPU on the first run (issue 32;
+``LANEGRAPH_NUMBA_CALL_MEMO=0`` turns it off). Outside those compilations numba's own method is in
 place: a user's own numba code is compiled as numba does it.
 """
 
