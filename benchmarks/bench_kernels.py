@@ -69,13 +69,10 @@ def bev_kernels(rng: np.random.Generator) -> None:
         f"(twin on 40 rows, x{scale:.0f})",
     )
     gx, gy = _features.sobel(bev)
-    ori = np.empty(bev.shape, np.float32)
     sgx, sgy = _features.sobel(small)
     row(
         "_eslt",
-        timed(
-            lambda: _features._eslt(bev, gx, gy, 6, 10.0, math.radians(15), _features._EVERYWHERE, out, ori)
-        ),
+        timed(lambda: _features._eslt(bev, gx, gy, 6, 10.0, math.radians(15), _features._EVERYWHERE)),
         timed(lambda: tl.eslt_twin(small, sgx, sgy, 6, 10.0, math.radians(15)), 1) * scale,
         f"(twin on 40 rows, x{scale:.0f})",
     )

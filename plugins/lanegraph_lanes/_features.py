@@ -206,18 +206,15 @@ _CHUNK = 16
 
 
 @jit
-def _eslt_rows(
-    img, gx, gy, window, threshold, max_angle, where, out_mask, out_theta, dense, pr, pc, pv, t0, t1
-):
+def _eslt_rows(img, gx, gy, window, threshold, max_angle, where, pr, pc, pv, t0, t1):
     """ESLT: SLT plus parallel strongest-gradient borders. ``gx``, ``gy`` are Sobel gradients (rows
     growing downwards); the edge orientation of a border pixel is ``atan2(gx, gy)`` modulo pi (from
     +x towards up). Every feature's row, column and orientation go into ``pr``, ``pc``, ``pv``
     (row-major order) from index ``t0 * _CHUNK * cols`` on; returns the index after the last one
-    written. With ``dense`` it also writes the 0/1 mask and the orientation map (-1 where not a
-    feature) into ``out_mask`` and ``out_theta``; without, it does not touch them. The node reads
-    the list only: written one after the other instead of scattered over a dense 1.3 MB map (800 x
-    400 float32) that is not in the cache, the orientations cost 0.2-0.5 ms a frame less in the
-    graph (docs/pipeline.md, "Round s8").
+    written. No dense mask or orientation map: written one after the other instead of scattered
+    over a dense 1.3 MB map (800 x 400 float32) that is not in the cache, the orientations cost
+    0.2-0.5 ms a frame less in the graph (docs/pipeline.md, "Round s8"); the feature map builds its
+    dense views from the list when a consumer asks.
     Only the pixels where the uint8 map ``where`` is set are tested (their windows may reach
     beyond it); ``where`` of shape (0, 0): every pixel.
 
@@ -254,11 +251,6 @@ def _eslt_rows(
     n = t0 * _CHUNK * cols
     for t in range(t0, t1):
         for r in range(t * _CHUNK, min(rows, (t + 1) * _CHUNK)):
-            if dense:
-                for c in range(cols):
-                    out_mask[r, c] = 0
-                for c in range(cols):
-                    out_theta[r, c] = -1.0
             c0, c1 = _row_span(where, r, cols)
             if c0 >= c1:
                 continue
@@ -278,19 +270,11 @@ def _eslt_rows(
                             gx, gy, mag2, r, c, max(c - window, 0), min(c + 1 + window, cols), cos2_max
                         )
                         if m >= 0.0:
-                            if dense:
-                                out_mask[r, c] = 1
-                                out_theta[r, c] = m
                             pr[n] = r
                             pc[n] = c
                             pv[n] = m
                             n += 1
     return n
-
-
-#: the dense maps :func:`_eslt` does not write (``dense`` False)
-_NO_MASK = np.empty((0, 0), np.uint8)
-_NO_THETA = np.empty((0, 0), np.float32)
 
 
 @functools.cache
@@ -304,12 +288,11 @@ def _threads() -> int:
     return max(1, min(_cpus(), cv2.getNumThreads()))
 
 
-def _eslt(img, gx, gy, window, threshold, max_angle, where, out_mask, out_theta, dense=True):
+def _eslt(img, gx, gy, window, threshold, max_angle, where):
     """ESLT (:func:`_eslt_rows`) over the whole image, in as many blocks of rows as there are
     threads (:func:`_threads`), the calling thread taking the first: the same maps on any number
     of threads. Returns the features' ``(rows, cols, orientations)`` (int64, int64, float32; the
-    points in row-major order, as ``np.nonzero`` of the mask gives them); with ``dense`` the mask
-    and the orientation map are written into ``out_mask`` and ``out_theta`` too."""
+    points in row-major order, as ``np.nonzero`` of a mask gives them)."""
     rows, cols = img.shape
     tasks = (rows + _CHUNK - 1) // _CHUNK
     n = min(_threads(), tasks)
@@ -326,9 +309,6 @@ def _eslt(img, gx, gy, window, threshold, max_angle, where, out_mask, out_theta,
         float(threshold),
         float(max_angle),
         where,
-        out_mask,
-        out_theta,
-        bool(dense),
         pr,
         pc,
         pv,
@@ -484,9 +464,6 @@ def eslt(params: EsltParams, image: np.ndarray, where: np.ndarray | None = None)
         float(params.threshold),
         math.radians(params.max_angle_deg),
         wm,
-        _NO_MASK,
-        _NO_THETA,
-        False,
     )
     # the points and their orientations as the kernel found them (no scan of a mask for them); the
     # map builds its dense mask and orientation (-1 elsewhere) only if a consumer asks for them

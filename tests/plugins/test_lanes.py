@@ -97,15 +97,25 @@ def test_atan2_fast_matches_numpy():
     assert np.abs(got - np.arctan2(y, x)).max() < 5e-8
 
 
+def eslt_maps(img, gx, gy, w, threshold, max_angle, where=None):
+    """ESLT's kernel (:func:`_features._eslt`) as the twin's dense maps: the 0/1 mask and the
+    orientation map (-1 where no feature) made from the features' list, with the list."""
+    where = _features._EVERYWHERE if where is None else where
+    r, c, v = _features._eslt(img, gx, gy, w, threshold, max_angle, where)
+    mask = np.zeros(img.shape, np.uint8)
+    ori = np.full(img.shape, -1.0, np.float32)
+    mask[r, c] = 1
+    ori[r, c] = v
+    return mask, ori, (r, c, v)
+
+
 @pytest.mark.parametrize("w", [2, 4, 30])
 def test_eslt_kernel_matches_twin(w):
     img = make_bev_image(rows=24, cols=40, lane_cols=(12.0, 30.0), slope=0.3, noise=10.0, seed=3).astype(
         np.float32
     )
     gx, gy = _features.sobel(img)
-    mask = np.zeros(img.shape, np.uint8)
-    ori = np.empty(img.shape, np.float32)
-    r, c, v = _features._eslt(img, gx, gy, w, 8.0, math.radians(15), _features._EVERYWHERE, mask, ori)
+    mask, ori, (r, c, v) = eslt_maps(img, gx, gy, w, 8.0, math.radians(15))
     tm, to = eslt_twin(img, gx, gy, w, 8.0, math.radians(15))
     np.testing.assert_array_equal(mask, tm)
     np.testing.assert_allclose(ori, to, atol=1e-5)
@@ -120,20 +130,12 @@ def test_eslt_kernel_on_uint8_and_int16_gradients_matches_twin(w):
     """The node's uint8 path: uint8 grey levels and cv2.spatialGradient's int16 gradients."""
     img = make_bev_image(rows=24, cols=40, lane_cols=(12.0, 30.0), slope=0.3, noise=10.0, seed=4)
     gx, gy = cv2.spatialGradient(np.ascontiguousarray(img, dtype=np.uint8), ksize=3)
-    mask = np.zeros(img.shape, np.uint8)
-    ori = np.empty(img.shape, np.float32)
-    _features._eslt(img.astype(np.uint8), gx, gy, w, 8.0, math.radians(15), _features._EVERYWHERE, mask, ori)
+    mask, ori, (r, c, v) = eslt_maps(img.astype(np.uint8), gx, gy, w, 8.0, math.radians(15))
     f32 = img.astype(np.float32)
     tm, to = eslt_twin(f32, gx.astype(np.float32), gy.astype(np.float32), w, 8.0, math.radians(15))
     np.testing.assert_array_equal(mask, tm)
     np.testing.assert_allclose(ori, to, atol=1e-5)
-    # the node's call: no dense map written (mask2 and ori2 left alone), the features' list only
-    mask2 = np.full(img.shape, 3, np.uint8)
-    ori2 = np.full(img.shape, 7.0, np.float32)
-    r, c, v = _features._eslt(
-        img.astype(np.uint8), gx, gy, w, 8.0, math.radians(15), _features._EVERYWHERE, mask2, ori2, False
-    )
-    assert np.all(mask2 == 3) and np.all(ori2 == 7.0)
+    # the features' list: the twin's points in row-major order
     np.testing.assert_array_equal(np.stack([r, c]), np.stack(np.nonzero(tm)))
     np.testing.assert_array_equal(v, ori[tm == 1])
 
@@ -200,9 +202,7 @@ def test_slt_and_eslt_make_one_threshold_test_on_a_float_boundary():
         s = np.zeros(img.shape, np.uint8)
         _features._slt(img, n, T, _features._EVERYWHERE, s)
         gx, gy = _features.sobel(img, 3)
-        m = np.empty(img.shape, np.uint8)
-        o = np.empty(img.shape, np.float32)
-        _features._eslt(img, gx, gy, n, T, math.radians(90), _features._EVERYWHERE, m, o, True)
+        m, _, _ = eslt_maps(img, gx, gy, n, T, math.radians(90))
         assert s[1, n] == m[1, n] == passes, (row.tolist(), n, T)
         assert not (m.astype(bool) & ~s.astype(bool)).any()
 
@@ -234,16 +234,14 @@ def test_slt_eslt_kernels_with_where_match_masked_twins(w):
         out = np.full(img.shape, 7, np.uint8)
         _features._slt(img, w, 5.0, where, out)
         np.testing.assert_array_equal(out, slt_twin(img, w, 5.0) * where)
-        mask = np.full(img.shape, 7, np.uint8)
-        ori = np.zeros(img.shape, np.float32)
-        _features._eslt(img, gx, gy, w, 5.0, math.radians(15), where, mask, ori)
+        mask, ori, _ = eslt_maps(img, gx, gy, w, 5.0, math.radians(15), where)
         tm, to = eslt_twin(img, gx, gy, w, 5.0, math.radians(15))
         assert tm.any() and (tm & ~where.astype(bool)).any()  # some features are masked away
         np.testing.assert_array_equal(mask, tm * where)
         np.testing.assert_allclose(ori, np.where(where > 0, to, -1.0), atol=1e-5)
     empty = np.zeros(img.shape, np.uint8)  # nothing to test: no features, every row skipped
-    _features._eslt(img, gx, gy, w, 5.0, math.radians(15), empty, mask, ori)
-    assert not mask.any() and (ori == -1.0).all()
+    mask, ori, (r, _, _) = eslt_maps(img, gx, gy, w, 5.0, math.radians(15), empty)
+    assert not mask.any() and (ori == -1.0).all() and r.size == 0
 
 
 @pytest.mark.parametrize("node", [slt, eslt])
@@ -1683,24 +1681,14 @@ def test_to_image_matches_sort_unique_twin(H):
 
 
 def test_eslt_node_dense_orientation_is_minus_one_off_the_features():
-    """The node leaves its orientation buffer unfilled off the features; the map's dense
-    orientation, built on first read, is the kernel's filled one (-1 where no feature)."""
+    """The node writes no dense map; the map's dense mask and orientation, built on first read,
+    are the kernel's features (-1 where no feature)."""
     img = make_bev_image(rows=60, cols=50, lane_cols=(15.0, 35.0), noise=6.0, seed=2)
     f = eslt(EsltParams(), image=img)["features"]
     gx, gy = cv2.spatialGradient(np.ascontiguousarray(img, dtype=np.uint8), ksize=3)
-    mask = np.empty(img.shape, np.uint8)
-    ori = np.empty(img.shape, np.float32)
     p = EsltParams()
-    _features._eslt(
-        img.astype(np.uint8),
-        gx,
-        gy,
-        p.window,
-        float(p.threshold),
-        math.radians(p.max_angle_deg),
-        _features._EVERYWHERE,
-        mask,
-        ori,
+    mask, ori, _ = eslt_maps(
+        img.astype(np.uint8), gx, gy, p.window, float(p.threshold), math.radians(p.max_angle_deg)
     )
     assert mask.any()
     np.testing.assert_array_equal(f.mask, mask.view(bool))
@@ -1716,9 +1704,7 @@ def test_eslt_gives_the_same_maps_on_any_number_of_threads(threads, monkeypatch)
     maps = []
     for n in (2, threads):
         monkeypatch.setattr(_features, "_threads", lambda n=n: n)
-        mask = np.full(img.shape, 9, np.uint8)
-        ori = np.full(img.shape, 9.0, np.float32)
-        points = _features._eslt(img, gx, gy, 6, 10.0, math.radians(15), where, mask, ori, True)
+        mask, ori, points = eslt_maps(img, gx, gy, 6, 10.0, math.radians(15), where)
         maps.append((mask, ori, *points))
     assert maps[0][0].any() and set(np.unique(maps[0][0])) <= {0, 1}  # every row written
     for a, b in zip(maps[0], maps[1]):  # the maps and the features' list, blocks joined in order
