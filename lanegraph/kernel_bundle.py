@@ -25,7 +25,7 @@ A bundle is used only where it fits, else the kernels are compiled as before:
   machine, the system and LLVM's target triple it was made with: all must be this process's (numba's
   data structures and the CPython wrapper's code depend on each);
 - each kernel's entry records the digest of its package folder's Python files and of
-  ``lanegraph/_numba.py`` (:func:`lanegraph._numba.package_digest`, the stamp of numba's cache for
+  ``lanegraph/_numba.py`` (:func:`package_digest`, the stamp of numba's cache for
   lanegraph's kernels): an entry made from other sources than the installed ones is skipped;
 - ``LANEGRAPH_KERNEL_BUNDLE=0`` turns it off.
 
@@ -37,10 +37,13 @@ user or a graph names): its entries are pickles, as numba's cache files are. It 
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import json
 import os
 import pickle
 import platform
+import re
 import sys
 import zlib
 from importlib import metadata
@@ -52,6 +55,23 @@ BUNDLE = Path(__file__).resolve().parent / "data" / "kernels.bundle"
 FORMAT = 1
 
 _LOADED: dict[Path, dict | None] = {}
+
+
+@functools.cache
+def package_digest(folder: str) -> str:
+    """SHA-256 of the Python files of ``folder`` (not its subfolders; names and contents, in name
+    order) and of ``lanegraph/_numba.py`` (the kernels' flags): what a compiled kernel of that folder
+    depends on (numba's cache stamp for lanegraph's kernels, :mod:`lanegraph._numba`, and a bundle
+    entry's). Read once per process."""
+    h = hashlib.sha256()
+    files = sorted(f for f in os.listdir(folder) if f.endswith(".py")) if os.path.isdir(folder) else []
+    for name in files:
+        h.update(name.encode() + b"\0")
+        with open(os.path.join(folder, name), "rb") as fh:
+            h.update(hashlib.sha256(fh.read()).digest())
+    with open(Path(__file__).with_name("_numba.py"), "rb") as fh:
+        h.update(hashlib.sha256(fh.read()).digest())
+    return h.hexdigest()
 
 
 def enabled() -> bool:
@@ -125,8 +145,6 @@ def entry_key(entry: dict) -> str:
 
 
 def _digest(dispatcher) -> str:
-    from ._numba import package_digest
-
     return package_digest(os.path.dirname(os.path.abspath(dispatcher.py_func.__code__.co_filename)))
 
 
@@ -205,8 +223,6 @@ def write_bundle(entries: list[dict], out: Path) -> int:
     from numba.core import serialize
     from numba.core.codegen import CPUCodeLibrary
 
-    from .kernel_cache import decode_type, precompile
-
     # the bitcode of each library as LLVM's code generator gets it: it rewrites the module in place
     # as it makes machine code (its IR preparation for the target), and bitcode taken afterwards
     # would be prepared twice (the same values, other machine code)
@@ -218,7 +234,9 @@ def write_bundle(entries: list[dict], out: Path) -> int:
 
     CPUCodeLibrary._finalize_final_module = _kept
     try:
-        precompile(entries)
+        for entry in entries:
+            kernel = getattr(importlib.import_module(str(entry["module"])), str(entry["name"]))
+            kernel.compile(tuple(decode_type(str(a)) for a in entry["args"]))
     finally:
         CPUCodeLibrary._finalize_final_module = finalize
     kept = {}
@@ -241,18 +259,58 @@ def write_bundle(entries: list[dict], out: Path) -> int:
     return len(kept)
 
 
+_ARRAY = re.compile(r"array\((\w+), (\d+), ([CFA])(, readonly)?\)")
+
+
+def encode_type(t) -> str | None:
+    """A numba argument type as the kernel list writes it (``float64``, ``array(uint8, 2, C)``,
+    ``array(int64, 1, C, readonly)``); None for a type it does not write (literals, tuples, ...)."""
+    from numba.core import types
+
+    if isinstance(t, types.Literal):
+        return None
+    if isinstance(t, types.Array) and isinstance(t.dtype, (types.Integer, types.Float, types.Boolean)):
+        return f"array({t.dtype}, {t.ndim}, {t.layout}{'' if t.mutable else ', readonly'})"
+    if isinstance(t, (types.Integer, types.Float, types.Boolean)):
+        return str(t)
+    return None
+
+
+def decode_type(text: str):
+    """The numba type :func:`encode_type` wrote (ValueError, TypeError for another text)."""
+    import numba
+    import numpy as np
+    from numba.core import types
+
+    m = _ARRAY.fullmatch(text)
+    if m:
+        return types.Array(numba.from_dtype(np.dtype(m[1])), int(m[2]), m[3], readonly=bool(m[4]))
+    if not re.fullmatch(r"(bool|u?int(8|16|32|64)|float(32|64))", text):
+        raise ValueError(f"not a kernel argument type: {text!r}")
+    return numba.from_dtype(np.dtype(text))
+
+
 def _main(argv: list[str]) -> int:
     if len(argv) != 2:
         print("usage: python -m lanegraph.kernel_bundle LIST OUT (in a process with an empty kernel folder)")
         return 2
-    from .kernel_cache import _read_list
-
-    n = write_bundle(_read_list(Path(argv[0])), Path(argv[1]))
+    n = write_bundle(json.loads(Path(argv[0]).read_text(encoding="utf-8")), Path(argv[1]))
     print(f"{n} kernels -> {argv[1]}")
     return 0
 
 
-__all__ = ["BUNDLE", "applies", "enabled", "environment", "install", "read_header", "write_bundle"]
+__all__ = [
+    "BUNDLE",
+    "applies",
+    "decode_type",
+    "enabled",
+    "encode_type",
+    "environment",
+    "install",
+    "package_digest",
+    "read_header",
+    "write_bundle",
+]
 
 if __name__ == "__main__":
     sys.exit(_main(sys.argv[1:]))

@@ -43,7 +43,6 @@ import hashlib
 import json
 import os
 import platform
-import re
 import shutil
 import subprocess
 import sys
@@ -52,6 +51,9 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
+
+from . import kernel_bundle
+from .kernel_bundle import decode_type, encode_type, install
 
 _STATE: dict = {"said": False, "armed": False, "helper": None, "claims": None, "first": False}
 
@@ -133,9 +135,7 @@ def _say(where: Path | None) -> None:
         return
     _STATE["said"] = True
     kept = f"once: they are kept in {where}" if where else "LANEGRAPH_NUMBA_CACHE=0: in every process"
-    from .kernel_bundle import applies
-
-    if applies():
+    if kernel_bundle.applies():
         cost = "from lanegraph's LLVM bitcode: about a second longer on 2 free cores"
     else:
         cost = "the first run takes about seven seconds longer on 2 free cores, more on a busy machine"
@@ -246,9 +246,8 @@ def compile_share() -> int:
     nothing to do."""
     proc, claims = _STATE["helper"], _STATE["claims"]
     if proc is None or claims is None:
-        from .kernel_bundle import applies
-
-        if not (_STATE.get("first") and os.environ.get("LANEGRAPH_PRECOMPILE", "1") != "0" and applies()):
+        first = _STATE.get("first") and os.environ.get("LANEGRAPH_PRECOMPILE", "1") != "0"
+        if not (first and kernel_bundle.applies()):
             return 0
         _STATE["first"] = False  # once
         return precompile(_read_list(KERNEL_LIST))
@@ -261,37 +260,6 @@ def compile_share() -> int:
             break
         time.sleep(0.01)
     return done
-
-
-_ARRAY = re.compile(r"array\((\w+), (\d+), ([CFA])(, readonly)?\)")
-
-
-def encode_type(t) -> str | None:
-    """A numba argument type as the kernel list writes it (``float64``, ``array(uint8, 2, C)``,
-    ``array(int64, 1, C, readonly)``); None for a type it does not write (literals, tuples, ...)."""
-    from numba.core import types
-
-    if isinstance(t, types.Literal):
-        return None
-    if isinstance(t, types.Array) and isinstance(t.dtype, (types.Integer, types.Float, types.Boolean)):
-        return f"array({t.dtype}, {t.ndim}, {t.layout}{'' if t.mutable else ', readonly'})"
-    if isinstance(t, (types.Integer, types.Float, types.Boolean)):
-        return str(t)
-    return None
-
-
-def decode_type(text: str):
-    """The numba type :func:`encode_type` wrote (ValueError, TypeError for another text)."""
-    import numba
-    import numpy as np
-    from numba.core import types
-
-    m = _ARRAY.fullmatch(text)
-    if m:
-        return types.Array(numba.from_dtype(np.dtype(m[1])), int(m[2]), m[3], readonly=bool(m[4]))
-    if not re.fullmatch(r"(bool|u?int(8|16|32|64)|float(32|64))", text):
-        raise ValueError(f"not a kernel argument type: {text!r}")
-    return numba.from_dtype(np.dtype(text))
 
 
 def _claim(claims: Path | None, i: int) -> bool:
@@ -398,8 +366,6 @@ def precompile(entries: list[dict], claims: Path | None = None) -> int:
 def _precompile(entries: list[dict], claims: Path | None) -> int:
     """:func:`precompile`'s loop."""
     import importlib  # the kernels' modules load lanegraph._numba: numba's cache folder, as the run's
-
-    from .kernel_bundle import install
 
     done = 0
     for i, entry in enumerate(entries):
