@@ -4,7 +4,10 @@ synthetic scene, output piped), as a new user meets it.
 Three kinds of run, measured in turns (``--rounds`` of each, so that the load of a shared machine
 falls on all of them alike):
 
-- **first on this machine**: an empty kernel folder and an empty cache folder: every kernel compiles;
+- **first on this machine**: an empty kernel folder and an empty cache folder: every kernel compiles,
+  or has its machine code made of lanegraph's shipped bitcode where that applies
+  (:mod:`lanegraph.kernel_bundle`);
+- **first, bundle off**: the same with ``LANEGRAPH_KERNEL_BUNDLE=0``: every kernel compiles;
 - **new cache folder**: an empty ``LANEGRAPH_CACHE_DIR``, the machine's kernel folder already filled
   (the kernels are shared by every cache folder: :mod:`lanegraph.kernel_cache`);
 - **warm**: the same cache folder again.
@@ -74,7 +77,7 @@ def run_once(
     return wall, first if first is not None else wall, (out / "lanes.jsonl").read_bytes(), cpu
 
 
-KINDS = ("first on this machine", "new cache folder", "warm")
+KINDS = ("first on this machine", "first, bundle off", "new cache folder", "warm")
 
 
 def main() -> None:
@@ -113,12 +116,16 @@ def main() -> None:
         for k in range(opt.rounds):
             for inst, python in installs.items():
                 for kind in KINDS:
-                    if kind == "first on this machine":
+                    if kind.startswith("first"):
                         env = {
                             **base,
-                            "LANEGRAPH_CACHE_DIR": str(root / f"{inst}-c{k}"),
-                            "LANEGRAPH_KERNEL_CACHE": str(root / f"{inst}-k{k}"),
+                            "LANEGRAPH_CACHE_DIR": str(root / f"{inst}-c{k}-{kind[7:10]}"),
+                            "LANEGRAPH_KERNEL_CACHE": str(root / f"{inst}-k{k}-{kind[7:10]}"),
                         }
+                        if kind == "first, bundle off":
+                            env["LANEGRAPH_KERNEL_BUNDLE"] = "0"
+                        else:
+                            env.pop("LANEGRAPH_KERNEL_BUNDLE", None)
                     elif kind == "new cache folder":
                         env = {**warm_env[inst], "LANEGRAPH_CACHE_DIR": str(root / f"{inst}-n{k}")}
                     else:

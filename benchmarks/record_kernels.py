@@ -6,6 +6,15 @@ times, the least kept) and written beside it. Run it after changing a kernel, it
 default graph's kernels (a stale list costs the first run time, never a result):
 
     python benchmarks/record_kernels.py [lanegraph/data/kernels.json] [--rounds N] [-- RUN ARGS]
+
+It then writes the list's kernels as LLVM bitcode beside it (``kernels.bundle``,
+:mod:`lanegraph.kernel_bundle`: a first run makes their machine code instead of compiling them),
+compiled in a fresh process with an empty kernel folder. A bundle is used only for the sources it
+was made from: after any change in ``plugins/lanegraph_lanes/``, ``plugins/lanegraph_road/`` or
+``lanegraph/_numba.py`` (the kernels' signatures unchanged) remake it alone, in a few seconds
+(``tests/engine/test_kernel_bundle.py`` fails until then):
+
+    python benchmarks/record_kernels.py --bundle-only
 """
 
 from __future__ import annotations
@@ -99,8 +108,29 @@ def compile_seconds(entry: dict, rounds: int) -> float:
     return best
 
 
+def write_bundle(kernel_list: Path) -> None:
+    """Write ``kernels.bundle`` beside ``kernel_list`` from a fresh process with an empty kernel
+    folder (:func:`lanegraph.kernel_bundle.write_bundle`)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        env = {
+            **os.environ,
+            "NUMBA_CACHE_DIR": tmp,
+            "LANEGRAPH_PRECOMPILE": "0",
+            "LANEGRAPH_KERNEL_BUNDLE": "0",
+        }
+        out = kernel_list.with_name("kernels.bundle")
+        subprocess.run(
+            [sys.executable, "-m", "lanegraph.kernel_bundle", str(kernel_list), str(out)],
+            env=env, check=True, cwd=ROOT,
+        )  # fmt: skip
+
+
 def main() -> None:
     args = sys.argv[1:]
+    if "--bundle-only" in args:
+        args.remove("--bundle-only")
+        write_bundle(Path(args[0]) if args else ROOT / "lanegraph" / "data" / "kernels.json")
+        return
     run_args = args[args.index("--") + 1 :] if "--" in args else []
     args = args[: args.index("--")] if "--" in args else args
     rounds = 1
@@ -117,6 +147,7 @@ def main() -> None:
     text = ",\n".join(json.dumps(e) for e in entries)  # one kernel a line
     out.write_text(f"[\n{text}\n]\n", encoding="utf-8")
     print(f"{len(entries)} kernels, {sum(e['seconds'] for e in entries):.1f} s of compilation -> {out}")
+    write_bundle(out)
 
 
 if __name__ == "__main__":

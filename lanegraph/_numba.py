@@ -36,10 +36,9 @@ place: a user's own numba code is compiled as numba does it.
 
 from __future__ import annotations
 
-import functools
-import hashlib
 import os
 
+from .kernel_bundle import package_digest  # noqa: F401 - a kernel's sources, for numba's cache stamp
 from .kernel_cache import cache_root, kernel_cache_dir  # noqa: F401 - cache_root: lanegraph.cache uses it
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # read when the OpenMP runtime loads: see above
@@ -59,21 +58,6 @@ if not numba.config.CACHE_DIR:
     numba.config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]
 
 from numba.core import caching as _caching  # noqa: E402
-
-
-@functools.cache
-def package_digest(folder: str) -> str:
-    """SHA-256 of the Python files of ``folder`` (not its subfolders; names and contents, in name
-    order) and of this file: what a cached kernel of that folder depends on. Read once per process."""
-    h = hashlib.sha256()
-    files = sorted(f for f in os.listdir(folder) if f.endswith(".py")) if os.path.isdir(folder) else []
-    for name in files:
-        h.update(name.encode() + b"\0")
-        with open(os.path.join(folder, name), "rb") as fh:
-            h.update(hashlib.sha256(fh.read()).digest())
-    with open(__file__, "rb") as fh:
-        h.update(hashlib.sha256(fh.read()).digest())
-    return h.hexdigest()
 
 
 class _PackageLocator(_caching.UserProvidedCacheLocator):
