@@ -6,15 +6,16 @@ types, writing LLVM IR) and LLVM's optimisation of that IR; only the last step, 
 the optimised IR, belongs to the machine. ``lanegraph/data/kernels.bundle`` holds, for each kernel of
 the kernel list (``lanegraph/data/kernels.json``), what numba's own cache keeps of a compiled kernel
 (its type signature, its environment, the descriptor of its function) with the library as the
-optimised *bitcode* of its module (numba's ``serialize_using_bitcode``: every function it calls
-linked in) instead of machine code. :func:`install` makes machine code of it for this machine
+optimised *bitcode* of its module (every function it calls linked in; taken as LLVM's code generator
+gets it) instead of machine code. :func:`install` makes machine code of it for this machine
 (numba's ``_finalize_final_module``), registers the kernel's overload with its dispatcher, as numba
 does with a kernel from its cache, and saves it to the kernel folder, as numba does after compiling
-it: the next runs load it from there like any compiled kernel. On 2 CPUs the default run's 18 kernels
-take about 1.5 s of CPU this way against about 11 s compiled (``benchmarks/bench_first_run.py``).
+it: the next runs load it from there like any compiled kernel. The default run's 18 kernels take
+about 1.7 s of CPU this way against about 11 s compiled (``benchmarks/bench_first_run.py``).
 
-The same bitcode compiled on the same kind of machine gives the same machine code: the kernels
-and their results are those of a compilation. LLVM's optimisations keep floating-point results exact
+On the machine that made it, 16 of the 18 kernels get the object code of a compilation byte for
+byte; two differ in the order of a few instructions (bitcode does not keep the order of a value's
+uses, which LLVM's code generator reads), never in their values. LLVM's optimisations keep floating-point results exact
 (lanegraph's kernels are not ``fastmath``), so machine code made for another x86-64 CPU than the one
 the bundle was made on computes the same values; only its speed may differ a little (vector widths
 chosen for the maker's CPU).
