@@ -140,6 +140,15 @@ def _entries(path: Path) -> dict | None:
     return _LOADED[path]
 
 
+def read_list(path: Path) -> list[dict]:
+    """The kernel list's entries (``lanegraph/data/kernels.json``; [] for a file that cannot be read)."""
+    try:
+        entries = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return []
+    return [e for e in entries if isinstance(e, dict)] if isinstance(entries, list) else []
+
+
 def entry_key(entry: dict) -> str:
     """A kernel list entry's key in a bundle: ``module:name:arg|arg|...``."""
     return f"{entry['module']}:{entry['name']}:{'|'.join(str(a) for a in entry['args'])}"
@@ -165,10 +174,11 @@ def install(dispatcher, sig: tuple, entry: dict, path: Path = BUNDLE) -> bool:
     with global_compiler_lock:
         if sig in dispatcher.overloads:
             return True
-        dispatcher.targetctx.refresh()  # numba's runtime (NRT) and registries, as its cache's load does
-        cres = _rebuild(dispatcher.targetctx, pickle.loads(item[1]))
-        if tuple(cres.signature.args) != tuple(sig):
+        payload = pickle.loads(item[1])
+        if tuple(payload[3].args) != tuple(sig):  # its signature: checked before any machine code
             return False
+        dispatcher.targetctx.refresh()  # numba's runtime (NRT) and registries, as its cache's load does
+        cres = _rebuild(dispatcher.targetctx, payload)
         dispatcher.targetctx.insert_user_function(cres.entry_point, cres.fndesc, [cres.library])
         dispatcher.add_overload(cres)
         dispatcher._cache.save_overload(sig, cres)  # a NullCache without the disk cache
@@ -234,16 +244,17 @@ def write_bundle(entries: list[dict], out: Path) -> int:
         return finalize(self)
 
     CPUCodeLibrary._finalize_final_module = _kept
+    kernels = []  # (entry, kernel, signature), each compiled as it is resolved
     try:
         for entry in entries:
             kernel = getattr(importlib.import_module(str(entry["module"])), str(entry["name"]))
-            kernel.compile(tuple(decode_type(str(a)) for a in entry["args"]))
+            sig = tuple(decode_type(str(a)) for a in entry["args"])
+            kernel.compile(sig)
+            kernels.append((entry, kernel, sig))
     finally:
         CPUCodeLibrary._finalize_final_module = finalize
     kept = {}
-    for entry in entries:
-        kernel = getattr(importlib.import_module(str(entry["module"])), str(entry["name"]))
-        sig = tuple(decode_type(str(a)) for a in entry["args"])
+    for entry, kernel, sig in kernels:
         cres = kernel.overloads.get(sig)
         if cres is None or kernel.stats.cache_hits.get(sig, 0):
             raise RuntimeError(f"{entry_key(entry)}: not compiled in this process (empty the kernel folder)")
@@ -295,7 +306,7 @@ def _main(argv: list[str]) -> int:
     if len(argv) != 2:
         print("usage: python -m lanegraph.kernel_bundle LIST OUT (in a process with an empty kernel folder)")
         return 2
-    n = write_bundle(json.loads(Path(argv[0]).read_text(encoding="utf-8")), Path(argv[1]))
+    n = write_bundle(read_list(Path(argv[0])), Path(argv[1]))
     print(f"{n} kernels -> {argv[1]}")
     return 0
 
@@ -310,6 +321,7 @@ __all__ = [
     "install",
     "package_digest",
     "read_header",
+    "read_list",
     "write_bundle",
 ]
 

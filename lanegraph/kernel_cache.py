@@ -40,7 +40,6 @@ import atexit
 import contextlib
 import gc
 import hashlib
-import json
 import os
 import platform
 import shutil
@@ -54,6 +53,7 @@ from pathlib import Path
 
 from . import kernel_bundle
 from .kernel_bundle import decode_type, encode_type, install
+from .kernel_bundle import read_list as _read_list
 
 _STATE: dict = {"said": False, "armed": False, "helper": None, "claims": None, "first": False}
 
@@ -387,15 +387,6 @@ def _precompile(entries: list[dict], claims: Path | None) -> int:
         finally:
             _done(claims, i)
     return done
-
-
-def _read_list(path: Path) -> list[dict]:
-    """The kernel list's entries ([] for a file that cannot be read)."""
-    try:
-        entries = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return []
-    return [e for e in entries if isinstance(e, dict)] if isinstance(entries, list) else []
 
 
 def _main(argv: list[str]) -> int:

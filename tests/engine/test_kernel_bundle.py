@@ -17,12 +17,9 @@ import pytest
 
 from lanegraph import kernel_bundle, kernel_cache
 
+from .test_kernel_cache import _GOOD as _KTH  # kth_smallest's list entry
+
 ROOT = Path(__file__).resolve().parents[2]
-_KTH = {
-    "module": "lanegraph_lanes._select",
-    "name": "kth_smallest",
-    "args": ["array(float64, 1, C)", "int64", "int64"],
-}
 
 
 def _py(code: str, cache: Path, *args: str, **env: str) -> subprocess.CompletedProcess:
