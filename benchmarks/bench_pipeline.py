@@ -24,6 +24,11 @@ disturbed one):
   frames/s, and the ceiling the overlap of reading, matching and the nodes works towards; and that
   CPU time by thread in the first of those runs (Linux: the SGBM bands' pool, the decoders, the main
   thread, OpenCV's and numba's workers), to see which part of a frame is the longest;
+- the floors: the CPU time a frame of reading (the decoding threads' in the first end-to-end run),
+  and of the disparity node and of the nodes after it (the process's, every thread, while the node
+  runs, in the run that computes one node at a time: :class:`NodeCpu`; medians per frame), and the
+  frames/s the CPUs free to the process would give at most if they were always busy
+  with reading and the disparity alone (every other node free), and with every node as it is;
 - the load average beside the figures (the machines are shared: a figure taken under load is
   not an idle machine's);
 - with --cold-start: the wall time of a fresh `lanegraph run --frames 0:1` process, twice (the
@@ -45,6 +50,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from lanegraph import hookimpl
 from lanegraph._runtime import available_cpus
 from lanegraph.graph.validation import load_graph
 from lanegraph.nodes import RunContext
@@ -150,6 +156,39 @@ class ThreadClock:
         return out
 
 
+class NodeCpu:
+    """The process's CPU time (every thread: OpenCV's and the nodes' own workers too) while each
+    node runs, per frame, in ms: registered with a run that computes one node at a time (no
+    reading ahead, no prefetch, nothing computed ahead), it is that node's CPU."""
+
+    def __init__(self) -> None:
+        self.started: dict[str, float] = {}
+        self.ms: dict[str, list[float]] = {}
+
+    @hookimpl
+    def lanegraph_before_node(self, node_id: str, node_type: str, frame: str | None, inputs: dict) -> None:
+        self.started[node_id] = time.process_time()
+
+    @hookimpl
+    def lanegraph_after_node(
+        self,
+        node_id: str,
+        node_type: str,
+        frame: str | None,
+        outputs: object,
+        elapsed_ms: float,
+        error: object,
+    ) -> None:
+        t0 = self.started.pop(node_id, None)
+        if t0 is not None and frame is not None:
+            self.ms.setdefault(node_id, []).append(1000.0 * (time.process_time() - t0))
+
+    def median_sum(self, ids, frames: int) -> float:
+        """The median over the last ``frames`` frames of the per-frame sum of ``ids``' CPU."""
+        rows = [self.ms[i][-frames:] for i in ids if len(self.ms.get(i, ())) >= frames]
+        return float(np.median(np.sum(rows, axis=0))) if rows else 0.0
+
+
 def bench(
     graph_path: str,
     drive: Path,
@@ -193,8 +232,19 @@ def bench(
             src_node.params = src_node.params.model_copy(update={"read_ahead": 0})
         return ex
 
-    runs = [no_read_ahead().run() for _ in range(repeat)]
-    res = min(runs, key=lambda r: float(np.median(per_frame(r, [i for i in g.nodes if i != src]))))
+    runs, clocks = [], []
+    for _ in range(repeat):
+        ex, clock = no_read_ahead(), NodeCpu()
+        ex.pm.register(clock)  # the process-wide manager: taken off again before the end-to-end runs
+        try:
+            runs.append(ex.run())
+        finally:
+            ex.pm.unregister(clock)
+        clocks.append(clock)
+    best = min(
+        range(repeat), key=lambda k: float(np.median(per_frame(runs[k], [i for i in g.nodes if i != src])))
+    )
+    res, node_cpu = runs[best], clocks[best]
     # 2. end to end, as `lanegraph run` does it: the next frame is read while this one is
     #    computed; best of `repeat` runs
     walls, cpus, threads = [], [], {}
@@ -245,6 +295,30 @@ def bench(
         print(
             "  CPU a frame by thread (the first run, sampled after each frame; clock ticks of 10 ms): "
             + ", ".join(f"{k} {1000.0 * v / max(e2e.frames, 1):.1f} ms" for v, k in parts)
+        )
+    # reading: the decoding threads' CPU in the end-to-end run (the source is not a hooked node call);
+    # where the source decodes in the main thread (no reading thread), its median time in the
+    # one-node-at-a-time run
+    if threads.get("lanegraph-read", 0) > 0:
+        reading = 1000.0 * threads["lanegraph-read"] / max(e2e.frames, 1)
+    else:
+        reading = float(np.median(res.timings_ms.get(src, [0.0])[-n:]))
+    floor = {
+        "reading": reading,
+        "disparity": node_cpu.median_sum(disp[:1], n),
+        "after": node_cpu.median_sum(sorted(after), n),
+    }
+    rest = node_cpu.median_sum(sorted(set(g.nodes) - {src} - set(disp[:1]) - after), n)
+    least = floor["reading"] + floor["disparity"]
+    every = least + floor["after"] + rest
+    if least > 0:
+        print(
+            f"  floors, CPU a frame (reading: its threads end to end; the nodes: every thread while the node "
+            f"runs, one node at a time): reading "
+            f"{floor['reading']:.1f} ms, the disparity {floor['disparity']:.1f} ms, the nodes after it "
+            f"{floor['after']:.1f} ms, the others {rest:.1f} ms; {n_cpu} CPUs always busy would give at most "
+            f"{1000.0 * n_cpu / least:.1f} frames/s with reading and the disparity alone (every other node "
+            f"free), {1000.0 * n_cpu / every:.1f} with every node as it is"
         )
     compute = sum(
         float(np.median(ts))

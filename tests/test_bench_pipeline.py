@@ -51,3 +51,50 @@ def test_thread_clock_keeps_an_ended_thread_and_groups_by_name():
     assert 0.26 <= got["lanegraph-spin"] <= 0.4  # both threads' 0.15 s, as /proc counted them
     assert got["main"] >= 0.03
     assert not any(k.startswith("lanegraph-spin_") for k in got)
+
+
+def test_node_cpu_counts_every_thread_while_a_node_runs():
+    """The CPU of a node's call, its worker threads' included; calls outside a frame (constant
+    nodes) are left out; the per-frame sums of several nodes."""
+    clock = bench_pipeline.NodeCpu()
+    for frame in ("0", "1", "2"):
+        clock.lanegraph_before_node(node_id="a", node_type="t", frame=frame, inputs={})
+        worker = threading.Thread(target=_spin, args=(0.06,))
+        worker.start()
+        _spin(0.03)
+        worker.join()
+        clock.lanegraph_after_node(
+            node_id="a", node_type="t", frame=frame, outputs={}, elapsed_ms=0.0, error=None
+        )
+        clock.lanegraph_before_node(node_id="b", node_type="t", frame=frame, inputs={})
+        clock.lanegraph_after_node(
+            node_id="b", node_type="t", frame=frame, outputs={}, elapsed_ms=0.0, error=None
+        )
+    clock.lanegraph_before_node(node_id="c", node_type="t", frame=None, inputs={})
+    clock.lanegraph_after_node(node_id="c", node_type="t", frame=None, outputs={}, elapsed_ms=0.0, error=None)
+    assert set(clock.ms) == {"a", "b"} and len(clock.ms["a"]) == 3
+    assert all(85.0 <= ms <= 200.0 for ms in clock.ms["a"])  # 30 ms here, 60 ms in the worker
+    assert clock.median_sum(["a", "b"], 3) >= clock.median_sum(["a"], 3) >= 85.0
+    assert clock.median_sum(["a"], 4) == 0.0  # fewer frames than asked: nothing to sum
+
+
+def test_node_cpu_sees_every_node_of_a_run(tmp_path):
+    from lanegraph.graph.validation import load_graph
+    from lanegraph.nodes import RunContext
+    from lanegraph.run.executor import Executor
+
+    ex = Executor(
+        load_graph(ROOT / "graphs" / "paper.yaml"),
+        RunContext(input_path=None, out_dir=tmp_path, frames=slice(0, 2)),
+        prefetch=0,
+    )
+    clock = bench_pipeline.NodeCpu()
+    ex.pm.register(clock)
+    try:
+        ex.run()
+    finally:
+        ex.pm.unregister(clock)
+    frame_nodes = set(ex.graph.nodes) - {ex.graph.source.id}
+    assert set(clock.ms) <= frame_nodes and {"disp", "road", "fit"} <= set(clock.ms)
+    assert all(len(v) == 2 and min(v) >= 0.0 for v in clock.ms.values())
+    assert clock.ms["disp"][0] > 0.0

@@ -50,7 +50,7 @@ from lanegraph import InputError, Port, node_type
 from lanegraph._runtime import available_cpus, worker_pool
 from lanegraph.types import Calibration, RoadModel
 
-from ._common import gray_pair, scaled_disparities, upsample_disparity
+from ._common import gray_pair, reduce_pair, scaled_disparities, upsample_disparity
 from ._opencv import SgbmParams, _check_range, _sgbm_matcher
 
 #: raw (1/16 px) value of an invalid pixel in the stitched map before the speckle filter
@@ -332,12 +332,7 @@ def road_sgbm(
         raise InputError("input 'calib': needed with the 'road' input (f B, cx, cy of the road model)")
     gl, gr = gray_pair(left, right)
     H, W = gl.shape
-    s = float(params.scale)
-    if s < 1.0:
-        size = (max(2, int(round(W * s))), max(2, int(round(H * s))))
-        gl = cv2.resize(gl, size, interpolation=cv2.INTER_AREA)
-        gr = cv2.resize(gr, size, interpolation=cv2.INTER_AREA)
-        s = size[0] / W
+    gl, gr, s = reduce_pair(gl, gr, float(params.scale))
     h, w = gl.shape
     n_disp = scaled_disparities(params.num_disparities, s, 16)
     d_min = int(round(params.min_disparity * s))
@@ -359,13 +354,11 @@ def road_sgbm(
             columns = (np.floor(cx - half) - pad, np.ceil(cx + half) + pad + 1)
     plan = band_plan(h, w, first, params.band_rows, d_min, n_disp, ranges, columns)
     jobs: list = [("band", job) for job in plan]
-    coarse_size = None
-    if ranges is not None and params.obstacles == "coarse" and plan:
-        cs = float(params.obstacle_scale)
-        coarse_size = (max(2, int(round(w * cs))), max(2, int(round(h * cs))))
+    coarse = ranges is not None and params.obstacles == "coarse" and bool(plan)
+    if coarse:
         jobs.append(("coarse", plan[0].a))
     raw = np.full((h, w), _INVALID_RAW, np.int16)
-    results = _run_jobs(params, gl, gr, jobs, d_min, coarse_size, raw)
+    results = _run_jobs(params, gl, gr, jobs, d_min, raw)
     if plan and params.speckle_window_size > 0:
         # on the rows the bands cover only: the rows above are all invalid, and OpenCV's speckle
         # filter neither starts from nor joins an invalid pixel, so it is the same map
@@ -376,7 +369,7 @@ def road_sgbm(
     d = raw.astype(np.float32)
     np.maximum(d, 0.0, out=d)
     d *= np.float32(1.0 / 16.0)
-    if coarse_size is not None:
+    if coarse:
         d = merge_coarse(d, results[-1], plan, (w, h), params.coarse_tolerance_px * s)
     return {"disparity": upsample_disparity(d, (H, W), s, params.upsample)}
 
@@ -387,7 +380,6 @@ def _run_jobs(
     gr: np.ndarray,
     jobs: list,
     d_min: int,
-    coarse_size: tuple[int, int] | None,
     raw: np.ndarray,
 ) -> list[np.ndarray | None]:
     """Every band (written into ``raw``) and the coarse pass on the thread pool; the results in
@@ -397,7 +389,7 @@ def _run_jobs(
         kind, job = item
         if kind == "band":
             return _band(params, gl, gr, job, d_min, raw)
-        return _coarse(params, gl, gr, job, coarse_size)
+        return _coarse(params, gl, gr, job)
 
     if not jobs:
         return []
@@ -411,16 +403,14 @@ def _run_jobs(
     return [done[i] for i in range(len(jobs))]
 
 
-def _coarse(
-    params: RoadSgbmParams, gl: np.ndarray, gr: np.ndarray, first: int, size: tuple[int, int]
-) -> np.ndarray:
-    """The full range at ``size`` (width, height) on the rows from ``first`` (computing rows)
-    down, brought back to the computing resolution: float32 disparities, invalid = 0."""
+def _coarse(params: RoadSgbmParams, gl: np.ndarray, gr: np.ndarray, first: int) -> np.ndarray:
+    """The full range at ``obstacle_scale`` on the rows from ``first`` (computing rows) down,
+    brought back to the computing resolution: float32 disparities, invalid = 0."""
     h, w = gl.shape
-    cs = size[0] / w
+    cl, cr, cs = reduce_pair(gl, gr, float(params.obstacle_scale))
+    size = (cl.shape[1], cl.shape[0])
     top = max(0, int(math.floor(first * size[1] / h)) - params.strip_overlap)
-    cl = cv2.resize(gl, size, interpolation=cv2.INTER_AREA)[top:]
-    cr = cv2.resize(gr, size, interpolation=cv2.INTER_AREA)[top:]
+    cl, cr = cl[top:], cr[top:]
     num = scaled_disparities(params.num_disparities, cs, 16)
     mind = int(round(params.min_disparity * cs))
     _check_range(size[0], mind, num, params.block_size, cs)

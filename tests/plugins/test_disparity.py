@@ -254,6 +254,35 @@ def test_upsample_keeps_invalid_zero_and_scales_values(mode):
     assert (up == 0).sum() == 16
 
 
+@pytest.mark.parametrize("mode", ["nearest", "linear"])
+def test_upsample_is_the_old_formula(mode):
+    """The nearest path scales the small map before copying it: the same floats as scaling the
+    copy (a NumPy twin: np.repeat), zeros and negatives cleared to 0."""
+    rng = np.random.default_rng(2)
+    d = (rng.random((9, 13)) * 40 - 4).astype(np.float32)  # some negatives: cleared
+    d[2:4, 5:9] = 0.0
+    up = _common.upsample_disparity(d, (18, 26), 0.5, mode)
+    if mode == "nearest":
+        twin = np.repeat(np.repeat(d, 2, axis=0), 2, axis=1) * np.float32(2.0)
+        twin[twin <= 0] = 0.0
+        np.testing.assert_array_equal(up, twin)
+    assert up.dtype == np.float32 and (up >= 0).all()
+    assert (up[::2, ::2][d > 0] > 0).all()
+
+
+def test_reduce_pair_resizes_by_area_and_says_the_factor():
+    rng = np.random.default_rng(3)
+    gl = rng.integers(0, 256, (31, 50), dtype=np.uint8)
+    gr = np.ascontiguousarray(gl[::-1])
+    sl, sr, s = _common.reduce_pair(gl, gr, 0.5)
+    assert sl.shape == sr.shape == (16, 25) and s == 0.5  # round(15.5) rows, 25 columns
+    np.testing.assert_array_equal(sl, cv2.resize(gl, (25, 16), interpolation=cv2.INTER_AREA))
+    np.testing.assert_array_equal(sr, cv2.resize(gr, (25, 16), interpolation=cv2.INTER_AREA))
+    assert _common.reduce_pair(gl, gr, 0.3)[2] == pytest.approx(15 / 50)  # round(50 * 0.3) columns
+    same = _common.reduce_pair(gl, gr, 1.0)
+    assert same[0] is gl and same[1] is gr and same[2] == 1.0
+
+
 def test_scaled_disparities_rounds_up_to_the_multiple():
     assert _common.scaled_disparities(128, 0.5, 16) == 64
     assert _common.scaled_disparities(128, 0.3, 16) == 48
