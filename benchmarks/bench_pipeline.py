@@ -303,22 +303,18 @@ def bench(
         reading = 1000.0 * threads["lanegraph-read"] / max(e2e.frames, 1)
     else:
         reading = float(np.median(res.timings_ms.get(src, [0.0])[-n:]))
-    floor = {
-        "reading": reading,
-        "disparity": node_cpu.median_sum(disp[:1], n),
-        "after": node_cpu.median_sum(sorted(after), n),
-    }
+    disparity = node_cpu.median_sum(disp[:1], n)
+    after_cpu = node_cpu.median_sum(sorted(after), n)
     rest = node_cpu.median_sum(sorted(set(g.nodes) - {src} - set(disp[:1]) - after), n)
-    least = floor["reading"] + floor["disparity"]
-    every = least + floor["after"] + rest
+    least = reading + disparity
     if least > 0:
         print(
             f"  floors, CPU a frame (reading: its threads end to end; the nodes: every thread while the node "
-            f"runs, one node at a time): reading "
-            f"{floor['reading']:.1f} ms, the disparity {floor['disparity']:.1f} ms, the nodes after it "
-            f"{floor['after']:.1f} ms, the others {rest:.1f} ms; {n_cpu} CPUs always busy would give at most "
-            f"{1000.0 * n_cpu / least:.1f} frames/s with reading and the disparity alone (every other node "
-            f"free), {1000.0 * n_cpu / every:.1f} with every node as it is"
+            f"runs, one node at a time): reading {reading:.1f} ms, the disparity {disparity:.1f} ms, the "
+            f"nodes after it {after_cpu:.1f} ms, the others {rest:.1f} ms; {n_cpu} CPUs always busy would "
+            f"give at most {1000.0 * n_cpu / least:.1f} frames/s with reading and the disparity alone "
+            f"(every other node free), {1000.0 * n_cpu / (least + after_cpu + rest):.1f} with every node "
+            "as it is"
         )
     compute = sum(
         float(np.median(ts))

@@ -111,13 +111,17 @@ def read_header(path: Path = BUNDLE) -> dict | None:
     return header if isinstance(header, dict) else None
 
 
+def _fits(header: object) -> bool:
+    """Whether a bundle with this header (a parsed first line) may be used in this process."""
+    return (
+        enabled() and isinstance(header, dict) and all(header.get(k) == v for k, v in environment().items())
+    )
+
+
 def applies(path: Path = BUNDLE) -> bool:
     """Whether the bundle at ``path`` was made for this Python, numba, llvmlite and machine (its
     entries' sources are checked one by one at :func:`install`). Cheap: reads one line."""
-    header = read_header(path)
-    if not enabled() or header is None:
-        return False
-    return all(header.get(k) == v for k, v in environment().items())
+    return _fits(read_header(path))
 
 
 def _entries(path: Path) -> dict | None:
@@ -126,16 +130,16 @@ def _entries(path: Path) -> dict | None:
     if path in _LOADED:
         return _LOADED[path]
     entries = None
-    if applies(path):
-        from llvmlite import binding as ll
+    try:
+        with open(path, "rb") as fh:
+            header = json.loads(fh.readline())
+            if _fits(header):
+                from llvmlite import binding as ll
 
-        try:
-            with open(path, "rb") as fh:
-                header = json.loads(fh.readline())
                 if header.get("triple") == ll.get_process_triple():
                     entries = pickle.loads(zlib.decompress(fh.read()))
-        except (OSError, ValueError, zlib.error, pickle.UnpicklingError, EOFError):
-            entries = None
+    except (OSError, ValueError, zlib.error, pickle.UnpicklingError, EOFError):
+        entries = None
     _LOADED[path] = entries if isinstance(entries, dict) else None
     return _LOADED[path]
 
