@@ -170,6 +170,7 @@ def check(
     folder = Path(folder)
     if not locked:
         OutputLock(folder).probe()  # a run writing there now is said first, as the lock says it
+        owned.note_absent(folder, writes or {})  # what is not there yet, the command makes
     if not folder.is_dir():
         return
     if resume and any((folder / n).exists() for n in (CHECKPOINT, "checkpoint.pkl")):

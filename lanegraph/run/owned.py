@@ -46,6 +46,23 @@ _CHECKPOINT_MARK = b'{"format":"lanegraph-checkpoint"'
 _BEFORE: dict[str, tuple[list[str], dict[str, tuple[int, int]]]] = {}
 
 
+#: per resolved folder, the roots that were not there when the command was checked (its folders
+#: are then made before it claims the folder: they are lanegraph's): see :func:`note_absent`
+_ABSENT: dict[str, set[str]] = {}
+
+
+def note_absent(folder: Path, roots: Iterable[str]) -> None:
+    """Note which of ``roots`` are not in ``folder`` yet (before anything is made there): a folder
+    among them made before :func:`begin` (the ``--debug-dir`` made when OUT is locked) is lanegraph's."""
+    root = _real(folder)
+    absent = set()
+    for name in roots:
+        rel = _relative(name)
+        if rel is not None and not os.path.lexists(root / rel):
+            absent.add(rel)
+    _ABSENT[str(root)] = absent
+
+
 def _ident(st: os.stat_result) -> tuple[int, int]:
     """What tells a path from a new one at its name: its inode, and for a file its status change
     time (a file removed and another created gets its inode number again on most file systems)."""
@@ -243,12 +260,12 @@ def begin(folder: Path, roots: Iterable[str]) -> None:
     root = _real(folder)
     seen: dict[str, tuple[int, int]] = {}
     mine = read(folder)
+    absent = _ABSENT.pop(str(root), set())
     roots = [r for r in (_relative(n) for n in roots) if r is not None]
     roots = list(dict.fromkeys(p for r in roots for p in _parents(r)))  # sinks' folders
-    for name in roots:
-        rel = _relative(name)
-        if rel is None:
-            continue
+    for rel in roots:
+        if rel in absent:
+            continue  # made since the command was checked: by it
         try:
             for path, st in _walk(root, rel, [MAX_ENTRIES]):
                 if path not in mine:
