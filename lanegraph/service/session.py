@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .. import interrupts
-from ..errors import InputError, LanegraphError, NotStarted, RunStopped, UsageError
+from ..errors import HookError, InputError, LanegraphError, NotStarted, RunStopped, UsageError
 from ..frames import selection_text
 from ..graph.files import ResolvedGraph, load_graph_named, open_graph
 from ..graph.model import Graph
@@ -332,6 +332,8 @@ class Session:
                     f"{str(exc.filename) + ': ' if exc.filename else ''}{exc.strerror or exc}"
                 )
                 code = 1
+            elif isinstance(exc, HookError) and isinstance(exc.cause, UsageError):
+                err, code = exc.cause, 2  # a usage error (--debug-dir) found by a hook: exit 2, its words
             else:
                 err, code = exc, exc.exit_code
             if ex.result is not None:  # the run started: record what it did and why it stopped
