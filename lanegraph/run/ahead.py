@@ -238,6 +238,11 @@ class RunAhead:
             pass
         return None
 
+    def stopped(self) -> list[str]:
+        """:meth:`drop` when the run stops (an error, a signal): what was abandoned, as notes."""
+        note = self.drop() or self.abandoned
+        return [note] if note else []
+
 
 def _on_a_thread(compute: Any, nodes: list[str]) -> Future:
     """``compute()`` on a daemon thread of its own: a node that never returns is abandoned there
