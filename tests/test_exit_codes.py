@@ -76,3 +76,24 @@ def test_nodes_json_into_a_full_device(tmp_path):
         )  # fmt: skip
     assert r.returncode == 2, r.stderr
     assert "No space left on device" in one_line(r.stderr) and "Traceback" not in r.stderr
+
+
+@pytest.mark.parametrize("frames", ["5:2", "0:-0", "0:10:-1"])
+def test_eval_frames_selecting_no_frame_is_refused_like_run(cli, tmp_path, frames):
+    gt = tmp_path / "gt.jsonl"
+    pred = tmp_path / "pred.jsonl"
+    gt.write_text("".join(f'{{"frame": "{i}", "markings": [], "ego": {{}}}}\n' for i in range(6)))
+    pred.write_text("".join(f'{{"frame": "{i}", "lanes": []}}\n' for i in range(6)))
+    code, output = cli("eval", pred, gt, "--frames", frames)
+    assert code == 2, output
+    line = one_line(output)
+    assert "selects no frame" in line and "the ground truth has 6 frame(s)" in line and "n/a" not in output
+
+
+@pytest.mark.parametrize("uri", ["javascript:alert(1)", "data:text/html,x", "gopher://x"])
+def test_track_refuses_a_uri_that_is_no_tracking_store(cli, tmp_path, uri):
+    out = tmp_path / "o"
+    code, output = cli("run", DEMO, *SMALL, "-q", "--out", out, "--track", f"mlflow:{uri}")
+    assert code == 2, output
+    assert "is not a tracking store's scheme" in one_line(output)
+    assert not out.exists() and not any(p.name == "mlruns" or ":" in p.name for p in tmp_path.iterdir())

@@ -315,3 +315,48 @@ def test_no_lock_file_is_left_by_a_refused_or_a_finished_run(cli, tmp_path):
     assert not (out / ".lanegraph.lock").exists()
     assert cli("--out", out, "--frames", "0:1")[0] == 0
     assert not (out / ".lanegraph.lock").exists()
+
+
+# ---------------------------------------------------------------- issue 47's items about OUT
+def test_a_tracker_that_cannot_start_leaves_no_record_that_blocks_a_retry(
+    installed_pm, monkeypatch, tmp_path, synthetic_two
+):
+    from lanegraph import tracking
+    from lanegraph.errors import UsageError
+
+    monkeypatch.setattr(plugins, "_default", installed_pm)
+
+    def no_mlflow(self, command):
+        raise UsageError("--track mlflow: MLflow is not installed (pip install 'lanegraph[mlflow]')")
+
+    out = tmp_path / "abl"
+    graph = tmp_path / "small.yaml"
+    graph.write_text(f"extends: {DEMO}\nnodes:\n  disp: {{params: {{num_disparities: 16, block_size: 3}}}}\n")
+    args = ["ablate", graph, "--dataset", synthetic_two, "--out", out, "-q", "--no-cache", "--frames", "0:1"]
+    with monkeypatch.context() as m:
+        m.setattr(tracking.Tracking, "start", no_mlflow)
+        r = CliRunner().invoke(main, [str(a) for a in [*args, "--track", "mlflow"]])
+    assert r.exit_code == 2 and "MLflow is not installed" in r.output, r.output
+    assert not (out / "command.json").exists()
+    r = CliRunner().invoke(main, [str(a) for a in args])  # the retry, without --track
+    assert r.exit_code == 0, r.output
+
+
+def test_a_refused_resume_advises_what_works(cli, tmp_path):
+    out = tmp_path / "o"
+    assert cli("--out", out, "--frames", "0:1")[0] == 0
+    code, output = cli("--out", out, "--frames", "0:1", "--resume", "--set", "disp.block_size=5")
+    assert code == 2 and "cannot resume" in output and "--overwrite in place of --resume" in output, output
+    code, output = cli("--out", out, "--frames", "0:1", "--overwrite", "--set", "disp.block_size=5")
+    assert code == 0, output  # the advice works
+    assert not (out / ".lanegraph.lock").exists()
+
+
+@pytest.fixture
+def synthetic_two(tmp_path):
+    from lanegraph_synthetic import preset, write_sequence
+
+    write_sequence(preset("straight"), tmp_path / "a", 2)
+    ds = tmp_path / "two.yaml"
+    ds.write_text("name: two\nsequences:\n  - {name: straight, input: a}\n")
+    return ds

@@ -50,7 +50,7 @@ MAX_CHECKPOINT_BYTES = 1 << 30
 MAX_NDIM = 32  #: numpy's own limit on dimensions
 MAX_DIM = 1 << 31  #: the longest side of an array a checkpoint may hold
 MAX_FEATURE_MAP_PIXELS = 1 << 24  #: a FeatureMap's grid (8x the largest BEV grid bev.ipm allows)
-_HINT = "; cannot resume (run without --resume to start over)"
+_HINT = "; cannot resume (start over with --overwrite in place of --resume: it removes only what lanegraph wrote there; or choose another output folder)"
 
 #: the value types a checkpoint may hold besides JSON scalars, lists, tuples, dicts and numpy arrays
 VALUE_TYPES: dict[str, type] = {t.__name__: t for t in (Calibration, RoadModel, BevGeometry, Line, Lane)}

@@ -156,13 +156,14 @@ def ablation_kept(
         "identity": identity,
         "written": ["results.csv", "results.md", "accuracy.png", "accuracy_vs_ms.png", "runs"],
     }
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_command_record(out_dir, fields)
-    seal_folder(out_dir, final=False)  # a killed ablation's files are known as lanegraph's
+    # the tracker first: one that cannot start (MLflow missing) leaves no record to block a retry
     session.tracking.start(
         CommandRecord("ablate", f"ablate -> {out_dir}", out_dir, list(fields["command"]),
                       {"variants": " ".join(r.name for r in variants), "frames": identity["frames"] or "all"})
     )  # fmt: skip
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_command_record(out_dir, fields)
+    seal_folder(out_dir, final=False)  # a killed ablation's files are known as lanegraph's
     try:
         with RunLog(out_dir, verbose=session.verbose > 0):
             get_logger("run").info(

@@ -444,12 +444,12 @@ class Session:
                 self._stack.callback(seal_folder, out_dir)
                 fields = {"kind": "dataset", **self.record_extra, "identity": identity,
                           "written": [s.name for s in dataset]}  # fmt: skip
-                write_command_record(out_dir, fields)
-                seal_folder(out_dir, final=False)
                 self.tracking.start(
                     CommandRecord("run", f"run {g.name} --dataset -> {out_dir}", out_dir, list(fields["command"]),
                                   {"graph": str(g.file), "frames": identity["frames"] or "all"})
                 )  # fmt: skip
+                write_command_record(out_dir, fields)
+                seal_folder(out_dir, final=False)
                 try:
                     with RunLog(out_dir, verbose=self.verbose > 0):
                         summary = self._run_dataset(
