@@ -360,3 +360,14 @@ def synthetic_two(tmp_path):
     ds = tmp_path / "two.yaml"
     ds.write_text("name: two\nsequences:\n  - {name: straight, input: a}\n")
     return ds
+
+
+def test_report_never_replaces_the_users_page(cli, tmp_path):
+    out = tmp_path / "o"
+    before = users(out, "report/index.html")
+    code, output = cli("--out", out, "--frames", "0:1", "--report")
+    assert code == 2 and "report/index.html is there and not lanegraph's" in output, output
+    assert tree(out) == before
+    (out / "report" / "index.html").unlink()
+    assert cli("--out", out, "--frames", "0:1", "--report")[0] == 0
+    assert cli("--out", out, "--frames", "0:2", "--report", "--overwrite")[0] == 0  # its own: replaced

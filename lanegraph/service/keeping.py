@@ -75,8 +75,12 @@ def run_writes(
     if rel is not None:
         writes[rel] = "dir"
     if make_report:
-        writes["report"] = "dir"
+        writes.update(REPORT_WRITES)
     return writes
+
+
+#: what ``--report`` writes in OUT: its page and pictures (a page or pictures of the user's refused)
+REPORT_WRITES = {"report": "dir", "report/index.html": "file", "report/assets": "tree"}
 
 
 def dataset_writes(dataset: Any) -> dict[str, str]:
@@ -92,7 +96,7 @@ def ablation_writes(variant_folders: Sequence[str], dataset: Any, make_report: b
         for s in dataset:
             writes[f"runs/{v}/{safe_name(s.name)}"] = "tree"
     if make_report:
-        writes["report"] = "dir"
+        writes.update(REPORT_WRITES)
     return writes
 
 
