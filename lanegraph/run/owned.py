@@ -69,6 +69,10 @@ def _ident(st: os.stat_result) -> tuple[int, int]:
     return (st.st_ino, 0 if stat.S_ISDIR(st.st_mode) else st.st_ctime_ns)
 
 
+#: the digests already taken, by file (device, inode, size, modification and change times)
+_DIGESTS: dict[tuple[int, int, int, int, int], str] = {}
+
+
 def _real(folder: Path) -> Path:
     return Path(os.path.realpath(folder))
 
@@ -93,12 +97,19 @@ def _digest(path: Path) -> str | None:
     except OSError:
         return None
     try:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
             return None
+        key = (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+        if key in _DIGESTS:  # read once per command (a check, a claim and a seal each ask)
+            return _DIGESTS[key]
         h = hashlib.sha256()
         while chunk := os.read(fd, 1 << 20):
             h.update(chunk)
-        return h.hexdigest()
+        if len(_DIGESTS) > 100_000:
+            _DIGESTS.clear()
+        _DIGESTS[key] = h.hexdigest()
+        return _DIGESTS[key]
     except OSError:
         return None
     finally:
