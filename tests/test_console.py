@@ -75,8 +75,10 @@ def test_control_characters_of_argv_are_escaped_in_run_log(installed_pm, monkeyp
     args = ["run", str(DEMO), "--out", str(out), "-q", "--frames", "0:1", *SMALL,
             "--set", "src.type=io.synthetic", "--set", "src.scale=0.2", "--set", "src.frames=1",
             "--set", "disp.block_size=3"]  # fmt: skip
-    r = CliRunner().invoke(main, [*args, "--debug-frames", "\x1b]0;owned\x07x"])
-    log = (out / "run.log").read_text(encoding="utf-8") if (out / "run.log").exists() else ""
+    r = CliRunner().invoke(main, [*args, "--debug-dir", str(out / "dbg\x1b]0;owned\x07")])
+    assert r.exit_code == 0, r.output
+    log = (out / "run.log").read_text(encoding="utf-8")
+    assert "dbg\\x1b]0;owned\\x07" in log  # the command line, escaped
     assert "\x1b" not in log and "\x07" not in log
     assert "\x1b" not in r.output
 
