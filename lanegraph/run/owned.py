@@ -202,21 +202,29 @@ def _parents(rel: str) -> list[str]:
 
 
 def _walk(root: Path, rel: str, budget: list[int]) -> Iterable[tuple[str, os.stat_result]]:
-    """``(relative path, lstat)`` of ``root/rel`` and, for a folder (not a link), everything under it."""
+    """``(relative path, lstat)`` of ``root/rel`` and, for a folder (not a link), everything under
+    it, depth first; :class:`OverflowError` past ``budget[0]`` paths (iterative: any depth)."""
     st = _plain_path(root, rel)
     if st is None:
         return
-    budget[0] -= 1
-    if budget[0] < 0:
-        raise OverflowError(rel)
-    yield rel, st
-    if stat.S_ISDIR(st.st_mode):
+    todo = [(rel, st)]
+    while todo:
+        path, st = todo.pop()
+        budget[0] -= 1
+        if budget[0] < 0:
+            raise OverflowError(rel)
+        yield path, st
+        if not stat.S_ISDIR(st.st_mode):
+            continue
         try:
-            names = sorted(os.listdir(root / rel))
+            names = sorted(os.listdir(root / path), reverse=True)
         except OSError:
-            return
+            continue
         for name in names:
-            yield from _walk(root, f"{rel}/{name}", budget)
+            try:
+                todo.append((f"{path}/{name}", os.lstat(root / path / name)))
+            except OSError:
+                continue
 
 
 def owns_tree(folder: Path, rel: str, entries: Mapping[str, Any] | None = None) -> str | None:
