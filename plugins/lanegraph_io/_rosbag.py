@@ -23,7 +23,7 @@ from lanegraph.errors import InputError
 from ._calibfiles import stereo_from_cameras
 from ._png import decode_png
 from ._stereo import StereoCalibration
-from ._streams import STREAM_OUTPUTS, StreamParams, StreamSource, log
+from ._streams import STREAM_OUTPUTS, StreamParams, StreamSource, log, match_stamps
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
@@ -288,20 +288,9 @@ class RosbagSource(StreamSource):
         """``(stamp, left message index, right message index)`` for every left image whose nearest
         right image (each used once) is within the tolerance; the rest reported."""
         tol = int(round(self.p.stamp_tolerance_ms * 1e6))
-        rs = [s for s, _ in rights]
-        used: set[int] = set()
-        pairs, worst = [], 0
-        for i, (s, _) in enumerate(lefts):
-            j = bisect.bisect_left(rs, s)
-            best = min(
-                (k for k in (j - 1, j) if 0 <= k < len(rs) and k not in used),
-                key=lambda k: abs(rs[k] - s),
-                default=None,
-            )
-            if best is not None and abs(rs[best] - s) <= tol:
-                used.add(best)
-                pairs.append((s, i, best))
-                worst = max(worst, abs(rs[best] - s))
+        ls, rs = [s for s, _ in lefts], [s for s, _ in rights]
+        pairs = [(ls[i], i, j) for i, j in match_stamps(ls, rs, tol)]
+        worst = max((abs(rs[j] - s) for s, _, j in pairs), default=0)
         left_out, right_out = len(lefts) - len(pairs), len(rights) - len(pairs)
         self.pairing = {
             "pairs": len(pairs),

@@ -50,6 +50,11 @@ STEREO_OUTPUTS = {
     "left": Port("image", "left rectified image (BGR uint8, or gray for grey cameras)"),
     "right": Port("image", "right rectified image"),
     "calib": Port("calibration", "rectified stereo calibration", rate="constant"),
+    "stereo": Port(
+        "stereo_calibration",
+        "the calibration as read (for a rectified input, the rectified one), for image.rectify",
+        rate="constant",
+    ),
 }
 
 
@@ -333,7 +338,10 @@ class _PairSource:
             return
 
     def constants(self) -> dict:
-        return {"calib": self.calib}
+        from ._calibfiles import from_rectified
+
+        where = str(self.calib_path or self.root)
+        return {"calib": self.calib, "stereo": from_rectified(self.calib, where, self.calib_names)}
 
     def identity(self) -> str:
         """Digest of every input file the source reads (resolved path, size, mtime), its calibration

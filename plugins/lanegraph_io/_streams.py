@@ -10,6 +10,7 @@ them again), says the frames' size (``frame_size()``), and reads the selected fr
 
 from __future__ import annotations
 
+import bisect
 import queue
 import threading
 from pathlib import Path
@@ -151,8 +152,14 @@ class StreamSource:
         rng = (params.min_baseline_m, params.max_baseline_m)
         self.rectifier = Rectifier(self.stereo, rng)
         self.calib = self.rectifier.calib
-        if not self.rectifier.identity and not params.rectify:
-            log.warning(
+        if not self.rectifier.identity and params.rectify:
+            c = self.calib
+            log.info(
+                "%s: the frames are not rectified: the source rectifies them (rectified f %.1f px, baseline %.3f m)",
+                self.root, c.f, c.baseline,
+            )  # fmt: skip
+        elif not self.rectifier.identity:
+            log.info(
                 "%s: the frames are not rectified and the source's rectify is false: the graph must rectify them "
                 "(image.rectify fed by the source's stereo output)",
                 self.root,
@@ -303,6 +310,24 @@ class StreamSource:
         if self._thread is not None:
             self._thread.join(timeout=5)
             self._thread = None
+
+
+def match_stamps(lefts: list[int], rights: list[int], tol: float) -> list[tuple[int, int]]:
+    """``(left index, right index)`` pairs: each left stamp (increasing) with the nearest right stamp
+    (increasing) not taken yet, when they are at most ``tol`` apart (the same unit)."""
+    used: set[int] = set()
+    pairs = []
+    for i, s in enumerate(lefts):
+        j = bisect.bisect_left(rights, s)
+        below = next((k for k in range(j - 1, -1, -1) if k not in used), None)
+        above = next((k for k in range(j, len(rights)) if k not in used), None)
+        best = min(
+            (k for k in (below, above) if k is not None), key=lambda k: abs(rights[k] - s), default=None
+        )
+        if best is not None and abs(rights[best] - s) <= tol:
+            used.add(best)
+            pairs.append((i, best))
+    return pairs
 
 
 def to_bgr_or_gray(img: np.ndarray) -> np.ndarray:

@@ -7,7 +7,6 @@ wanted; a packet that does not decode fails its frame only.
 
 from __future__ import annotations
 
-import bisect
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +17,7 @@ from lanegraph import RunContext, node_type
 from lanegraph.errors import InputError
 
 from ._auto import video_pair
-from ._streams import STREAM_OUTPUTS, StreamParams, StreamSource, log
+from ._streams import STREAM_OUTPUTS, StreamParams, StreamSource, log, match_stamps
 
 
 def need_av():
@@ -185,21 +184,10 @@ class VideoSource(StreamSource):
 
     def _match(self, left: _Track, right: _Track) -> list[tuple[int, int]]:
         tol = self.p.sync_tolerance_ms / 1000 if self.p.sync_tolerance_ms >= 0 else left.interval_s / 2
+        ls = [left.seconds(k) for k in range(len(left.pts))]
         rs = [right.seconds(k) for k in range(len(right.pts))]
-        used: set[int] = set()
-        pairs, worst = [], 0.0
-        for i in range(len(left.pts)):
-            s = left.seconds(i)
-            j = bisect.bisect_left(rs, s)
-            best = min(
-                (k for k in (j - 1, j) if 0 <= k < len(rs) and k not in used),
-                key=lambda k: abs(rs[k] - s),
-                default=None,
-            )
-            if best is not None and abs(rs[best] - s) <= tol:
-                used.add(best)
-                pairs.append((i, best))
-                worst = max(worst, abs(rs[best] - s))
+        pairs = match_stamps(ls, rs, tol)
+        worst = max((abs(rs[j] - ls[i]) for i, j in pairs), default=0.0)
         if not pairs:
             raise InputError(
                 f"no frame of {left.path.name} has a frame of {right.path.name} within {tol * 1000:g} ms",
