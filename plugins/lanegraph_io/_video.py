@@ -126,8 +126,13 @@ class _Track:
                 for frame in frames:
                     if frame.pts in want and frame.pts not in got:
                         got[frame.pts] = frame.to_ndarray(format="bgr24")
+                    # frames come out in presentation order: a wanted one before this one is lost
+                    for q in order[nxt:]:
+                        if q >= frame.pts:
+                            break
+                        got.setdefault(q, None)
                 while nxt < len(order) and order[nxt] in got:
-                    yield want[order[nxt]][0], got.pop(order[nxt])
+                    yield want[order[nxt]][0], self._or_lost(got.pop(order[nxt]), want[order[nxt]][1])
                     nxt += 1
                 if nxt == len(order):
                     return
@@ -137,17 +142,14 @@ class _Track:
             container.close()
         for p in order[nxt:]:
             k, fid = want[p]
-            item = got.pop(p, None)
-            yield (
-                k,
-                item
-                if item is not None
-                else InputError(
-                    "the frame was not decoded (its packet missing or corrupt)",
-                    path=str(self.path),
-                    frame=fid,
-                ),
-            )
+            yield k, self._or_lost(got.pop(p, None), fid)
+
+    def _or_lost(self, item: Any, fid: str) -> Any:
+        if item is not None:
+            return item
+        return InputError(
+            "the frame was not decoded (its packet missing or corrupt)", path=str(self.path), frame=fid
+        )
 
 
 @node_type("io.video", source=True, outputs=STREAM_OUTPUTS)
