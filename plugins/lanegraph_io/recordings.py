@@ -260,6 +260,32 @@ def synthetic_recording(preset_name: str = "straight", n: int = 6, seed: int = 0
     return stereo, rectified, raw, frames
 
 
+def recorded_input(path: Path, n: int):
+    """``(stereo, pairs)``: the first ``n`` frames of the input ``path`` (any installed source that
+    reads it) and its rectified calibration as a rig that needs no rectification."""
+    from lanegraph.plugins import get_plugin_manager
+    from lanegraph.run.sources import close_source, detect_source, open_source
+
+    from ._calibfiles import from_rectified
+
+    pm = get_plugin_manager()
+    nt = detect_source(pm, path)
+    if nt is None:
+        raise SystemExit(f"{path}: no installed source reads this input")
+    src = open_source(nt, nt.params(), path, frames=slice(0, n))
+    calib = src.constants()["calib"]
+
+    def pairs():
+        try:
+            for item in src:
+                if isinstance(item, dict):
+                    yield item["left"], item["right"]
+        finally:
+            close_source(src)
+
+    return from_rectified(calib, str(path), {}), pairs()
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         prog="python -m lanegraph_io.recordings",
@@ -274,9 +300,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--sqlite3", action="store_true", help="a ROS 2 bag folder in sqlite3 (out names the folder)"
     )
+    ap.add_argument(
+        "--from",
+        dest="source",
+        type=Path,
+        help="record the frames of this input (a KITTI drive or sequence, a folder of pairs) as they are, "
+        "rectified, instead of the synthetic scene",
+    )
     args = ap.parse_args(argv)
     out = Path(args.out)
-    stereo, _rect, raw, _frames = synthetic_recording(args.preset, args.frames)
+    if args.source is not None:
+        stereo, raw = recorded_input(args.source, args.frames)
+    else:
+        stereo, _rect, raw, _frames = synthetic_recording(args.preset, args.frames)
     if out.suffix.lower() in (".mp4", ".mkv", ".avi", ".mov"):
         write_video(out, raw)
     else:
