@@ -60,7 +60,8 @@ def detect_source(path: Path) -> str | None:
 
 class AutoParams(NodeParams):
     """Params of ``io.auto``. A field it shares with the source it chooses (``read_ahead``,
-    ``read_nice``) is passed on to that source when the graph sets it; the synthetic scene has none."""
+    ``read_nice``, ``calib``, ``rectify``, a bag's topics) is passed on to that source when the
+    graph (or ``--set``, ``--calib``) sets it; the synthetic scene has none."""
 
     default: str = Field(
         "io.synthetic",
@@ -70,6 +71,12 @@ class AutoParams(NodeParams):
     read_nice: int = _read_nice_field()
     calib: str = calib_field()
     rectify: bool = rectify_field()
+    left_topic: str = Field(
+        "", max_length=500, description="a bag's left image topic (io.rosbag); empty: found from CameraInfo"
+    )
+    right_topic: str = Field(
+        "", max_length=500, description="a bag's right image topic (io.rosbag); empty: found from CameraInfo"
+    )
 
     @field_validator("default")
     @classmethod
@@ -87,9 +94,12 @@ class AutoParams(NodeParams):
 
 @node_type("io.auto", source=True, outputs=STEREO_OUTPUTS)
 class AutoSource:
-    """Chooses the source from the --input path (KITTI raw, KITTI odometry, a folder of pairs, or
-    any installed source whose plugin recognises it); the built-in synthetic scene when there is
-    none. The executor runs the chosen source in its place."""
+    """Chooses the source from the --input path (KITTI raw, KITTI odometry, a folder of pairs, a ROS
+    bag, a stereo video, or any installed source whose plugin recognises it); the built-in
+    synthetic scene when there is none. The executor runs the chosen source in its place. An
+    unrectified input (a bag or video with a calibration that has distortion or a rotation) is
+    rectified by its source, and says so, unless ``rectify`` is false (then the graph must place
+    ``image.rectify``: graphs/paper_rectify.yaml)."""
 
     @staticmethod
     def select_source(params: AutoParams, input_path: Path | None, detect) -> str:
