@@ -10,6 +10,7 @@ whole.
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import time
@@ -22,7 +23,7 @@ from pydantic import Field
 
 from lanegraph import NodeParams, Port, RunContext, node_type
 from lanegraph.errors import InputError
-from lanegraph.paths import OutputFile, inside
+from lanegraph.paths import OutputFile, create_new, inside
 from lanegraph.types import BevGeometry, Lane
 
 from ._sinks import SIDE_COLOURS, _out_dir, _where
@@ -117,14 +118,13 @@ class WriteMcap:
         if not context.extra.get("resume"):
             self._open(self.path)
 
-    def _open(self, path: Path, exclusive: bool = True) -> None:
+    def _open(self, path: Path) -> None:
+        """A new file at ``path`` (a file or a link there removed first: never written through a
+        link; the run's folder check has made sure it is this run's to write)."""
         from mcap.writer import Writer
 
         fm = self.fm
-        flags = (
-            os.O_WRONLY | os.O_CREAT | (os.O_EXCL if exclusive else os.O_TRUNC) | getattr(os, "O_NOFOLLOW", 0)
-        )
-        self.fh = os.fdopen(os.open(path, flags, 0o644), "wb")
+        self.fh = io.BufferedWriter(create_new(path), 1 << 20)
         self.writer = Writer(self.fh)
         self.writer.start(profile="", library="lanegraph")
         kinds = {
@@ -244,7 +244,6 @@ class WriteMcap:
             raise InputError(
                 f"missing: the checkpoint recorded {frames} frame(s) written here{hint}", path=str(self.path)
             )
-        old = self.path.with_name(self.path.name + ".resumed")
         kept = []
         if frames:
             try:
@@ -268,13 +267,13 @@ class WriteMcap:
                     f"holds {n} whole frame(s), the checkpoint recorded {frames}{hint}", path=str(self.path)
                 )
         tmp = self.path.with_name(self.path.name + ".part")
-        self._open(tmp, exclusive=False)
+        self._open(tmp)
         ids = {TOPICS[k]: v for k, v in self.channels.items()}
         for topic, t, data in kept:
             if topic in ids:
                 self.writer.add_message(ids[topic], t, data, t)
         self.count, self.last_time = frames, last
-        self._tmp, self._old = tmp, old
+        self._tmp = tmp
 
     def close(self) -> None:
         if self.writer is not None:

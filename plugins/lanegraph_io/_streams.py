@@ -138,6 +138,13 @@ class StreamSource:
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self.calib_files = calib_paths(params.calib)
+        try:
+            self._open(params, context)
+        except BaseException:
+            self.close()  # the reader a failed open took
+            raise
+
+    def _open(self, params: StreamParams, context: RunContext) -> None:
         ids = self.index()
         try:
             frames_param = parse_frames(params.frames)

@@ -130,8 +130,14 @@ def test_a_resumed_run_keeps_the_frames_done_and_goes_on(tmp_path):
         sink(tmp_path, resume=True).restore({"frames": 5, "last_time": 10**12})
 
 
-def test_an_existing_file_is_never_overwritten(tmp_path):
-    (tmp_path / "lanes.mcap").write_bytes(b"another run's")
-    with pytest.raises(FileExistsError):
-        sink(tmp_path)
-    assert (tmp_path / "lanes.mcap").read_bytes() == b"another run's"
+def test_a_link_planted_at_the_name_is_not_written_through(tmp_path):
+    elsewhere = tmp_path / "elsewhere.txt"
+    elsewhere.write_text("not the run's")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "lanes.mcap").symlink_to(elsewhere)
+    w = sink(out)
+    w(frame="0", image=np.zeros((8, 8, 3), np.uint8), lanes=[], geometry=None)
+    w.close()
+    assert elsewhere.read_text() == "not the run's"
+    assert not (out / "lanes.mcap").is_symlink() and read(out / "lanes.mcap")[0]["/lanes/scene"][1] == 1
