@@ -131,13 +131,20 @@ def test_a_resumed_run_keeps_the_frames_done_and_goes_on(tmp_path):
 
 
 def test_a_link_planted_at_the_name_is_not_written_through(tmp_path):
+    from lanegraph.errors import UsageError
+
     elsewhere = tmp_path / "elsewhere.txt"
     elsewhere.write_text("not the run's")
     out = tmp_path / "out"
     out.mkdir()
     (out / "lanes.mcap").symlink_to(elsewhere)
+    with pytest.raises(UsageError, match="outside .*outputs stay inside the output folder"):
+        sink(out)
+    (out / "lanes.mcap").unlink()
+    (out / "lanes.mcap").symlink_to(out / "inner.txt")  # a link inside the folder: replaced, not followed
+    (out / "inner.txt").write_text("the user's")
     w = sink(out)
     w(frame="0", image=np.zeros((8, 8, 3), np.uint8), lanes=[], geometry=None)
     w.close()
-    assert elsewhere.read_text() == "not the run's"
+    assert elsewhere.read_text() == "not the run's" and (out / "inner.txt").read_text() == "the user's"
     assert not (out / "lanes.mcap").is_symlink() and read(out / "lanes.mcap")[0]["/lanes/scene"][1] == 1
