@@ -139,12 +139,12 @@ class StreamSource:
         self._stop = threading.Event()
         self.calib_files = calib_paths(params.calib)
         try:
-            self._open(params, context)
+            self._prepare(params, context)
         except BaseException:
             self.close()  # the reader a failed open took
             raise
 
-    def _open(self, params: StreamParams, context: RunContext) -> None:
+    def _prepare(self, params: StreamParams, context: RunContext) -> None:
         ids = self.index()
         try:
             frames_param = parse_frames(params.frames)
