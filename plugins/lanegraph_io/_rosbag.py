@@ -160,6 +160,17 @@ def _namespace(topic: str) -> str:
     return topic.rsplit("/", 1)[0]
 
 
+def info_topic(topic: str, infos: list[str] | set[str]) -> str | None:
+    """The ``camera_info`` topic of image topic ``topic``: beside it, or beside a namespace above it
+    (``/cam/left/image_raw/compressed`` -> ``/cam/left/camera_info``); None when there is none."""
+    ns = _namespace(topic)
+    while ns:
+        if ns + "/camera_info" in infos:
+            return ns + "/camera_info"
+        ns = _namespace(ns)
+    return None
+
+
 @node_type("io.rosbag", source=True, outputs=STREAM_OUTPUTS)
 class RosbagSource(StreamSource):
     """Stereo pairs from a ROS 1 bag (``.bag``) or a ROS 2 bag (a ``.mcap`` or ``.db3`` file, or the bag's
@@ -198,6 +209,10 @@ class RosbagSource(StreamSource):
                         f"topic {t!r}: no image messages in the bag (its image topics: {listing})", path=path
                     )
             left, right = self.p.left_topic, self.p.right_topic
+            if left == right:
+                raise InputError(
+                    f"left_topic and right_topic are both {left!r}; expected two cameras", path=path
+                )
         else:
             left, right = self._find_topics(reader, images, infos)
         self.topics = (left, right)
@@ -205,7 +220,8 @@ class RosbagSource(StreamSource):
         self.msgtypes = {t: cs[0].msgtype for t, cs in conns.items()}
         stamps: dict[str, list[tuple[int, int]]] = {left: [], right: []}  # (stamp, log time) in bag order
         self.infos: dict[str, Any] = {}
-        info_topics = {_namespace(t) + "/camera_info": t for t in (left, right)}
+        self.info_of = {t: info_topic(t, infos) for t in (left, right)}
+        info_topics = {i: t for t, i in self.info_of.items() if i is not None}
         wanted = [c for cs in conns.values() for c in cs] + [
             c for c in reader.connections if c.topic in info_topics
         ]
@@ -250,7 +266,7 @@ class RosbagSource(StreamSource):
                 "no sensor_msgs/Image or CompressedImage topic in the bag; expected a left and a right camera",
                 path=path,
             )
-        beside = [t for t in images if _namespace(t) + "/camera_info" in infos]
+        beside = [t for t in images if info_topic(t, infos) is not None]
         cands = beside if len(beside) >= 2 else images
         lefts = [t for t in cands if "left" in t.lower()]
         rights = [t for t in cands if "right" in t.lower()]
@@ -261,11 +277,30 @@ class RosbagSource(StreamSource):
             )
         if len(lefts) == 1 and len(rights) == 1:
             return lefts[0], rights[0]
+        if len(beside) == 2:  # two cameras with CameraInfo: the right one's P[0,3] is -fx B
+            tx = self._baseline_terms(reader, {info_topic(t, infos): t for t in beside})
+            if len(tx) == 2 and sorted(v == 0 for v in tx.values()) == [False, True]:
+                left = next(t for t, v in tx.items() if v == 0)
+                return left, next(t for t in tx if t != left)
         raise InputError(
             f"cannot tell the left and right image topics among {listing} (CameraInfo topics: {', '.join(infos) or 'none'}); "
             "give them: --set src.left_topic=TOPIC --set src.right_topic=TOPIC",
             path=path,
         )
+
+    def _baseline_terms(self, reader: Any, info_to_image: dict[str, str]) -> dict[str, float]:
+        """Image topic -> ``P[0,3]`` of its first CameraInfo message."""
+        out: dict[str, float] = {}
+        conns = [c for c in reader.connections if c.topic in info_to_image]
+        try:
+            for conn, _t, raw in reader.messages(connections=conns):
+                msg = reader.deserialize(raw, conn.msgtype)
+                out.setdefault(info_to_image[conn.topic], float(camera_from_info(msg)["P"][0, 3]))
+                if len(out) == len(info_to_image):
+                    break
+        except Exception:  # noqa: BLE001 - reported when the messages are indexed
+            pass
+        return out
 
     def _check_stamps(self, topic: str, stamps: list[int]) -> None:
         for k in range(1, len(stamps)):
@@ -319,11 +354,11 @@ class RosbagSource(StreamSource):
             return None
         cams = [camera_from_info(self.infos[t]) for t in (left, right)]
         names = {
-            "P1": f"{_namespace(left)}/camera_info P",
-            "P2": f"{_namespace(right)}/camera_info P",
-            "K1": f"{_namespace(left)}/camera_info K",
-            "K2": f"{_namespace(right)}/camera_info K",
-            "width": f"{_namespace(left)}/camera_info width/height",
+            "P1": f"{self.info_of[left]} P",
+            "P2": f"{self.info_of[right]} P",
+            "K1": f"{self.info_of[left]} K",
+            "K2": f"{self.info_of[right]} K",
+            "width": f"{self.info_of[left]} width/height",
         }
         return stereo_from_cameras(cams[0], cams[1], f"{self.root} (CameraInfo)", names)
 

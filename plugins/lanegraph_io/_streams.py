@@ -20,7 +20,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from lanegraph import NodeParams, Port, RunContext
-from lanegraph._runtime import available_cpus, leave_signals_to_the_main_thread
+from lanegraph._runtime import available_cpus, leave_signals_to_the_main_thread, lower_thread_priority
 from lanegraph.errors import InputError, UsageError
 from lanegraph.frames import select_frames, selection_text
 from lanegraph.run.cache import digest
@@ -102,6 +102,14 @@ class StreamParams(NodeParams):
         le=16,
         description="frames decoded (and rectified) ahead of the one the run asks for, on a thread; "
         "-1 = auto: 2 when the process has 2 or more CPUs free to it, else 0",
+    )
+
+    read_nice: int = Field(
+        0,
+        ge=0,
+        le=19,
+        description="reading ahead, how many nice steps (Linux scheduling priority) the reading thread runs below "
+        "the nodes (as the pair sources' read_nice: io.auto passes paper.yaml's 10 on); 0 = the nodes' priority",
     )
 
     @model_validator(mode="after")
@@ -282,22 +290,26 @@ class StreamSource:
         done = object()
         stop = self._stop = threading.Event()
 
+        def put(value: Any) -> bool:
+            """Hand ``value`` to the run's thread; False when the run stopped asking."""
+            while not stop.is_set():
+                try:
+                    q.put(value, timeout=0.1)
+                    return True
+                except queue.Full:
+                    continue
+            return False
+
         def work() -> None:
             leave_signals_to_the_main_thread()
+            lower_thread_priority(self.params.read_nice)
             try:
                 for item in self.read(self.selected):
-                    out = self._item(item)
-                    while not stop.is_set():
-                        try:
-                            q.put(out, timeout=0.1)
-                            break
-                        except queue.Full:
-                            continue
-                    if stop.is_set():
+                    if not put(self._item(item)):
                         return
             except BaseException as exc:  # noqa: BLE001 - handed to the run's thread
-                q.put(exc)
-            q.put(done)
+                put(exc)
+            put(done)
 
         self._thread = threading.Thread(target=work, name="lanegraph-read", daemon=True)
         self._thread.start()
@@ -326,8 +338,9 @@ def match_stamps(lefts: list[int], rights: list[int], tol: float) -> list[tuple[
     pairs = []
     for i, s in enumerate(lefts):
         j = bisect.bisect_left(rights, s)
-        below = next((k for k in range(j - 1, -1, -1) if k not in used), None)
-        above = next((k for k in range(j, len(rights)) if k not in used), None)
+        # the nearest free stamp on each side, looking no further than the tolerance
+        below = next((k for k in range(j - 1, -1, -1) if k not in used or s - rights[k] > tol), None)
+        above = next((k for k in range(j, len(rights)) if k not in used or rights[k] - s > tol), None)
         best = min(
             (k for k in (below, above) if k is not None), key=lambda k: abs(rights[k] - s), default=None
         )

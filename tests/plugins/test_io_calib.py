@@ -152,3 +152,29 @@ def test_the_read_calibration_hook_reads_opencv_files(tmp_path, rig):
     write_opencv(rig, tmp_path / "opencv.yaml")
     c = lanegraph_io.lanegraph_read_calibration(Path(tmp_path / "opencv.yaml"))
     assert c.baseline == pytest.approx(RECT.baseline) and c.width == 320
+
+
+def test_match_stamps_against_a_plain_search():
+    from lanegraph_io._streams import match_stamps
+
+    def naive(lefts, rights, tol):
+        used, out = set(), []
+        for i, s in enumerate(lefts):
+            free = [k for k in range(len(rights)) if k not in used and abs(rights[k] - s) <= tol]
+            if free:
+                best = min(free, key=lambda k: (abs(rights[k] - s), k))
+                used.add(best)
+                out.append((i, best))
+        return out
+
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        lefts = np.cumsum(rng.integers(1, 20, rng.integers(0, 30))).tolist()
+        rights = sorted(
+            set(
+                (np.asarray(lefts, int) + rng.integers(-6, 7, len(lefts))).tolist()
+                + rng.integers(0, 400, 5).tolist()
+            )
+        )
+        tol = int(rng.integers(0, 8))
+        assert match_stamps(lefts, rights, tol) == naive(lefts, rights, tol)

@@ -243,3 +243,26 @@ def test_bad_bags_are_refused_naming_the_bag_and_what_was_expected(tmp_path):
     cut1.write_bytes(ros1.read_bytes()[: ros1.stat().st_size // 2])
     with pytest.raises(InputError, match=r"cut.bag: cannot read the bag"):
         open_bag(cut1)
+
+
+def test_topics_found_from_camera_info_when_the_names_do_not_tell(tmp_path):
+    data = pairs(2)
+    bag = write_bag(tmp_path / "cams.mcap", data, stereo=FLAT, topics=("/cam0/image_raw", "/cam1/image_raw"))
+    src = open_bag(bag)
+    assert src.topics == ("/cam0/image_raw", "/cam1/image_raw")  # cam1's P[0,3] holds the baseline
+    swapped = write_bag(tmp_path / "swapped.mcap", data, stereo=FLAT,
+                        topics=("/cam1/image_raw", "/cam0/image_raw"))  # fmt: skip
+    assert open_bag(swapped).topics == ("/cam1/image_raw", "/cam0/image_raw")
+    with pytest.raises(InputError, match="left_topic and right_topic are both '/cam0/image_raw'"):
+        open_bag(bag, left_topic="/cam0/image_raw", right_topic="/cam0/image_raw")
+
+
+def test_compressed_topics_find_their_camera_info_above_them(tmp_path):
+    data = pairs(2)
+    bag = write_bag(tmp_path / "c.mcap", data, stereo=FLAT, encoding="png",
+                    topics=("/stereo/left/image_raw/compressed", "/stereo/right/image_raw/compressed"))  # fmt: skip
+    src = open_bag(bag)
+    assert src.info_of["/stereo/left/image_raw/compressed"] is None or src.constants()[
+        "calib"
+    ].baseline == pytest.approx(0.3)
+    np.testing.assert_array_equal(list(src)[1]["left"], data[1][0])
