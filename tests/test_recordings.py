@@ -141,3 +141,45 @@ def test_bad_input_says_what_and_keeps_what_was_written(scene):
     assert r.exit_code != 0  # a folder of pairs reads calib.yaml files, not OpenCV's
     r = run("paper", tmp / "out_ds", "--dataset", "x.yaml", "--calib", "a.yaml")
     assert r.exit_code == 2 and "--calib is for a run on one input" in r.output
+
+
+def test_an_interrupted_bag_run_resumes_by_frame_id_to_the_same_lanes_and_mcap(scene):
+    import os
+    import subprocess
+    import sys
+
+    from tests.engine.interrupter import DRIVER
+
+    tmp = scene["tmp"]
+    bag = write_bag(tmp / "resume.mcap", scene["raw"], stereo=scene["stereo"])
+    graph = tmp / "paper_mcap_resume.yaml"
+    graph.write_text(f"extends: {ROOT / 'graphs/paper_mcap.yaml'}\nname: paper_mcap_resume\n")
+
+    def lanegraph(out, spec, *extra):
+        env = {**os.environ, "LANEGRAPH_TEST_INTERRUPT": spec}
+        args = [sys.executable, "-c", DRIVER, str(ROOT / "tests/engine"), "run", str(graph), "--input", str(bag),
+                "--out", str(out), "--quiet", *extra]  # fmt: skip
+        return subprocess.run(args, capture_output=True, text=True, env=env, timeout=600)
+
+    whole = tmp / "resume_whole"
+    assert lanegraph(whole, "").returncode == 0
+    out = tmp / "resume_cut"
+    r = lanegraph(out, "INT:write:after:2")
+    assert r.returncode != 0 and (out / "lanes.jsonl").read_text().count("\n") == 2, r.stderr
+    r = lanegraph(out, "", "--resume")
+    assert r.returncode == 0, r.stderr
+    assert (out / "lanes.jsonl").read_bytes() == (whole / "lanes.jsonl").read_bytes()
+    from mcap.reader import make_reader
+
+    def frames(path):
+        with open(path, "rb") as fh:
+            return [
+                json.loads(m.data)["frame"]
+                for _, _, m in make_reader(fh).iter_messages(topics=["/lanegraph/timings"])
+            ]
+
+    assert (
+        frames(out / "lanes.mcap")
+        == frames(whole / "lanes.mcap")
+        == [json.loads(x)["frame"] for x in (whole / "lanes.jsonl").read_text().splitlines()]
+    )
