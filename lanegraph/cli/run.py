@@ -19,7 +19,7 @@ from ._errors import handled
     "--input",
     "input_path",
     type=click.Path(path_type=Path),
-    help="input folder (KITTI raw drive, KITTI odometry sequence, folder of pairs); default: the built-in synthetic scene",
+    help="input: a KITTI raw drive or odometry sequence, a folder of pairs, a ROS bag, a stereo video (docs/inputs.md); default: the built-in synthetic scene",
 )
 @click.option(
     "--calib",
