@@ -153,7 +153,7 @@ def decode_image(
         return cv2.cvtColor(img, cv2.COLOR_RGBA2BGR)
     if enc in BAYER:
         return cv2.cvtColor(np.ascontiguousarray(img), BAYER[enc])
-    return np.ascontiguousarray(img)
+    return np.array(img, order="C")  # its own, writeable pixels: not a view of the bag's read-only buffer
 
 
 def _namespace(topic: str) -> str:

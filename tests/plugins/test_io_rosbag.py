@@ -62,6 +62,7 @@ def test_each_bag_format_reads_the_pairs_and_the_camera_info(tmp_path, storage, 
     for g, (left, right) in zip(got, data):
         np.testing.assert_array_equal(g["left"], left)
         np.testing.assert_array_equal(g["right"], right)
+        assert g["left"].flags.writeable and g["right"].flags.writeable  # as a decoded PNG's pixels
     src.close()
 
 
