@@ -58,7 +58,16 @@ class RectifyParams(NodeParams):
     inputs={
         "left": Port("image", "left image as recorded"),
         "right": Port("image", "right image as recorded"),
-        "stereo": Port("stereo_calibration", "the rig's calibration (a bag or video source's stereo output)"),
+        "stereo": Port(
+            "stereo_calibration",
+            "the rig's calibration (a bag or video source's stereo output)",
+            optional=True,
+        ),
+        "calib": Port(
+            "calibration",
+            "a rectified input's calibration, for a source that gives no stereo output",
+            optional=True,
+        ),
     },
     outputs={
         "left": Port("image", "left image, rectified"),
@@ -77,9 +86,16 @@ class Rectify:
         self._for = None
         self._rectifier = None
 
-    def __call__(self, left: np.ndarray, right: np.ndarray, stereo) -> dict:
+    def __call__(self, left: np.ndarray, right: np.ndarray, stereo=None, calib=None) -> dict:
         from lanegraph_io import Rectifier
 
+        if stereo is None:
+            if calib is None:
+                raise ValueError(
+                    "inputs 'stereo' and 'calib' are both empty: expected the source's stereo calibration "
+                    "(lanegraph_io's sources give it) or, for a rectified source, its calib"
+                )
+            return {"left": left, "right": right, "calib": calib}  # a rectified source that says so
         if self._rectifier is None or self._for is not stereo:
             size = (left.shape[1], left.shape[0])
             checked = stereo.check(size, (self.params.min_baseline_m, self.params.max_baseline_m))

@@ -76,3 +76,17 @@ def test_rectify_node_rectifies_once_and_passes_a_rectified_pair():
     assert flat["left"] is left and flat["right"] is right
     with pytest.raises(InputError, match="the calibration is for 320x120 images, the frames are 160x60"):
         Rectify(RectifyParams(), RunContext())(left=left[:60, :160], right=right[:60, :160], stereo=rig)
+
+
+def test_rectify_node_passes_a_rectified_source_without_a_stereo_output():
+    from lanegraph_image import Rectify, RectifyParams
+
+    from lanegraph.nodes import RunContext
+    from lanegraph.types import Calibration
+
+    calib = Calibration(f=200.0, cx=159.5, cy=59.5, baseline=0.3, width=320, height=120)
+    img = np.zeros((120, 320, 3), np.uint8)
+    out = Rectify(RectifyParams(), RunContext())(left=img, right=img, calib=calib)
+    assert out["left"] is img and out["calib"] is calib
+    with pytest.raises(ValueError, match="inputs 'stereo' and 'calib' are both empty"):
+        Rectify(RectifyParams(), RunContext())(left=img, right=img)
