@@ -21,6 +21,7 @@ import inspect
 import os
 import re
 import sys
+import warnings
 from dataclasses import dataclass
 from importlib import metadata
 from typing import Any
@@ -44,8 +45,8 @@ _PORT_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 @dataclass(frozen=True)
 class PluginError:
     """A plugin the host runs without: it failed to import, implements a hook that has no spec,
-    its registration hook raised, or it provides a node type or port type another plugin already
-    provides. ``node_types``: the node types it holds, where known (a graph that uses one is told
+    its registration hook raised, it provides a node type or port type another plugin already
+    provides, or a node type whose class lacks what it declares (:mod:`lanegraph.lifecycle`). ``node_types``: the node types it holds, where known (a graph that uses one is told
     why it is missing)."""
 
     plugin: str
@@ -297,6 +298,14 @@ class PluginManager(pluggy.PluginManager):
                 )
                 continue
             names = tuple(nt.name for nt in records if nt is not None)
+            broken = next(
+                ((nt, p) for nt in records if nt is not None and (p := nt.contract_problems())), None
+            )
+            if broken is not None:  # the declared contract (lanegraph.lifecycle) not kept
+                nt, problems = broken
+                what = nt.func.__qualname__
+                bad[impl.plugin] = (f"node type {nt.name!r} ({what}) {'; '.join(problems)}", names)
+                continue
             clash = next((n for n in names if n in types), None)
             if clash is not None:
                 first = types[clash].plugin
@@ -309,6 +318,15 @@ class PluginManager(pluggy.PluginManager):
                 assert nt is not None
                 nt.plugin = nt.plugin or pname
                 types[nt.name] = nt
+                if nt.undeclared:
+                    warnings.warn(
+                        f"plugin {pname!r}: node type {nt.name!r} defines the methods of "
+                        f"{', '.join(sorted(nt.undeclared))} without declaring them; declare "
+                        f"implements={tuple(sorted(nt.undeclared))!r} in its "
+                        "@node_type (lanegraph.lifecycle): a later lanegraph will not look for them",
+                        DeprecationWarning,
+                        stacklevel=2,
+                    )
         return types, bad
 
     def get_node_type(self, name: str) -> NodeType | None:

@@ -17,7 +17,6 @@ from typing import Any
 
 from ..errors import InputError, LanegraphError, UsageError
 from ..frames import selection_text
-from ..lifecycle import Resumable
 from ..types import PortType
 from .resume import (
     _HINT,
@@ -108,7 +107,7 @@ class Checkpointer:
         return self.path or Path("checkpoint")
 
     def resume_nodes(self, graph: Any, instances: dict[str, Any], opened: OpenedInput) -> None:
-        """Resuming: the input checked against the checkpoint's, and every :class:`Resumable` node
+        """Resuming: the input checked against the checkpoint's, and every node that declares ``resume``
         handed its checkpointed state (a :class:`UsageError` or the node's
         :class:`InputError` when that is not possible)."""
         ck = self.resume
@@ -124,7 +123,7 @@ class Checkpointer:
                 f"{where}: the frame selection now has {opened.total} frame(s), the checkpoint's run had {ck.total}{_HINT}"
             )
         for nid, inst in instances.items():
-            if isinstance(inst, Resumable):
+            if "resume" in graph.nodes[nid].type.capabilities:
                 try:
                     inst.restore(ck.states.get(nid))
                 except LanegraphError:
@@ -163,7 +162,10 @@ class Checkpointer:
             if reason is not None:
                 self.unresumable, feedback = reason, []
                 result.notes.append(f"--resume will not be possible for this run: {self.unresumable}")
-        states = {nid: inst.state() for nid, inst in instances.items() if isinstance(inst, Resumable)}
+        nodes = self.graph.nodes
+        states = {
+            nid: inst.state() for nid, inst in instances.items() if "resume" in nodes[nid].type.capabilities
+        }
         data = {
             "format": FORMAT,
             "version": VERSION,

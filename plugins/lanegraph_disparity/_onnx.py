@@ -399,6 +399,7 @@ def _import_onnxruntime() -> Any:
     "disparity.onnx",
     inputs={"left": "image", "right": "image"},
     outputs={"disparity": "disparity"},
+    implements=("close",),
 )
 class OnnxDisparity:
     """Disparity by a stereo network exported to ONNX (PSMNet, HITNet, CREStereo, RAFT-Stereo ...), run by ONNX Runtime on the CPU or CUDA; needs `pip install "lanegraph[onnx]"`.

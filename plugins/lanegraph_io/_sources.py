@@ -284,8 +284,14 @@ class StereoSourceParams(NodeParams):
         return self
 
 
+#: what every source of pairs implements (:mod:`lanegraph.lifecycle`)
+PAIR_SOURCE_CAPABILITIES = ("constants", "identity", "frame_key", "len", "skip")
+
+
 class _PairSource:
     """Common machinery: a list of (stem, left, right) pairs and a calibration."""
+
+    skipped: int  # frames of a resumed run left out (context.skip)
 
     gray = False
     #: where the calibration was read from, and field -> key names for its messages (set by discover())
@@ -508,7 +514,7 @@ class KittiRawParams(StereoSourceParams):
     )
 
 
-@node_type("io.kitti_raw", source=True, outputs=STEREO_OUTPUTS)
+@node_type("io.kitti_raw", source=True, outputs=STEREO_OUTPUTS, implements=PAIR_SOURCE_CAPABILITIES)
 class KittiRawSource(_PairSource):
     """A KITTI raw drive folder (``<date>/<date>_drive_NNNN_sync``), calibration in the date folder."""
 
@@ -566,7 +572,7 @@ class KittiOdometryParams(StereoSourceParams):
     )
 
 
-@node_type("io.kitti_odometry", source=True, outputs=STEREO_OUTPUTS)
+@node_type("io.kitti_odometry", source=True, outputs=STEREO_OUTPUTS, implements=PAIR_SOURCE_CAPABILITIES)
 class KittiOdometrySource(_PairSource):
     """A KITTI odometry sequence folder (``image_0``/``image_1`` or ``image_2``/``image_3``, ``calib.txt``)."""
 
@@ -605,7 +611,7 @@ class FolderParams(StereoSourceParams):
     )
 
 
-@node_type("io.folder", source=True, outputs=STEREO_OUTPUTS)
+@node_type("io.folder", source=True, outputs=STEREO_OUTPUTS, implements=PAIR_SOURCE_CAPABILITIES)
 class FolderSource(_PairSource):
     """A plain folder of rectified pairs: ``left/*.png`` + ``right/*.png`` (same stems) and ``calib.yaml``."""
 
@@ -660,7 +666,7 @@ class AutoParams(NodeParams):
         return v
 
 
-@node_type("io.auto", source=True, outputs=STEREO_OUTPUTS)
+@node_type("io.auto", source=True, outputs=STEREO_OUTPUTS, implements=("select_source",))
 class AutoSource:
     """Chooses the source from the --input path (KITTI raw, KITTI odometry, a folder of pairs, or
     any installed source whose plugin recognises it); the built-in synthetic scene when there is

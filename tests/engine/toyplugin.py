@@ -18,6 +18,7 @@ class CountParams(NodeParams):
     "toy.count",
     source=True,
     outputs={"frame": "frame_id", "value": "number", "calib": Port("calibration", rate="constant")},
+    implements=("constants", "frame_key", "len"),
 )
 class Count:
     """Yields frames 0..n-1 with value = index."""
