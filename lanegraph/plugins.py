@@ -31,6 +31,7 @@ import pluggy
 from . import hookspecs, interrupts
 from .errors import HookError, did_you_mean
 from .nodes import NodeType, node_type_of
+from .port_types import BUILTIN_PORT_TYPES
 from .types import PortType
 
 ENTRY_POINT_GROUP = "lanegraph.plugins"
@@ -92,8 +93,6 @@ class PluginManager(pluggy.PluginManager):
         self._dists: dict[str, str] = {}
         self._node_types: dict[str, NodeType] | None = None
         self._port_types: dict[str, PortType] = {}
-        from .presentation.port_types import BUILTIN_PORT_TYPES
-
         # lanegraph's own port types come through the same hook as a plugin's, registered first
         self.register(BUILTIN_PORT_TYPES, name=BUILTIN_PLUGIN)
         if os.environ.get("LANEGRAPH_TRACE_HOOKS"):
@@ -193,7 +192,7 @@ class PluginManager(pluggy.PluginManager):
     @property
     def port_types(self) -> dict[str, PortType]:
         """Every port type by name, each registered through ``lanegraph_port_types``: lanegraph's
-        own (:mod:`lanegraph.presentation.port_types`, registered first) and the plugins'."""
+        own (:mod:`lanegraph.port_types`, registered first) and the plugins'."""
         self.node_types  # noqa: B018 - built together
         return self._port_types
 
@@ -256,6 +255,10 @@ class PluginManager(pluggy.PluginManager):
                     by = self.get_name(owner[pt.name])
                     by = "lanegraph" if by == BUILTIN_PLUGIN else repr(by)
                     bad[impl.plugin] = (f"port type {pt.name!r} is already registered by {by}", ())
+                    break
+                problem = _storage_problem(pt, ports)
+                if problem is not None:
+                    bad[impl.plugin] = (f"port type {pt.name!r}: {problem}", ())
                     break
                 ports[pt.name] = pt
                 owner.setdefault(pt.name, impl.plugin)
@@ -347,6 +350,23 @@ class PluginManager(pluggy.PluginManager):
             names = ", ".join(repr(e.plugin) for e in self.plugin_errors)
             return f"plugin(s) {names} could not be loaded (see the warnings): one may provide it"
         return None
+
+
+def _storage_problem(pt: PortType, ports: dict[str, PortType]) -> str | None:
+    """What is wrong with a port type's storage (:mod:`lanegraph.storage`): ``stores`` a class
+    with both ``encode`` and ``decode``, one not another port type's; or neither."""
+    parts = {"stores": pt.stores, "encode": pt.encode, "decode": pt.decode}
+    if all(v is None for v in parts.values()):
+        return None
+    missing = [k for k, v in parts.items() if v is None]
+    if missing:
+        return f"declares storage without {' and '.join(missing)} (stores, encode and decode go together)"
+    if not isinstance(pt.stores, type) or not callable(pt.encode) or not callable(pt.decode):
+        return "stores must be a class, encode and decode functions"
+    other = next((o for o in ports.values() if o.stores is pt.stores and o.name != pt.name), None)
+    if other is not None:
+        return f"stores {pt.stores.__qualname__}, which port type {other.name!r} already stores"
+    return None
 
 
 def _describe(exc: BaseException) -> str:

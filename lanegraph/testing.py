@@ -281,7 +281,7 @@ def _round_trip(
     """The conformance check's last rule: a graph feeding ``sample_inputs`` to ``node`` validates,
     round-trips through a graph file and runs."""
     from .graph.validation import load_graph
-    from .presentation.port_types import PORT_TYPES as own
+    from .port_types import PORT_TYPES as own
     from .run.executor import Executor
 
     types = {k: node.inputs[k].type for k in sample_inputs}

@@ -204,7 +204,7 @@ def nodes(as_json: bool, as_markdown: bool, builtin: bool) -> None:
         for fname, f in nt.params.model_fields.items():
             default = "(required)" if f.is_required() else f"= {f.default!r}"
             click.echo(f"    - {fname} {default}: {f.description or ''}")
-    from ..presentation.port_types import PORT_TYPES
+    from ..port_types import PORT_TYPES
 
     added = [t for t in pm.port_types.values() if t.name not in PORT_TYPES]
     if added:

@@ -96,9 +96,8 @@ class Checkpointer:
                     raise UsageError(
                         f"{where}: feedback[{i}]: no feedback edge of the graph comes from {fb.node}.{fb.port}{_HINT}"
                     )
-            self.resumed_feedback = decode_feedback(
-                resume, where
-            )  # a malformed value: refused before anything opens
+            # a malformed value: refused before anything opens
+            self.resumed_feedback = decode_feedback(resume, where, port_types)
             # lanes are lanes, not a string: checked by the registered port types, a plugin's too
             check_feedback_types(self.resumed_feedback[0], graph, where, port_types, resume.last_frame)
 
@@ -156,7 +155,7 @@ class Checkpointer:
             problem = feedback_type_problem(previous, self.graph, self.port_types)
             reason = None if problem is None else f"frame {frame}: feedback {problem}"
             try:
-                feedback = feedback_entries(previous, prev_keys)
+                feedback = feedback_entries(previous, prev_keys, self.port_types)
             except CheckpointValueError as exc:
                 reason = f"a feedback value cannot be stored ({exc})"
             if reason is not None:

@@ -34,6 +34,7 @@ from ..graph.model import Graph, GraphNode
 from ..lifecycle import close_all, constants_of, verify_all
 from ..nodes import RunContext
 from ..plugins import PluginManager, call_hook, get_plugin_manager
+from ..storage import Codecs
 from .ahead import Lookahead, RunAhead, checked, count_valid
 from .cache import Caching, ResultCache, digest
 from .checkpointing import Checkpointer, OpenedInput, run_identity
@@ -107,6 +108,8 @@ class Executor:
         later nodes run (:mod:`lanegraph.run.ahead`; ``LANEGRAPH_OVERLAP=0`` turns it off too)."""
         self.graph = graph
         self.pm = pm or get_plugin_manager()
+        #: how the result cache stores the values (the registered port types', a plugin's too)
+        self.storage = Codecs(self.pm.port_types)
         ctx0 = context or RunContext()
         # what the run is (the graph as the user wrote it), checked before anything opens
         self.identity = checkpointer.identity if checkpointer is not None else run_identity(graph, ctx0)
@@ -183,7 +186,7 @@ class Executor:
             )
         use_cache = self.cache is not None and key is not None and node.id in self.cache_nodes
         if use_cache:
-            hit = self.cache.get(key)
+            hit = self.cache.get(key, self.storage)
             if hit is not self.cache.MISS:
                 result.timings_ms.setdefault(node.id, []).append(hit["ms"])  # the time it took to compute
                 result.cache_hits[node.id] = result.cache_hits.get(node.id, 0) + 1
@@ -215,7 +218,7 @@ class Executor:
                 raise _SkipFrame()
             return {p: None for p in node.type.outputs}
         if use_cache:
-            self.cache.put(key, {"outputs": out, "ms": elapsed})
+            self.cache.put(key, {"outputs": out, "ms": elapsed}, self.storage)
             result.cache_misses[node.id] = result.cache_misses.get(node.id, 0) + 1
         self._after_node(node, frame, out, elapsed, None)
         return out
