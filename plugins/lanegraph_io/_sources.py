@@ -23,11 +23,11 @@ import numpy as np
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from lanegraph import NodeParams, Port, RunContext, node_type
-from lanegraph._runtime import available_cpus, leave_signals_to_the_main_thread, lower_thread_priority
 from lanegraph.errors import InputError, UsageError
 from lanegraph.frames import parse_frames as _parse_frames
 from lanegraph.frames import select_frames, selection_text
-from lanegraph.run.cache import digest
+from lanegraph.storage import digest
+from lanegraph.threads import available_cpus, leave_signals_to_the_main_thread, lower_thread_priority
 from lanegraph.types import Calibration
 
 from ._calib import (
