@@ -108,6 +108,10 @@ def test_a_crafted_pickle_in_out_never_runs(cli, tmp_path, installed_pm):
         ("[]", ["expected a JSON object", "got list"]),
         ("{}", ["format: expected 'lanegraph-checkpoint'"]),
         ('{"format": "lanegraph-checkpoint", "version": 7}', ["version: expected 3, got 7"]),
+        (
+            '{"format": "lanegraph-checkpoint", "version": 2}',
+            ["version: expected 3, got 2", "version 3 stores values by their port types", "start over"],
+        ),
         ("not json at all", ["not a valid JSON checkpoint", "line 1"]),
         ("[" * 100000, ["not a valid JSON checkpoint"]),
         (b"\xff\xfe\x00garbage", ["cannot read the checkpoint"]),

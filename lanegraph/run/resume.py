@@ -173,7 +173,9 @@ def load_checkpoint(path: Path) -> Checkpoint:
         )
     if data.get("version") != VERSION:
         raise UsageError(
-            f"{path}: version: expected {VERSION}, got {str(data.get('version'))[:20]} (written by another lanegraph version){_HINT}"
+            f"{path}: version: expected {VERSION}, got {str(data.get('version'))[:20]} (written by another lanegraph version"
+            + ("; version 3 stores values by their port types" if data.get("version") == 2 else "")
+            + f"){_HINT}"
         )
     try:
         ckpt = Checkpoint.model_validate(data)
