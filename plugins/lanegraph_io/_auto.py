@@ -92,7 +92,7 @@ class AutoParams(NodeParams):
         return v
 
 
-@node_type("io.auto", source=True, outputs=STEREO_OUTPUTS)
+@node_type("io.auto", source=True, outputs=STEREO_OUTPUTS, implements=("select_source",))
 class AutoSource:
     """Chooses the source from the --input path (KITTI raw, KITTI odometry, a folder of pairs, a ROS
     bag, a stereo video, or any installed source whose plugin recognises it); the built-in

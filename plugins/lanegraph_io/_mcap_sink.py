@@ -94,6 +94,7 @@ def lane_metres(lane: Lane, geometry: BevGeometry) -> np.ndarray:
 @node_type(
     "io.write_mcap",
     sink=True,
+    implements=("outputs", "resume", "close"),
     inputs={
         "frame": Port("frame_id"),
         "image": Port("image", "the left image"),
@@ -104,6 +105,8 @@ def lane_metres(lane: Lane, geometry: BevGeometry) -> np.ndarray:
 class WriteMcap:
     """Writes OUT/lanes.mcap for Foxglove: the left image, the lanes on it and on the road in metres
     (x ahead, y left, frame ``road``), and each frame's time (``/lanegraph/timings``, JSON)."""
+
+    outputs: list[Path]
 
     def __init__(self, params: WriteMcapParams, context: RunContext):
         self.fm = need_foxglove()

@@ -23,7 +23,14 @@ from lanegraph.errors import InputError
 from ._calibfiles import stereo_from_cameras
 from ._png import decode_png
 from ._stereo import StereoCalibration
-from ._streams import STREAM_OUTPUTS, StreamParams, StreamSource, log, match_stamps
+from ._streams import (
+    STREAM_OUTPUTS,
+    STREAM_SOURCE_CAPABILITIES,
+    StreamParams,
+    StreamSource,
+    log,
+    match_stamps,
+)
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
@@ -171,7 +178,7 @@ def info_topic(topic: str, infos: list[str] | set[str]) -> str | None:
     return None
 
 
-@node_type("io.rosbag", source=True, outputs=STREAM_OUTPUTS)
+@node_type("io.rosbag", source=True, outputs=STREAM_OUTPUTS, implements=STREAM_SOURCE_CAPABILITIES)
 class RosbagSource(StreamSource):
     """Stereo pairs from a ROS 1 bag (``.bag``) or a ROS 2 bag (a ``.mcap`` or ``.db3`` file, or the bag's
     folder), paired by header stamp; the calibration from ``--calib`` or the bag's CameraInfo."""

@@ -23,11 +23,11 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from lanegraph import NodeParams, Port, RunContext, node_type
-from lanegraph._runtime import available_cpus, leave_signals_to_the_main_thread, lower_thread_priority
 from lanegraph.errors import InputError, UsageError
 from lanegraph.frames import parse_frames as _parse_frames
 from lanegraph.frames import select_frames, selection_text
-from lanegraph.run.cache import digest
+from lanegraph.storage import digest
+from lanegraph.threads import available_cpus, leave_signals_to_the_main_thread, lower_thread_priority
 from lanegraph.types import Calibration
 
 from ._calib import (
@@ -254,8 +254,14 @@ class StereoSourceParams(NodeParams):
         return self
 
 
+#: what every source of pairs implements (:mod:`lanegraph.lifecycle`)
+PAIR_SOURCE_CAPABILITIES = ("constants", "identity", "frame_key", "len", "skip")
+
+
 class _PairSource:
     """Common machinery: a list of (stem, left, right) pairs and a calibration."""
+
+    skipped: int  # frames of a resumed run left out (context.skip)
 
     gray = False
     #: where the calibration was read from, and field -> key names for its messages (set by discover())
@@ -481,7 +487,7 @@ class KittiRawParams(StereoSourceParams):
     )
 
 
-@node_type("io.kitti_raw", source=True, outputs=STEREO_OUTPUTS)
+@node_type("io.kitti_raw", source=True, outputs=STEREO_OUTPUTS, implements=PAIR_SOURCE_CAPABILITIES)
 class KittiRawSource(_PairSource):
     """A KITTI raw drive folder (``<date>/<date>_drive_NNNN_sync``), calibration in the date folder."""
 
@@ -539,7 +545,7 @@ class KittiOdometryParams(StereoSourceParams):
     )
 
 
-@node_type("io.kitti_odometry", source=True, outputs=STEREO_OUTPUTS)
+@node_type("io.kitti_odometry", source=True, outputs=STEREO_OUTPUTS, implements=PAIR_SOURCE_CAPABILITIES)
 class KittiOdometrySource(_PairSource):
     """A KITTI odometry sequence folder (``image_0``/``image_1`` or ``image_2``/``image_3``, ``calib.txt``)."""
 
@@ -578,7 +584,7 @@ class FolderParams(StereoSourceParams):
     )
 
 
-@node_type("io.folder", source=True, outputs=STEREO_OUTPUTS)
+@node_type("io.folder", source=True, outputs=STEREO_OUTPUTS, implements=PAIR_SOURCE_CAPABILITIES)
 class FolderSource(_PairSource):
     """A plain folder of rectified pairs: ``left/*.png`` + ``right/*.png`` (same stems) and ``calib.yaml``."""
 

@@ -20,11 +20,11 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from lanegraph import NodeParams, Port, RunContext
-from lanegraph._runtime import available_cpus, leave_signals_to_the_main_thread, lower_thread_priority
 from lanegraph.errors import InputError, UsageError
 from lanegraph.frames import select_frames, selection_text
-from lanegraph.run.cache import digest
 from lanegraph.runlog import get_logger
+from lanegraph.storage import digest
+from lanegraph.threads import available_cpus, leave_signals_to_the_main_thread, lower_thread_priority
 
 from ._calibfiles import read_stereo_calibration
 from ._order import disparity_votes
@@ -32,6 +32,9 @@ from ._sources import STEREO_OUTPUTS, parse_frames
 from ._stereo import Rectifier, StereoCalibration
 
 log = get_logger("io")
+
+#: what a recorded-stream source implements beyond reading frames (lanegraph.lifecycle)
+STREAM_SOURCE_CAPABILITIES = ("constants", "identity", "frame_key", "len", "skip", "close")
 
 STREAM_OUTPUTS = {
     **STEREO_OUTPUTS,
@@ -129,6 +132,7 @@ class StreamSource:
     """The machinery of a recorded-stream source (see the module's text)."""
 
     gray = False
+    skipped: int  # frames of a resumed run left out (context.skip)
 
     def __init__(self, params: StreamParams, context: RunContext):
         self.params = params

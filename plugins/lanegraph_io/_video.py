@@ -17,7 +17,14 @@ from lanegraph import RunContext, node_type
 from lanegraph.errors import InputError
 
 from ._auto import video_pair
-from ._streams import STREAM_OUTPUTS, StreamParams, StreamSource, log, match_stamps
+from ._streams import (
+    STREAM_OUTPUTS,
+    STREAM_SOURCE_CAPABILITIES,
+    StreamParams,
+    StreamSource,
+    log,
+    match_stamps,
+)
 
 
 def need_av():
@@ -152,7 +159,7 @@ class _Track:
         )
 
 
-@node_type("io.video", source=True, outputs=STREAM_OUTPUTS)
+@node_type("io.video", source=True, outputs=STREAM_OUTPUTS, implements=STREAM_SOURCE_CAPABILITIES)
 class VideoSource(StreamSource):
     """Stereo pairs from one side-by-side video (left | right halves) or from a folder holding
     ``left.<ext>`` and ``right.<ext>``, paired by timestamp; the calibration from ``--calib``."""

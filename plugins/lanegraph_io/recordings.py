@@ -263,16 +263,18 @@ def synthetic_recording(preset_name: str = "straight", n: int = 6, seed: int = 0
 def recorded_input(path: Path, n: int):
     """``(stereo, pairs)``: the first ``n`` frames of the input ``path`` (any installed source that
     reads it) and its rectified calibration as a rig that needs no rectification."""
-    from lanegraph.plugins import get_plugin_manager
-    from lanegraph.run.sources import close_source, detect_source, open_source
+    from lanegraph import RunContext
+    from lanegraph.lifecycle import close
+    from lanegraph.plugins import call_hook, get_plugin_manager
 
     from ._calibfiles import from_rectified
 
     pm = get_plugin_manager()
-    nt = detect_source(pm, path)
-    if nt is None:
+    name = call_hook(pm, "lanegraph_detect_source", path=path)
+    nt = pm.get_node_type(name) if name is not None else None
+    if nt is None or not nt.source:
         raise SystemExit(f"{path}: no installed source reads this input")
-    src = open_source(nt, nt.params(), path, frames=slice(0, n))
+    src = nt.func(nt.params(), RunContext(input_path=path, frames=slice(0, n), node_id="src"))
     calib = src.constants()["calib"]
 
     def pairs():
@@ -281,7 +283,7 @@ def recorded_input(path: Path, n: int):
                 if isinstance(item, dict):
                     yield item["left"], item["right"]
         finally:
-            close_source(src)
+            close(src, nt)
 
     return from_rectified(calib, str(path), {}), pairs()
 
