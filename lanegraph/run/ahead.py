@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from .. import interrupts
-from .._runtime import leave_signals_to_the_main_thread
+from ..threads import leave_signals_to_the_main_thread
 from ..graph.model import Graph, GraphNode
 from .outcome import RunResult
 from .plan import NO_VALID_FLAG, Step
