@@ -28,8 +28,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from .. import interrupts
-from ..threads import leave_signals_to_the_main_thread
 from ..graph.model import Graph, GraphNode
+from ..threads import leave_signals_to_the_main_thread
 from .outcome import RunResult
 from .plan import NO_VALID_FLAG, Step
 
