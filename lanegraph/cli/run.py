@@ -9,7 +9,7 @@ import click
 
 from ..errors import UsageError
 from ..kernel_cache import compile_share, first_run_notice
-from ._common import FOLDER, keeping_options, parse_frames, scale_out_options, session
+from ._common import FOLDER, dataset_file, keeping_options, parse_frames, scale_out_options, session
 from ._errors import handled
 
 
@@ -96,11 +96,9 @@ def run(
                 raise UsageError(
                     f"{flag} is for a run on one input; --dataset names the inputs (give one or the other)"
                 )
-        from ..evaluation.dataset import load_dataset
-
         s = session(quiet, verbose, overwrite, track)
         runner = s.runner(scheduler)
-        dataset = load_dataset(dataset_path)
+        dataset = dataset_file(dataset_path)
         graph_ = s.open_graph(graph, sets)
         compile_share()  # the first run on a machine: its part of the kernels, beside the helper's
         return s.run_dataset(
