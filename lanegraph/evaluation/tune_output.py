@@ -196,9 +196,7 @@ def extends_path(graph_file: Path) -> str:
         return "graph.yaml"
 
 
-def tuned_graph(
-    graph: Any, graph_file: Path, out_dir: Path, result: TuneResult, extends: str | None = None
-) -> str:
+def tuned_graph(graph: Any, graph_file: Path, result: TuneResult, extends: str | None = None) -> str:
     """The text of ``tuned.yaml``: ``extends`` the input graph, with the params chosen on all sequences."""
     nodes: dict[str, dict[str, Any]] = {}
     for key, value in (result.final.params if result.final is not None else {}).items():
