@@ -382,3 +382,36 @@ def test_every_trial_and_fold_is_tracked_on_a_real_mlflow_server(toy, tmp_path, 
         fold.data.metrics["left_out.detection_ratio"] == 1.0
         and fold.data.tags["lanegraph.tune.train"] == "a,b"
     )
+
+
+def test_tpe_with_the_median_pruner_stops_bad_trials_between_training_sequences(toy, tmp_path, monkeypatch):
+    import optuna
+
+    from lanegraph.evaluation.tune import Tuner
+
+    fake = _FakeRuns({"a": 5, "b": 5, "c": 5})
+    monkeypatch.setattr(Tuner, "_run", lambda self, batch, f=fake: f(self, batch))
+    tuner = _tuner(
+        toy, tmp_path / "pruned", "tpe", 8, "params:\n  verify.min_painted_rows: {low: 1, high: 9}\n"
+    )
+    tuner.setup.pruner = "median"
+    result = tuner.run()
+    assert all(
+        len(seqs) == 1 for _, seqs in fake.calls
+    )  # a sequence at a time, the score reported after each
+    storage = optuna.storages.JournalStorage(
+        optuna.storages.journal.JournalFileBackend(str(tmp_path / "pruned" / "study.journal"))
+    )
+    pruned = sum(
+        t.state == optuna.trial.TrialState.PRUNED
+        for s in optuna.get_all_study_summaries(storage)
+        for t in optuna.load_study(study_name=s.study_name, storage=storage).trials
+    )
+    assert pruned >= 1
+    # the final choice: the best finished trial of the study over all sequences (pruned ones left out)
+    from lanegraph.evaluation.tune import pooled
+
+    ratios = [pooled(t.counts, ["a", "b", "c"]).detection_ratio for t in result.trials if t.study == "all"]
+    assert result.final.study == "all" and pooled(
+        result.final.counts, ["a", "b", "c"]
+    ).detection_ratio == max(ratios)
