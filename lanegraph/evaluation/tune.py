@@ -415,6 +415,10 @@ class Tuner:
                 trials += found
                 fold = self._fold(train_i, test_i, f"fold-{fold_name}", found)
                 if fold.trial is not None:  # the chosen params on the left-out sequences: runs of their own
+                    self.setup.echo(
+                        f"tune: fold {k + 1}/{len(self.splits)}: its choice ({fold.study}#{fold.trial}) on the "
+                        f"left-out {', '.join(fold.test)}"
+                    )
                     fold.test_counts = self._run([(fold.params, fold.test)])[0]
                 folds.append(fold)
             found = self._search("all", seed, names, "all sequences")

@@ -85,6 +85,16 @@ def tune(
         "tune", [str(graph_path.resolve()), f"space {space_digest}", f"sampler {o.sampler}", f"seed {o.seed}"],
         dataset, o.frames,
     )  # fmt: skip
+    setup = TuneSetup(
+        out_dir, o.trials, o.sampler, o.pruner, o.seed, o.frames, o.grid_points, None, runner,
+        progress=session.progress, echo=session.err,
+        record_extra={**session.record_extra, **provenance(session.pm, None, [])},
+        on_trial=lambda t: session.tracking.log_run(_tracked_trial(t)),
+    )  # fmt: skip
+    try:  # reads every ground truth: a missing or malformed one is found before anything is written
+        tuner = Tuner(graph_path, g, space, dataset, setup)
+    except InputError as exc:
+        raise NotStarted(exc) from exc
     check_folder(out_dir, identity, overwrite=session.overwrite)
     cache_folder = (o.cache_dir, "--cache-dir") if o.cache_dir is not None and not o.no_cache else (None, "")
     t0 = time.perf_counter()
@@ -99,14 +109,9 @@ def tune(
             raise UsageError(f"--cache-dir: cannot use the result cache: {exc.strerror or exc}") from None
         if isinstance(runner, InProcessRunner):
             runner.cache = cache
-        setup = TuneSetup(
-            out_dir, o.trials, o.sampler, o.pruner, o.seed, o.frames, o.grid_points, cache, runner,
-            progress=session.progress, echo=session.err,
-            record_extra={**session.record_extra, **provenance(session.pm, None, [])},
-            on_trial=lambda t: session.tracking.log_run(_tracked_trial(t)),
-        )  # fmt: skip
+        setup.cache = cache
         try:
-            result = Tuner(graph_path, g, space, dataset, setup).run()
+            result = tuner.run()
         except (InputError, GraphError) as exc:
             raise NotStarted(exc) from exc
         except KeyboardInterrupt as exc:

@@ -415,3 +415,21 @@ def test_tpe_with_the_median_pruner_stops_bad_trials_between_training_sequences(
     assert result.final.study == "all" and pooled(
         result.final.counts, ["a", "b", "c"]
     ).detection_ratio == max(ratios)
+
+
+@pytest.mark.parametrize(
+    ("sequences", "message"),
+    [
+        ("  - {name: a, input: a, gt: a/lanes_gt.jsonl}\n", "at least two groups"),
+        ("  - {name: a, input: a, gt: a/lanes_gt.jsonl}\n  - {name: b, input: b}\n", "sequence 'b': tune scores"),
+        ("  - {name: a, input: a, gt: a/lanes_gt.jsonl, group: g}\n  - {name: b, input: b, gt: b/lanes_gt.jsonl, group: g}\n",
+         "at least two groups"),
+    ],
+)  # fmt: skip
+def test_a_dataset_tune_cannot_fold_is_refused_before_anything(toy, tmp_path, sequences, message):
+    (toy / "bad_ds.yaml").write_text("sequences:\n" + sequences)
+    args = ["tune", str(toy / "toy.yaml"), "--dataset", str(toy / "bad_ds.yaml"), "--space", str(toy / "space.yaml"),
+            "--out", str(tmp_path / "out")]  # fmt: skip
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 2 and message in r.output, r.output
+    assert not (tmp_path / "out").exists()
