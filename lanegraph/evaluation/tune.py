@@ -287,10 +287,13 @@ class Tuner:
     def _run(self, batch: list[tuple[dict[str, Any], list[str]]]) -> list[dict[str, Counts]]:
         """Run each params set on its sequences (one batch); the counts per sequence."""
         specs = {s.name: s for s in self.sequences}
-        requests = []
+        requests, asked = [], set()
         for params, seqs in batch:
             for name in seqs:
                 s = specs[name]
+                if (self._variant(params), name) in asked:  # the same params twice in a batch: one run
+                    continue
+                asked.add((self._variant(params), name))
                 requests.append(
                     RunRequest(self._variant(params), self.graph_path, sets_of(params), s,
                                s.frames if s.frames is not None else self.setup.frames)
