@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -152,11 +153,13 @@ def make_sampler(name: str, seed: int, grid: dict[str, list[Any]] | None = None)
                 return None
 
         return AskTellGrid(grid or {}, seed=seed)
-    if name == "qmc":
-        return optuna.samplers.QMCSampler(
-            seed=seed, scramble=True, independent_sampler=optuna.samplers.RandomSampler(seed=seed),
-            warn_independent_sampling=False, warn_asynchronous_seeding=False,
-        )  # fmt: skip
+    if name == "qmc":  # experimental in Optuna (its warning said in docs/tune.md, not on every run)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+            return optuna.samplers.QMCSampler(
+                seed=seed, scramble=True, independent_sampler=optuna.samplers.RandomSampler(seed=seed),
+                warn_independent_sampling=False, warn_asynchronous_seeding=False,
+            )  # fmt: skip
     if name == "tpe":
         return optuna.samplers.TPESampler(seed=seed)
     raise UsageError(f"--sampler {name}: expected one of {', '.join(SAMPLERS)}")

@@ -433,3 +433,17 @@ def test_a_dataset_tune_cannot_fold_is_refused_before_anything(toy, tmp_path, se
     r = CliRunner().invoke(main, args)
     assert r.exit_code == 2 and message in r.output, r.output
     assert not (tmp_path / "out").exists()
+
+
+def test_the_qmc_sampler_spreads_distinct_trials_over_a_range(toy, tmp_path, monkeypatch):
+    from lanegraph.evaluation.tune import Tuner
+
+    fake = _FakeRuns(dict.fromkeys("abc", 7))
+    monkeypatch.setattr(Tuner, "_run", lambda self, batch, f=fake: f(self, batch))
+    space = "params:\n  verify.min_paint_contrast: {low: 0.1, high: 0.6}\n  verify.min_painted_rows: {low: 1, high: 40}\n"
+    (toy / "space_q.yaml").write_text(space)
+    result = _tuner(toy, tmp_path / "qmc", "qmc", 8, space).run()
+    assert len(result.trials) == 8 and len(fake.calls) == 8
+    points = {tuple(sorted(t.params.items())) for t in result.trials}
+    assert len(points) == 8
+    assert all(0.1 <= t.params["verify.min_paint_contrast"] <= 0.6 for t in result.trials)
