@@ -28,6 +28,7 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from ..builtin import graph_names, graphs_dir
 from ..errors import UsageError, did_you_mean
 
 
@@ -161,9 +162,12 @@ def _model_errors(path: Path, exc: ValidationError) -> str:
 def read_space(path: str | Path) -> SpaceModel:
     """Read and validate a space file (no graph needed). Raises :class:`UsageError` naming the
     file and each field at fault."""
-    path = Path(path)
+    path = resolve_space_path(path)
     if not path.is_file():
-        raise UsageError(f"--space {path}: no such file (expected a YAML space file)")
+        raise UsageError(
+            f"--space {path}: no such file (expected a YAML space file, or a built-in space: "
+            f"{', '.join(graph_names('spaces')) or 'none'})"
+        )
     try:
         text = path.read_text(encoding="utf-8")
         if len(text) > 1_000_000:
@@ -179,6 +183,18 @@ def read_space(path: str | Path) -> SpaceModel:
         return SpaceModel.model_validate(raw)
     except ValidationError as exc:
         raise UsageError(_model_errors(path, exc)) from None
+
+
+def resolve_space_path(path: str | Path) -> Path:
+    """A space file's path, or the name of a built-in one (``spaces/paper``, found from any folder
+    in lanegraph's graphs) when no file of that name is here."""
+    path = Path(path)
+    if path.is_file():
+        return path
+    name = path.as_posix().removesuffix(".yaml")
+    if name in graph_names("spaces"):
+        return graphs_dir() / f"{name}.yaml"
+    return path
 
 
 def _check_value(params_model: type, current: dict[str, Any], name: str, value: Any) -> str | None:
@@ -256,7 +272,7 @@ def _is_int(annotation: Any, spec: ParamSpace) -> bool:
 
 def load_space(path: str | Path, graph: Any) -> Space:
     """Read a space file and check it against the validated ``graph`` (see the module's doc)."""
-    return check_space(read_space(path), Path(path), graph)
+    return check_space(read_space(path), resolve_space_path(path), graph)
 
 
 def sets_of(params: dict[str, Any]) -> list[str]:
