@@ -111,6 +111,14 @@ def test_a_second_tune_into_another_folder_reuses_the_cache_and_the_folder_rule_
     r = _tune(toy, out, sampler="random")
     assert r.exit_code == 2 and "holds the results of another" in r.output
     assert sorted(p.name for p in out.iterdir()) == before
+    # --overwrite removes what the grid tune wrote (its study too), not the user's file beside it
+    other = toy / "out_overwrite"
+    assert _tune(toy, other).exit_code == 0
+    (other / "notes.txt").write_text("mine")
+    r = _tune(toy, other, "--overwrite", "--trials", "2", sampler="random")
+    assert r.exit_code == 0, r.output
+    assert (other / "notes.txt").read_text() == "mine"
+    assert "resuming" not in r.output and len(_rows(other / "trials.csv")) == 2
 
 
 class _FakeRuns:
