@@ -8,6 +8,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -185,18 +186,21 @@ def write_tables(result: TuneResult, out_dir: Path) -> list[dict[str, Any]]:
     return rows
 
 
-def extends_path(graph_file: Path) -> str:
+def extends_path(graph_file: Path, out_dir: Path) -> str:
     """How ``OUT/tuned.yaml`` names the input graph: by its name among lanegraph's graphs
-    (``paper.yaml``, found from any folder) when it is one of them, else as ``graph.yaml``, the
-    input graph resolved beside it (a path to the original file would load only from some folders:
-    ``extends`` reaches the graph's own folder, the current one and lanegraph's graphs)."""
+    (``paper.yaml``, found from any folder) when it is one of them, else by its path relative to
+    ``OUT`` (``extends`` reaches the graph's own folder, the current one and lanegraph's graphs:
+    the command checks that it loads, else it extends ``graph.yaml``, the input graph resolved)."""
+    graph_file = Path(graph_file).resolve()
     try:
-        return Path(graph_file).resolve().relative_to(REPO_GRAPHS.resolve()).as_posix()
+        return graph_file.relative_to(REPO_GRAPHS.resolve()).as_posix()
     except ValueError:
-        return "graph.yaml"
+        return Path(os.path.relpath(graph_file, Path(out_dir).resolve())).as_posix()
 
 
-def tuned_graph(graph: Any, graph_file: Path, result: TuneResult, extends: str | None = None) -> str:
+def tuned_graph(
+    graph: Any, graph_file: Path, out_dir: Path, result: TuneResult, extends: str | None = None
+) -> str:
     """The text of ``tuned.yaml``: ``extends`` the input graph, with the params chosen on all sequences."""
     nodes: dict[str, dict[str, Any]] = {}
     for key, value in (result.final.params if result.final is not None else {}).items():
@@ -208,7 +212,7 @@ def tuned_graph(graph: Any, graph_file: Path, result: TuneResult, extends: str |
             f"{graph.name} ({graph_file}) with the params lanegraph tune chose on all sequences of the dataset "
             f"({result.sampler} sampler); their left-out figures are in results.md beside this file"
         ),
-        "extends": extends or extends_path(graph_file),
+        "extends": extends or extends_path(graph_file, out_dir),
         "nodes": nodes,
     }
     return yaml.safe_dump(doc, sort_keys=False, width=100)

@@ -146,15 +146,19 @@ def tune(
 
 
 def _write_tuned(g: Any, graph_path: Path, out_dir: Path, result: Any, session: Any) -> None:
-    """``tuned.yaml``, extending the input graph (a built-in one by name, else its resolved copy
-    ``graph.yaml`` beside it); checked to load as ``lanegraph run`` loads it."""
+    """``tuned.yaml``, extending the input graph (a built-in one by name, else by its path from OUT),
+    checked to load as ``lanegraph run`` loads it; where it does not (the input graph lies outside
+    the folders ``extends`` may reach from OUT), it extends the resolved copy ``graph.yaml``."""
     path = out_dir / "tuned.yaml"
-    write_text_atomic(path, tuned_graph(g, graph_path, result))
-    try:
-        session.load_graph(path)
-    except LanegraphError as exc:  # a built-in name shadowed in this folder: the copy beside it
-        get_logger("run").info("tuned.yaml extends graph.yaml instead: %s", exc)
-        write_text_atomic(path, tuned_graph(g, graph_path, result, extends="graph.yaml"))
+    first = tuned_graph(g, graph_path, out_dir, result)
+    for text in (first, tuned_graph(g, graph_path, out_dir, result, extends="graph.yaml")):
+        write_text_atomic(path, text)
+        try:
+            session.load_graph(path)
+            return
+        except LanegraphError as exc:
+            get_logger("run").info("tuned.yaml: %s", exc)
+    session.err(f"warning: {path} does not load from here (see run.log); the params chosen are in folds.json")
 
 
 def _tracked_trial(t: TrialResult) -> TrackedRun:

@@ -64,12 +64,14 @@ def _rows(path: Path) -> list[dict[str, str]]:
 @pytest.fixture(scope="module")
 def tuned(toy):
     out = toy / "out"
-    r = _tune(toy, out)
+    with pytest.MonkeyPatch.context() as mp:  # run where the graph is, as a user does
+        mp.chdir(toy)
+        r = _tune(toy, out)
     assert r.exit_code == 0, r.output
     return out, r.output
 
 
-def test_tune_finds_the_known_best_param_and_writes_a_graph_that_runs(tuned, toy, tmp_path):
+def test_tune_finds_the_known_best_param_and_writes_a_graph_that_runs(tuned, toy, tmp_path, monkeypatch):
     out, output = tuned
     folds = json.loads((out / "folds.json").read_text())
     assert folds["mode"] == "shared" and folds["sampler"] == "grid"
@@ -91,8 +93,9 @@ def test_tune_finds_the_known_best_param_and_writes_a_graph_that_runs(tuned, toy
     assert command["kind"] == "tune" and "tuned.yaml" in command["written"]
     # the tuned graph extends the input graph and runs as it is
     tuned_graph = yaml.safe_load((out / "tuned.yaml").read_text())
-    assert tuned_graph["extends"] == "graph.yaml"  # the input graph, resolved beside it
+    assert tuned_graph["extends"] == "../toy.yaml"  # the input graph, found from the current folder
     assert tuned_graph["nodes"] == {"verify": {"params": {"min_painted_rows": 10}}}
+    monkeypatch.chdir(toy)
     r = CliRunner().invoke(main, ["run", str(out / "tuned.yaml"), "--input", str(toy / "a"),
                                   "--out", str(tmp_path / "run"), "--quiet"])  # fmt: skip
     assert r.exit_code == 0, r.output
