@@ -29,14 +29,16 @@ def graphs_dir() -> Path:
 
 def graph_names(kind: str = "graphs") -> list[str]:
     """The built-in names, sorted: graphs (``paper``, ``ablations/slt``) or, with ``kind="datasets"``,
-    dataset files (``datasets/dev``); each usable wherever a graph or dataset file is expected."""
+    dataset files (``datasets/dev``), with ``kind="spaces"`` the search spaces of ``lanegraph tune``
+    (``spaces/paper``); each usable wherever a graph, dataset or space file is expected."""
     root = graphs_dir()
     if not root.is_dir():
         return []
     names = []
     for p in root.rglob("*.yaml"):
         rel = p.relative_to(root).with_suffix("").as_posix()
-        if (rel.split("/")[0] == "datasets") == (kind == "datasets"):
+        top = rel.split("/")[0] if "/" in rel else ""
+        if top == kind or (kind == "graphs" and top not in ("datasets", "spaces")):
             names.append(rel)
     return sorted(names)
 

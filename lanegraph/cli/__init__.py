@@ -20,6 +20,7 @@ from .nodes import builtin_node_types, nodes, nodes_markdown, schema, show, vali
 from .report import report
 from .run import run
 from .start import data_cmd, graphs_cmd
+from .tune import tune
 
 __all__ = ["allowed_roots", "builtin_node_types", "main", "nodes_markdown", "resolve_graph_path"]
 
@@ -50,7 +51,7 @@ def main() -> None:
     """lanegraph: stereo lane-marking detection as validated, plugin-based processing graphs."""
 
 
-for _command in (run, validate, nodes, schema, show, ablate, eval_cmd, report, graphs_cmd, data_cmd):
+for _command in (run, validate, nodes, schema, show, ablate, tune, eval_cmd, report, graphs_cmd, data_cmd):
     main.add_command(_command)
 
 

@@ -14,6 +14,7 @@ figures and the pooled ones.
         input: ../../../shared/data/kitti_odometry/seq1
         gt: ../../../shared/data/kitti_odometry/seq1/lanes_gt.jsonl
         frames: "0:20"      # optional: A:B or A:B:S over the input's frames (the ground truth is cut alike)
+        group: odometry     # optional: `lanegraph tune` leaves a whole group out per fold
 
 Relative paths are relative to the dataset file. A sequence's ``name`` becomes a folder name of the
 outputs (``OUT/<name>/...``), so it is a plain name: letters, digits, ``_ - .``, not ``.`` or ``..``.
@@ -56,6 +57,11 @@ class _SequenceModel(BaseModel):
         None,
         description="frame selection A:B or A:B:S over the input's frames (the ground truth is cut alike)",
     )
+    group: str | None = Field(
+        None,
+        description="a group of sequences (the same street, the same drive): `lanegraph tune` leaves a whole "
+        "group out in a fold; default: the sequence is a group of its own",
+    )
 
     @field_validator("frames")
     @classmethod
@@ -89,6 +95,7 @@ class SequenceSpec:
     input: Path
     gt: Path | None = None
     frames: slice | None = None
+    group: str | None = None  # `lanegraph tune` leaves a group out per fold (None: its own)
 
 
 @dataclass(frozen=True)
@@ -177,7 +184,7 @@ def load_dataset(path: str | Path, check_paths: bool = True) -> Dataset:
                 raise InputError(f"sequence {s.name!r}: input: {inp}: no such folder", path=str(path))
             if gt is not None and not gt.is_file():
                 raise InputError(f"sequence {s.name!r}: gt: {gt}: no such file", path=str(path))
-        seqs.append(SequenceSpec(s.name, inp, gt, parse_selection(s.frames)))
+        seqs.append(SequenceSpec(s.name, inp, gt, parse_selection(s.frames), s.group))
     return Dataset(model.name or path.stem, path, tuple(seqs))
 
 

@@ -22,7 +22,8 @@ def test_graphs_dir_has_every_file_of_the_repository(tmp_path, monkeypatch):
     expected = sorted(
         p.relative_to(REPO_GRAPHS).with_suffix("").as_posix() for p in REPO_GRAPHS.rglob("*.yaml")
     )
-    assert sorted(names + graph_names("datasets")) == expected
+    assert sorted(names + graph_names("datasets") + graph_names("spaces")) == expected
+    assert "spaces/paper" in graph_names("spaces") and "spaces/paper" not in names
     assert "paper" in names and "ablations/slt" in names and "datasets/dev" in graph_names("datasets")
     assert find_graph("paper").resolve() == (graphs_dir() / "paper.yaml").resolve()
     assert find_graph("ablations/slt.yaml").name == "slt.yaml"
