@@ -48,6 +48,7 @@ KNOWN_NAMES = (
     "run.log",
     "graph.yaml",
     "run_key.txt",
+    "lanes_gt.jsonl",  # the synthetic scene's ground truth, written by its source
     "results.csv",
     "results.md",
     "accuracy.png",
