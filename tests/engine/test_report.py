@@ -511,7 +511,7 @@ def browser():
     try:
         from playwright import sync_api
     except ImportError as exc:
-        pytest.skip(f"playwright is not installed ({exc}): pip install -e '.[test]'")
+        pytest.skip(f"playwright is not installed ({exc}): pip install -e '.[browser]'")
     exe = _chromium()
     if exe is None:
         pytest.skip(
