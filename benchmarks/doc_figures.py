@@ -3,6 +3,7 @@ committed text.
 
 Each generated block in the docs lies between ``<!-- figures: NAME ... -->`` and ``<!-- /figures -->``.
 
+- ``readme/quick-start``: the score line ``lanegraph run`` ends with, on the default synthetic scene;
 - ``tutorial/ablation-kerbs``: every graph of ``graphs/ablations/`` and ``paper`` on 40 frames of the
   synthetic ``kerbs`` street (its answers are exact);
 - ``tutorial/eval-drive``, ``tutorial/ablation-drive``: ``lanegraph eval`` of ``paper`` and the same
@@ -35,6 +36,7 @@ DOCS = {"readme": ROOT / "README.md", "tutorial": ROOT / "docs" / "tutorial.md"}
 BLOCK = re.compile(r"(<!-- figures: (?P<name>[\w/-]+)[^>]*-->\n)(?P<body>.*?)(<!-- /figures -->)", re.S)
 #: every block the generators write, by the figures they need
 BLOCKS = {
+    "readme/quick-start": "synthetic",
     "tutorial/ablation-kerbs": "synthetic",
     "tutorial/eval-drive": "real",
     "tutorial/ablation-drive": "real",
@@ -86,6 +88,21 @@ def gen_kerbs(tmp: Path) -> dict[str, str]:
     seq = write_sequence(preset("kerbs"), tmp / "kerbs", 40)
     out = ablation(tmp, "ablation_kerbs", "--input", str(seq), "--gt", str(seq / "lanes_gt.jsonl"))
     return {"tutorial/ablation-kerbs": pooled_table(out / "results.md")}
+
+
+def gen_quick_start(tmp: Path) -> dict[str, str]:
+    """The quick start as a new user runs it: ``lanegraph run`` in an empty folder."""
+    work = tmp / "quick_start"
+    work.mkdir()
+    proc = subprocess.run(
+        [sys.executable, "-m", "lanegraph.cli", "run"], cwd=work, capture_output=True, text=True
+    )
+    lines = [line for line in proc.stdout.splitlines() if line.startswith("detection ratio")]
+    if proc.returncode != 0 or len(lines) != 1:
+        raise SystemExit(
+            f"lanegraph run failed ({proc.returncode}):\n{proc.stdout[-2000:]}{proc.stderr[-3000:]}"
+        )
+    return {"readme/quick-start": f"```text\n{lines[0]}\n```\n"}
 
 
 def _pct(x: float | None, digits: int = 1) -> str:
@@ -146,6 +163,7 @@ def main() -> None:
     opt = ap.parse_args()
     gens: list[tuple[str, Callable[[Path], dict[str, str]]]] = []
     if opt.only in (None, "synthetic"):
+        gens.append(("quick start", gen_quick_start))
         gens.append(("synthetic", gen_kerbs))
     if opt.only in (None, "real"):
         if (DRIVE / "image_02").is_dir():
