@@ -113,6 +113,26 @@ def script(blocks: list[ShellBlock], helper: Path) -> tuple[str, dict[int, str]]
     return "\n".join(head + body) + "\n", where
 
 
+def local_projects(blocks: list[ShellBlock], root: Path = ROOT) -> dict[str, str]:
+    """``{distribution name: folder}`` of the projects in the repository that the blocks that run
+    ``pip install`` (the stand-in checks, it does not install: the test needs them installed)."""
+    out = {}
+    for b in blocks:
+        if b.lang not in SHELL_LANGS or b.notest or b.needs is not None:
+            continue
+        for _, text in b.commands():
+            words = shlex.split(text, comments=True) if text.strip() else []
+            if words[:2] != ["pip", "install"]:
+                continue
+            for w in words[2:]:
+                toml = root / w / "pyproject.toml"
+                if not w.startswith("-") and toml.is_file():
+                    m = re.search(r'^name\s*=\s*"([^"]+)"', toml.read_text(encoding="utf-8"), re.M)
+                    if m:
+                        out[m.group(1)] = w
+    return out
+
+
 # --------------------------------------------------------------------------- the stand-ins
 def extras(root: Path = ROOT) -> set[str]:
     """The extras pyproject.toml declares (the keys of ``[project.optional-dependencies]``)."""

@@ -55,6 +55,15 @@ def test_the_commands_of_a_page_run_in_order(page, tmp_path):
     skipped = [f"{b.id} ({b.needs})" for b in blocks if b.lang in ds.SHELL_LANGS and b.needs is not None]
     if not where:
         pytest.skip(f"every command block needs what the test has not: {', '.join(skipped)}")
+    from importlib import metadata
+
+    for name, folder in ds.local_projects(blocks).items():
+        try:
+            metadata.distribution(name)
+        except metadata.PackageNotFoundError:
+            pytest.skip(
+                f"the page installs {name}, which is not installed here: pip install -e {folder} (.ci/run does)"
+            )
     work = _checkout(tmp_path)
     env = {
         **os.environ,
