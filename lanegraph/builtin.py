@@ -11,6 +11,7 @@ user's own graph falls back to the built-in file of that name (:func:`builtin_ba
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 from .errors import GraphError, Problem, did_you_mean
@@ -42,7 +43,7 @@ def graph_names(kind: str = "graphs") -> list[str]:
 
 
 def describe(path: Path) -> str:
-    """The first sentence of a graph or dataset file's ``description`` (or ``doc``), '' if none."""
+    """The first sentence of a graph or dataset file's ``description`` (or ``doc``), whole; '' if none."""
     import yaml
 
     try:
@@ -53,10 +54,8 @@ def describe(path: Path) -> str:
     if isinstance(data, dict):
         text = str(data.get("description") or data.get("doc") or "")
     text = " ".join(text.split())
-    for stop in (". ", ": "):
-        if stop in text:
-            text = text.split(stop)[0]
-    return text if len(text) <= 100 else text[:99].rsplit(" ", 1)[0] + " …"
+    m = re.search(r"(?<=[.!?])\s+(?=[A-Z(`])", text)
+    return text[: m.start()] if m else text  # the first sentence, whole
 
 
 def find_graph(name: str) -> Path:
