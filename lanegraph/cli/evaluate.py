@@ -82,8 +82,11 @@ def eval_cmd(
     calib: Path | None,
     frames: str | None,
 ) -> None:
-    """Evaluate PRED (a run's lanes file, or its run folder) against GT lanes_gt.jsonl: the lane
-    metric of the data README, plus
+    """Evaluate PRED (a run's lanes file, or its run folder) against GT lanes_gt.jsonl (default:
+    the ground truth of the input the run recorded, or the synthetic scene's in the run folder):
+    lanegraph's lane metric (detection ratio: the share of frames where every reported lane matches
+    a distinct marking -- on 85 % of its rows within 20 px -- and every painted ego boundary is
+    matched; precision: matched lanes / reported lanes; ego recall), plus
     CULane-style F1, TuSimple-style accuracy and, for synthetic scenes, the lateral error in cm.
     With --dataset, every sequence of the dataset and all of them pooled. Only the frames the run
     selected are scored (its run.json says which; --frames chooses), and the ground-truth frames
