@@ -99,7 +99,8 @@ def script(blocks: list[ShellBlock], helper: Path) -> tuple[str, dict[int, str]]
         f'pip() {{ python3_lg {shlex.quote(str(helper))} pip "$@"; }}',
         f'python() {{ python3_lg {shlex.quote(str(helper))} python "$@"; }}',
         f'python3_lg() {{ {shlex.quote(sys.executable)} "$@"; }}',
-        "trap 'echo \"@@failed $LINENO $?\" >&2' ERR",
+        # in a stand-in function LINENO is the function's line; the last of BASH_LINENO is the page's
+        "trap 'echo \"@@failed $LINENO ${BASH_LINENO[*]:-}\" >&2' ERR",
     ]
     where: dict[int, str] = {}
     body: list[str] = []

@@ -41,7 +41,8 @@ def _checkout(tmp: Path) -> Path:
 def _where(stderr: str, where: dict[int, str]) -> str:
     for line in reversed(stderr.splitlines()):
         if line.startswith("@@failed "):
-            n = int(line.split()[1])
+            numbers = [int(x) for x in line.split()[1:]]
+            n = numbers[-1] if len(numbers) > 1 and numbers[-1] > 0 else numbers[0]
             near = [k for k in where if k <= n]
             return where[max(near)] if near else "?"
     return "?"
@@ -113,7 +114,7 @@ def test_the_script_runs_blocks_in_order_and_names_lines(tmp_path):
     page = tmp_path / "p.md"
     page.write_text(
         "```bash\nX=1\n```\n\n<!-- needs: a GPU -->\n```bash\nexit 3\n```\n\n"
-        "```console\n$ test $X = 1\nsome output\n$ false\n```\n\n<!-- notest -->\n```bash\nexit 4\n```\n"
+        "```console\n$ test $X = 1\nsome output\n$ python -c 'raise SystemExit(3)'\n```\n\n<!-- notest -->\n```bash\nexit 4\n```\n"
     )
     blocks = ds.parse(page, tmp_path)
     assert [(b.needs, b.notest) for b in blocks] == [
@@ -124,7 +125,7 @@ def test_the_script_runs_blocks_in_order_and_names_lines(tmp_path):
     ]
     text, where = ds.script(blocks, ROOT / "tests" / "_doc_shell.py")
     proc = subprocess.run(["bash", "-c", text], capture_output=True, text=True)
-    assert proc.returncode == 1 and _where(proc.stderr, where) == "p.md:13"
+    assert proc.returncode == 3 and _where(proc.stderr, where) == "p.md:13"
     assert "exit 3" not in text and "exit 4" not in text and "some output" not in text
 
 
