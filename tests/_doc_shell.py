@@ -122,9 +122,12 @@ def local_projects(blocks: list[ShellBlock], root: Path = ROOT) -> dict[str, str
         if b.lang not in SHELL_LANGS or b.notest or b.needs is not None:
             continue
         for _, text in b.commands():
-            words = shlex.split(text, comments=True) if text.strip() else []
-            if words[:2] != ["pip", "install"]:
+            if not text.lstrip().startswith("pip install"):
                 continue
+            try:
+                words = shlex.split(text, comments=True)
+            except ValueError:  # a line that goes on below (a quote or a backslash open)
+                words = text.split()
             for w in words[2:]:
                 toml = root / w / "pyproject.toml"
                 if not w.startswith("-") and toml.is_file():
@@ -132,6 +135,22 @@ def local_projects(blocks: list[ShellBlock], root: Path = ROOT) -> dict[str, str
                     if m:
                         out[m.group(1)] = w
     return out
+
+
+def stand_in_install(name: str, folder: Path, site: Path) -> list[Path]:
+    """What ``pip install -e FOLDER`` gives lanegraph, without installing: a distribution named
+    ``name`` with FOLDER's ``lanegraph.plugins`` entry points, in ``site``. Returns the folders to
+    put on PYTHONPATH (``site`` and FOLDER, where its package lies)."""
+    text = (folder / "pyproject.toml").read_text(encoding="utf-8")
+    section = text.split('[project.entry-points."lanegraph.plugins"]', 1)[1].split("\n[", 1)[0]
+    points = re.findall(r'^([\w.-]+)\s*=\s*"([^"]+)"', section, re.M)
+    info = site / f"{name.replace('-', '_')}-0.0.dist-info"
+    info.mkdir(parents=True)
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {name}\nVersion: 0.0\n")
+    (info / "entry_points.txt").write_text(
+        "[lanegraph.plugins]\n" + "".join(f"{k} = {v}\n" for k, v in points)
+    )
+    return [site, folder]
 
 
 # --------------------------------------------------------------------------- the stand-ins
