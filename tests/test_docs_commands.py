@@ -134,3 +134,13 @@ def test_pip_install_is_checked_not_run():
     assert ds.fake_pip(["install", "-e", ".[no_such_extra]"]) == 2
     assert ds.fake_pip(["install", "lanegraph[dev]"]) == 0
     assert ds.fake_pip(["uninstall", "lanegraph"]) == 2
+
+
+def test_the_readme_says_what_each_extra_adds():
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    missing = [e for e in sorted(ds.extras()) if f"| `{e}` |" not in text]
+    assert not missing, f"README.md's extras table lacks {missing}"
+    # CI installs the project as the README tells developers to, and runs the README's test command
+    ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8")
+    assert 'pip install -q -e ".[dev]"' in ci and 'pip install -e ".[dev]"' in text
+    assert "python -m pytest -q\n" in ci
