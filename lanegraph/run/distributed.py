@@ -221,7 +221,13 @@ class _Cluster:
             try:
                 # a worker gets its next task when it is free, not one queued behind the running one:
                 # the tasks are long and of unequal length
-                with dask.config.set({"distributed.scheduler.worker-saturation": 1.0}):
+                # (the scheduler's and the workers' scratch folders in one temporary folder, removed at close)
+                with dask.config.set(
+                    {
+                        "distributed.scheduler.worker-saturation": 1.0,
+                        "temporary-directory": self._scratch.name,
+                    }
+                ):
                     self.cluster = distributed.LocalCluster(
                         n_workers=n,
                         threads_per_worker=1,
