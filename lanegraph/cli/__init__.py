@@ -43,7 +43,19 @@ def main() -> None:
     """lanegraph: stereo lane-marking detection as validated, plugin-based processing graphs."""
 
 
-for _command in (run, validate, nodes, schema, show, ablate, eval_cmd, report, graphs_cmd, data_cmd, cache_cmd):
+for _command in (
+    run,
+    validate,
+    nodes,
+    schema,
+    show,
+    ablate,
+    eval_cmd,
+    report,
+    graphs_cmd,
+    data_cmd,
+    cache_cmd,
+):
     main.add_command(_command)
 
 
