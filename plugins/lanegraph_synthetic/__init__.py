@@ -120,11 +120,14 @@ def spec_from_params(params: SyntheticParams) -> SceneSpec:
         "gt_road_mask": Port("mask", "left-view pixels on the road plane"),
         "gt_object_mask": Port("mask", "left-view pixels on objects (cars, poles, walls)"),
     },
+    implements=("constants", "identity", "frame_key", "len", "skip"),
 )
 class SyntheticSource:
     """A built-in synthetic stereo road sequence with exact ground truth (presets: straight, curved,
     clothoid, urban, no_markings, overexposed). In a run with an output folder its lane ground truth
     goes to OUT/lanes_gt.jsonl, one line per frame rendered, for lanegraph eval and report."""
+
+    skipped: int  # frames of a resumed run left out (context.skip)
 
     def __init__(self, params: SyntheticParams, context: RunContext):
         self.params = params
