@@ -224,7 +224,7 @@ def main() -> None:
     if opt.only in (None, "real"):
         if (DRIVE / "image_02").is_dir():
             gens.append(("real", gen_real))
-            gens.append(("the example plugin's", gen_tophat))
+            gens.append(("example plugin's", gen_tophat))
         else:
             print(
                 f"doc_figures: real sequences not found at {SHARED}: their figures are not checked",
