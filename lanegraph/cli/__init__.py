@@ -15,6 +15,7 @@ import click
 from .._version import __version__
 from ..graph.files import allowed_roots, resolve_graph_path
 from .ablate import ablate
+from .cache import cache_cmd
 from .evaluate import eval_cmd
 from .nodes import builtin_node_types, nodes, nodes_markdown, schema, show, validate
 from .report import report
@@ -51,7 +52,20 @@ def main() -> None:
     """lanegraph: stereo lane-marking detection as validated, plugin-based processing graphs."""
 
 
-for _command in (run, validate, nodes, schema, show, ablate, tune, eval_cmd, report, graphs_cmd, data_cmd):
+for _command in (
+    run,
+    validate,
+    nodes,
+    schema,
+    show,
+    ablate,
+    tune,
+    eval_cmd,
+    report,
+    graphs_cmd,
+    data_cmd,
+    cache_cmd,
+):
     main.add_command(_command)
 
 

@@ -33,7 +33,7 @@ from typing import Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from ..errors import InputError
+from ..errors import InputError, did_you_mean
 from ..frames import parse_frames
 from .metrics import evaluate, read_ground_truth, select_frames
 
@@ -139,7 +139,9 @@ def single_sequence(input_path: Path | None, gt: Path | None = None, frames: sli
 
 
 def load_dataset(path: str | Path, check_paths: bool = True) -> Dataset:
-    """Read and validate a dataset file; paths are resolved relative to it.
+    """Read and validate a dataset file (a path, or a built-in name: ``datasets/kitti_lanes``);
+    paths are resolved relative to it. Its errors are exit 2: a dataset file is read before any
+    frame runs.
 
     Raises
     ------
@@ -148,9 +150,25 @@ def load_dataset(path: str | Path, check_paths: bool = True) -> Dataset:
         that is not YAML, a field of the wrong type, a duplicate name, or (``check_paths``) an input
         folder or ground-truth file that does not exist.
     """
-    path = Path(path)
+    try:
+        return _load_dataset(path, check_paths)
+    except InputError as exc:
+        exc.exit_code = 2  # refused before any frame
+        raise
+
+
+def _load_dataset(path: str | Path, check_paths: bool) -> Dataset:
+    from ..builtin import find_dataset, graph_names
+
+    path = find_dataset(path)
     if not path.is_file():
-        raise InputError("dataset file not found (expected a YAML file listing sequences)", path=str(path))
+        hint = did_you_mean(path.with_suffix("").as_posix().removeprefix("graphs/"), graph_names("datasets"))
+        raise InputError(
+            "dataset file not found (expected a YAML file listing sequences, or a built-in name"
+            + (f"; {hint}" if hint else ": `lanegraph graphs` lists them")
+            + ")",
+            path=str(path),
+        )
     try:
         raw = yaml.safe_load(path.read_text(encoding="utf-8"))
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
