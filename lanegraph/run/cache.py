@@ -39,7 +39,7 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-from .._numba import cache_root
+from ..kernels.folder import cache_root
 from ..paths import new_temp_file
 
 DEFAULT_MAX_BYTES = 2 * 1024**3

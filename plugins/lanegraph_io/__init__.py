@@ -38,3 +38,9 @@ def lanegraph_read_calibration(path):
     if Path(path).suffix.lower() in (".yaml", ".yml"):
         return read_calibration_yaml(Path(path))
     return None
+
+
+@hookimpl
+def lanegraph_kernels():
+    """This plugin's kernel list, its LLVM bitcode beside it (:mod:`lanegraph.kernels`)."""
+    return Path(__file__).with_name("kernels.json")
