@@ -149,9 +149,16 @@ UPWARD_ON_PURPOSE = {
 }
 
 
+#: sub-packages of the core layer (the plugin author's contract): ``lanegraph.jit`` and its kernel cache
+CORE_PACKAGES = {"kernels"}
+
+
 def layer_of(module: str) -> str:
-    """``core`` for ``lanegraph`` and its top-level modules, else the sub-package (``run``, ``cli`` ...)."""
+    """``core`` for ``lanegraph``, its top-level modules and :data:`CORE_PACKAGES`, else the
+    sub-package (``run``, ``cli`` ...)."""
     parts = module.split(".")
+    if len(parts) > 1 and parts[1] in CORE_PACKAGES:
+        return "core"
     return parts[1] if len(parts) > 2 or (len(parts) == 2 and parts[1] in LAYERS) else "core"
 
 
