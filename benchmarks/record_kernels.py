@@ -195,7 +195,7 @@ def write_bundles(paths: list[Path]) -> None:
         }
         argv = [str(a) for p in paths for a in (p, p.with_suffix(".bundle"))]
         subprocess.run(
-            [sys.executable, "-m", "lanegraph.kernels.bundle", *argv], env=env, check=True, cwd=ROOT
+            [sys.executable, "-m", "lanegraph.kernels", "bundle", *argv], env=env, check=True, cwd=ROOT
         )
         env = {**env, "NUMBA_CACHE_DIR": os.path.join(tmp, "use"), "LANEGRAPH_KERNEL_BUNDLE": "1"}
         out = subprocess.run(

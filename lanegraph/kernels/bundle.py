@@ -327,7 +327,7 @@ def decode_type(text: str):
 
 def _main(argv: list[str]) -> int:
     if not argv or len(argv) % 2:
-        print("usage: python -m lanegraph.kernels.bundle LIST OUT [LIST OUT ...] (empty kernel folder)")
+        print("usage: python -m lanegraph.kernels bundle LIST OUT [LIST OUT ...] (empty kernel folder)")
         return 2
     for k in range(0, len(argv), 2):
         n = write_bundle(read_list(Path(argv[k])), Path(argv[k + 1]))
@@ -348,6 +348,3 @@ __all__ = [
     "read_list",
     "write_bundle",
 ]
-
-if __name__ == "__main__":
-    sys.exit(_main(sys.argv[1:]))

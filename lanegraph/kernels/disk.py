@@ -10,7 +10,7 @@ which it unpickles when it looks for a kernel. lanegraph's kernels (:func:`laneg
   place, so a link is never written through;
 - it unpickles a file only when its signature holds; a file that is not a regular file, not
   lanegraph's, damaged or empty is passed over with a warning (:class:`KernelCacheWarning`, once per
-  file) and the kernel is compiled again, and saved over it;
+  process) and the kernel is compiled again, and saved over it;
 - a file that cannot be written (a full disk) turns the disk cache off for the process with a
   warning: the run goes on, compiling what it needs.
 
@@ -202,7 +202,9 @@ class _CheckedFile(_caching.IndexDataCacheFile):
 
 
 def _refuse(path: str, why: str) -> None:
-    warn_once(path, f"kernel cache file {path} {why}: the kernel is compiled again")
+    """Warn, once per process (the first file refused is named: after an upgrade every file of the
+    older format is refused alike), that a file is passed over."""
+    warn_once("refused", f"kernel cache file {path} {why}: the kernel is compiled again (and saved over it)")
     return None
 
 

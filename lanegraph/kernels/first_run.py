@@ -10,7 +10,7 @@ that package are used (:func:`kernel_sets`). The engine names no plugin.
 :func:`first_run_notice`, called by the commands that run kernels before they load anything, looks
 for a stamp in the kernel folder (:mod:`.folder`) that records that this installation (lanegraph's
 folder and version, numba's, Python's and the CPU) has made its kernels on this machine. Without
-one, with two CPUs or more, it starts a helper process (``python -m lanegraph.kernels.first_run
+one, with two CPUs or more, it starts a helper process (``python -m lanegraph.kernels helper
 CLAIMS``) that loads the plugins and makes their listed kernels into the kernel folder. Once the run
 has read its graph (before its first frame), :func:`compile_share` says what will happen, with the
 figure the lists give (their kernels' measured seconds, from bitcode or compiled), and has the run
@@ -252,7 +252,7 @@ def _start_helper() -> None:
         return
     try:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "lanegraph.kernels.first_run", claims],
+            [sys.executable, "-m", "lanegraph.kernels", "helper", claims],
             # ``-m`` puts the working folder first on the child's import path: started from the
             # folder lanegraph is installed in, a module lying in the user's folder (an input or
             # output folder, say) can never be imported in its place
@@ -379,7 +379,7 @@ def _precompile(items: list[tuple[KernelSet, dict]], claims: Path | None, compil
 
 def _main(argv: list[str]) -> int:
     if len(argv) != 1:
-        print("usage: python -m lanegraph.kernels.first_run CLAIMS", file=sys.stderr)
+        print("usage: python -m lanegraph.kernels helper CLAIMS", file=sys.stderr)
         return 2
     items = _planned(kernel_sets(), compile_missing=True)
     precompile(items, Path(argv[0]))
@@ -396,6 +396,3 @@ __all__ = [
     "kernel_sets",
     "precompile",
 ]
-
-if __name__ == "__main__":
-    sys.exit(_main(sys.argv[1:]))

@@ -166,7 +166,7 @@ def test_the_first_run_starts_the_helper_beside_it(fresh, monkeypatch):
     monkeypatch.setattr("lanegraph._runtime.available_cpus", lambda: 2)
     first_run.first_run_notice(quiet=True)
     claims = first_run._STATE["claims"]
-    assert started == [[sys.executable, "-m", "lanegraph.kernels.first_run", claims]]
+    assert started == [[sys.executable, "-m", "lanegraph.kernels", "helper", claims]]
     assert Path(claims).is_dir() and not os.listdir(claims)  # the claims folder, made by the run
     ours = (first_run._stop_helper, first_run._write_stamp)
     assert [fn for fn, _ in fresh if fn in ours] == list(ours)
