@@ -98,10 +98,10 @@ KINDS = ("first on this machine", "first, bundle off", "second install", "new ca
 
 
 def second_install(root: Path) -> dict[str, str]:
-    """A copy of this checkout's ``lanegraph/`` and ``plugins/`` in ``root`` (another installation of
+    """A copy of this checkout's ``lanegraph/``, ``plugins/`` and ``graphs/`` in ``root`` (another installation of
     the same sources), and the environment that imports it first."""
-    for name in ("lanegraph", "plugins"):
-        shutil.copytree(ROOT / name, root / name, ignore=shutil.ignore_patterns("__pycache__"))
+    for name in ("lanegraph", "plugins", "graphs"):
+        shutil.copytree(ROOT / name, root / name)  # with the bytecode, as pip compiles it at install
     return {"PYTHONPATH": os.pathsep.join([str(root), str(root / "plugins")])}
 
 
