@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from ..errors import UsageError
-from ..kernel_cache import compile_share, first_run_notice
+from ..kernels import compile_share, first_run_notice
 from ._common import FOLDER, dataset_file, keeping_options, parse_frames, scale_out_options, session
 from ._errors import handled
 

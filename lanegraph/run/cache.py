@@ -39,7 +39,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from .._numba import cache_root
+from ..kernels.folder import cache_root
 from ..paths import new_temp_file
 from ..port_types import PORT_TYPES
 from ..storage import Codecs, StorageError, decode_value, digest, encode_value
