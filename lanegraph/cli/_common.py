@@ -92,20 +92,20 @@ def parse_frames(text: str | None) -> slice | None:
 
 
 def scale_out_options(scope: str = ""):
-    """The options ``run --dataset`` and ``ablate`` share: a Dask scheduler, chunks and their
-    warm-up, the report at the end (``scope``: what they need, said before each help text)."""
+    """The options ``run`` and ``ablate`` share: a Dask scheduler, chunks and their warm-up, the
+    report at the end (``scope``: what they need, said before each help text)."""
     options = [
         click.option(
             "--scheduler",
             metavar="SPEC",
-            help=f"{scope}run the sequences on a Dask cluster: local, local:N (N worker processes) "
+            help=f"{scope}run the runs (or their chunks) on a Dask cluster: local, local:N (N worker processes) "
             "or a scheduler address tcp://HOST:PORT",
         ),
         click.option(
             "--chunk-frames",
             type=int,
             metavar="K",
-            help=f"{scope}split sequences into chunks of K frames run as separate tasks",
+            help=f"{scope}split each run into chunks of K frames run as separate tasks",
         ),
         click.option(
             "--warmup",

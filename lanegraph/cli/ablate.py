@@ -51,6 +51,17 @@ from ._errors import handled
 @click.option(
     "--cache-max-gb", type=float, default=2.0, show_default=True, help="size bound of the result cache, GiB"
 )
+@click.option(
+    "--resume",
+    is_flag=True,
+    help="keep the runs an interrupted ablation in OUT finished (even with --no-cache) and run the others",
+)
+@click.option(
+    "--debug-dir",
+    type=FOLDER,
+    help="save every node output of the chosen frames as pictures, in DIR/<variant>/<sequence>/",
+)
+@click.option("--debug-frames", help="frames for --debug-dir: ids or indices, comma-separated (default: all)")
 @scale_out_options()
 @keeping_options
 @handled()
@@ -66,6 +77,9 @@ def ablate(
     no_cache,
     cache_dir,
     cache_max_gb,
+    resume,
+    debug_dir,
+    debug_frames,
     scheduler,
     chunk_frames,
     warmup,
@@ -90,4 +104,5 @@ def ablate(
     return s.ablate(
         runs, dataset, out_dir, frames=parse_frames(frames), cache_dir=cache_dir, cache_max_gb=cache_max_gb,
         no_cache=no_cache, runner=runner, chunk_frames=chunk_frames, warmup=warmup, make_report=make_report,
+        resume=resume, debug_dir=debug_dir, debug_frames=debug_frames,
     )  # fmt: skip

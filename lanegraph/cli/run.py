@@ -6,7 +6,6 @@ from pathlib import Path
 
 import click
 
-from ..errors import UsageError
 from ..kernel_cache import compile_share, first_run_notice
 from ._common import FOLDER, keeping_options, parse_frames, scale_out_options, session
 from ._errors import handled
@@ -37,7 +36,8 @@ from ._errors import handled
 @click.option(
     "--resume",
     is_flag=True,
-    help="continue an interrupted run in OUT after its last frame done (same graph, params, input and --frames)",
+    help="continue an interrupted run in OUT after its last frame done (same graph, params, input and --frames); "
+    "with --dataset, the sequences not yet finished",
 )
 @click.option(
     "--debug-dir",
@@ -51,7 +51,7 @@ from ._errors import handled
     type=click.Path(path_type=Path),
     help="a dataset file (YAML list of sequences) in place of --input: writes each sequence's run into OUT/<sequence>/",
 )
-@scale_out_options("with --dataset: ")
+@scale_out_options()
 @keeping_options
 @handled()
 def run(
@@ -75,41 +75,25 @@ def run(
 ) -> int:
     """Run GRAPH (a file or a name under graphs/, default: paper): its sinks write into OUT (the
     lanes, overlays), with OUT/timings.json and OUT/run.json; with --dataset, every sequence into
-    OUT/<sequence>/ (in this process, or on a Dask cluster with --scheduler)."""
+    OUT/<sequence>/. Runs go in this process, or on a Dask cluster with --scheduler, whole or in
+    chunks (--chunk-frames)."""
+    from ..service.session import refuse
+
     first_run_notice(bool(quiet))  # the first run on a machine compiles the kernels: say so at once
+    s = session(quiet, verbose, overwrite, track)
+    runner = s.runner(scheduler)
+    graph_ = s.open_graph(graph, sets)
+    options = {"frames": parse_frames(frames), "runner": runner, "chunk_frames": chunk_frames, "warmup": warmup,
+               "resume": resume, "debug_dir": debug_dir, "debug_frames": debug_frames}  # fmt: skip
     if dataset_path is not None:
-        for flag, given in (
-            ("--input", input_path),
-            ("--resume", resume or None),
-            ("--debug-dir", debug_dir),
-            ("--report", make_report or None),
-        ):
-            if given is not None:
-                raise UsageError(
-                    f"{flag} is for a run on one input; --dataset names the inputs (give one or the other)"
-                )
         from ..evaluation.dataset import load_dataset
 
-        s = session(quiet, verbose, overwrite, track)
-        runner = s.runner(scheduler)
+        if input_path is not None:
+            refuse("--input", "dataset")
+        if make_report:
+            refuse("--report", "dataset")
         dataset = load_dataset(dataset_path)
-        graph_ = s.open_graph(graph, sets)
         compile_share()  # the first run on a machine: its part of the kernels, beside the helper's
-        return s.run_dataset(
-            graph_, dataset, out_dir, frames=parse_frames(frames), runner=runner,
-            chunk_frames=chunk_frames, warmup=warmup,
-        )  # fmt: skip
-    for flag, given in (
-        ("--scheduler", scheduler),
-        ("--chunk-frames", chunk_frames),
-        ("--warmup", warmup or None),
-    ):
-        if given is not None:
-            raise UsageError(f"{flag} runs the sequences of a --dataset: give --dataset FILE")
-    s = session(quiet, verbose, overwrite, track)
-    graph_ = s.open_graph(graph, sets)
+        return s.run_dataset(graph_, dataset, out_dir, **options)
     compile_share()  # the first run on a machine: its part of the kernels, beside the helper's
-    return s.run(
-        graph_, input_path=input_path, out_dir=out_dir, frames=parse_frames(frames),
-        resume=resume, debug_dir=debug_dir, debug_frames=debug_frames, make_report=make_report,
-    )  # fmt: skip
+    return s.run(graph_, input_path=input_path, out_dir=out_dir, make_report=make_report, **options)

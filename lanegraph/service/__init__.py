@@ -1,5 +1,6 @@
-"""The run service: the one path by which the commands run graphs (:class:`Session`)."""
+"""The run service: the one path by which the commands run graphs (:class:`Session`); a batch of
+runs from any command: :meth:`Session.run_tasks` with :class:`BatchRun`."""
 
-from .session import Session
+from .session import BatchRun, Session
 
-__all__ = ["Session"]
+__all__ = ["BatchRun", "Session"]

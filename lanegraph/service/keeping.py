@@ -6,7 +6,6 @@ log (``run.log``, :mod:`lanegraph.runlog`) and its experiment tracking (:mod:`la
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -47,14 +46,6 @@ def dataset_identity(
     """The identity of an ablation or a dataset run: its variants, its sequences' inputs, its frames."""
     inputs = {s.name: resolved_input(s.input) for s in dataset}
     return command_identity(kind, list(variants), inputs, selection_text(frames))
-
-
-def write_command_record(out_dir: Path, fields: Mapping[str, Any]) -> None:
-    """``OUT/command.json``: the record of an ablation or a dataset run as a whole (its identity,
-    command line, versions, what it wrote), beside the runs' own ``run.json``."""
-    from ..paths import write_text_atomic
-
-    write_text_atomic(Path(out_dir) / "command.json", json.dumps(dict(fields), indent=2, default=str) + "\n")
 
 
 def relative_inside(path: Path | None, folder: Path) -> str | None:
@@ -143,11 +134,15 @@ def tracked_single_run(
 
 
 def tracked_ablation_runs(
-    rows: Sequence[Mapping[str, Any]], graphs: Mapping[str, Any], run_dirs: Mapping[tuple[str, str], Path]
+    rows: Sequence[Mapping[str, Any]],
+    graphs: Mapping[str, Any],
+    run_dirs: Mapping[tuple[str, str], Path],
+    records: Mapping[tuple[str, str], Any] | None = None,
 ) -> list[TrackedRun]:
     """The tracked runs of an ablation: one per variant and sequence, and per variant pooled over
     several sequences (``sequence`` ``all``). ``graphs``: each variant's validated graph;
-    ``run_dirs``: each run's folder."""
+    ``run_dirs``: each run's folder; ``records``: each run's record, when the caller has it (else
+    read from its folder)."""
     sequences = {r["sequence"] for r in rows if r.get("sequence") != "all"}
     out = []
     for row in rows:
@@ -157,7 +152,11 @@ def tracked_ablation_runs(
         params = flatten_params(g.resolved_dict()) if g is not None else {}
         run_dir = run_dirs.get((str(row.get("variant")), str(row.get("sequence"))))
         results = []
-        if run_dir is not None:
+        key = (str(row.get("variant")), str(row.get("sequence")))
+        if records is not None and key in records:
+            rec = records[key]
+            results = list(rec.results.values()) if rec is not None else []
+        elif run_dir is not None:
             from ..run.record import read_record
 
             rec = read_record(run_dir)
@@ -167,11 +166,14 @@ def tracked_ablation_runs(
     return out
 
 
-def tracked_dataset_run(g: Any, run_dir: Path, seq: Any, sets: Sequence[str]) -> TrackedRun:
-    """The tracked run of one sequence of ``lanegraph run --dataset`` (its folder written)."""
+def tracked_dataset_run(
+    g: Any, run_dir: Path, seq: Any, sets: Sequence[str], record: Any = None
+) -> TrackedRun:
+    """The tracked run of one sequence of ``lanegraph run --dataset`` (its folder written;
+    ``record``: its run.json, when the caller has it, else read from the folder)."""
     from ..run.record import read_record
 
-    record = read_record(run_dir)
+    record = record if record is not None else read_record(run_dir)
     timings = (record.timings if record is not None else None) or {}
     ev = None
     if record is not None and seq.gt is not None and record.selection is not None:

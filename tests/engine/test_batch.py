@@ -15,7 +15,8 @@ from click.testing import CliRunner
 
 from lanegraph.cli import main
 from lanegraph.errors import UsageError
-from lanegraph.run.batch import chunk_selections, clean_leftovers, parse_scheduler, place_dir
+from lanegraph.run.batch import chunk_selections, clean_leftovers, parse_scheduler
+from lanegraph.run.task import place_dir
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = str(ROOT / "graphs" / "paper.yaml")

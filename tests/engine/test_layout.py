@@ -143,7 +143,7 @@ UPWARD_ON_PURPOSE = {
         "the plugin manager registers lanegraph's own port types first, as a built-in plugin"
     ),
     ("lanegraph.testing", "lanegraph.graph.validation"): "the conformance check runs a node in a graph",
-    ("lanegraph.testing", "lanegraph.run.executor"): "the conformance check runs a node in a graph",
+    ("lanegraph.testing", "lanegraph.run.task"): "the conformance check runs a node in a graph",
     ("lanegraph.testing", "lanegraph.presentation.port_types"): "the conformance check's own port types",
     ("lanegraph.evaluation.ablate", "lanegraph.presentation.plots"): "an ablation writes its two plots",
 }
