@@ -19,7 +19,6 @@ from ..run.cache import ResultCache
 from ..run.folder import check as check_folder
 from ..run.folder import claim as claim_folder
 from ..run.provenance import git_commit, versions
-from ..run.record import CommandRecord, VariantEntry, write_command_record
 from ..run.runners import InProcessRunner, Runner
 from ..runlog import RunLog, get_logger
 from ..tracking import CommandRecord as TrackedCommand
@@ -158,10 +157,9 @@ def ablation_kept(
     versions), ``run.log`` and the tracker's command run (ended ``interrupted`` if the block raises)."""
     claim_folder(out_dir, identity, overwrite=session.overwrite)
     made = session.provenance(variants[0].graph, [])
-    entries = [VariantEntry(name=r.name, graph=str(r.graph), sets=list(r.sets)) for r in variants]
     written = ["results.csv", "results.md", "accuracy.png", "accuracy_vs_ms.png", "runs"]
     out_dir.mkdir(parents=True, exist_ok=True)
-    write_command_record(out_dir, CommandRecord.of("ablation", made, identity, written, entries))
+    session.keep_command(out_dir, "ablation", made, identity, written, variants)
     session.tracking.start(
         TrackedCommand("ablate", f"ablate -> {out_dir}", out_dir, list(made.command),
                        {"variants": " ".join(r.name for r in variants), "frames": identity["frames"] or "all"})
@@ -176,7 +174,7 @@ def ablation_kept(
         session.tracking.end("interrupted")
         raise
     made = made.model_copy(update={"versions": versions(session.pm)})  # the libraries the runs loaded
-    write_command_record(out_dir, CommandRecord.of("ablation", made, identity, written, entries))
+    session.keep_command(out_dir, "ablation", made, identity, written, variants)
 
 
 def _end(session: Any, rows: list[dict[str, Any]], out_dir: Path, cache: Any, seconds: float) -> int:

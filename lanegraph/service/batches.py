@@ -11,7 +11,6 @@ from ..errors import LanegraphError, NotStarted
 from ..graph.files import ResolvedGraph
 from ..run.folder import check as check_folder
 from ..run.folder import claim as claim_folder
-from ..run.record import CommandRecord, write_command_record
 from ..runlog import RunLog
 from ..tracking import CommandRecord as TrackedCommand
 from .keeping import dataset_identity, tracked_dataset_run
@@ -46,8 +45,7 @@ def run_dataset(
     try:
         with interrupts.handling(), session.locked(out_dir, "run", (debug_dir, "--debug-dir")):
             claim_folder(out_dir, identity, overwrite=session.overwrite)
-            record = CommandRecord.of("dataset", made, identity, [s.name for s in dataset])
-            write_command_record(out_dir, record)
+            session.keep_command(out_dir, "dataset", made, identity, [s.name for s in dataset])
             session.tracking.start(
                 TrackedCommand("run", f"run {g.name} --dataset -> {out_dir}", out_dir, list(made.command),
                                {"graph": str(g.file), "frames": identity["frames"] or "all"})

@@ -29,7 +29,7 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 from .. import interrupts
 from ..errors import InputError, LanegraphError, NotStarted, RunStopped, UsageError
@@ -41,7 +41,7 @@ from ..plugins import PluginManager, get_plugin_manager
 from ..run.folder import check as check_folder
 from ..run.folder import claim as claim_folder
 from ..run.provenance import command_line
-from ..run.record import Provenance
+from ..run.record import CommandRecord, Provenance, VariantEntry, write_command_record
 from ..runlog import RunLog
 from ..tracking import CommandRecord as TrackedCommand
 from ..tracking import Tracking
@@ -145,6 +145,21 @@ class Session:
     def provenance(self, graph_file: str | Path | None, sets: Sequence[str] = ()) -> Provenance:
         """How the runs of this command are made (:func:`lanegraph.service.keeping.provenance`)."""
         return Provenance(**provenance(self.pm, graph_file, sets))
+
+    def keep_command(
+        self,
+        out_dir: Path,
+        kind: Literal["dataset", "ablation"],
+        made: Provenance,
+        identity: dict[str, Any],
+        written: list[str],
+        variants: list[Any] | None = None,
+    ) -> None:
+        """``OUT/command.json`` of a batch command: the one place its record is built."""
+        entries = None
+        if variants is not None:
+            entries = [VariantEntry(name=v.name, graph=str(v.graph), sets=list(v.sets)) for v in variants]
+        write_command_record(out_dir, CommandRecord.of(kind, made, identity, written, entries))
 
     @contextmanager
     def locked(self, out_dir: Path, command: str, *also: tuple[Path | None, str]) -> Iterator[OutputLock]:
