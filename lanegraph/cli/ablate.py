@@ -51,17 +51,6 @@ from ._errors import handled
 @click.option(
     "--cache-max-gb", type=float, default=2.0, show_default=True, help="size bound of the result cache, GiB"
 )
-@click.option(
-    "--resume",
-    is_flag=True,
-    help="keep the runs an interrupted ablation in OUT finished (even with --no-cache) and run the others",
-)
-@click.option(
-    "--debug-dir",
-    type=FOLDER,
-    help="save every node output of the chosen frames as pictures, in DIR/<variant>/<sequence>/",
-)
-@click.option("--debug-frames", help="frames for --debug-dir: ids or indices, comma-separated (default: all)")
 @scale_out_options()
 @keeping_options
 @handled()

@@ -34,18 +34,6 @@ from ._errors import handled
     "--frames", help="frame selection A:B, A:B:S or A (indices into the input's frames; -1 is the last)"
 )
 @click.option(
-    "--resume",
-    is_flag=True,
-    help="continue an interrupted run in OUT after its last frame done (same graph, params, input and --frames); "
-    "with --dataset, the sequences not yet finished",
-)
-@click.option(
-    "--debug-dir",
-    type=FOLDER,
-    help="save every node's output of the chosen frames as pictures, and a mosaic",
-)
-@click.option("--debug-frames", help="frames for --debug-dir: ids or indices, comma-separated (default: all)")
-@click.option(
     "--dataset",
     "dataset_path",
     type=click.Path(path_type=Path),

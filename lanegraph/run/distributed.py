@@ -304,12 +304,6 @@ class _Cluster:
         if self.cluster is not None:
             self.cluster.close(timeout=10)
 
-    def __enter__(self) -> _Cluster:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
 
 def connect(spec: SchedulerSpec, echo: Callable[[str], None]) -> _Cluster:
     """A client on the cluster of ``spec`` (a local one started, or a scheduler reached), its

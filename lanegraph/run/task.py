@@ -236,16 +236,6 @@ class Checkpointing(Subscriber):
         return {"checkpointer": Checkpointer(g, ctx, self.path, self.ckpt, port_types=self.pm.port_types)}
 
 
-class CacheAndWarmUp(Subscriber):
-    """The result cache and warm-up frames of a task."""
-
-    def __init__(self, cache: ResultCache | None, warmup: int):
-        self.cache, self.warmup = cache, warmup
-
-    def pieces(self, task, g, ctx):
-        return {"caching": self.cache and Caching(self.cache), "warming": WarmUp(self.warmup)}
-
-
 class Logging(Subscriber):
     """``run.log`` in the run's folder while it runs (continued by a resumed run)."""
 
@@ -294,7 +284,7 @@ class DebugPictures(Subscriber):
 
 def subscribers(task: RunTask, pm: PluginManager, cache: ResultCache | None) -> list[Subscriber]:
     """What a task's run events reach, from what the task asks for."""
-    subs: list[Subscriber] = [CacheAndWarmUp(cache, task.warmup)]
+    subs: list[Subscriber] = []
     if task.in_place and task.chunk is None:
         subs.append(Checkpointing(Path(task.run_dir), task.resume, pm))
     if task.debug_dir is not None:
@@ -453,7 +443,7 @@ def execute_task(
             graph_file=g.file, extra={"resume": ckpt is not None and ckpt.ckpt is not None},
             skip=ckpt.skip() if ckpt is not None else 0,
         )  # fmt: skip
-        pieces: dict[str, Any] = {}
+        pieces: dict[str, Any] = {"caching": cache and Caching(cache), "warming": WarmUp(task.warmup)}
         for s in subs:
             pieces.update(s.pieces(task, g, ctx))
         ex = build_executor(g, ctx, pm, **pieces)

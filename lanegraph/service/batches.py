@@ -13,7 +13,7 @@ from ..run.folder import check as check_folder
 from ..run.folder import claim as claim_folder
 from ..runlog import RunLog
 from ..tracking import CommandRecord as TrackedCommand
-from .keeping import dataset_identity, tracked_dataset_run
+from .keeping import dataset_identity, tracked_run
 
 
 def run_dataset(
@@ -69,7 +69,9 @@ def run_dataset(
     status = _say(session, batch.plans, out_dir)
     if session.tracking.started:
         for seq, plan in zip(dataset, batch.plans):
-            session.tracking.log_run(tracked_dataset_run(g, plan.run_dir, seq, list(graph.sets), plan.record))
+            session.tracking.log_run(
+                tracked_run(g, plan.run_dir, seq.name, seq.gt, list(graph.sets), plan.record)
+            )
         session.tracking.end("failed" if status else "ok", [])
     return status if session.tracking.ok else max(status, 1)
 

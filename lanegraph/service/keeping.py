@@ -48,16 +48,6 @@ def dataset_identity(
     return command_identity(kind, list(variants), inputs, selection_text(frames))
 
 
-def relative_inside(path: Path | None, folder: Path) -> str | None:
-    """``path`` relative to ``folder`` when it lies inside it (what ``--overwrite`` may remove)."""
-    if path is None:
-        return None
-    try:
-        return str(Path(path).resolve().relative_to(Path(folder).resolve()))
-    except (ValueError, OSError):
-        return None
-
-
 def row_of_run(
     name: str,
     sequence: str,
@@ -95,42 +85,25 @@ def row_of_run(
     return row
 
 
-def evaluate_run(out_dir: Path, input_path: Path | None, frame_ids: Sequence[str]) -> dict[str, Any] | None:
-    """The run's figures against the ground truth of its input folder (``lanes_gt.jsonl``), over the
-    frames it selected; None without one (or without lanes)."""
-    if input_path is None or not (Path(input_path) / GT_NAME).is_file():
-        return None
-    lanes = find_result(out_dir, LANES)
-    if lanes is None:
-        return None
-    return evaluate(
-        read_predictions(lanes), read_ground_truth(Path(input_path) / GT_NAME), frames=list(frame_ids)
-    )
-
-
-def tracked_single_run(
-    g: Any,
-    out_dir: Path,
-    input_path: Path | None,
-    sets: Sequence[str],
-    record: Any,
-    timings: Mapping[str, Any],
+def tracked_run(
+    g: Any, run_dir: Path, sequence: str, gt: Path | None, sets: Sequence[str], record: Any
 ) -> TrackedRun:
-    """The tracked run of ``lanegraph run`` (its record written): params, figures, files."""
-    ids = list(record.selection.ids) if record.selection is not None else []
-    try:
-        ev = evaluate_run(out_dir, input_path, ids)
-    except Exception:  # noqa: BLE001 - a ground truth that does not read: tracked without figures
-        ev = None
-    sequence = Path(input_path).name if input_path is not None else "synthetic"
-    row = row_of_run(g.name, sequence, timings, ev, record.error, len(record.failures))
-    return tracked_row(
-        row,
-        flatten_params(g.resolved_dict()),
-        out_dir,
-        list(record.results.values()),
-        tags={"lanegraph.graph": str(g.file), "lanegraph.sets": " ".join(sets)},
-    )
+    """The tracked run of ``lanegraph run`` or of one sequence of ``run --dataset`` (its record
+    written): params, figures against the ground truth ``gt`` over the frames it selected, files."""
+    timings = (record.timings if record is not None else None) or {}
+    ev = None
+    lanes = find_result(run_dir, LANES, record=record) if record is not None and gt is not None else None
+    if lanes is not None and Path(gt).is_file():
+        try:
+            ids = list(record.selection.ids) if record.selection is not None else []
+            ev = evaluate(read_predictions(lanes), read_ground_truth(Path(gt)), frames=ids)
+        except Exception:  # noqa: BLE001 - a ground truth that does not read: tracked without figures
+            ev = None
+    error = record.error if record is not None else "no record"
+    row = row_of_run(g.name, sequence, timings, ev, error, len(record.failures) if record is not None else 0)
+    results = list(record.results.values()) if record is not None else []
+    tags = {"lanegraph.graph": str(g.file), "lanegraph.sets": " ".join(sets)}
+    return tracked_row(row, flatten_params(g.resolved_dict()), run_dir, results, tags)
 
 
 def tracked_ablation_runs(
@@ -164,30 +137,3 @@ def tracked_ablation_runs(
         tags = {"lanegraph.graph": str(row.get("graph") or ""), "lanegraph.sets": str(row.get("sets") or "")}
         out.append(tracked_row(row, params, run_dir, results, tags))
     return out
-
-
-def tracked_dataset_run(
-    g: Any, run_dir: Path, seq: Any, sets: Sequence[str], record: Any = None
-) -> TrackedRun:
-    """The tracked run of one sequence of ``lanegraph run --dataset`` (its folder written;
-    ``record``: its run.json, when the caller has it, else read from the folder)."""
-    from ..run.record import read_record
-
-    record = record if record is not None else read_record(run_dir)
-    timings = (record.timings if record is not None else None) or {}
-    ev = None
-    if record is not None and seq.gt is not None and record.selection is not None:
-        lanes = find_result(run_dir, LANES)
-        if lanes is not None:
-            try:
-                ev = evaluate(
-                    read_predictions(lanes), read_ground_truth(seq.gt), frames=list(record.selection.ids)
-                )
-            except Exception:  # noqa: BLE001 - a ground truth that does not read: tracked without figures
-                ev = None
-    error = record.error if record is not None else "no record"
-    failures = len(record.failures) if record is not None else 0
-    row = row_of_run(g.name, seq.name, timings, ev, error, failures)
-    results = list(record.results.values()) if record is not None else []
-    tags = {"lanegraph.graph": str(g.file), "lanegraph.sets": " ".join(sets)}
-    return tracked_row(row, flatten_params(g.resolved_dict()), run_dir, results, tags)

@@ -45,7 +45,7 @@ from ..run.record import CommandRecord, Provenance, VariantEntry, write_command_
 from ..runlog import RunLog
 from ..tracking import CommandRecord as TrackedCommand
 from ..tracking import Tracking
-from .keeping import provenance, single_identity, tracked_single_run
+from .keeping import GT_NAME, provenance, single_identity, tracked_run
 
 if TYPE_CHECKING:  # the batch modules load only for a run: `lanegraph run --help` keeps its start-up
     from ..run.batch import Batch, Planned
@@ -295,10 +295,9 @@ class Session:
                 raise RunStopped(f"report: {exc}", exc) from exc
         if self.tracking.started:
             if plan.record is not None:
-                record = plan.record
-                self.tracking.log_run(
-                    tracked_single_run(g, out_dir, input_path, sets, record, record.timings or {})
-                )
+                gt = input_path / GT_NAME if input_path is not None else None
+                name = input_path.name if input_path is not None else "synthetic"
+                self.tracking.log_run(tracked_run(g, out_dir, name, gt, sets, plan.record))
             self.tracking.end("ok" if status == 0 else "failed", [])
         status = 1 if status is None else status
         return status if self.tracking.ok else max(status, 1)
