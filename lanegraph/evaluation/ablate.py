@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import csv
 import io
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -70,6 +71,43 @@ def _extra_metrics(pred: list[dict], gt: list[dict]) -> dict[str, Any]:
     return {"culane_f1": res.get("f1") if isinstance(res, dict) else None}
 
 
+def row_of_run(
+    name: str,
+    sequence: str,
+    timings: Mapping[str, Any],
+    evaluation: Mapping[str, Any] | None,
+    error: str | None,
+    failed_frames: int,
+) -> dict[str, Any]:
+    """A results row (as ``lanegraph ablate`` tabulates them) of one run: its figures against the
+    ground truth (``evaluation``) when there is one, its times per node."""
+    nodes = timings.get("nodes") or {}
+    row: dict[str, Any] = {
+        "variant": name,
+        "sequence": sequence,
+        "error": error,
+        "failed_frames": failed_frames,
+        "frames_run": timings.get("frames", 0),
+        "ms_per_frame": round(sum(v.get("median_ms") or 0.0 for v in nodes.values()), 2) if nodes else None,
+        "stage_ms": {nid: v.get("median_ms") for nid, v in nodes.items()},
+    }
+    if evaluation is not None:
+        row.update(
+            {
+                k: evaluation.get(k)
+                for k in (
+                    "frames",
+                    "frames_not_run",
+                    "detection_ratio",
+                    "precision",
+                    "ego_recall",
+                    "mean_abs_dx_px",
+                )
+            }
+        )
+    return row
+
+
 def ablation_rows(variants: list[Variant], plans: list[Planned], gts: dict[str, Any]) -> list[dict[str, Any]]:
     """The rows of an ablation's runs (``plans``: each variant's runs, in the variants' order),
     from their records and lanes: one per variant and sequence, then the variant's pooled row
@@ -90,37 +128,20 @@ def ablation_rows(variants: list[Variant], plans: list[Planned], gts: dict[str, 
             record = plan.record
             assert record is not None
             timings = record.timings or {}
-            row: dict[str, Any] = {
-                "variant": var.name,
-                "sequence": plan.sequence,
-                "graph": str(var.graph),
-                "sets": " ".join(var.sets),
-            }
-            row["error"] = record.error
-            row["failed_frames"] = len(record.failures)
-            row["before_any_frame"] = record.before_any_frame
             gt = gts[plan.sequence]
             lanes_file = (
-                find_result(run_dir, LANES, record=record) if gt is not None and not row["error"] else None
+                find_result(run_dir, LANES, record=record) if gt is not None and not record.error else None
             )
+            ev, extra = None, {}
             if lanes_file is not None:
                 pred = read_predictions(lanes_file)
-                ev = evaluate(pred, gt)
-                row.update(
-                    {
-                        k: ev[k]
-                        for k in ("frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px")
-                    }
-                )
-                row.update(_extra_metrics(pred, gt))
+                ev, extra = evaluate(pred, gt), _extra_metrics(pred, gt)
                 evals.append((plan.sequence, pred, gt))
-            nodes = timings.get("nodes", {})
-            # the sum of the stages' median compute times (a cached stage counts with the time it took)
-            row["ms_per_frame"] = (
-                round(sum(v["median_ms"] or 0.0 for v in nodes.values()), 2) if nodes else None
+            row = row_of_run(var.name, plan.sequence, timings, ev, record.error, len(record.failures))
+            row.pop("frames_not_run", None)
+            row.update(
+                extra, graph=str(var.graph), sets=" ".join(var.sets), before_any_frame=record.before_any_frame
             )
-            row["stage_ms"] = {nid: v["median_ms"] for nid, v in nodes.items()}
-            row["frames_run"] = timings.get("frames", 0)
             row["wall_s"] = round(plan.outcome.wall_s, 2) if plan.outcome is not None else 0.0
             row["reused"] = plan.reused
             row["cache_hits"] = sum(timings.get("cache", {}).get("hits", {}).values())

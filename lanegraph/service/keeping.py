@@ -10,6 +10,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from ..evaluation.ablate import row_of_run
 from ..evaluation.metrics import evaluate, read_ground_truth, read_predictions
 from ..frames import selection_text
 from ..run.folder import command_identity, run_identity
@@ -46,43 +47,6 @@ def dataset_identity(
     """The identity of an ablation or a dataset run: its variants, its sequences' inputs, its frames."""
     inputs = {s.name: resolved_input(s.input) for s in dataset}
     return command_identity(kind, list(variants), inputs, selection_text(frames))
-
-
-def row_of_run(
-    name: str,
-    sequence: str,
-    timings: Mapping[str, Any],
-    evaluation: Mapping[str, Any] | None,
-    error: str | None,
-    failed_frames: int,
-) -> dict[str, Any]:
-    """A results row (as ``lanegraph ablate`` tabulates them) of one run: its figures against the
-    ground truth when there is one, its times per node."""
-    nodes = timings.get("nodes") or {}
-    row: dict[str, Any] = {
-        "variant": name,
-        "sequence": sequence,
-        "error": error,
-        "failed_frames": failed_frames,
-        "frames_run": timings.get("frames", 0),
-        "ms_per_frame": round(sum(v.get("median_ms") or 0.0 for v in nodes.values()), 2) if nodes else None,
-        "stage_ms": {nid: v.get("median_ms") for nid, v in nodes.items()},
-    }
-    if evaluation is not None:
-        row.update(
-            {
-                k: evaluation.get(k)
-                for k in (
-                    "frames",
-                    "frames_not_run",
-                    "detection_ratio",
-                    "precision",
-                    "ego_recall",
-                    "mean_abs_dx_px",
-                )
-            }
-        )
-    return row
 
 
 def tracked_run(
