@@ -129,6 +129,23 @@ def chunk_selections(
 
 
 @dataclass
+class BatchRun:
+    """One run of a batch (:meth:`lanegraph.service.Session.run_tasks`): ``graph`` (a variant) on a
+    sequence's ``input`` (``None``: the synthetic scene) and ``frames``, into ``run_dir``;
+    ``variant`` names it in messages (``None`` for ``run --dataset``); ``provenance``: how it is
+    made (its run.json says it); ``debug_dir``: its ``--debug-dir`` folder."""
+
+    variant: str | None
+    sequence: str
+    graph: ResolvedGraph
+    input: Path | None
+    frames: slice | None
+    run_dir: Path
+    provenance: Provenance | None = None
+    debug_dir: Path | None = None
+
+
+@dataclass
 class Planned:
     """A run (a graph on a sequence) of a batch: its tasks, or none when it is reused (``record``:
     the reused run's) or could not start (``outcome``: why)."""
@@ -242,7 +259,7 @@ class Planner:
         resume: bool = False,
         identity: dict[str, Any] | None = None,
         debug_dir: Path | None = None,
-        debug_frames: tuple[str, ...] | None = None,
+        subscribers: tuple[Any, ...] = (),
     ) -> Planned:
         """Plan the run of ``graph`` on a sequence into ``run_dir`` (``in_place``: the user's own
         folder, written as the run goes and checkpointed; ``resume``: continued after its checkpoint)."""
@@ -270,7 +287,7 @@ class Planner:
             "in_place": in_place,
             "resume": resume,
             "debug_dir": str(debug_dir) if debug_dir is not None else None,
-            "debug_frames": debug_frames,
+            "subscribers": subscribers,
             "verbose": self.verbose,
         }
         try:

@@ -337,7 +337,7 @@ def submit_all(client: Any, tasks: list[RunTask], bar: Progress, outcomes: dict[
                     "variant": task.variant, "sequence": task.sequence, "frame": None, "node": None,
                     "message": f"the task failed on the cluster: {type(exc).__name__}: {exc}", "input": False,
                     "before_any_frame": False, "stage": "run", "exit_code": 1,
-                }, placed=False)  # fmt: skip
+                })  # fmt: skip
             outcomes[task.index] = out
             bar.finish(task.index, out.result.frames)
     finally:

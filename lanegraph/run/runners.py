@@ -72,7 +72,7 @@ class BaseRunner:
             return outcomes
         self.init(echo or (lambda msg: print(msg, file=sys.stderr)))
         try:
-            bar = Progress(tasks, progress)
+            bar = Progress(tasks, progress, tasks[0].label if len(tasks) == 1 else "frames")
             try:
                 self.execute(tasks, bar, outcomes)
             finally:

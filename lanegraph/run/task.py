@@ -1,19 +1,16 @@
-"""One run, whatever asks for it: a :class:`RunTask` and :func:`execute_task`, the one place an
-:class:`~lanegraph.run.executor.Executor` and a run's record (:meth:`RunRecord.of
-<lanegraph.run.record.RunRecord.of>`) are built (a test asserts that no other module does).
+"""One run, whatever asks for it: a :class:`RunTask` run by :func:`execute_task`, the one place an
+:class:`~lanegraph.run.executor.Executor` is built (:func:`build_executor`) and a run's record
+(:func:`task_record`; a test asserts that no other module builds either).
 
-A task is one graph on one input: ``lanegraph run`` on one input (written in place into the
-user's folder, checkpointed, resumable), a sequence of ``run --dataset``, a variant on a sequence
-of ``ablate``, or a chunk of any of them. Runners (:mod:`lanegraph.run.runners`) only decide where
-:func:`execute_task` runs; what a run keeps beside its frames subscribes to its events
-(:class:`Subscriber`, in the manner of Hamilton's lifecycle adapters): the checkpoint
-(:class:`Checkpointing`), the debug pictures (:class:`DebugPictures`), ``run.log``
-(:class:`Logging`) and the record (:class:`Recording`).
+A task is one graph on one input: ``lanegraph run`` on one input (written in place into OUT,
+checkpointed), a sequence of ``run --dataset``, a variant on a sequence of ``ablate``, or a chunk
+of any of them. Runners (:mod:`lanegraph.run.runners`) only decide where it runs. What a run keeps
+beside its frames subscribes to its events (:class:`Subscriber`, as Hamilton's lifecycle adapters):
+the checkpoint, the debug pictures, ``run.log``; its record is kept when it ends (:func:`keep_record`).
 
-A task that is not written in place writes into a temporary folder beside its run folder
-(``.<name>.tmp-<pid>-<id>``) renamed into place when it ends, so a task run again after its worker
-died never duplicates or mixes lines, and a reader never sees half a run. The graph travels with the
-task as its resolved dict (``extends`` and ``--set`` applied), validated once where the task runs.
+A task not written in place writes into a temporary folder beside its run folder renamed into place
+when it ends, so a task run again after its worker died never duplicates or mixes lines, and a
+reader never sees half a run. The graph travels as its resolved dict, validated once where it runs.
 """
 
 from __future__ import annotations
@@ -29,21 +26,35 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..errors import InputError, LanegraphError, UsageError
+from ..errors import InputError, LanegraphError
 from ..graph.files import ResolvedGraph
 from ..graph.model import Graph
 from ..nodes import RunContext
 from ..plugins import PluginManager, get_plugin_manager
 from ..runlog import RunLog, get_logger
 from .cache import Caching, ResultCache
-from .checkpointing import Checkpointer
+from .checkpointing import Checkpointer, checkpoint_for, resumed_frame_ids
 from .executor import Executor
 from .outcome import FrameFailure, RunResult
 from .provenance import versions, write_resolved_graph
-from .record import Provenance, RunRecord, Stopped, read_record, write_run_files
-from .results import LANES, find_result
-from .resume import CHECKPOINT_NAME, LEGACY_NAME, Checkpoint, load_checkpoint
+from .record import Provenance, RunRecord, Stopped, write_run_files
+from .resume import Checkpoint
 from .warmup import WarmUp
+
+
+class Subscriber:
+    """What a run's events reach (Hamilton's lifecycle adapters): ``pieces`` (the executor's
+    pieces it adds, before the executor is built), ``started`` (the nodes opened, before the first
+    frame), ``ended`` (the executor closed, however the run ended; before the record is built)."""
+
+    def pieces(self, task: RunTask, g: Graph, ctx: RunContext) -> dict[str, Any]:
+        return {}
+
+    def started(self, task: RunTask, ex: Executor, folder: Path) -> None:
+        pass
+
+    def ended(self, task: RunTask, result: RunResult) -> None:
+        pass
 
 
 @dataclass
@@ -69,12 +80,10 @@ class RunTask:
     identity: dict[str, Any] | None = None  # what makes it this run (lanegraph run: its folder's claim)
     notes: tuple[str, ...] = ()  # warnings for the run's run.json (a chunked run's carried state)
     selection: str = ""  # the run's --frames text (a chunk's task too: the run's, not the chunk's)
-    in_place: bool = (
-        False  # written into run_dir itself, checkpointed (lanegraph run); else put in place whole
-    )
+    in_place: bool = False  # written into run_dir itself, checkpointed (lanegraph run)
     resume: bool = False  # continue the run in run_dir after its checkpoint (in place only)
-    debug_dir: str | None = None  # --debug-dir: every node output of the chosen frames as pictures
-    debug_frames: tuple[str, ...] | None = None  # --debug-frames (None: all)
+    debug_dir: str | None = None  # --debug-dir (recorded in run.json)
+    subscribers: tuple[Subscriber, ...] = ()  # what else its events reach (--debug-dir's pictures)
     verbose: bool = False  # run.log records the details too
 
     @property
@@ -95,7 +104,6 @@ class TaskOutcome:
     error: dict[str, Any] | None = None
     wall_s: float = 0.0
     worker: str | None = None
-    placed: bool = True  # whether the task put its folder in place (not when its workers kept dying)
     record: RunRecord | None = None
     outputs: list[str] = field(default_factory=list)
     unwritten: str | None = None  # why run.json could not be written (a full disk)
@@ -161,65 +169,7 @@ def _inside(path: Path, folder: Path) -> str | None:
         return None
 
 
-# --------------------------------------------------------------------------- the checkpoint
-def checkpoint_for(out_dir: Path, resume: bool) -> tuple[Checkpoint | None, Path]:
-    """The checkpoint to resume (with ``resume``, when OUT has one; validated) and where the run
-    keeps its own; a checkpoint of an older lanegraph is never read."""
-    checkpoint = out_dir / CHECKPOINT_NAME
-    legacy = out_dir / LEGACY_NAME
-    try:
-        if resume and legacy.is_file() and not checkpoint.is_file():
-            raise UsageError(
-                f"{legacy}: a checkpoint of an older lanegraph (a pickle, which could run code); it is never read; "
-                "cannot resume (run without --resume to start over)"
-            )
-        legacy.unlink(missing_ok=True)
-        if checkpoint.exists() and not checkpoint.is_file():
-            raise UsageError(f"{checkpoint}: exists and is not a file (lanegraph keeps its checkpoint there)")
-        if resume and checkpoint.is_file():
-            return load_checkpoint(checkpoint), checkpoint
-        if not resume:
-            checkpoint.unlink(missing_ok=True)
-    except OSError as exc:
-        raise UsageError(f"{out_dir}: {exc.strerror or exc}") from None
-    return None, checkpoint
-
-
-def resumed_frame_ids(out_dir: Path, ckpt: Checkpoint) -> list[str]:
-    """The ids of the frames an interrupted run consumed before it is resumed (``ckpt.position``
-    of them): its record's when it wrote one that far, else those of its lanes file and its failures."""
-    record = read_record(out_dir)
-    if record is not None and record.selection is not None and len(record.selection.ids) == ckpt.position:
-        return list(record.selection.ids)
-    ids: list[str] = []
-    lanes = find_result(out_dir, LANES)
-    if lanes is not None:
-        from ..evaluation.metrics import read_jsonl
-
-        try:
-            ids = [str(r.get("frame")) for r in read_jsonl(lanes)]
-        except Exception:  # noqa: BLE001 - an unreadable lanes file: the resume itself refuses it
-            ids = []
-    failed = [str(f.frame) for f in ckpt.failures if f.frame is not None]
-    return list(dict.fromkeys([*ids, *failed]))
-
-
 # --------------------------------------------------------------------------- run events
-class Subscriber:
-    """What a run's events reach (Hamilton's lifecycle adapters): ``pieces`` (the executor's
-    pieces it adds, before the executor is built), ``started`` (the nodes opened, before the first
-    frame), ``ended`` (the executor closed, however the run ended; before the record is built)."""
-
-    def pieces(self, task: RunTask, g: Graph, ctx: RunContext) -> dict[str, Any]:
-        return {}
-
-    def started(self, task: RunTask, ex: Executor, folder: Path) -> None:
-        pass
-
-    def ended(self, task: RunTask, result: RunResult) -> None:
-        pass
-
-
 class Checkpointing(Subscriber):
     """The checkpoint of a run written in place: the one it resumes (checked against the graph,
     input and frames before anything opens) and the one it keeps after every frame."""
@@ -257,39 +207,12 @@ class Logging(Subscriber):
             self.log = None
 
 
-class DebugPictures(Subscriber):
-    """``--debug-dir``: every node output of the chosen frames as pictures (the recorder plugin
-    registered while the run runs); the chosen frames that matched none are said in the record."""
-
-    def __init__(self, folder: str, frames: tuple[str, ...] | None, pm: PluginManager):
-        from ..presentation.debug import DebugRecorder
-
-        self.frames = set(frames) if frames is not None else None
-        self.recorder = DebugRecorder(Path(folder), self.frames, pm)
-        self.pm = pm
-
-    def started(self, task, ex, folder):
-        self.pm.register(self.recorder)
-
-    def ended(self, task, result):
-        if self.pm.is_registered(self.recorder):
-            self.pm.unregister(self.recorder)
-        if self.frames is not None:
-            missed = sorted(f for f in self.frames if f not in self.recorder.matched)
-            if missed:  # said at the end and in run.json's warnings
-                result.notes.append(
-                    f"--debug-frames {', '.join(missed)} matched no frame of the run; nothing recorded for them"
-                )
-
-
 def subscribers(task: RunTask, pm: PluginManager, cache: ResultCache | None) -> list[Subscriber]:
     """What a task's run events reach, from what the task asks for."""
     subs: list[Subscriber] = []
     if task.in_place and task.chunk is None:
         subs.append(Checkpointing(Path(task.run_dir), task.resume, pm))
-    if task.debug_dir is not None:
-        subs.append(DebugPictures(task.debug_dir, task.debug_frames, pm))
-    subs.append(Logging(pm))
+    subs += [*task.subscribers, Logging(pm)]
     return subs
 
 

@@ -1,6 +1,6 @@
 """The run service: the one path by which the commands run graphs (:class:`Session`); a batch of
-runs from any command: :meth:`Session.run_tasks` with :class:`BatchRun`."""
+runs from any command: :meth:`Session.run_tasks` with :class:`lanegraph.run.batch.BatchRun`."""
 
-from .session import BatchRun, Session
+from .session import Session
 
-__all__ = ["BatchRun", "Session"]
+__all__ = ["Session"]

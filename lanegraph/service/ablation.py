@@ -15,6 +15,7 @@ from ..evaluation.ablate import Variant, _safe, ablation_rows, distinct_folders,
 from ..evaluation.dataset import read_gt
 from ..graph.files import resolve_graph_path
 from ..paths import inside, safe_name
+from ..run.batch import BatchRun
 from ..run.cache import ResultCache
 from ..run.folder import check as check_folder
 from ..run.folder import claim as claim_folder
@@ -69,8 +70,6 @@ def ablate(
     debug_frames: tuple[str, ...] | None,
 ) -> int:
     """See :meth:`lanegraph.service.Session.ablate`."""
-    from .session import BatchRun
-
     runner = runner if runner is not None else session.runner(scheduler)
     opened = [(r, session.open_graph(r.graph, tuple(r.sets))) for r in variants]
     for _, graph in opened:

@@ -9,6 +9,7 @@ from typing import Any
 from .. import interrupts
 from ..errors import LanegraphError, NotStarted
 from ..graph.files import ResolvedGraph
+from ..run.batch import BatchRun
 from ..run.folder import check as check_folder
 from ..run.folder import claim as claim_folder
 from ..runlog import RunLog
@@ -31,8 +32,6 @@ def run_dataset(
     debug_frames: tuple[str, ...] | None,
 ) -> int:
     """See :meth:`lanegraph.service.Session.run_dataset`."""
-    from .session import BatchRun
-
     g = graph.validate(session.pm)  # a GraphError before anything runs
     identity = dataset_identity("dataset", [g.name], dataset, frames)
     check_folder(out_dir, identity, overwrite=session.overwrite)

@@ -27,7 +27,6 @@ from __future__ import annotations
 import sys
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager, nullcontext
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -48,7 +47,7 @@ from ..tracking import Tracking
 from .keeping import GT_NAME, provenance, single_identity, tracked_run
 
 if TYPE_CHECKING:  # the batch modules load only for a run: `lanegraph run --help` keeps its start-up
-    from ..run.batch import Batch, Planned
+    from ..run.batch import Batch, BatchRun, Planned
     from ..run.runners import Runner
 
 
@@ -76,23 +75,6 @@ REFUSED = {
 def refuse(option: str, where: str) -> None:
     """Raise the :class:`UsageError` that says why ``option`` cannot go with ``where``."""
     raise UsageError(REFUSED[(option, where)])
-
-
-@dataclass
-class BatchRun:
-    """One run of a batch for :meth:`Session.run_tasks`: ``graph`` (a variant) on a sequence's
-    ``input`` (``None``: the synthetic scene) and ``frames``, into ``run_dir``; ``variant`` names
-    it in messages (``None`` for ``run --dataset``); ``provenance``: how it is made (its run.json
-    says it); ``debug_dir``: its ``--debug-dir`` folder."""
-
-    variant: str | None
-    sequence: str
-    graph: ResolvedGraph
-    input: Path | None
-    frames: slice | None
-    run_dir: Path
-    provenance: Provenance | None = None
-    debug_dir: Path | None = None
 
 
 class Session:
@@ -209,8 +191,8 @@ class Session:
             if r.run_dir.exists() and not r.run_dir.is_dir():
                 raise UsageError(f"{r.run_dir}: expected a folder for sequence {r.sequence!r}, found a file")
             plans.append(
-                planner.add(r.variant, r.sequence, r.graph, r.input, r.frames, r.run_dir,
-                            provenance=r.provenance, debug_dir=r.debug_dir, debug_frames=debug_frames)
+                planner.add(r.variant, r.sequence, r.graph, r.input, r.frames, r.run_dir, provenance=r.provenance,
+                            debug_dir=r.debug_dir, subscribers=_debug_pictures(r.debug_dir, debug_frames))
             )  # fmt: skip
         for w in planner.warnings:  # said before anything runs (and in each run.json)
             self.err(f"warning: {w}")
@@ -259,7 +241,8 @@ class Session:
                 ckpt = checkpoint_for(out_dir, resume)[0] if resume else None
                 plan = planner.add(
                     None, g.name, graph, input_path, frames, out_dir, provenance=self.provenance(g.file, sets),
-                    in_place=True, resume=resume, identity=identity, debug_dir=debug_dir, debug_frames=chosen,
+                    in_place=True, resume=resume, identity=identity, debug_dir=debug_dir,
+                    subscribers=_debug_pictures(debug_dir, chosen),
                 )  # fmt: skip
             except LanegraphError as exc:  # an unusable checkpoint or input: nothing was written
                 raise NotStarted(exc) from exc
@@ -431,6 +414,15 @@ class Session:
         return summary
 
 
+def _debug_pictures(folder: Path | None, frames: tuple[str, ...] | None) -> tuple[Any, ...]:
+    """What ``--debug-dir`` adds to a run's events (:class:`lanegraph.presentation.debug.DebugPictures`)."""
+    if folder is None:
+        return ()
+    from ..presentation.debug import DebugPictures
+
+    return (DebugPictures(folder, frames),)
+
+
 def _debug_frames(text: str | None) -> tuple[str, ...] | None:
     """``--debug-frames``: frame ids or indices, comma-separated (None: every frame)."""
     if text is None:
@@ -441,4 +433,4 @@ def _debug_frames(text: str | None) -> tuple[str, ...] | None:
     return chosen
 
 
-__all__ = ["BatchRun", "Session", "refuse"]
+__all__ = ["Session", "refuse"]
