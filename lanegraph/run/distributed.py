@@ -298,6 +298,12 @@ class _Cluster:
         if not spec.local:
             echo(f"{len(workers)} Dask worker(s), {total} task(s) at a time")
 
+    def __enter__(self) -> _Cluster:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
     def close(self) -> None:
         if self.client is not None:
             self.client.close(timeout=10)

@@ -1,25 +1,18 @@
 """The run service: the one path by which a command runs graphs.
 
-A :class:`Session` (in the manner of Kedro's ``KedroSession.run(runner=...)``) loads a graph
-(:func:`lanegraph.graph.files.open_graph`), checks and locks the output folder, and then runs every
-command the same way: **plan** (each run a task, :class:`~lanegraph.run.batch.Planner`) ->
-**runner** (:mod:`lanegraph.run.runners`: in this process, on Dask, or a plugin's; ``--scheduler``)
--> **finish** (what the command says and keeps). ``lanegraph run`` on one input is a batch of one
-run written in place into OUT (checkpointed: ``--resume``); ``run --dataset`` and ``ablate`` are
-batches of runs into folders of their own (:meth:`Session.run_tasks`, the public batch entry point);
-``report`` writes a report. The one place an executor and a run's record are built is
-:func:`lanegraph.run.task.execute_task`.
+A :class:`Session` (Kedro's ``KedroSession.run(runner=...)``) loads a graph, checks and locks the
+output folder, and runs every command alike: **plan** (each run a task,
+:class:`~lanegraph.run.batch.Planner`) -> **runner** (:mod:`lanegraph.run.runners`, ``--scheduler``)
+-> **finish** (what the command says and keeps). ``lanegraph run`` on one input is one run written
+in place into OUT (checkpointed: ``--resume``); ``run --dataset`` and ``ablate`` are batches of runs
+into folders of their own (:meth:`Session.run_tasks`, the public batch entry point). An option a
+command cannot honour is refused in one place (:data:`REFUSED`).
 
-It says what it does through ``out`` (results: stdout) and ``err`` (progress, warnings, errors:
-stderr). Failures are raised once, as typed errors (:class:`~lanegraph.errors.LanegraphError` and
-its kinds, :class:`~lanegraph.errors.NotStarted`, :class:`~lanegraph.errors.RunStopped`), each with
-its exit code; what ran returns its status (0, or 1 when frames or runs failed). The command line
-maps errors to exit codes in one place (:mod:`lanegraph.cli._errors`). An option a command cannot
-honour is refused in one place, :func:`refuse`.
-
-Interruption by Ctrl-C, SIGTERM or SIGHUP (:mod:`lanegraph.interrupts`) ends every command alike:
-the runs that ended are kept (a run in place has its record and checkpoint: ``--resume``), and
-:class:`~lanegraph.errors.RunStopped` is raised with exit code 130, 143 or 129.
+It says what it does through ``out`` (stdout) and ``err`` (stderr). Failures are raised once, as
+typed errors (:class:`~lanegraph.errors.NotStarted`, :class:`~lanegraph.errors.RunStopped`, ...),
+each with its exit code (mapped in :mod:`lanegraph.cli._errors`); what ran returns its status.
+Ctrl-C, SIGTERM or SIGHUP keep what ended (a run in place: its record and checkpoint) and raise
+:class:`~lanegraph.errors.RunStopped` with exit code 130, 143 or 129.
 """
 
 from __future__ import annotations
@@ -219,7 +212,7 @@ class Session:
         :class:`RunStopped` when the run stopped (its record written), a :class:`GraphError`."""
         from ..run.batch import Planner, run_planned
         from ..run.runners import InProcessRunner
-        from ..run.task import checkpoint_for
+        from ..run.checkpointing import checkpoint_for
 
         g = graph.validate(self.pm)
         if input_path is not None and not input_path.exists():
@@ -238,7 +231,7 @@ class Session:
         with interrupts.handling(), self.locked(out_dir, "run", (debug_dir, "--debug-dir")):
             claim_folder(out_dir, identity, resume=resume, overwrite=self.overwrite, resolved=resolved)
             try:
-                ckpt = checkpoint_for(out_dir, resume)[0] if resume else None
+                ckpt = checkpoint_for(out_dir, resume)[0]  # without --resume: an old one removed
                 plan = planner.add(
                     None, g.name, graph, input_path, frames, out_dir, provenance=self.provenance(g.file, sets),
                     in_place=True, resume=resume, identity=identity, debug_dir=debug_dir,
