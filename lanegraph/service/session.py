@@ -211,8 +211,8 @@ class Session:
         Raises :class:`NotStarted` for an input, checkpoint or folder unusable before any frame,
         :class:`RunStopped` when the run stopped (its record written), a :class:`GraphError`."""
         from ..run.batch import Planner, run_planned
-        from ..run.runners import InProcessRunner
         from ..run.checkpointing import checkpoint_for
+        from ..run.runners import InProcessRunner
 
         g = graph.validate(self.pm)
         if input_path is not None and not input_path.exists():

@@ -216,7 +216,10 @@ def test_a_failed_run_is_reported_and_the_others_finish(tmp_path, synthetic_data
     "args, message",
     [
         (["run", "paper", "--resume", "--chunk-frames", "3"], "a run in chunks (--chunk-frames) keeps none"),
-        (["run", "paper", "--scheduler", "local:0"], "expected local:N with N a number of worker processes >= 1"),
+        (
+            ["run", "paper", "--scheduler", "local:0"],
+            "expected local:N with N a number of worker processes >= 1",
+        ),
         (["run", "paper", "--dataset", "{ds}", "--input", "x"], "--input is for a run on one input"),
         (
             ["run", "paper", "--dataset", "{ds}", "--scheduler", "local:0"],

@@ -305,7 +305,9 @@ def test_a_selecting_source_is_replaced_by_the_source_it_names(tmp_path, pm):
     d["nodes"]["src"] = {"type": "toy.pick"}
     g = load(tmp_path, pm, d)
     ex = Executor(g, RunContext(), pm)
-    assert ex.graph.source.type.name == "toy.count" and ex.graph.source.params.n == 3  # the chosen type's defaults
+    assert (
+        ex.graph.source.type.name == "toy.count" and ex.graph.source.params.n == 3
+    )  # the chosen type's defaults
     assert ex.identity["resolved"]["nodes"]["src"]["type"] == "toy.pick"  # what the user's graph says
     assert g.source.type.name == "toy.pick"  # the graph it was given is left as it is
     d["nodes"].pop("k")

@@ -77,7 +77,9 @@ def test_frames_and_overwrite(kind, synthetic_dataset, reference, tmp_path):
 def test_chunk_frames(kind, synthetic_dataset, reference, tmp_path):
     """Chunks of one frame after two warm-up frames: every chunk starts from the whole run's state."""
     out = tmp_path / "out"
-    r = lanegraph(command(kind, synthetic_dataset, out, "--frames", FRAMES, "--chunk-frames", "1", "--warmup", "2"))
+    r = lanegraph(
+        command(kind, synthetic_dataset, out, "--frames", FRAMES, "--chunk-frames", "1", "--warmup", "2")
+    )
     assert r.exit_code == 0, r.output
     assert lanes(kind, out) == expected(kind, reference)
     assert not [p for p in out.rglob(".*") if p.is_dir()]  # no chunk or temporary folder left
@@ -120,17 +122,28 @@ def test_scheduler(kind, synthetic_dataset, reference, tmp_path):
         pm.unregister(plugin)
     assert r.exit_code == 0, r.output
     assert lanes(kind, out) == expected(kind, reference)
-    labels = {"run": ["paper"], "dataset": ["straight", "curve"], "ablate": ["paper / straight", "paper / curve"]}
+    labels = {
+        "run": ["paper"],
+        "dataset": ["straight", "curve"],
+        "ablate": ["paper / straight", "paper / curve"],
+    }
     assert Ordered.calls == [labels[kind]]
 
 
 @pytest.mark.parametrize("kind", KINDS)
 def test_debug_dir(kind, synthetic_dataset, tmp_path):
     out, dbg = tmp_path / "out", tmp_path / "dbg"
-    r = lanegraph(command(kind, synthetic_dataset, out, "--frames", "0:2", "--debug-dir", str(dbg), "--debug-frames", "1"))
+    r = lanegraph(
+        command(
+            kind, synthetic_dataset, out, "--frames", "0:2", "--debug-dir", str(dbg), "--debug-frames", "1"
+        )
+    )
     assert r.exit_code == 0, r.output
     mosaics = sorted(str(p.relative_to(dbg).parent.parent) for p in dbg.rglob("mosaic.png"))
-    assert mosaics == {"run": ["."], "dataset": ["curve", "straight"], "ablate": ["paper/curve", "paper/straight"]}[kind]
+    assert (
+        mosaics
+        == {"run": ["."], "dataset": ["curve", "straight"], "ablate": ["paper/curve", "paper/straight"]}[kind]
+    )
     assert all(p.parent.name.endswith("1") for p in dbg.rglob("mosaic.png"))  # frame 1 only
 
 
@@ -178,5 +191,8 @@ def test_ctrl_c_keeps_the_finished_runs_and_resume_continues(kind, synthetic_dat
 def test_resume_is_refused_with_chunks_for_its_one_reason(synthetic_dataset, tmp_path):
     r = lanegraph(command("run", synthetic_dataset, tmp_path / "out", "--resume", "--chunk-frames", "2"))
     assert r.exit_code == 2
-    assert "--resume continues a run after its checkpoint; a run in chunks (--chunk-frames) keeps none" in r.output
+    assert (
+        "--resume continues a run after its checkpoint; a run in chunks (--chunk-frames) keeps none"
+        in r.output
+    )
     assert not (tmp_path / "out").exists()
