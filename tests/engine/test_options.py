@@ -196,3 +196,16 @@ def test_resume_is_refused_with_chunks_for_its_one_reason(synthetic_dataset, tmp
         in r.output
     )
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    "args, reason",
+    [
+        (["--input", "x"], "--input is for a run on one input; --dataset names the inputs"),
+        (["--report"], "--report is for a run on one input or an ablation"),
+    ],
+)
+def test_what_a_dataset_run_refuses_it_says_once(args, reason, synthetic_dataset, tmp_path):
+    r = lanegraph(command("dataset", synthetic_dataset, tmp_path / "out", *args))
+    assert r.exit_code == 2 and reason in r.output, r.output
+    assert not (tmp_path / "out").exists()
