@@ -74,12 +74,11 @@ def tracked_ablation_runs(
     rows: Sequence[Mapping[str, Any]],
     graphs: Mapping[str, Any],
     run_dirs: Mapping[tuple[str, str], Path],
-    records: Mapping[tuple[str, str], Any] | None = None,
+    records: Mapping[tuple[str, str], Any],
 ) -> list[TrackedRun]:
     """The tracked runs of an ablation: one per variant and sequence, and per variant pooled over
     several sequences (``sequence`` ``all``). ``graphs``: each variant's validated graph;
-    ``run_dirs``: each run's folder; ``records``: each run's record, when the caller has it (else
-    read from its folder)."""
+    ``run_dirs``: each run's folder; ``records``: each run's record (in memory)."""
     sequences = {r["sequence"] for r in rows if r.get("sequence") != "all"}
     out = []
     for row in rows:
@@ -87,17 +86,9 @@ def tracked_ablation_runs(
             continue  # one sequence: the pooled row repeats it
         g = graphs.get(str(row.get("variant")))
         params = flatten_params(g.resolved_dict()) if g is not None else {}
-        run_dir = run_dirs.get((str(row.get("variant")), str(row.get("sequence"))))
-        results = []
         key = (str(row.get("variant")), str(row.get("sequence")))
-        if records is not None and key in records:
-            rec = records[key]
-            results = list(rec.results.values()) if rec is not None else []
-        elif run_dir is not None:
-            from ..run.record import read_record
-
-            rec = read_record(run_dir)
-            results = list(rec.results.values()) if rec is not None else []
+        run_dir, rec = run_dirs.get(key), records.get(key)
+        results = list(rec.results.values()) if rec is not None else []
         tags = {"lanegraph.graph": str(row.get("graph") or ""), "lanegraph.sets": str(row.get("sets") or "")}
         out.append(tracked_row(row, params, run_dir, results, tags))
     return out
