@@ -456,7 +456,8 @@ def merge_chunks(tasks: list[RunTask], outcomes: list[TaskOutcome]) -> TaskOutco
                 dst_counts[nid] = dst_counts.get(nid, 0) + k
         if out.error is not None and error is None:
             error = out.error
-    names = sorted(written - {"run.log", "graph.yaml"})
+    names = sorted(written - {"run.log"})
+    write_resolved_graph(folder, first.graph.validate().resolved_dict())  # the run's, beside its results
     record, unwritten = keep_record(folder, first, merged, error, first.graph.display, names)
     if not first.in_place:
         place_dir(folder, run_dir)

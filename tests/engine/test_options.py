@@ -83,6 +83,8 @@ def test_chunk_frames(kind, synthetic_dataset, reference, tmp_path):
     assert r.exit_code == 0, r.output
     assert lanes(kind, out) == expected(kind, reference)
     assert not [p for p in out.rglob(".*") if p.is_dir()]  # no chunk or temporary folder left
+    runs = [p.parent for p in out.rglob("lanes.jsonl")]
+    assert runs and all((p / "graph.yaml").is_file() and (p / "run.json").is_file() for p in runs)
 
 
 class Ordered:
