@@ -26,14 +26,16 @@ import io
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..errors import UsageError
 from ..paths import write_text_atomic
 from ..presentation.plots import write_ablation_plots
-from ..run.batch import Planned
 from ..run.results import LANES, find_result
 from .dataset import POOLED, evaluate_sequences
+
+if TYPE_CHECKING:
+    from ..run.batch import Planned
 from .metrics import evaluate, read_predictions
 
 

@@ -10,7 +10,6 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from ..evaluation.ablate import row_of_run
 from ..evaluation.metrics import evaluate, read_ground_truth, read_predictions
 from ..frames import selection_text
 from ..run.folder import command_identity, run_identity
@@ -54,6 +53,8 @@ def tracked_run(
 ) -> TrackedRun:
     """The tracked run of ``lanegraph run`` or of one sequence of ``run --dataset`` (its record
     written): params, figures against the ground truth ``gt`` over the frames it selected, files."""
+    from ..evaluation.ablate import row_of_run  # the ablation tables load only when a run is tracked
+
     timings = (record.timings if record is not None else None) or {}
     ev = None
     lanes = find_result(run_dir, LANES, record=record) if record is not None and gt is not None else None
