@@ -107,7 +107,11 @@ def test_a_crafted_pickle_in_out_never_runs(cli, tmp_path, installed_pm):
     [
         ("[]", ["expected a JSON object", "got list"]),
         ("{}", ["format: expected 'lanegraph-checkpoint'"]),
-        ('{"format": "lanegraph-checkpoint", "version": 7}', ["version: expected 2, got 7"]),
+        ('{"format": "lanegraph-checkpoint", "version": 7}', ["version: expected 3, got 7"]),
+        (
+            '{"format": "lanegraph-checkpoint", "version": 2}',
+            ["version: expected 3, got 2", "version 3 stores values by their port types", "start over"],
+        ),
         ("not json at all", ["not a valid JSON checkpoint", "line 1"]),
         ("[" * 100000, ["not a valid JSON checkpoint"]),
         (b"\xff\xfe\x00garbage", ["cannot read the checkpoint"]),
@@ -147,7 +151,8 @@ def _mutate(ckpt: dict, how: str, i: int = 0) -> dict:
             "data": "AAAAAA==",
         }
     elif how == "a lane with another field":
-        ckpt["feedback"][i]["value"] = [{"$t": "Lane", "v": {"coeffs": [1, 2, 3], "__class__": "x"}}]
+        fields = {"$t": "dict", "v": [["coeffs", [1, 2, 3]], ["__class__", "x"]]}
+        ckpt["feedback"][i]["value"] = [{"$t": "port", "type": "lanes", "v": fields}]
     elif how == "feedback from another node":
         ckpt["feedback"][i]["node"] = "disp"
     elif how == "failures not a list":

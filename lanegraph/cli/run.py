@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import click
 
+from ..errors import UsageError
 from ..kernel_cache import compile_share, first_run_notice
 from ._common import FOLDER, keeping_options, parse_frames, scale_out_options, session
 from ._errors import handled
@@ -17,7 +19,12 @@ from ._errors import handled
     "--input",
     "input_path",
     type=click.Path(path_type=Path),
-    help="input folder (KITTI raw drive, KITTI odometry sequence, folder of pairs); default: the built-in synthetic scene",
+    help="input: a KITTI raw drive or odometry sequence, a folder of pairs, a ROS bag, a stereo video (docs/inputs.md); default: the built-in synthetic scene",
+)
+@click.option(
+    "--calib",
+    help="calibration file(s) of the input, comma-separated: OpenCV YAML/XML, ROS camera_info left.yaml,right.yaml, "
+    "calib.yaml (docs/inputs.md); sets the source node's calib param",
 )
 @click.option(
     "--out",
@@ -45,6 +52,7 @@ from ._errors import handled
 def run(
     graph: str,
     input_path: Path | None,
+    calib: str | None,
     out_dir: Path,
     sets: tuple[str, ...],
     frames: str | None,
@@ -78,10 +86,36 @@ def run(
 
         if input_path is not None:
             refuse("--input", "dataset")
+        if calib is not None:
+            refuse("--calib", "dataset")
         if make_report:
             refuse("--report", "dataset")
         dataset = load_dataset(dataset_path)
         compile_share()  # the first run on a machine: its part of the kernels, beside the helper's
         return s.run_dataset(graph_, dataset, out_dir, **options)
+    if calib is not None:
+        graph_ = s.open_graph(graph, (*sets, *calib_sets(s.pm, graph_.raw, calib)))
     compile_share()  # the first run on a machine: its part of the kernels, beside the helper's
     return s.run(graph_, input_path=input_path, out_dir=out_dir, make_report=make_report, **options)
+
+
+def calib_sets(pm, raw: dict, calib: str) -> list[str]:
+    """``--calib FILES`` as a ``--set NODE.calib=FILES`` for each source node whose params have a
+    ``calib`` field (paths made absolute: the source reads them wherever it runs)."""
+    files = [str(Path(p.strip()).resolve()) for p in calib.split(",") if p.strip()]
+    nodes = [
+        nid
+        for nid, spec in (raw.get("nodes") or {}).items()
+        if isinstance(spec, dict)
+        and (nt := pm.get_node_type(str(spec.get("type")))) is not None
+        and nt.source
+        and "calib" in nt.params.model_fields
+    ]
+    if not files or not nodes:
+        why = (
+            "names no file"
+            if not files
+            else "the graph's source node takes no calibration file (no calib param)"
+        )
+        raise UsageError(f"--calib {calib!r}: {why}")
+    return [f"{nid}.calib={json.dumps(','.join(files))}" for nid in nodes]

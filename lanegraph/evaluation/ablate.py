@@ -30,13 +30,13 @@ from typing import TYPE_CHECKING, Any
 
 from ..errors import UsageError
 from ..paths import write_text_atomic
-from ..presentation.plots import write_ablation_plots
 from ..run.results import LANES, find_result
 from .dataset import POOLED, evaluate_sequences
+from .metrics import evaluate, read_predictions
+from .plots import write_ablation_plots
 
 if TYPE_CHECKING:
     from ..run.batch import Planned
-from .metrics import evaluate, read_predictions
 
 
 @dataclass

@@ -107,9 +107,9 @@ def open_source(
         raise NodeError(node_id, node_type.name, None, exc) from exc
 
 
-def close_source(instance: Any) -> None:
-    """Close a source opened by :func:`open_source` (:func:`lanegraph.lifecycle.close`)."""
-    close(instance)
+def close_source(instance: Any, node_type: NodeType | None = None) -> None:
+    """Close a source of ``node_type`` opened by :func:`open_source` (:func:`lanegraph.lifecycle.close`)."""
+    close(instance, node_type)
 
 
 def read_calibration(pm: PluginManager, path: Path) -> Any:
@@ -139,8 +139,8 @@ def read_calibration(pm: PluginManager, path: Path) -> Any:
     )
     if nt is None or port is None:
         raise InputError("no installed source reads a calibration from this folder", path=str(path))
-    with closing(open_source(nt, nt.params(), path)) as source:
-        consts = constants_of(source)
+    with closing(open_source(nt, nt.params(), path), nt) as source:
+        consts = constants_of(source, nt)
     if consts.get(port) is None:
         raise InputError(f"source {nt.name!r} gives no calibration for this folder", path=str(path))
     return consts[port]

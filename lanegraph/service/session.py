@@ -60,6 +60,10 @@ REFUSED = {
         "--input",
         "dataset",
     ): "--input is for a run on one input; --dataset names the inputs (give one or the other)",
+    (
+        "--calib",
+        "dataset",
+    ): "--calib is for a run on one input; --dataset names the inputs (give one or the other)",
     ("--report", "dataset"): "--report is for a run on one input or an ablation; report on a dataset run's "
     "sequences with `lanegraph report OUT --dataset FILE`",
 }
