@@ -33,7 +33,7 @@ from .cache import ResultCache, digest
 from .outcome import RunResult
 from .record import Provenance, RunRecord, read_record, write_run_files
 from .resume import input_identity
-from .sources import close_source, open_source, select_source
+from .sources import chosen_params, close_source, open_source, select_source
 from .task import (
     RunTask,
     TaskOutcome,
@@ -97,7 +97,8 @@ def count_frames(
     g = graph.validate(pm)
     src = g.source
     nt = select_source(pm, src.type, src.params, input_path, file=g.file, node=src.id)
-    inst = open_source(nt, src.params if nt is src.type else nt.params(), input_path, frames, src.id)
+    params = src.params if nt is src.type else chosen_params(nt, src.params, file=g.file, node=src.id)
+    inst = open_source(nt, params, input_path, frames, src.id)  # with the params the run gives it
     try:
         return len(inst) if "len" in nt.capabilities else None
     finally:
