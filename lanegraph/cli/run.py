@@ -9,7 +9,7 @@ import click
 
 from ..errors import UsageError
 from ..kernel_cache import compile_share, first_run_notice
-from ._common import FOLDER, keeping_options, parse_frames, scale_out_options, session
+from ._common import FOLDER, dataset_file, keeping_options, parse_frames, scale_out_options, session
 from ._errors import handled
 
 
@@ -82,15 +82,13 @@ def run(
     options = {"frames": parse_frames(frames), "runner": runner, "chunk_frames": chunk_frames, "warmup": warmup,
                "resume": resume, "debug_dir": debug_dir, "debug_frames": debug_frames}  # fmt: skip
     if dataset_path is not None:
-        from ..evaluation.dataset import load_dataset
-
         if input_path is not None:
             refuse("--input", "dataset")
         if calib is not None:
             refuse("--calib", "dataset")
         if make_report:
             refuse("--report", "dataset")
-        dataset = load_dataset(dataset_path)
+        dataset = dataset_file(dataset_path)
         compile_share()  # the first run on a machine: its part of the kernels, beside the helper's
         return s.run_dataset(graph_, dataset, out_dir, **options)
     if calib is not None:

@@ -313,6 +313,7 @@ class Executor:
                 self._write_checkpoint(at.position, at.last_frame, at.previous, at.prev_keys, complete=True)
         except BaseException as exc:
             failed = exc
+            result.notes += self.ahead.stopped()  # a signal: what runs ahead is abandoned
             raise
         finally:
             self.close()  # an error of a close must not hide the run's own

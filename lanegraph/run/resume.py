@@ -49,7 +49,7 @@ FORMAT = "lanegraph-checkpoint"
 #: their port types (lanegraph.storage)
 VERSION = 3
 MAX_CHECKPOINT_BYTES = 1 << 30
-_HINT = "; cannot resume (run without --resume to start over)"
+_HINT = "; cannot resume (start over with --overwrite in place of --resume: it removes only what lanegraph wrote there; or choose another output folder)"
 
 CheckpointValueError = StorageError  #: a value a checkpoint cannot hold, or a malformed stored one
 

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..errors import InputError, LanegraphError
+from ..errors import HookError, InputError, LanegraphError, UsageError
 from ..graph.files import ResolvedGraph
 from ..graph.model import Graph
 from ..nodes import RunContext
@@ -35,6 +35,7 @@ from ..runlog import RunLog, get_logger
 from .cache import Caching, ResultCache
 from .checkpointing import Checkpointer, checkpoint_for, resumed_frame_ids
 from .executor import Executor
+from .folder import seal
 from .outcome import FrameFailure, RunResult
 from .provenance import versions, write_resolved_graph
 from .record import Provenance, RunRecord, Stopped, write_run_files
@@ -207,12 +208,22 @@ class Logging(Subscriber):
             self.log = None
 
 
+class Sealing(Subscriber):
+    """A run in place: what it wrote is recorded as lanegraph's once it has started (a killed run's
+    files are known as lanegraph's: :func:`lanegraph.run.folder.seal`)."""
+
+    def started(self, task, ex, folder):
+        seal(folder, final=False)
+
+
 def subscribers(task: RunTask, pm: PluginManager, cache: ResultCache | None) -> list[Subscriber]:
     """What a task's run events reach, from what the task asks for."""
     subs: list[Subscriber] = []
     if task.in_place and task.chunk is None:
         subs.append(Checkpointing(Path(task.run_dir), task.resume, pm))
     subs += [*task.subscribers, Logging(pm)]
+    if task.in_place and task.chunk is None:
+        subs.append(Sealing())
     return subs
 
 
@@ -225,6 +236,8 @@ def error_record(task: RunTask, exc: BaseException, stage: str) -> dict[str, Any
 
         label, code = interrupts.label_and_code(exc)
         message = f"interrupted ({label}); continue with --resume"
+    elif isinstance(exc, HookError) and isinstance(exc.cause, UsageError):  # --debug-dir's, say: exit 2
+        message, code = str(exc.cause), 2
     elif isinstance(exc, OSError) and not isinstance(exc, LanegraphError):
         message, code = f"{str(exc.filename) + ': ' if exc.filename else ''}{exc.strerror or exc}", 1
     else:

@@ -12,9 +12,10 @@ from ..graph.files import ResolvedGraph
 from ..run.batch import BatchRun
 from ..run.folder import check as check_folder
 from ..run.folder import claim as claim_folder
+from ..run.folder import seal as seal_folder
 from ..runlog import RunLog
 from ..tracking import CommandRecord as TrackedCommand
-from .keeping import dataset_identity, tracked_run
+from .keeping import dataset_identity, dataset_writes, tracked_run
 
 
 def run_dataset(
@@ -34,7 +35,8 @@ def run_dataset(
     """See :meth:`lanegraph.service.Session.run_dataset`."""
     g = graph.validate(session.pm)  # a GraphError before anything runs
     identity = dataset_identity("dataset", [g.name], dataset, frames)
-    check_folder(out_dir, identity, overwrite=session.overwrite)
+    writes = dataset_writes(dataset)
+    check_folder(out_dir, identity, overwrite=session.overwrite, writes=writes)
     made = session.provenance(g.file, list(graph.sets))
     runs = [
         BatchRun(None, seq.name, graph, seq.input, seq.frames if seq.frames is not None else frames,
@@ -43,12 +45,13 @@ def run_dataset(
     ]  # fmt: skip
     try:
         with interrupts.handling(), session.locked(out_dir, "run", (debug_dir, "--debug-dir")):
-            claim_folder(out_dir, identity, overwrite=session.overwrite)
-            session.keep_command(out_dir, "dataset", made, identity, [s.name for s in dataset])
+            claim_folder(out_dir, identity, overwrite=session.overwrite, writes=writes)
             session.tracking.start(
                 TrackedCommand("run", f"run {g.name} --dataset -> {out_dir}", out_dir, list(made.command),
                                {"graph": str(g.file), "frames": identity["frames"] or "all"})
             )  # fmt: skip
+            session.keep_command(out_dir, "dataset", made, identity, [s.name for s in dataset])
+            seal_folder(out_dir, final=False)  # a killed run's files are known as lanegraph's
             try:
                 with RunLog(out_dir, verbose=session.verbose > 0):
                     batch = session.run_tasks(runs, runner, chunk_frames=chunk_frames, warmup=warmup,
@@ -56,6 +59,8 @@ def run_dataset(
             except BaseException:
                 session.tracking.end("interrupted")
                 raise
+            finally:
+                seal_folder(out_dir)  # what it wrote, once run.log is closed
     except LanegraphError as exc:  # a usage error, an unusable input found before any frame ran
         if exc.exit_code == 2:
             raise

@@ -32,12 +32,13 @@ from ..paths import OutputLock, prepare_dir
 from ..plugins import PluginManager, get_plugin_manager
 from ..run.folder import check as check_folder
 from ..run.folder import claim as claim_folder
+from ..run.folder import seal as seal_folder
 from ..run.provenance import command_line
 from ..run.record import CommandRecord, Provenance, VariantEntry, write_command_record
 from ..runlog import RunLog
 from ..tracking import CommandRecord as TrackedCommand
 from ..tracking import Tracking
-from .keeping import GT_NAME, provenance, single_identity, tracked_run
+from .keeping import GT_NAME, provenance, run_writes, single_identity, tracked_run
 
 if TYPE_CHECKING:  # the batch modules load only for a run: `lanegraph run --help` keeps its start-up
     from ..run.batch import Batch, BatchRun, Planned
@@ -228,12 +229,17 @@ class Session:
         resolved = g.resolved_dict()
         identity = single_identity(resolved, input_path, frames)
         # another run's results are refused before anything is written (the folder left as it was)
-        check_folder(out_dir, identity, resume=resume, overwrite=self.overwrite, resolved=resolved)
+        writes = run_writes(g, out_dir, debug_dir, make_report)
+        check_folder(
+            out_dir, identity, resume=resume, overwrite=self.overwrite, resolved=resolved, writes=writes
+        )
         sets = list(graph.sets)
         planner = Planner(self.pm, chunk_frames, warmup, verbose=self.verbose > 0)
         # Ctrl-C, SIGTERM and SIGHUP stop the run alike: its record says so, --resume continues
         with interrupts.handling(), self.locked(out_dir, "run", (debug_dir, "--debug-dir")):
-            claim_folder(out_dir, identity, resume=resume, overwrite=self.overwrite, resolved=resolved)
+            claim_folder(
+                out_dir, identity, resume=resume, overwrite=self.overwrite, resolved=resolved, writes=writes
+            )
             try:
                 ckpt = checkpoint_for(out_dir, resume)[0]  # without --resume: an old one removed
                 plan = planner.add(
@@ -252,18 +258,21 @@ class Session:
             self._track_start(TrackedCommand("run", f"run {g.name} -> {out_dir}", out_dir, command_line(),
                                              {"graph": str(g.file), "input": str(input_path or "synthetic"),
                                               "frames": selection_text(frames) or "all"}))  # fmt: skip
-            batch = run_planned([plan], planner.tasks, runner, progress=self.progress, echo=self.err)
-            if batch.interrupted is not None:
-                self.tracking.end("interrupted")
-                raise self.stopped(batch.interrupted, "continue with --resume")
-            out = plan.outcome
-            said = (
-                out is not None
-                and out.complete is None
-                and (out.error is None or not out.error["before_any_frame"])
-            )
-            with RunLog(out_dir, append=True, verbose=self.verbose > 0) if said else nullcontext():
-                status = self._say_run(plan, out_dir)  # said into run.log too
+            try:
+                batch = run_planned([plan], planner.tasks, runner, progress=self.progress, echo=self.err)
+                if batch.interrupted is not None:
+                    self.tracking.end("interrupted")
+                    raise self.stopped(batch.interrupted, "continue with --resume")
+                out = plan.outcome
+                said = (
+                    out is not None
+                    and out.complete is None
+                    and (out.error is None or not out.error["before_any_frame"])
+                )
+                with RunLog(out_dir, append=True, verbose=self.verbose > 0) if said else nullcontext():
+                    status = self._say_run(plan, out_dir)  # said into run.log too
+            finally:
+                seal_folder(out_dir)  # what it wrote, once run.log is closed
         if make_report and status is not None:
             dbg = (
                 debug_dir if debug_dir is not None and debug_dir.is_dir() else None
@@ -273,6 +282,8 @@ class Session:
             except LanegraphError as exc:  # the run's own outputs are written: they stay
                 self.tracking.end("failed")
                 raise RunStopped(f"report: {exc}", exc) from exc
+            finally:
+                seal_folder(out_dir)
         if self.tracking.started:
             if plan.record is not None:
                 gt = input_path / GT_NAME if input_path is not None else None
