@@ -87,7 +87,10 @@ def ablate(
     resolved = {r.name: graph for r, graph in opened}
     graphs = {name: graph.validate(session.pm) for name, graph in resolved.items()}
     seq_frames = {s.name: s.frames if s.frames is not None else frames for s in dataset}
-    gts = {s.name: read_gt(s, seq_frames[s.name]) for s in dataset}  # a malformed one is found before any run
+    try:  # a malformed ground truth is found before any run: exit 2, like an unusable input
+        gts = {s.name: read_gt(s, seq_frames[s.name]) for s in dataset}
+    except InputError as exc:
+        raise NotStarted(exc) from exc
     t0 = time.perf_counter()
     cache_folder = (cache_dir, "--cache-dir") if cache_dir is not None and not no_cache else (None, "")
     with (
