@@ -202,7 +202,7 @@ def test_a_scheduler_that_cannot_work_is_refused_at_once(monkeypatch):
         with pytest.raises(UsageError, match=words.replace("(", r"\(").replace(")", r"\)")):
             distributed.check_spec(parse_scheduler(text))
         with pytest.raises(UsageError, match=words.replace("(", r"\(").replace(")", r"\)")):
-            distributed.run_tasks([], parse_scheduler(text), progress=False, echo=lambda s: None)
+            distributed.connect(parse_scheduler(text), lambda s: None)  # where a cluster starts
     for text in ("local", "local:2", "tcp://127.0.0.1:8786", "127.0.0.1:8786", "tls://h:1", "sched.json"):
         distributed.check_spec(parse_scheduler(text))
 

@@ -92,20 +92,35 @@ def parse_frames(text: str | None) -> slice | None:
 
 
 def scale_out_options(scope: str = ""):
-    """The options ``run --dataset`` and ``ablate`` share: a Dask scheduler, chunks and their
-    warm-up, the report at the end (``scope``: what they need, said before each help text)."""
+    """The options ``run`` and ``ablate`` share: resuming, debug pictures, a Dask scheduler, chunks
+    and their warm-up, the report at the end (``scope``: what they need, said before each help text)."""
     options = [
+        click.option(
+            "--resume",
+            is_flag=True,
+            help="continue what an interrupted command left in OUT: one run after its last frame done (same graph, "
+            "params, input and --frames); a batch's runs not yet finished",
+        ),
+        click.option(
+            "--debug-dir",
+            type=FOLDER,
+            help="save every node's output of the chosen frames as pictures, and a mosaic (a batch's in "
+            "DIR/[<variant>/]<sequence>/)",
+        ),
+        click.option(
+            "--debug-frames", help="frames for --debug-dir: ids or indices, comma-separated (default: all)"
+        ),
         click.option(
             "--scheduler",
             metavar="SPEC",
-            help=f"{scope}run the sequences on a Dask cluster: local, local:N (N worker processes) "
+            help=f"{scope}run the runs (or their chunks) on a Dask cluster: local, local:N (N worker processes) "
             "or a scheduler address tcp://HOST:PORT",
         ),
         click.option(
             "--chunk-frames",
             type=int,
             metavar="K",
-            help=f"{scope}split sequences into chunks of K frames run as separate tasks",
+            help=f"{scope}split each run into chunks of K frames run as separate tasks",
         ),
         click.option(
             "--warmup",

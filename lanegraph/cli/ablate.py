@@ -66,6 +66,9 @@ def ablate(
     no_cache,
     cache_dir,
     cache_max_gb,
+    resume,
+    debug_dir,
+    debug_frames,
     scheduler,
     chunk_frames,
     warmup,
@@ -90,4 +93,5 @@ def ablate(
     return s.ablate(
         runs, dataset, out_dir, frames=parse_frames(frames), cache_dir=cache_dir, cache_max_gb=cache_max_gb,
         no_cache=no_cache, runner=runner, chunk_frames=chunk_frames, warmup=warmup, make_report=make_report,
+        resume=resume, debug_dir=debug_dir, debug_frames=debug_frames,
     )  # fmt: skip

@@ -41,23 +41,12 @@ from ._errors import handled
     "--frames", help="frame selection A:B, A:B:S or A (indices into the input's frames; -1 is the last)"
 )
 @click.option(
-    "--resume",
-    is_flag=True,
-    help="continue an interrupted run in OUT after its last frame done (same graph, params, input and --frames)",
-)
-@click.option(
-    "--debug-dir",
-    type=FOLDER,
-    help="save every node's output of the chosen frames as pictures, and a mosaic",
-)
-@click.option("--debug-frames", help="frames for --debug-dir: ids or indices, comma-separated (default: all)")
-@click.option(
     "--dataset",
     "dataset_path",
     type=click.Path(path_type=Path),
     help="a dataset file (YAML list of sequences) in place of --input: writes each sequence's run into OUT/<sequence>/",
 )
-@scale_out_options("with --dataset: ")
+@scale_out_options()
 @keeping_options
 @handled()
 def run(
@@ -82,45 +71,30 @@ def run(
 ) -> int:
     """Run GRAPH (a file or a name under graphs/, default: paper): its sinks write into OUT (the
     lanes, overlays), with OUT/timings.json and OUT/run.json; with --dataset, every sequence into
-    OUT/<sequence>/ (in this process, or on a Dask cluster with --scheduler)."""
+    OUT/<sequence>/. Runs go in this process, or on a Dask cluster with --scheduler, whole or in
+    chunks (--chunk-frames)."""
+    from ..service.session import refuse
+
     first_run_notice(bool(quiet))  # the first run on a machine compiles the kernels: say so at once
-    if dataset_path is not None:
-        for flag, given in (
-            ("--input", input_path),
-            ("--calib", calib),
-            ("--resume", resume or None),
-            ("--debug-dir", debug_dir),
-            ("--report", make_report or None),
-        ):
-            if given is not None:
-                raise UsageError(
-                    f"{flag} is for a run on one input; --dataset names the inputs (give one or the other)"
-                )
-        s = session(quiet, verbose, overwrite, track)
-        runner = s.runner(scheduler)
-        dataset = dataset_file(dataset_path)
-        graph_ = s.open_graph(graph, sets)
-        compile_share()  # the first run on a machine: its part of the kernels, beside the helper's
-        return s.run_dataset(
-            graph_, dataset, out_dir, frames=parse_frames(frames), runner=runner,
-            chunk_frames=chunk_frames, warmup=warmup,
-        )  # fmt: skip
-    for flag, given in (
-        ("--scheduler", scheduler),
-        ("--chunk-frames", chunk_frames),
-        ("--warmup", warmup or None),
-    ):
-        if given is not None:
-            raise UsageError(f"{flag} runs the sequences of a --dataset: give --dataset FILE")
     s = session(quiet, verbose, overwrite, track)
+    runner = s.runner(scheduler)
     graph_ = s.open_graph(graph, sets)
+    options = {"frames": parse_frames(frames), "runner": runner, "chunk_frames": chunk_frames, "warmup": warmup,
+               "resume": resume, "debug_dir": debug_dir, "debug_frames": debug_frames}  # fmt: skip
+    if dataset_path is not None:
+        if input_path is not None:
+            refuse("--input", "dataset")
+        if calib is not None:
+            refuse("--calib", "dataset")
+        if make_report:
+            refuse("--report", "dataset")
+        dataset = dataset_file(dataset_path)
+        compile_share()  # the first run on a machine: its part of the kernels, beside the helper's
+        return s.run_dataset(graph_, dataset, out_dir, **options)
     if calib is not None:
         graph_ = s.open_graph(graph, (*sets, *calib_sets(s.pm, graph_.raw, calib)))
     compile_share()  # the first run on a machine: its part of the kernels, beside the helper's
-    status = s.run(
-        graph_, input_path=input_path, out_dir=out_dir, frames=parse_frames(frames),
-        resume=resume, debug_dir=debug_dir, debug_frames=debug_frames, make_report=make_report,
-    )  # fmt: skip
+    status = s.run(graph_, input_path=input_path, out_dir=out_dir, make_report=make_report, **options)
     if not quiet:  # the result a person reads: the score against the ground truth, a picture to look at
         from .evaluate import score_line
 

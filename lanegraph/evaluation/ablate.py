@@ -9,13 +9,13 @@ its lanes are found through :mod:`lanegraph.run.results`), and ``OUT/results.csv
 A run whose resolved graph, input files and frame selection are unchanged since the last ablation
 (same output folder) is not run again: its recorded results are reused.
 
-The runs are the units of work of :mod:`lanegraph.run.batch`: one after another in this process, or on
-a Dask cluster (``--scheduler``, :mod:`lanegraph.run.distributed`) with the same outputs byte for byte.
+The runs are a batch of the run service (:meth:`lanegraph.service.Session.run_tasks`: one after
+another in this process, or on a Dask cluster with the same outputs byte for byte); this module
+makes their rows (:func:`ablation_rows`) and the tables and plots (:func:`write_reports`).
 
 A run that fails (a node raising under ``on_error: fail``, an input a variant cannot read) does not
 end the ablation: every run is made, the failed one gets its row with its ``error`` (and no
-figures), its ``run.json`` says what happened, and :func:`run_ablation` returns all rows; the
-command exits 1 at the end. Frames that failed under ``on_error: skip`` are counted in
+figures), its ``run.json`` says what happened; the command exits 1 at the end. Frames that failed under ``on_error: skip`` are counted in
 ``failed_frames``.
 """
 
@@ -23,26 +23,20 @@ from __future__ import annotations
 
 import csv
 import io
-import sys
-from collections.abc import Callable
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..errors import UsageError
-from ..graph.files import ResolvedGraph
-from ..paths import inside, safe_name, write_text_atomic
-from ..plugins import get_plugin_manager
-from ..run.batch import Planned, Planner, clean_leftovers, finish_runs
-from ..run.cache import ResultCache, digest
-from ..run.provenance import git_commit
-from ..run.record import RunRecord, read_record
+from ..paths import write_text_atomic
 from ..run.results import LANES, find_result
-from ..run.resume import input_identity
-from ..run.runners import InProcessRunner, Runner
-from .dataset import POOLED, Dataset, evaluate_sequences, read_gt
+from .dataset import POOLED, evaluate_sequences
 from .metrics import evaluate, read_predictions
 from .plots import write_ablation_plots
+
+if TYPE_CHECKING:
+    from ..run.batch import Planned
 
 
 @dataclass
@@ -66,10 +60,6 @@ def expand_sweeps(base: Path, sweeps: list[str]) -> list[Variant]:
     return out
 
 
-def _input_identity(input_path: Path | None) -> str:
-    return input_identity(input_path)
-
-
 def _extra_metrics(pred: list[dict], gt: list[dict]) -> dict[str, Any]:
     """CULane F1 when the extra metrics module is available."""
     try:
@@ -83,136 +73,77 @@ def _extra_metrics(pred: list[dict], gt: list[dict]) -> dict[str, Any]:
     return {"culane_f1": res.get("f1") if isinstance(res, dict) else None}
 
 
-def run_ablation(
-    variants: list[Variant],
-    dataset: Dataset,
-    out_dir: Path,
-    frames: slice | None = None,
-    cache: ResultCache | None = None,
-    progress: bool = True,
-    runner: Runner | None = None,
-    chunk_frames: int | None = None,
-    warmup: int = 0,
-    echo: Callable[[str], None] | None = None,
-    record_extra: dict[str, Any] | None = None,
-) -> list[dict[str, Any]]:
-    """Run every variant on every sequence of ``dataset``, evaluate and tabulate; returns the rows
-    (one per variant and sequence, then the variant's pooled row, ``sequence`` = ``all``).
+def row_of_run(
+    name: str,
+    sequence: str,
+    timings: Mapping[str, Any],
+    evaluation: Mapping[str, Any] | None,
+    error: str | None,
+    failed_frames: int,
+) -> dict[str, Any]:
+    """A results row (as ``lanegraph ablate`` tabulates them) of one run: its figures against the
+    ground truth (``evaluation``) when there is one, its times per node."""
+    nodes = timings.get("nodes") or {}
+    row: dict[str, Any] = {
+        "variant": name,
+        "sequence": sequence,
+        "error": error,
+        "failed_frames": failed_frames,
+        "frames_run": timings.get("frames", 0),
+        "ms_per_frame": round(sum(v.get("median_ms") or 0.0 for v in nodes.values()), 2) if nodes else None,
+        "stage_ms": {nid: v.get("median_ms") for nid, v in nodes.items()},
+    }
+    if evaluation is not None:
+        row.update(
+            {
+                k: evaluation.get(k)
+                for k in (
+                    "frames",
+                    "frames_not_run",
+                    "detection_ratio",
+                    "precision",
+                    "ego_recall",
+                    "mean_abs_dx_px",
+                )
+            }
+        )
+    return row
 
-    Outputs: ``OUT/runs/<variant>/<sequence>/`` (the sinks' files, ``timings.json``, ``run.json``),
-    ``OUT/results.csv``, ``OUT/results.md`` and the plots. ``frames`` (``--frames``) applies to
-    sequences that do not choose their own. The runs are the tasks of :mod:`lanegraph.run.batch`: in
-    this process one after another, or on another ``runner`` (a Dask cluster, :mod:`lanegraph.run.runners`), with the same outputs;
-    ``chunk_frames`` / ``warmup`` split sequences into chunks.
-    """
-    distinct_folders(variants)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    pm = get_plugin_manager()
-    seq_frames = {s.name: s.frames if s.frames is not None else frames for s in dataset}
-    gts = {s.name: read_gt(s, seq_frames[s.name]) for s in dataset}  # a malformed one is found before any run
-    idents = {s.name: _input_identity(s.input) for s in dataset}
-    planner = Planner(pm, chunk_frames, warmup, cache)
-    plans: list[tuple[Variant, list[Planned]]] = []
+
+def ablation_rows(variants: list[Variant], plans: list[Planned], gts: dict[str, Any]) -> list[dict[str, Any]]:
+    """The rows of an ablation's runs (``plans``: each variant's runs, in the variants' order),
+    from their records and lanes: one per variant and sequence, then the variant's pooled row
+    (``sequence`` = ``all``). A variant with a run that did not end (an interrupted ablation) has
+    no rows."""
+    rows: list[dict[str, Any]] = []
+    by_variant: dict[str, list[Planned]] = {}
+    for plan in plans:
+        by_variant.setdefault(str(plan.variant), []).append(plan)
     for var in variants:
-        planner.record_extra = {  # each run's run.json: its overrides, its graph's checkout
-            **(record_extra or {}), "overrides": list(var.sets), "git": git_commit(Path(var.graph)),
-        }  # fmt: skip
-        graph = ResolvedGraph.load(var.graph, var.sets)
-        g = graph.validate(pm)
-        code = sorted({n.type.code_version for n in g.nodes.values()})  # an edited plugin runs again
-        var_plans = []
-        for seq in dataset:
-            sel = seq_frames[seq.name]
-            run_dir = inside(
-                out_dir, f"runs/{_safe(var.name)}/{safe_name(seq.name)}", "ablate --out"
-            )  # links out of OUT refused
-            run_key = digest(g.resolved_dict(), idents[seq.name], str(sel), code)
-            if chunk_frames is not None:
-                run_key = digest(run_key, "chunks", chunk_frames, warmup)
-            stamp = run_dir / "run_key.txt"
-            if (
-                cache is not None
-                and stamp.is_file()
-                and stamp.read_text() == run_key
-                and _read_record(run_dir) is not None
-            ):
-                var_plans.append(Planned(var.name, seq.name, run_dir, reused=True))
-                continue
-            var_plans.append(planner.add(var.name, seq.name, graph, seq.input, sel, run_dir, run_key))
-        plans.append((var, var_plans))
-    every = [p for _, ps in plans for p in ps]
-    for plan in every:
-        if not plan.reused:
-            clean_leftovers(plan.run_dir)
-    rows: list[dict[str, Any]] = []
-    _done: dict[int, Any] = {}
-    try:
-        runner = runner if runner is not None else InProcessRunner(cache)
-        for w in planner.warnings:  # said before anything runs (and in each run.json)
-            print(f"warning: {w}", file=sys.stderr) if echo is None else echo(f"warning: {w}")
-        outcomes = runner.run(planner.tasks, progress=progress, echo=echo, done=_done)
-    except KeyboardInterrupt:
-        finish_runs(every, _done, partial=True)
-        rows = _rows(plans, gts, finished_only=True)
-        if rows:
-            write_reports(rows, out_dir)  # the finished variants keep their report
-        raise
-    finish_runs(every, outcomes)
-    if cache is not None and not isinstance(
-        runner, InProcessRunner
-    ):  # the workers' counts, for the summary line
-        for out in outcomes.values():
-            cache.hits += sum(out.result.cache_hits.values())
-            cache.misses += sum(out.result.cache_misses.values())
-    rows = _rows(plans, gts)
-    write_reports(rows, out_dir)
-    return rows
-
-
-def _rows(
-    plans: list[tuple[Variant, list[Planned]]], gts: dict[str, Any], finished_only: bool = False
-) -> list[dict[str, Any]]:
-    """The rows of the planned runs, from their folders' run.json and lanes (``finished_only``: of
-    the variants whose every run ended)."""
-    rows: list[dict[str, Any]] = []
-    for var, var_plans in plans:
-        if finished_only and any(p.record is None and not p.reused for p in var_plans):
+        var_plans = by_variant.get(var.name, [])
+        if any(p.record is None for p in var_plans):
             continue
         var_rows: list[dict[str, Any]] = []
         evals: list[tuple[str, list, list]] = []
         for plan in var_plans:
             run_dir = plan.run_dir
-            record = plan.record if plan.record is not None else (_read_record(run_dir) or RunRecord())
+            record = plan.record
+            assert record is not None
             timings = record.timings or {}
-            row: dict[str, Any] = {
-                "variant": var.name,
-                "sequence": plan.sequence,
-                "graph": str(var.graph),
-                "sets": " ".join(var.sets),
-            }
-            row["error"] = record.error
-            row["failed_frames"] = len(record.failures)
-            row["before_any_frame"] = record.before_any_frame
             gt = gts[plan.sequence]
-            lanes_file = find_result(run_dir, LANES) if gt is not None and not row["error"] else None
+            lanes_file = (
+                find_result(run_dir, LANES, record=record) if gt is not None and not record.error else None
+            )
+            ev, extra = None, {}
             if lanes_file is not None:
                 pred = read_predictions(lanes_file)
-                ev = evaluate(pred, gt)
-                row.update(
-                    {
-                        k: ev[k]
-                        for k in ("frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px")
-                    }
-                )
-                row.update(_extra_metrics(pred, gt))
+                ev, extra = evaluate(pred, gt), _extra_metrics(pred, gt)
                 evals.append((plan.sequence, pred, gt))
-            nodes = timings.get("nodes", {})
-            # the sum of the stages' median compute times (a cached stage counts with the time it took)
-            row["ms_per_frame"] = (
-                round(sum(v["median_ms"] or 0.0 for v in nodes.values()), 2) if nodes else None
+            row = row_of_run(var.name, plan.sequence, timings, ev, record.error, len(record.failures))
+            row.pop("frames_not_run", None)
+            row.update(
+                extra, graph=str(var.graph), sets=" ".join(var.sets), before_any_frame=record.before_any_frame
             )
-            row["stage_ms"] = {nid: v["median_ms"] for nid, v in nodes.items()}
-            row["frames_run"] = timings.get("frames", 0)
             row["wall_s"] = round(plan.outcome.wall_s, 2) if plan.outcome is not None else 0.0
             row["reused"] = plan.reused
             row["cache_hits"] = sum(timings.get("cache", {}).get("hits", {}).values())
@@ -220,12 +151,6 @@ def _rows(
         rows += var_rows
         rows.append(_pooled_row(var, var_rows, evals))
     return rows
-
-
-def _read_record(run_dir: Path) -> RunRecord | None:
-    """A reused run's ``run.json`` (None when it is missing or not one of ours: run again)."""
-    record = read_record(run_dir)
-    return record if record is not None and record.timings is not None else None
 
 
 def _pooled_row(

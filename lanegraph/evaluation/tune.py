@@ -234,7 +234,7 @@ class TuneSetup:
     runner: Runner | None = None
     progress: bool = True
     echo: Callable[[str], None] = print
-    record_extra: dict[str, Any] = field(default_factory=dict)
+    provenance: Any = None  # how the runs are made (lanegraph.run.record.Provenance), in each run.json
     on_trial: Callable[[TrialResult], None] | None = None
 
 
@@ -301,7 +301,7 @@ class Tuner:
         st = self.setup
         done = run_variants(
             requests, st.out_dir, cache=st.cache, runner=st.runner, progress=st.progress, echo=st.echo,
-            record_extra=st.record_extra,
+            provenance=st.provenance,
         )  # fmt: skip
         out = []
         for params, seqs in batch:

@@ -22,12 +22,12 @@ from ..errors import GraphError, UsageError
 from ..graph.files import ResolvedGraph
 from ..paths import inside, safe_name
 from ..plugins import get_plugin_manager
-from ..run.batch import Planned, Planner, clean_leftovers, describe_error, finish_runs
-from ..run.cache import ResultCache, digest
-from ..run.record import read_record
+from ..run.batch import Planned, Planner, run_planned
+from ..run.cache import ResultCache
+from ..run.record import Provenance
 from ..run.results import LANES, find_result
-from ..run.resume import input_identity
 from ..run.runners import InProcessRunner, Runner
+from ..run.task import describe_error
 from .dataset import SequenceSpec
 
 #: the samplers whose proposals do not depend on the scores: one shared set of trials serves every fold
@@ -68,56 +68,51 @@ def run_variants(
     runner: Runner | None,
     progress: bool,
     echo: Callable[[str], None] | None,
-    record_extra: dict[str, Any] | None = None,
+    provenance: Provenance | None = None,
 ) -> dict[tuple[str, str], RunDone]:
     """Run every request (its folder ``OUT/runs/<variant>/<sequence>/``) through the batch
     machinery; ``{(variant, sequence): RunDone}``. A variant whose params the graph refuses is a
     failed run (its error said), not a stopped tune. Ctrl-C ends the finished runs' folders whole
     and is raised again."""
     pm = get_plugin_manager()
-    planner = Planner(pm, None, 0, cache, record_extra)
+    # a run whose folder holds its result for the same graph, input, frames and code is not run again
+    planner = Planner(pm, None, 0, cache, reuse=cache is not None)
     plans: list[tuple[RunRequest, Planned | None]] = []
     done: dict[tuple[str, str], RunDone] = {}
     for req in requests:
         run_dir = inside(out_dir, f"runs/{req.variant}/{safe_name(req.sequence.name)}", "tune --out")
         try:
             graph = ResolvedGraph.load(req.graph, req.sets)
-            g = graph.validate(pm)
+            graph.validate(pm)
         except GraphError as exc:
             done[(req.variant, req.sequence.name)] = RunDone(run_dir, error=str(exc))
             plans.append((req, None))
             continue
-        code = sorted({n.type.code_version for n in g.nodes.values()})
-        run_key = digest(g.resolved_dict(), input_identity(req.sequence.input), str(req.frames), code)
-        stamp = run_dir / "run_key.txt"
-        record = read_record(run_dir) if stamp.is_file() else None
-        if cache is not None and record is not None and stamp.read_text() == run_key and record.timings:
-            plans.append((req, Planned(req.variant, req.sequence.name, run_dir, reused=True)))
-            continue
         plan = planner.add(
-            req.variant, req.sequence.name, graph, req.sequence.input, req.frames, run_dir, run_key
+            req.variant,
+            req.sequence.name,
+            graph,
+            req.sequence.input,
+            req.frames,
+            run_dir,
+            provenance=provenance,
         )
-        clean_leftovers(run_dir)
         plans.append((req, plan))
     every = [p for _, p in plans if p is not None]
-    outcomes: dict[int, Any] = {}
     runner = runner if runner is not None else InProcessRunner(cache)
-    try:
-        runner.run(planner.tasks, progress=progress, echo=echo, done=outcomes)
-    except KeyboardInterrupt:
-        finish_runs(every, outcomes, partial=True)
-        raise
-    finish_runs(every, outcomes)
+    batch = run_planned(every, planner.tasks, runner, progress=progress, echo=echo)
+    if batch.interrupted is not None:
+        raise batch.interrupted
     for req, plan in plans:
         if plan is None:
             continue
-        record = read_record(plan.run_dir)
+        record = plan.record
         error = None
         if plan.outcome is not None and plan.outcome.error is not None:
             error = describe_error(plan.outcome.error)
         elif record is not None and record.error:
             error = record.error
-        lanes = find_result(plan.run_dir, LANES) if error is None else None
+        lanes = find_result(plan.run_dir, LANES, record=record) if error is None else None
         if error is None and lanes is None:
             error = f"{plan.run_dir}: the run wrote no lanes (the graph needs a lanes sink)"
         failed = len(record.failures) if record is not None else 0

@@ -18,7 +18,7 @@ from typing import Any
 
 from ..builtin import find_graph, graphs_dir
 from ..errors import GraphError, Problem
-from ..plugins import PluginManager
+from ..plugins import PluginManager, get_plugin_manager
 from .model import Graph, load_raw
 from .validation import validate_raw
 
@@ -79,9 +79,24 @@ class ResolvedGraph:
         return cls(raw, origin, display, tuple(sets))
 
     def validate(self, pm: PluginManager | None = None) -> Graph:
-        """A fresh :class:`~lanegraph.graph.model.Graph` (the executor replaces a selecting source in
-        place, so every run validates its own copy)."""
-        return validate_raw(copy.deepcopy(self.raw), dict(self.origin), self.display, pm)
+        """The validated :class:`~lanegraph.graph.model.Graph`, once per plugin manager (nothing
+        changes a validated graph: the executor runs a selecting source in a copy of its own); a
+        task sent to a worker validates it there, once."""
+        pm = pm or get_plugin_manager()
+        memo: dict[int, tuple[PluginManager, Graph]] = self.__dict__.setdefault("_validated", {})
+        kept = memo.get(id(pm))
+        if kept is None or kept[0] is not pm:
+            kept = memo[id(pm)] = (
+                pm,
+                validate_raw(copy.deepcopy(self.raw), dict(self.origin), self.display, pm),
+            )
+        return kept[1]
+
+    def __getstate__(self) -> dict[str, Any]:  # a task travels without the validated graph
+        return {k: v for k, v in self.__dict__.items() if k != "_validated"}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
 
 
 def open_graph(name: str | Path, sets: Iterable[str] = ()) -> ResolvedGraph:

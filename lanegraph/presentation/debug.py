@@ -18,6 +18,7 @@ from ..errors import UsageError
 from ..hookspecs import hookimpl
 from ..paths import inside, safe_name, write_bytes_atomic
 from ..plugins import call_hook
+from ..run.task import Subscriber
 from .port_types import render_value
 from .render import mosaic, to_bgr
 
@@ -146,3 +147,29 @@ class DebugRecorder:
     @hookimpl
     def lanegraph_run_end(self) -> None:
         self._flush()
+
+
+class DebugPictures(Subscriber):
+    """``--debug-dir`` for a task (:mod:`lanegraph.run.task`): a :class:`DebugRecorder` into
+    ``folder`` registered while the run runs; the chosen ``frames`` that matched none are said in
+    the run's record. Plain data until the run starts, so it travels with the task to a worker."""
+
+    def __init__(self, folder: Path | str, frames: tuple[str, ...] | None = None):
+        self.folder, self.frames = str(folder), frames
+        self.recorder: DebugRecorder | None = None
+
+    def started(self, task: Any, ex: Any, folder: Path) -> None:
+        chosen = set(self.frames) if self.frames is not None else None
+        self.recorder = DebugRecorder(Path(self.folder), chosen, ex.pm)
+        ex.pm.register(self.recorder)
+
+    def ended(self, task: Any, result: Any) -> None:
+        recorder, self.recorder = self.recorder, None
+        if recorder is None:
+            return
+        recorder.pm.unregister(recorder)
+        missed = sorted(f for f in self.frames or () if f not in recorder.matched)
+        if missed:  # said at the end and in run.json's warnings
+            result.notes.append(
+                f"--debug-frames {', '.join(missed)} matched no frame of the run; nothing recorded for them"
+            )

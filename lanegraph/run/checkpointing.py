@@ -10,6 +10,7 @@ consumed (:meth:`Checkpointer.write`).
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,9 +19,13 @@ from typing import Any
 from ..errors import InputError, LanegraphError, UsageError
 from ..frames import selection_text
 from ..types import PortType
+from .record import read_record
+from .results import LANES, find_result
 from .resume import (
     _HINT,
+    CHECKPOINT_NAME,
     FORMAT,
+    LEGACY_NAME,
     VERSION,
     Checkpoint,
     CheckpointValueError,
@@ -30,6 +35,7 @@ from .resume import (
     feedback_entries,
     feedback_type_problem,
     graph_identity,
+    load_checkpoint,
     resolved_input,
     save_checkpoint,
 )
@@ -188,3 +194,45 @@ class Checkpointer:
             data.update(states={}, feedback=[], unresumable=self.unresumable)
             result.notes.append(f"--resume will not be possible for this run: {self.unresumable}")
             save_checkpoint(self.path, data)
+
+
+def checkpoint_for(out_dir: Path, resume: bool) -> tuple[Checkpoint | None, Path]:
+    """The checkpoint to resume (with ``resume``, when OUT has one; validated) and where the run
+    keeps its own; a checkpoint of an older lanegraph is never read."""
+    checkpoint = out_dir / CHECKPOINT_NAME
+    legacy = out_dir / LEGACY_NAME
+    try:
+        if resume and legacy.is_file() and not checkpoint.is_file():
+            raise UsageError(
+                f"{legacy}: a checkpoint of an older lanegraph (a pickle, which could run code); it is never read; "
+                "cannot resume (start over with --overwrite in place of --resume: it removes only what lanegraph wrote there; or choose another output folder)"
+            )
+        # (a checkpoint.pkl of an older lanegraph is left where it is: never read, never removed by name)
+        if checkpoint.exists() and not checkpoint.is_file():
+            raise UsageError(f"{checkpoint}: exists and is not a file (lanegraph keeps its checkpoint there)")
+        if resume and checkpoint.is_file():
+            return load_checkpoint(checkpoint), checkpoint
+        if not resume:
+            checkpoint.unlink(missing_ok=True)
+    except OSError as exc:
+        raise UsageError(f"{out_dir}: {exc.strerror or exc}") from None
+    return None, checkpoint
+
+
+def resumed_frame_ids(out_dir: Path, ckpt: Checkpoint) -> list[str]:
+    """The ids of the frames an interrupted run consumed before it is resumed (``ckpt.position``
+    of them): its record's when it wrote one that far, else those of its lanes file and its failures."""
+    record = read_record(out_dir)
+    if record is not None and record.selection is not None and len(record.selection.ids) == ckpt.position:
+        return list(record.selection.ids)
+    ids: list[str] = []
+    lanes = find_result(out_dir, LANES)
+    if lanes is not None:
+        try:
+            ids = [
+                str(json.loads(line).get("frame")) for line in lanes.read_text().splitlines() if line.strip()
+            ]
+        except Exception:  # noqa: BLE001 - an unreadable lanes file: the resume itself refuses it
+            ids = []
+    failed = [str(f.frame) for f in ckpt.failures if f.frame is not None]
+    return list(dict.fromkeys([*ids, *failed]))

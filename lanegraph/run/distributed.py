@@ -1,8 +1,8 @@
 """Batch runs on a Dask cluster (``pip install "lanegraph[distributed]"``): ``--scheduler local``,
 ``local:N`` or the address of an existing ``dask scheduler``.
 
-The tasks of :mod:`lanegraph.run.batch` are submitted as they are, one Dask task each, and run by
-:func:`lanegraph.run.batch.execute_task` in the workers: outputs equal the in-process run's byte for
+The tasks of :mod:`lanegraph.run.task` are submitted as they are, one Dask task each, and run by
+:func:`lanegraph.run.task.execute_task` in the workers: outputs equal the in-process run's byte for
 byte. Dask runs a task again on another worker when its worker dies (up to
 ``distributed.scheduler.allowed-failures`` times); a task's folder is put in place only when the
 task ends, so a re-run never duplicates frames. A task that fails because of its input returns its
@@ -18,8 +18,8 @@ the cores. A local cluster also sets ``NUMBA_NUM_THREADS``, ``OMP_NUM_THREADS``,
 Progress: the tasks report frames done as Dask events (topic ``lanegraph-progress-<job>``), at most
 twice a second each, to one progress bar in the client.
 
-Only :func:`lanegraph.run.batch.run_tasks` imports this module, and only with a scheduler: a run
-without one never imports Dask.
+Only :class:`lanegraph.run.runners.DaskRunner` imports this module, and only with a scheduler: a
+run without one never imports Dask.
 """
 
 from __future__ import annotations
@@ -33,7 +33,8 @@ from typing import Any
 
 from ..errors import UsageError
 from ..plugins import get_plugin_manager
-from .batch import Progress, RunTask, SchedulerSpec, TaskOutcome, execute_task
+from .batch import Progress, SchedulerSpec
+from .task import RunTask, TaskOutcome, execute_task
 
 try:
     from distributed import WorkerPlugin as _WorkerPlugin
@@ -309,6 +310,12 @@ class _Cluster:
         if not spec.local:
             echo(f"{len(workers)} Dask worker(s), {total} task(s) at a time")
 
+    def __enter__(self) -> _Cluster:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
     def close(self) -> None:
         if self.client is not None:
             self.client.close(timeout=10)
@@ -318,56 +325,44 @@ class _Cluster:
             self._scratch.cleanup()
             self._scratch = None
 
-    def __enter__(self) -> _Cluster:
-        return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+def connect(spec: SchedulerSpec, echo: Callable[[str], None]) -> _Cluster:
+    """A client on the cluster of ``spec`` (a local one started, or a scheduler reached), its
+    workers checked; ``close()`` it when done (:class:`lanegraph.run.runners.DaskRunner`)."""
+    return _Cluster(spec, echo)
 
 
-def run_tasks(
-    tasks: list[RunTask],
-    spec: SchedulerSpec,
-    progress: bool = True,
-    echo: Callable[[str], None] | None = None,
-    done: dict[int, TaskOutcome] | None = None,
-) -> dict[int, TaskOutcome]:
-    """Run ``tasks`` on the cluster of ``spec``; returns the outcome of every task (a task Dask
-    could not run -- its workers kept dying, or it could not be unpickled -- gets an outcome with
-    the error)."""
-    echo = echo or print
+def submit_all(client: Any, tasks: list[RunTask], bar: Progress, outcomes: dict[int, TaskOutcome]) -> None:
+    """Run ``tasks`` on the cluster of ``client``, putting every task's outcome into ``outcomes`` (a
+    task Dask could not run -- its workers kept dying, or it could not be unpickled -- gets an
+    outcome with the error)."""
     distributed = _import_distributed()
-    with _Cluster(spec, echo) as c:
-        client = c.client
-        topic = f"lanegraph-progress-{uuid.uuid4().hex[:12]}"
-        bar = Progress(tasks, progress)
-        client.subscribe_topic(topic, lambda event: bar.update(*event[1]))
-        outcomes: dict[int, TaskOutcome] = done if done is not None else {}
-        futures = {}
-        try:
-            # with a result cache in the planned order (a variant's runs before the next variant's: the
-            # cache is filled first); without one the longest first, so that no long run is left last
-            order = tasks if any(t.cache_dir for t in tasks) else sorted(tasks, key=lambda t: -(t.total or 0))
-            for task in order:
-                fut = client.submit(
-                    _run_on_worker, task, topic, key=f"lanegraph-{topic[-12:]}-{task.index}", pure=False
-                )
-                futures[fut] = task
-            for fut in distributed.as_completed(list(futures)):
-                task = futures[fut]
-                try:
-                    out = fut.result()
-                except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker: reported, the others go on
-                    out = TaskOutcome(task.index, error={
-                        "variant": task.variant, "sequence": task.sequence, "frame": None, "node": None,
-                        "message": f"the task failed on the cluster: {type(exc).__name__}: {exc}", "input": False,
-                    }, placed=False)  # fmt: skip
-                outcomes[task.index] = out
-                bar.finish(task.index, out.result.frames)
-        finally:
-            client.unsubscribe_topic(topic)
-            for fut in futures:
-                if not fut.done():
-                    fut.cancel()
-            bar.close()
-    return outcomes
+    topic = f"lanegraph-progress-{uuid.uuid4().hex[:12]}"
+    client.subscribe_topic(topic, lambda event: bar.update(*event[1]))
+    futures = {}
+    try:
+        # with a result cache in the planned order (a variant's runs before the next variant's: the
+        # cache is filled first); without one the longest first, so that no long run is left last
+        order = tasks if any(t.cache_dir for t in tasks) else sorted(tasks, key=lambda t: -(t.total or 0))
+        for task in order:
+            fut = client.submit(
+                _run_on_worker, task, topic, key=f"lanegraph-{topic[-12:]}-{task.index}", pure=False
+            )
+            futures[fut] = task
+        for fut in distributed.as_completed(list(futures)):
+            task = futures[fut]
+            try:
+                out = fut.result()
+            except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker: reported, the others go on
+                out = TaskOutcome(task.index, error={
+                    "variant": task.variant, "sequence": task.sequence, "frame": None, "node": None,
+                    "message": f"the task failed on the cluster: {type(exc).__name__}: {exc}", "input": False,
+                    "before_any_frame": False, "stage": "run", "exit_code": 1,
+                })  # fmt: skip
+            outcomes[task.index] = out
+            bar.finish(task.index, out.result.frames)
+    finally:
+        client.unsubscribe_topic(topic)
+        for fut in futures:
+            if not fut.done():
+                fut.cancel()

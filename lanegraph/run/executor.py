@@ -21,6 +21,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -142,16 +143,17 @@ class Executor:
     # -- compile -------------------------------------------------------------
     def _select_source(self) -> None:
         """A source node that stands for others (``select_source``, e.g. ``io.auto``) is replaced
-        by the source type it names for the input path, with that type's default params and the
-        fields of the node's params it shares with them (:func:`~lanegraph.run.sources.chosen_params`:
+        by the source type it names for the input path (in the executor's own copy of the graph), with
+        that type's default params and the fields of the node's params it shares with them (:func:`~lanegraph.run.sources.chosen_params`:
         ``io.auto``'s ``read_ahead``)."""
         src = self.graph.source
         nt = select_source(
             self.pm, src.type, src.params, self.context.input_path, file=self.graph.file, node=src.id
         )
-        if nt is not src.type:
-            src.params = chosen_params(nt, src.params, file=self.graph.file, node=src.id)
-            src.type = nt
+        if nt is not src.type:  # the run's own copy of the graph: the validated one is never changed
+            params = chosen_params(nt, src.params, file=self.graph.file, node=src.id)
+            chosen = dataclasses.replace(src, type=nt, params=params)
+            self.graph = dataclasses.replace(self.graph, nodes={**self.graph.nodes, src.id: chosen})
 
     def _constant_nodes(self) -> set[str]:
         const: set[str] = set()
@@ -592,8 +594,3 @@ class Executor:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-def run_graph(graph: Graph, context: RunContext | None = None, pm: PluginManager | None = None) -> RunResult:
-    """Run a validated graph once (convenience wrapper around :class:`Executor`)."""
-    return Executor(graph, context, pm).run()

@@ -122,12 +122,6 @@ def set_command_line(args: list[str]) -> None:
     _INVOKED = ["lanegraph", *args]
 
 
-def refreshed(fields: dict[str, Any], pm: Any) -> dict[str, Any]:
-    """A record's fields with ``versions`` taken again when it has them: at the end of a run, the
-    libraries it loaded (ONNX Runtime, say) are among them."""
-    return {**fields, "versions": versions(pm)} if "versions" in fields else dict(fields)
-
-
 def command_line(argv: list[str] | None = None) -> list[str]:
     """The command as typed: ``lanegraph`` and its arguments (the program's path shortened)."""
     args = list((_INVOKED or sys.argv) if argv is None else argv)

@@ -3,9 +3,13 @@
 ``run.json`` is a contract: ``ablate`` reuses a run by it, ``eval``, ``report`` and ``results`` find a
 run's files through it, and a person reads it to learn how a folder was made. It is the
 :class:`RunRecord` model, versioned (:data:`RECORD_VERSION`), written by :func:`write_run_files`
-alone and read back by :func:`read_record` alone. A record of an older lanegraph (no ``version``)
-or one written by hand reads with the defaults for what it lacks; fields this version does not know
-are kept (a newer lanegraph's extras).
+alone and read back by :func:`read_record` alone; it is built in one place, :meth:`RunRecord.of`,
+which :mod:`lanegraph.run.task` alone calls (a test asserts it). A record of an older lanegraph (no
+``version``) or one written by hand reads with the defaults for what it lacks; fields this version
+does not know are left out (a misspelt field is never written: the model has no extras).
+
+``command.json`` (an ablation or a dataset run as a whole, beside its runs' ``run.json``) is the
+:class:`CommandRecord` model, written by :func:`write_command_record` alone.
 """
 
 from __future__ import annotations
@@ -28,8 +32,6 @@ TIMINGS_NAME = "timings.json"
 class Stopped(BaseModel):
     """Where and why a run stopped."""
 
-    model_config = ConfigDict(extra="allow")
-
     error: str | None = None
     node: str | None = None
     frame: str | int | None = None
@@ -39,10 +41,21 @@ class Selection(BaseModel):
     """The frames a run selected: the ``--frames`` text (``""``: every frame) and the ids of the
     frames it consumed, done or failed (what ``eval`` and ``report`` score)."""
 
-    model_config = ConfigDict(extra="allow")
-
     frames: str = ""
     ids: list[str] = Field(default_factory=list)
+
+
+class Provenance(BaseModel):
+    """How a result was made (issue 30), as a run's and a command's record say it: the command
+    line, the ``--set`` overrides, the versions of what computed it and the git commit of the
+    graph's checkout (:func:`lanegraph.service.keeping.provenance` fills it)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    command: list[str] = Field(default_factory=list)
+    overrides: list[str] = Field(default_factory=list)
+    versions: dict[str, Any] = Field(default_factory=dict)
+    git: dict[str, str] | None = None
 
 
 class RunRecord(BaseModel):
@@ -53,8 +66,6 @@ class RunRecord(BaseModel):
     the folder (:mod:`lanegraph.run.results`); ``timings``: a copy of ``timings.json`` (what
     ``ablate`` tabulates when it reuses a run); ``before_any_frame``: the run stopped before its
     first frame (an unusable input)."""
-
-    model_config = ConfigDict(extra="allow")
 
     version: int = 0
     graph: str | None = None
@@ -102,22 +113,28 @@ class RunRecord(BaseModel):
         *,
         graph: str | None = None,
         input: str | None = None,
+        sequence: str | None = None,
         stopped: Stopped | None = None,
         timings: dict[str, Any] | None = None,
         before_any_frame: bool = False,
         frames: str | None = None,
-        **extra: Any,
+        frame_ids: list[str] | None = None,
+        provenance: Provenance | None = None,
+        identity: dict[str, Any] | None = None,
+        debug_dir: str | None = None,
+        written: list[str] | None = None,
     ) -> RunRecord:
         """The record of a run's :class:`~lanegraph.run.executor.RunResult` (and where it stopped);
-        ``frames``: the ``--frames`` text of its selection (recorded with the ids of the frames it
-        consumed)."""
+        ``frames``: the ``--frames`` text of its selection, recorded with ``frame_ids`` (default:
+        the ids of the frames the result consumed); ``provenance``: how it was made."""
         status = "stopped" if stopped is not None else ("failed frames" if result.failures else "ok")
-        if "selection" not in extra:
-            extra["selection"] = Selection(frames=frames or "", ids=list(getattr(result, "frame_ids", [])))
+        made = provenance or Provenance()
+        ids = list(frame_ids) if frame_ids is not None else list(getattr(result, "frame_ids", []))
         return cls(
             version=RECORD_VERSION,
             graph=graph,
             input=input,
+            sequence=sequence,
             status=status,
             error=stopped.error if stopped is not None else None,
             frames_ok=result.frames,
@@ -128,7 +145,14 @@ class RunRecord(BaseModel):
             timings=timings if timings is not None else result.timings_json(),
             stopped=stopped,
             before_any_frame=before_any_frame,
-            **extra,
+            command=list(made.command),
+            overrides=list(made.overrides),
+            selection=Selection(frames=frames or "", ids=ids),
+            versions=dict(made.versions),
+            git=made.git,
+            identity=identity,
+            debug_dir=debug_dir,
+            written=list(written or []),
         )
 
     def to_json(self) -> str:
@@ -155,12 +179,13 @@ def write_run_files(folder: Path, record: RunRecord, timings: dict[str, Any] | N
     paths.write_text_atomic(folder / RECORD_NAME, record.to_json())
 
 
-def read_record(folder: Path, *, strict: bool = False) -> RunRecord | None:
-    """The record of run folder ``folder``; None when it has none. A file that is not a record is
-    None too, or with ``strict`` an :class:`~lanegraph.errors.InputError` naming the file."""
+def read_record(folder: Path, *, strict: bool = False, empty: bool = False) -> RunRecord | None:
+    """The record of run folder ``folder``; None when it has none (``empty``: a record with every
+    default instead). A file that is not a record is None too, or with ``strict`` an
+    :class:`~lanegraph.errors.InputError` naming the file."""
     path = Path(folder) / RECORD_NAME
     if not path.is_file():
-        return None
+        return RunRecord() if empty else None
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
@@ -179,3 +204,69 @@ def read_record(folder: Path, *, strict: bool = False) -> RunRecord | None:
             where = ".".join(str(p) for p in first["loc"])
             raise InputError(f"{where}: {first['msg']}", path=str(path)) from None
         return None
+
+
+COMMAND_NAME = "command.json"
+
+
+class VariantEntry(BaseModel):
+    """One variant of an ablation, as its ``command.json`` lists it."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: str
+    graph: str
+    sets: list[str] = Field(default_factory=list)
+
+
+class TuneEntry(BaseModel):
+    """What a tune searched: its graph, its space file and the search's options."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    graph: str
+    space: str
+    options: dict[str, Any] = Field(default_factory=dict)
+
+
+class CommandRecord(BaseModel):
+    """The content of ``command.json``: an ablation or a dataset run as a whole -- its ``kind``, how
+    it was made (the fields of :class:`Provenance`), its variants (an ablation's), its ``identity``
+    (:mod:`lanegraph.run.folder`) and what it wrote in its folder."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    kind: Literal["dataset", "ablation", "tune"]
+    command: list[str] = Field(default_factory=list)
+    overrides: list[str] = Field(default_factory=list)
+    versions: dict[str, Any] = Field(default_factory=dict)
+    git: dict[str, str] | None = None
+    variants: list[VariantEntry] | None = None
+    identity: dict[str, Any] | None = None
+    written: list[str] = Field(default_factory=list)
+    #: a tune's graph, space file and search options (``lanegraph tune``)
+    search: TuneEntry | None = None
+
+    @classmethod
+    def of(
+        cls,
+        kind: Literal["dataset", "ablation", "tune"],
+        provenance: Provenance,
+        identity: dict[str, Any],
+        written: list[str],
+        variants: list[VariantEntry] | None = None,
+        search: TuneEntry | None = None,
+    ) -> CommandRecord:
+        """The one place a command's record is built."""
+        return cls(
+            kind=kind, **provenance.model_dump(), variants=variants, identity=identity, written=written,
+            search=search,
+        )  # fmt: skip
+
+    def to_json(self) -> str:
+        return json.dumps(self.model_dump(mode="json", exclude_none=True), indent=2) + "\n"
+
+
+def write_command_record(folder: Path, record: CommandRecord) -> None:
+    """The one writer of ``OUT/command.json`` (replaced atomically)."""
+    paths.write_text_atomic(Path(folder) / COMMAND_NAME, record.to_json())

@@ -73,12 +73,16 @@ def default_names(kind: str, pm: PluginManager | None = None) -> list[str]:
     return names
 
 
-def find_result(folder: Path, kind: str = LANES, pm: PluginManager | None = None) -> Path | None:
-    """The file of ``kind`` in run folder ``folder``: the one its ``run.json`` records, else the
-    default file of an installed sink type; None when there is none. A recorded path that leads out
-    of the folder is refused (:class:`~lanegraph.errors.UsageError`)."""
+def find_result(
+    folder: Path, kind: str = LANES, pm: PluginManager | None = None, record: Any = None
+) -> Path | None:
+    """The file of ``kind`` in run folder ``folder``: the one its ``run.json`` records (``record``:
+    that record, when the caller has it), else the default file of an installed sink type; None
+    when there is none. A recorded path that leads out of the folder is refused
+    (:class:`~lanegraph.errors.UsageError`)."""
     folder = Path(folder)
-    recorded = recorded_result_files(folder).get(kind)
+    files = record.results if record is not None else recorded_result_files(folder)
+    recorded = files.get(kind)
     if recorded is not None:
         path = inside(folder, recorded, f"{folder / 'run.json'}: results.{kind}")
         return path if path.is_file() else None

@@ -1,10 +1,12 @@
-"""Runners: the engines that execute a batch's units of work (:class:`~lanegraph.run.batch.RunTask`).
+"""Runners: where the tasks of a run or a batch (:class:`~lanegraph.run.task.RunTask`) are executed.
 
-A runner is an object with a ``run(tasks, progress=..., echo=..., done=...)`` method returning the
-:class:`~lanegraph.run.batch.TaskOutcome` of every task (:class:`Runner`); it runs each task with
-:func:`lanegraph.run.batch.execute_task`, wherever that is, so the outputs are the same byte for
-byte on every runner. Runners are an open set, in the manner of Kedro's ``AbstractRunner`` and
-Hamilton's ``TaskExecutor``: a plugin adds one through the ``lanegraph_runners`` hook, returning
+A runner only schedules tasks: it runs each with :func:`lanegraph.run.task.execute_task`, wherever
+that is, so the outputs are the same byte for byte on every runner. Its single entry point is
+``run(tasks, progress=..., echo=..., done=...)`` (Kedro's ``AbstractRunner.run``), returning the
+:class:`~lanegraph.run.task.TaskOutcome` of every task (:class:`Runner`); :class:`BaseRunner`
+gives it the life cycle of Hamilton's ``TaskExecutor``: ``init`` (start or reach what runs the
+tasks), ``execute`` (the tasks), ``finalize`` (let it go, however the run ended). Every run goes
+through a runner: ``lanegraph run`` on one input too. Runners are an open set: a plugin adds one through the ``lanegraph_runners`` hook, returning
 runner *types* -- classes with a ``name`` and a ``from_spec(text)`` class method that returns a
 runner for a ``--scheduler`` text it understands (``None`` otherwise). lanegraph's own two are
 registered through the same hook by :data:`BUILTIN_RUNNERS`:
@@ -25,7 +27,8 @@ from typing import Any, Protocol, runtime_checkable
 from ..errors import UsageError
 from ..hookspecs import hookimpl
 from ..plugins import call_hook
-from .batch import Progress, RunTask, SchedulerSpec, TaskOutcome, execute_task, parse_scheduler
+from .batch import Progress, SchedulerSpec, parse_scheduler
+from .task import RunTask, TaskOutcome, execute_task
 
 
 @runtime_checkable
@@ -47,7 +50,39 @@ class Runner(Protocol):
         ...
 
 
-class InProcessRunner:
+class BaseRunner:
+    """A runner's life cycle around its one entry point, :meth:`run`: :meth:`init`, then
+    :meth:`execute` with one progress bar over the tasks, then :meth:`finalize` however it ended."""
+
+    name = "base"
+
+    def init(self, echo: Callable[[str], None]) -> None:
+        """Start or reach what runs the tasks (a cluster); before the first task."""
+
+    def execute(self, tasks: list[RunTask], bar: Progress, outcomes: dict[int, TaskOutcome]) -> None:
+        """Run ``tasks``, putting each outcome into ``outcomes`` as it ends."""
+        raise NotImplementedError
+
+    def finalize(self) -> None:
+        """Let go of what :meth:`init` started; after the last task, however the tasks ended."""
+
+    def run(self, tasks, progress=True, echo=None, done=None):  # noqa: D102 - Runner.run
+        outcomes = done if done is not None else {}
+        if not tasks:
+            return outcomes
+        self.init(echo or (lambda msg: print(msg, file=sys.stderr)))
+        try:
+            bar = Progress(tasks, progress, tasks[0].label if len(tasks) == 1 else "frames")
+            try:
+                self.execute(tasks, bar, outcomes)
+            finally:
+                bar.close()
+        finally:
+            self.finalize()
+        return outcomes
+
+
+class InProcessRunner(BaseRunner):
     """The tasks one after another in this process (``cache``: the result cache they share)."""
 
     name = "inprocess"
@@ -59,25 +94,15 @@ class InProcessRunner:
     def from_spec(cls, text: str) -> InProcessRunner | None:
         return cls() if text.strip() == cls.name else None
 
-    def run(self, tasks, progress=True, echo=None, done=None):  # noqa: D102 - Runner.run
-        outcomes = done if done is not None else {}
-        if not tasks:
-            return outcomes
-        bar = Progress(tasks, progress)
-        try:
-            for task in tasks:
-                bar.bar.set_description_str(task.label, refresh=False)
-                out = execute_task(
-                    task, cache=self.cache, progress=lambda n, i=task.index: bar.update(i, "", n)
-                )
-                bar.finish(task.index, out.result.frames)
-                outcomes[task.index] = out
-        finally:
-            bar.close()
-        return outcomes
+    def execute(self, tasks, bar, outcomes):  # noqa: D102 - BaseRunner.execute
+        for task in tasks:
+            bar.bar.set_description_str(task.label, refresh=False)
+            out = execute_task(task, cache=self.cache, progress=lambda n, i=task.index: bar.update(i, "", n))
+            bar.finish(task.index, out.result.frames)
+            outcomes[task.index] = out
 
 
-class DaskRunner:
+class DaskRunner(BaseRunner):
     """The tasks on a Dask cluster: ``local``, ``local:N`` or an existing scheduler's address."""
 
     name = "dask"
@@ -85,6 +110,7 @@ class DaskRunner:
 
     def __init__(self, spec: SchedulerSpec):
         self.spec = spec
+        self._cluster: Any = None
 
     @classmethod
     def from_spec(cls, text: str) -> DaskRunner | None:
@@ -96,13 +122,20 @@ class DaskRunner:
         check_spec(spec)  # local:N beyond the CPUs, an unknown scheme: refused before anything runs
         return cls(spec)
 
-    def run(self, tasks, progress=True, echo=None, done=None):  # noqa: D102 - Runner.run
-        if not tasks:
-            return done if done is not None else {}
-        from .distributed import run_tasks
+    def init(self, echo):  # noqa: D102 - BaseRunner.init
+        from .distributed import connect
 
-        echo = echo or (lambda msg: print(msg, file=sys.stderr))
-        return run_tasks(tasks, self.spec, progress=progress, echo=echo, done=done)
+        self._cluster = connect(self.spec, echo)
+
+    def execute(self, tasks, bar, outcomes):  # noqa: D102 - BaseRunner.execute
+        from .distributed import submit_all
+
+        submit_all(self._cluster.client, tasks, bar, outcomes)
+
+    def finalize(self):  # noqa: D102 - BaseRunner.finalize
+        if self._cluster is not None:
+            self._cluster.close()
+            self._cluster = None
 
 
 class _BuiltinRunners:

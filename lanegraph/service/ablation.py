@@ -11,25 +11,21 @@ from typing import Any
 
 from .. import interrupts
 from ..errors import InputError, LanegraphError, NotStarted, RunStopped, UsageError
-from ..evaluation.ablate import Variant, _safe, expand_sweeps, run_ablation
+from ..evaluation.ablate import Variant, _safe, ablation_rows, distinct_folders, expand_sweeps, write_reports
+from ..evaluation.dataset import read_gt
 from ..graph.files import resolve_graph_path
-from ..paths import safe_name
+from ..paths import inside, safe_name
+from ..run.batch import BatchRun
 from ..run.cache import ResultCache
 from ..run.folder import check as check_folder
 from ..run.folder import claim as claim_folder
 from ..run.folder import seal as seal_folder
-from ..run.provenance import versions
+from ..run.provenance import git_commit, versions
 from ..run.runners import InProcessRunner, Runner
 from ..runlog import RunLog, get_logger
-from ..tracking import CommandRecord, existing
-from .keeping import (
-    ABLATION_FILES,
-    ablation_writes,
-    dataset_identity,
-    provenance,
-    tracked_ablation_runs,
-    write_command_record,
-)
+from ..tracking import CommandRecord as TrackedCommand
+from ..tracking import existing
+from .keeping import ABLATION_FILES, ablation_writes, dataset_identity, tracked_ablation_runs
 
 
 def ablation_variants(base: Path, variants: tuple[Path, ...], sweeps: tuple[str, ...]) -> list[Variant]:
@@ -70,63 +66,86 @@ def ablate(
     chunk_frames: int | None,
     warmup: int,
     make_report: bool,
+    resume: bool,
+    debug_dir: Path | None,
+    debug_frames: tuple[str, ...] | None,
 ) -> int:
     """See :meth:`lanegraph.service.Session.ablate`."""
     runner = runner if runner is not None else session.runner(scheduler)
-    graphs = {r.name: session.load_graph(r.graph, tuple(r.sets)) for r in variants}  # all checked first
+    opened = [(r, session.open_graph(r.graph, tuple(r.sets))) for r in variants]
+    for _, graph in opened:
+        graph.validate(session.pm)  # every variant checked before anything runs
     if not (math.isfinite(cache_max_gb) and cache_max_gb > 0):
         raise UsageError(f"--cache-max-gb: expected a size in GiB > 0, got {cache_max_gb}")
     identity = dataset_identity("ablation", [r.name for r in variants], dataset, frames)
     # another ablation's results are refused before anything is written (the folder left as it was)
+    distinct_folders(variants)  # a variant given twice refused; equal folder names told apart
     writes = ablation_writes([_safe(r.name) for r in variants], dataset, make_report)
-    check_folder(out_dir, identity, overwrite=session.overwrite, writes=writes)
+    check_folder(
+        out_dir, identity, overwrite=session.overwrite, writes=writes
+    )  # a variant given twice refused; equal folder names told apart
+    resolved = {r.name: graph for r, graph in opened}
+    graphs = {name: graph.validate(session.pm) for name, graph in resolved.items()}
+    seq_frames = {s.name: s.frames if s.frames is not None else frames for s in dataset}
+    try:  # a malformed ground truth is found before any run: exit 2, like an unusable input
+        gts = {s.name: read_gt(s, seq_frames[s.name]) for s in dataset}
+    except InputError as exc:
+        raise NotStarted(exc) from exc
     t0 = time.perf_counter()
     cache_folder = (cache_dir, "--cache-dir") if cache_dir is not None and not no_cache else (None, "")
     with (
         interrupts.handling(),
-        session.locked(out_dir, "ablate", cache_folder),
+        session.locked(out_dir, "ablate", cache_folder, (debug_dir, "--debug-dir")),
         ablation_kept(session, out_dir, identity, variants, writes),
     ):
         cache = _cache(cache_dir, cache_max_gb, no_cache)
         if isinstance(runner, InProcessRunner):
             runner.cache = cache
+        made = session.provenance(None, [])
+        runs = [
+            BatchRun(
+                var.name, seq.name, resolved[var.name], seq.input, seq_frames[seq.name],
+                inside(out_dir, f"runs/{_safe(var.name)}/{safe_name(seq.name)}", "ablate --out"),
+                made.model_copy(update={"overrides": list(var.sets), "git": git_commit(Path(var.graph))}),
+                debug_dir / _safe(var.name) / safe_name(seq.name) if debug_dir is not None else None,
+            )
+            for var in variants
+            for seq in dataset
+        ]  # fmt: skip
         try:
-            rows = run_ablation(
-                variants, dataset, out_dir, frames, cache, progress=session.progress, runner=runner,
-                chunk_frames=chunk_frames, warmup=warmup, echo=session.err,
-                record_extra={**session.record_extra, **provenance(session.pm, None, [])},
-            )  # fmt: skip
+            batch = session.run_tasks(runs, runner, cache=cache, chunk_frames=chunk_frames, warmup=warmup,
+                                      reuse=cache is not None or resume, debug_frames=debug_frames)  # fmt: skip
         except (InputError, UsageError) as exc:  # unusable before any run: like `run`, exit 2
             raise NotStarted(exc) from exc
-        except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP
-            label, code = interrupts.label_and_code(exc)
-            raise RunStopped(
-                f"interrupted ({label}); the finished runs are in {out_dir}/runs and results.md",
-                exit_code=code,
-            ) from None
         except OSError as exc:
             raise RunStopped(
                 f"{str(exc.filename) + ': ' if exc.filename else ''}{exc.strerror or exc}", exc
             ) from None
+        rows = ablation_rows(variants, batch.plans, gts)
+        if rows or batch.interrupted is None:
+            write_reports(rows, out_dir)  # after Ctrl-C, the variants whose runs all ended
+        if batch.interrupted is not None:
+            raise session.stopped(
+                batch.interrupted, f"the finished runs are in {out_dir}/runs and results.md"
+            )
+    if cache is not None and not isinstance(runner, InProcessRunner):  # the workers' counts, for the summary
+        for plan in batch.plans:
+            if plan.outcome is not None:
+                cache.hits += sum(plan.outcome.result.cache_hits.values())
+                cache.misses += sum(plan.outcome.result.cache_misses.values())
     status = _end(session, rows, out_dir, cache, time.perf_counter() - t0)
-    runs = {
-        (r.name, s.name): out_dir / "runs" / _safe(r.name) / safe_name(s.name)
-        for r in variants
-        for s in dataset
-    }
-    for tracked in tracked_ablation_runs(rows, graphs, runs):
-        session.tracking.log_run(tracked)
+    runs_of = {(p.variant, p.sequence): p for p in batch.plans}
+    tracked = tracked_ablation_runs(
+        rows, graphs, {k: p.run_dir for k, p in runs_of.items()}, {k: p.record for k, p in runs_of.items()}
+    )
+    for run in tracked:
+        session.tracking.log_run(run)
     if status:
         session.tracking.end("failed", existing(out_dir, ABLATION_FILES))
         return status
     if make_report:
         try:  # the base variant's source reads the left images; its graph is drawn
-            session.report(
-                out_dir,
-                dataset=dataset,
-                frames=frames,
-                graph=session.load_graph(variants[0].graph, tuple(variants[0].sets)),
-            )
+            session.report(out_dir, dataset=dataset, frames=frames, graph=graphs[variants[0].name])
         except LanegraphError as exc:  # the ablation's own outputs are written: they stay
             session.tracking.end("failed", existing(out_dir, ABLATION_FILES))
             raise RunStopped(str(exc), exc) from exc
@@ -149,33 +168,28 @@ def ablation_kept(
     ``--overwrite``, cleared of lanegraph's files), ``command.json`` (its identity, command line,
     versions), ``run.log`` and the tracker's command run (ended ``interrupted`` if the block raises)."""
     claim_folder(out_dir, identity, overwrite=session.overwrite, writes=writes)
-    fields = {
-        "kind": "ablation",
-        **provenance(session.pm, variants[0].graph, []),
-        "variants": [{"name": r.name, "graph": str(r.graph), "sets": list(r.sets)} for r in variants],
-        "identity": identity,
-        "written": ["results.csv", "results.md", "accuracy.png", "accuracy_vs_ms.png", "runs"],
-    }
+    made = session.provenance(variants[0].graph, [])
+    written = ["results.csv", "results.md", "accuracy.png", "accuracy_vs_ms.png", "runs"]
     # the tracker first: one that cannot start (MLflow missing) leaves no record to block a retry
     session.tracking.start(
-        CommandRecord("ablate", f"ablate -> {out_dir}", out_dir, list(fields["command"]),
-                      {"variants": " ".join(r.name for r in variants), "frames": identity["frames"] or "all"})
+        TrackedCommand("ablate", f"ablate -> {out_dir}", out_dir, list(made.command),
+                       {"variants": " ".join(r.name for r in variants), "frames": identity["frames"] or "all"})
     )  # fmt: skip
     out_dir.mkdir(parents=True, exist_ok=True)
-    write_command_record(out_dir, fields)
+    session.keep_command(out_dir, "ablation", made, identity, written, variants)
     seal_folder(out_dir, final=False)  # a killed ablation's files are known as lanegraph's
     try:
         with RunLog(out_dir, verbose=session.verbose > 0):
             get_logger("run").info(
-                "ablation into %s: %s", out_dir, " ".join(fields["command"]), extra={"file_only": True}
+                "ablation into %s: %s", out_dir, " ".join(made.command), extra={"file_only": True}
             )
             yield
     except BaseException:
         session.tracking.end("interrupted")
         seal_folder(out_dir)
         raise
-    fields["versions"] = versions(session.pm)
-    write_command_record(out_dir, fields)
+    made = made.model_copy(update={"versions": versions(session.pm)})  # the libraries the runs loaded
+    session.keep_command(out_dir, "ablation", made, identity, written, variants)
     seal_folder(out_dir)
 
 

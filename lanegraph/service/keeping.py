@@ -6,7 +6,6 @@ log (``run.log``, :mod:`lanegraph.runlog`) and its experiment tracking (:mod:`la
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -100,14 +99,6 @@ def ablation_writes(variant_folders: Sequence[str], dataset: Any, make_report: b
     return writes
 
 
-def write_command_record(out_dir: Path, fields: Mapping[str, Any]) -> None:
-    """``OUT/command.json``: the record of an ablation or a dataset run as a whole (its identity,
-    command line, versions, what it wrote), beside the runs' own ``run.json``."""
-    from ..paths import write_text_atomic
-
-    write_text_atomic(Path(out_dir) / "command.json", json.dumps(dict(fields), indent=2, default=str) + "\n")
-
-
 def relative_inside(path: Path | None, folder: Path) -> str | None:
     """``path`` relative to ``folder`` when it lies inside it (what ``--overwrite`` may remove)."""
     if path is None:
@@ -118,87 +109,38 @@ def relative_inside(path: Path | None, folder: Path) -> str | None:
         return None
 
 
-def row_of_run(
-    name: str,
-    sequence: str,
-    timings: Mapping[str, Any],
-    evaluation: Mapping[str, Any] | None,
-    error: str | None,
-    failed_frames: int,
-) -> dict[str, Any]:
-    """A results row (as ``lanegraph ablate`` tabulates them) of one run: its figures against the
-    ground truth when there is one, its times per node."""
-    nodes = timings.get("nodes") or {}
-    row: dict[str, Any] = {
-        "variant": name,
-        "sequence": sequence,
-        "error": error,
-        "failed_frames": failed_frames,
-        "frames_run": timings.get("frames", 0),
-        "ms_per_frame": round(sum(v.get("median_ms") or 0.0 for v in nodes.values()), 2) if nodes else None,
-        "stage_ms": {nid: v.get("median_ms") for nid, v in nodes.items()},
-    }
-    if evaluation is not None:
-        row.update(
-            {
-                k: evaluation.get(k)
-                for k in (
-                    "frames",
-                    "frames_not_run",
-                    "detection_ratio",
-                    "precision",
-                    "ego_recall",
-                    "mean_abs_dx_px",
-                )
-            }
-        )
-    return row
-
-
-def evaluate_run(out_dir: Path, input_path: Path | None, frame_ids: Sequence[str]) -> dict[str, Any] | None:
-    """The run's figures against the ground truth of its input folder (``lanes_gt.jsonl``), over the
-    frames it selected; None without one (or without lanes)."""
-    if input_path is None or not (Path(input_path) / GT_NAME).is_file():
-        return None
-    lanes = find_result(out_dir, LANES)
-    if lanes is None:
-        return None
-    return evaluate(
-        read_predictions(lanes), read_ground_truth(Path(input_path) / GT_NAME), frames=list(frame_ids)
-    )
-
-
-def tracked_single_run(
-    g: Any,
-    out_dir: Path,
-    input_path: Path | None,
-    sets: Sequence[str],
-    record: Any,
-    timings: Mapping[str, Any],
+def tracked_run(
+    g: Any, run_dir: Path, sequence: str, gt: Path | None, sets: Sequence[str], record: Any
 ) -> TrackedRun:
-    """The tracked run of ``lanegraph run`` (its record written): params, figures, files."""
-    ids = list(record.selection.ids) if record.selection is not None else []
-    try:
-        ev = evaluate_run(out_dir, input_path, ids)
-    except Exception:  # noqa: BLE001 - a ground truth that does not read: tracked without figures
-        ev = None
-    sequence = Path(input_path).name if input_path is not None else "synthetic"
-    row = row_of_run(g.name, sequence, timings, ev, record.error, len(record.failures))
-    return tracked_row(
-        row,
-        flatten_params(g.resolved_dict()),
-        out_dir,
-        list(record.results.values()),
-        tags={"lanegraph.graph": str(g.file), "lanegraph.sets": " ".join(sets)},
-    )
+    """The tracked run of ``lanegraph run`` or of one sequence of ``run --dataset`` (its record
+    written): params, figures against the ground truth ``gt`` over the frames it selected, files."""
+    from ..evaluation.ablate import row_of_run  # the ablation tables load only when a run is tracked
+
+    timings = (record.timings if record is not None else None) or {}
+    ev = None
+    lanes = find_result(run_dir, LANES, record=record) if record is not None and gt is not None else None
+    if lanes is not None and Path(gt).is_file():
+        try:
+            ids = list(record.selection.ids) if record.selection is not None else []
+            ev = evaluate(read_predictions(lanes), read_ground_truth(Path(gt)), frames=ids)
+        except Exception:  # noqa: BLE001 - a ground truth that does not read: tracked without figures
+            ev = None
+    error = record.error if record is not None else "no record"
+    row = row_of_run(g.name, sequence, timings, ev, error, len(record.failures) if record is not None else 0)
+    results = list(record.results.values()) if record is not None else []
+    tags = {"lanegraph.graph": str(g.file), "lanegraph.sets": " ".join(sets)}
+    return tracked_row(row, flatten_params(g.resolved_dict()), run_dir, results, tags)
 
 
 def tracked_ablation_runs(
-    rows: Sequence[Mapping[str, Any]], graphs: Mapping[str, Any], run_dirs: Mapping[tuple[str, str], Path]
+    rows: Sequence[Mapping[str, Any]],
+    graphs: Mapping[str, Any],
+    run_dirs: Mapping[tuple[str, str], Path],
+    records: Mapping[tuple[str, str], Any],
 ) -> list[TrackedRun]:
     """The tracked runs of an ablation: one per variant and sequence, and per variant pooled over
     several sequences (``sequence`` ``all``). ``graphs``: each variant's validated graph;
-    ``run_dirs``: each run's folder."""
+    ``run_dirs``: each run's folder; ``records``: each run's record (in memory)."""
     sequences = {r["sequence"] for r in rows if r.get("sequence") != "all"}
     out = []
     for row in rows:
@@ -206,37 +148,9 @@ def tracked_ablation_runs(
             continue  # one sequence: the pooled row repeats it
         g = graphs.get(str(row.get("variant")))
         params = flatten_params(g.resolved_dict()) if g is not None else {}
-        run_dir = run_dirs.get((str(row.get("variant")), str(row.get("sequence"))))
-        results = []
-        if run_dir is not None:
-            from ..run.record import read_record
-
-            rec = read_record(run_dir)
-            results = list(rec.results.values()) if rec is not None else []
+        key = (str(row.get("variant")), str(row.get("sequence")))
+        run_dir, rec = run_dirs.get(key), records.get(key)
+        results = list(rec.results.values()) if rec is not None else []
         tags = {"lanegraph.graph": str(row.get("graph") or ""), "lanegraph.sets": str(row.get("sets") or "")}
         out.append(tracked_row(row, params, run_dir, results, tags))
     return out
-
-
-def tracked_dataset_run(g: Any, run_dir: Path, seq: Any, sets: Sequence[str]) -> TrackedRun:
-    """The tracked run of one sequence of ``lanegraph run --dataset`` (its folder written)."""
-    from ..run.record import read_record
-
-    record = read_record(run_dir)
-    timings = (record.timings if record is not None else None) or {}
-    ev = None
-    if record is not None and seq.gt is not None and record.selection is not None:
-        lanes = find_result(run_dir, LANES)
-        if lanes is not None:
-            try:
-                ev = evaluate(
-                    read_predictions(lanes), read_ground_truth(seq.gt), frames=list(record.selection.ids)
-                )
-            except Exception:  # noqa: BLE001 - a ground truth that does not read: tracked without figures
-                ev = None
-    error = record.error if record is not None else "no record"
-    failures = len(record.failures) if record is not None else 0
-    row = row_of_run(g.name, seq.name, timings, ev, error, failures)
-    results = list(record.results.values()) if record is not None else []
-    tags = {"lanegraph.graph": str(g.file), "lanegraph.sets": " ".join(sets)}
-    return tracked_row(row, flatten_params(g.resolved_dict()), run_dir, results, tags)

@@ -1,63 +1,47 @@
 """The run service: the one path by which a command runs graphs.
 
-A :class:`Session` (in the manner of Kedro's ``KedroSession.run(runner=...)``) loads a graph
-(:func:`lanegraph.graph.files.open_graph`), locks the output folder, opens the nodes, runs the
-frames, checkpoints and writes the record (:mod:`lanegraph.run.record`, its one writer).
-``lanegraph run``, ``run --dataset``, ``ablate`` and ``report`` call it; what executes a batch's
-units of work is a runner object (:mod:`lanegraph.run.runners`), chosen by ``--scheduler``.
+A :class:`Session` (Kedro's ``KedroSession.run(runner=...)``) loads a graph, checks and locks the
+output folder, and runs every command alike: **plan** (each run a task,
+:class:`~lanegraph.run.batch.Planner`) -> **runner** (:mod:`lanegraph.run.runners`, ``--scheduler``)
+-> **finish** (what the command says and keeps). ``lanegraph run`` on one input is one run written
+in place into OUT (checkpointed: ``--resume``); ``run --dataset`` and ``ablate`` are batches of runs
+into folders of their own (:meth:`Session.run_tasks`, the public batch entry point). An option a
+command cannot honour is refused in one place (:data:`REFUSED`).
 
-It says what it does through ``out`` (results: stdout) and ``err`` (progress, warnings, errors:
-stderr). Failures are raised once, as typed errors (:class:`~lanegraph.errors.LanegraphError` and
-its kinds, :class:`~lanegraph.errors.NotStarted`, :class:`~lanegraph.errors.RunStopped`), each with
-its exit code; what ran returns its status (0, or 1 when frames or runs failed). The command line
-maps errors to exit codes in one place (:mod:`lanegraph.cli._errors`).
-
-Extension points kept here for every command alike: :attr:`Session.record_extra` (fields every
-``run.json`` of the session gets: the command line, overrides, versions), :meth:`Session.locked`
-(the output folder's lock), and the interruption of a run by Ctrl-C, SIGTERM or SIGHUP
-(:class:`~lanegraph.errors.RunStopped` with exit code 130, 143 or 129 after the record of what was
-done is written; :mod:`lanegraph.interrupts`).
+It says what it does through ``out`` (stdout) and ``err`` (stderr). Failures are raised once, as
+typed errors (:class:`~lanegraph.errors.NotStarted`, :class:`~lanegraph.errors.RunStopped`, ...),
+each with its exit code (mapped in :mod:`lanegraph.cli._errors`); what ran returns its status.
+Ctrl-C, SIGTERM or SIGHUP keep what ended (a run in place: its record and checkpoint) and raise
+:class:`~lanegraph.errors.RunStopped` with exit code 130, 143 or 129.
 """
 
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable, Iterator
-from contextlib import ExitStack, contextmanager
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 from .. import interrupts
-from ..errors import HookError, InputError, LanegraphError, NotStarted, RunStopped, UsageError
+from ..errors import InputError, LanegraphError, NotStarted, RunStopped, UsageError
 from ..frames import selection_text
 from ..graph.files import ResolvedGraph, load_graph_named, open_graph
 from ..graph.model import Graph
-from ..nodes import RunContext
 from ..paths import OutputLock, prepare_dir
 from ..plugins import PluginManager, get_plugin_manager
-from ..run.checkpointing import Checkpointer
-from ..run.executor import Executor, RunResult
 from ..run.folder import check as check_folder
 from ..run.folder import claim as claim_folder
 from ..run.folder import seal as seal_folder
-from ..run.provenance import command_line, versions, write_resolved_graph
-from ..run.record import RunRecord, read_record, stopped_by, write_run_files
-from ..runlog import RunLog, get_logger, progress_bar
-from ..tracking import CommandRecord, Tracking
-from .keeping import (
-    dataset_identity,
-    dataset_writes,
-    provenance,
-    relative_inside,
-    run_writes,
-    single_identity,
-    tracked_dataset_run,
-    tracked_single_run,
-    write_command_record,
-)
-from .single import checkpoint_for, resumed_frame_ids
+from ..run.provenance import command_line
+from ..run.record import CommandRecord, Provenance, VariantEntry, write_command_record
+from ..runlog import RunLog
+from ..tracking import CommandRecord as TrackedCommand
+from ..tracking import Tracking
+from .keeping import GT_NAME, provenance, run_writes, single_identity, tracked_run
 
-if TYPE_CHECKING:  # the batch modules load only for a batch: `lanegraph run` on one input keeps its start-up
+if TYPE_CHECKING:  # the batch modules load only for a run: `lanegraph run --help` keeps its start-up
+    from ..run.batch import Batch, BatchRun, Planned
     from ..run.runners import Runner
 
 
@@ -69,9 +53,31 @@ def _stderr(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
+#: why an option cannot be given to a command (option, command) -> reason: the one place it is said
+REFUSED = {
+    ("--resume", "chunks"): "--resume continues a run after its checkpoint; a run in chunks (--chunk-frames) "
+    "keeps none: give one or the other",
+    (
+        "--input",
+        "dataset",
+    ): "--input is for a run on one input; --dataset names the inputs (give one or the other)",
+    (
+        "--calib",
+        "dataset",
+    ): "--calib is for a run on one input; --dataset names the inputs (give one or the other)",
+    ("--report", "dataset"): "--report is for a run on one input or an ablation; report on a dataset run's "
+    "sequences with `lanegraph report OUT --dataset FILE`",
+}
+
+
+def refuse(option: str, where: str) -> None:
+    """Raise the :class:`UsageError` that says why ``option`` cannot go with ``where``."""
+    raise UsageError(REFUSED[(option, where)])
+
+
 class Session:
     """Runs graphs for one command: ``session.run(graph, ...)``, ``session.run_dataset(...)``,
-    ``session.ablate(...)``, ``session.report(...)``."""
+    ``session.ablate(...)``, ``session.report(...)``, and any batch: ``session.run_tasks(...)``."""
 
     def __init__(
         self,
@@ -80,7 +86,6 @@ class Session:
         out: Callable[[str], None] | None = None,
         err: Callable[[str], None] | None = None,
         progress: bool = True,
-        record_extra: dict[str, Any] | None = None,
         overwrite: bool = False,
         tracking: Tracking | None = None,
         verbose: int = 0,
@@ -89,21 +94,12 @@ class Session:
         self.out = out or _stdout
         self.err = err or _stderr
         self.progress = progress
-        #: fields every run.json this session writes gets besides the run's own
-        self.record_extra: dict[str, Any] = dict(record_extra or {})
         #: ``--overwrite``: a folder holding another run's results is cleared of lanegraph's files
         self.overwrite = overwrite
         #: ``--track``: the experiment tracker the runs are sent to (none: nothing is tracked)
         self.tracking = tracking if tracking is not None else Tracking(None)
         #: ``-v``: run.log records the details too
         self.verbose = verbose
-        self._run_extra: dict[str, Any] = {}
-        self._resumed_ids: list[str] = []
-        self._frames: slice | None = None
-        self._ex: Executor | None = None
-        #: what a run does once its input is open (before that, nothing is written into OUT)
-        self._on_open: Callable[[], None] | None = None
-        self._stack = ExitStack()
 
     # -- graphs, folders, runners ------------------------------------------------
     def warn_plugins(self) -> None:
@@ -126,6 +122,26 @@ class Session:
 
         return select_runner(scheduler, self.pm, cache)
 
+    def provenance(self, graph_file: str | Path | None, sets: Sequence[str] = ()) -> Provenance:
+        """How the runs of this command are made (:func:`lanegraph.service.keeping.provenance`)."""
+        return Provenance(**provenance(self.pm, graph_file, sets))
+
+    def keep_command(
+        self,
+        out_dir: Path,
+        kind: Literal["dataset", "ablation", "tune"],
+        made: Provenance,
+        identity: dict[str, Any],
+        written: list[str],
+        variants: list[Any] | None = None,
+        search: Any = None,
+    ) -> None:
+        """``OUT/command.json`` of a batch command: the one place its record is built."""
+        entries = None
+        if variants is not None:
+            entries = [VariantEntry(name=v.name, graph=str(v.graph), sets=list(v.sets)) for v in variants]
+        write_command_record(out_dir, CommandRecord.of(kind, made, identity, written, entries, search))
+
     @contextmanager
     def locked(self, out_dir: Path, command: str, *also: tuple[Path | None, str]) -> Iterator[OutputLock]:
         """``out_dir`` (and the other folders ``also``: ``(folder, option)``) checked and created,
@@ -140,6 +156,47 @@ class Session:
         finally:
             lock.release()
 
+    def stopped(self, exc: BaseException, where: str) -> RunStopped:
+        """The :class:`RunStopped` of an interruption (Ctrl-C, SIGTERM, SIGHUP); ``where``: what was kept."""
+        label, code = interrupts.label_and_code(exc)
+        return RunStopped(f"interrupted ({label}); {where}", exit_code=code)
+
+    # -- every batch -------------------------------------------------------------------
+    def run_tasks(
+        self,
+        runs: Sequence[BatchRun],
+        runner: Runner | None = None,
+        *,
+        cache: Any = None,
+        chunk_frames: int | None = None,
+        warmup: int = 0,
+        reuse: bool = False,
+        debug_frames: tuple[str, ...] | None = None,
+    ) -> Batch:
+        """Run ``runs`` (each a graph on a sequence into a folder of its own) on ``runner`` (default:
+        in this process, sharing ``cache``): planned (frames counted, chunks of ``chunk_frames`` after
+        ``warmup`` frames; with ``reuse`` a run whose folder holds its result already is not run
+        again), run, finished. Returns the :class:`~lanegraph.run.batch.Batch`: every run's plan
+        with its ``outcome`` and ``record`` (in memory: nothing is read back), and ``interrupted``
+        when Ctrl-C stopped it (the runs that ended are kept). A run's failure is in its outcome;
+        what is wrong before anything runs is raised (:class:`UsageError`, ...)."""
+        from ..run.batch import Planner, run_planned
+        from ..run.runners import InProcessRunner
+
+        runner = runner if runner is not None else InProcessRunner(cache)
+        planner = Planner(self.pm, chunk_frames, warmup, cache, reuse=reuse, verbose=self.verbose > 0)
+        plans = []
+        for r in runs:
+            if r.run_dir.exists() and not r.run_dir.is_dir():
+                raise UsageError(f"{r.run_dir}: expected a folder for sequence {r.sequence!r}, found a file")
+            plans.append(
+                planner.add(r.variant, r.sequence, r.graph, r.input, r.frames, r.run_dir, provenance=r.provenance,
+                            debug_dir=r.debug_dir, subscribers=_debug_pictures(r.debug_dir, debug_frames))
+            )  # fmt: skip
+        for w in planner.warnings:  # said before anything runs (and in each run.json)
+            self.err(f"warning: {w}")
+        return run_planned(plans, planner.tasks, runner, progress=self.progress, echo=self.err)
+
     # -- lanegraph run ---------------------------------------------------------------
     def run(
         self,
@@ -152,20 +209,24 @@ class Session:
         debug_dir: Path | None = None,
         debug_frames: str | None = None,
         make_report: bool = False,
+        runner: Runner | None = None,
+        chunk_frames: int | None = None,
+        warmup: int = 0,
     ) -> int:
         """``lanegraph run``: the graph on one input into ``out_dir``; 0, or 1 when frames failed.
         Raises :class:`NotStarted` for an input, checkpoint or folder unusable before any frame,
         :class:`RunStopped` when the run stopped (its record written), a :class:`GraphError`."""
+        from ..run.batch import Planner, run_planned
+        from ..run.checkpointing import checkpoint_for
+        from ..run.runners import InProcessRunner
+
         g = graph.validate(self.pm)
         if input_path is not None and not input_path.exists():
             raise UsageError(f"--input {input_path}: no such file or folder")
-        chosen = None
-        if debug_frames is not None:
-            chosen = {item.strip() for item in debug_frames.split(",") if item.strip()}
-            if not chosen:
-                raise UsageError(
-                    f"--debug-frames {debug_frames!r}: expected frame ids or indices, comma-separated"
-                )
+        if resume and chunk_frames is not None:
+            refuse("--resume", "chunks")
+        chosen = _debug_frames(debug_frames)
+        runner = runner if runner is not None else InProcessRunner()
         resolved = g.resolved_dict()
         identity = single_identity(resolved, input_path, frames)
         # another run's results are refused before anything is written (the folder left as it was)
@@ -173,44 +234,46 @@ class Session:
         check_folder(
             out_dir, identity, resume=resume, overwrite=self.overwrite, resolved=resolved, writes=writes
         )
-        sets = list(getattr(graph, "sets", ()) or ())
-        self._run_extra = {
-            **provenance(self.pm, g.file, sets),
-            "identity": identity,
-            "debug_dir": relative_inside(debug_dir, out_dir),
-        }
-        tracked = "interrupted"
-
-        def opened() -> None:  # the input and nodes opened: the run will start; nothing written before
-            try:
-                self.tracking.start(
-                    CommandRecord("run", f"run {g.name} -> {out_dir}", out_dir, command_line(),
-                                  {"graph": str(g.file), "input": str(input_path or "synthetic"),
-                                   "frames": selection_text(frames) or "all"})
-                )  # fmt: skip
-            except UsageError as exc:  # a tracker that cannot start: exit 2 before any frame
-                raise NotStarted(exc) from exc
-            write_resolved_graph(out_dir, resolved)
-            self._stack.enter_context(RunLog(out_dir, append=resume, verbose=self.verbose > 0, pm=self.pm))
-            get_logger("run").info(
-                "run of %s on %s into %s: %s", g.file, input_path or "the synthetic scene", out_dir,
-                " ".join(command_line()), extra={"file_only": True},
-            )  # fmt: skip
-            seal_folder(out_dir, final=False)  # a killed run's files are known as lanegraph's
-
-        self._on_open = opened
+        sets = list(graph.sets)
+        planner = Planner(self.pm, chunk_frames, warmup, verbose=self.verbose > 0)
         # Ctrl-C, SIGTERM and SIGHUP stop the run alike: its record says so, --resume continues
-        with interrupts.handling(), self.locked(out_dir, "run", (debug_dir, "--debug-dir")), self._stack:
+        with interrupts.handling(), self.locked(out_dir, "run", (debug_dir, "--debug-dir")):
             claim_folder(
                 out_dir, identity, resume=resume, overwrite=self.overwrite, resolved=resolved, writes=writes
             )
-            self._stack.callback(seal_folder, out_dir)  # what it wrote, once run.log is closed
             try:
-                status = self._run_locked(g, input_path, out_dir, frames, resume, debug_dir, chosen)
-                tracked = "ok" if status == 0 else "failed"
-            finally:
-                if tracked == "interrupted":
+                ckpt = checkpoint_for(out_dir, resume)[0]  # without --resume: an old one removed
+                plan = planner.add(
+                    None, g.name, graph, input_path, frames, out_dir, provenance=self.provenance(g.file, sets),
+                    in_place=True, resume=resume, identity=identity, debug_dir=debug_dir,
+                    subscribers=_debug_pictures(debug_dir, chosen),
+                )  # fmt: skip
+            except LanegraphError as exc:  # an unusable checkpoint or input: nothing was written
+                raise NotStarted(exc) from exc
+            if plan.outcome is not None:  # the input cannot be opened
+                raise NotStarted(plan.outcome.exception or LanegraphError(plan.outcome.error["message"]))
+            if ckpt is not None and not ckpt.complete:
+                self.err(
+                    f"resuming after frame {ckpt.last_frame} ({ckpt.position} frame(s) of the selection already done)"
+                )
+            self._track_start(TrackedCommand("run", f"run {g.name} -> {out_dir}", out_dir, command_line(),
+                                             {"graph": str(g.file), "input": str(input_path or "synthetic"),
+                                              "frames": selection_text(frames) or "all"}))  # fmt: skip
+            try:
+                batch = run_planned([plan], planner.tasks, runner, progress=self.progress, echo=self.err)
+                if batch.interrupted is not None:
                     self.tracking.end("interrupted")
+                    raise self.stopped(batch.interrupted, "continue with --resume")
+                out = plan.outcome
+                said = (
+                    out is not None
+                    and out.complete is None
+                    and (out.error is None or not out.error["before_any_frame"])
+                )
+                with RunLog(out_dir, append=True, verbose=self.verbose > 0) if said else nullcontext():
+                    status = self._say_run(plan, out_dir)  # said into run.log too
+            finally:
+                seal_folder(out_dir)  # what it wrote, once run.log is closed
         if make_report and status is not None:
             dbg = (
                 debug_dir if debug_dir is not None and debug_dir.is_dir() else None
@@ -222,180 +285,46 @@ class Session:
                 raise RunStopped(f"report: {exc}", exc) from exc
             finally:
                 seal_folder(out_dir)
-        self._track_single(g, out_dir, input_path, sets, tracked)
+        if self.tracking.started:
+            if plan.record is not None:
+                gt = input_path / GT_NAME if input_path is not None else None
+                name = input_path.name if input_path is not None else "synthetic"
+                self.tracking.log_run(tracked_run(g, out_dir, name, gt, sets, plan.record))
+            self.tracking.end("ok" if status == 0 else "failed", [])
         status = 1 if status is None else status
         return status if self.tracking.ok else max(status, 1)
 
-    def _track_single(
-        self, g: Graph, out_dir: Path, input_path: Path | None, sets: list[str], status: str
-    ) -> None:
-        """Send the run (its record written) to the tracker, with its report."""
-        if not self.tracking.started:
-            return
-        record = read_record(out_dir)
-        if record is not None:
-            timings = record.timings or {}
-            self.tracking.log_run(tracked_single_run(g, out_dir, input_path, sets, record, timings))
-        self.tracking.end(status, [])
-
-    def _run_locked(
-        self,
-        g: Graph,
-        input_path: Path | None,
-        out_dir: Path,
-        selection: slice | None,
-        resume: bool,
-        debug_dir: Path | None,
-        debug_frames: set[str] | None,
-    ) -> int | None:
-        """The run once OUT is locked: its status, or None when its record could not be written."""
-        ckpt, checkpoint = checkpoint_for(out_dir, resume)
-        self._resumed_ids = resumed_frame_ids(out_dir, ckpt) if ckpt is not None else []
-        ctx = RunContext(
-            input_path=input_path,
-            out_dir=out_dir,
-            frames=selection,
-            graph_file=g.file,
-            extra={"resume": ckpt is not None},
-            skip=ckpt.position if ckpt is not None else 0,
-        )
+    def _track_start(self, command: TrackedCommand) -> None:
         try:
-            # the checkpoint piece: checked against the graph, input and frames before anything opens
-            keeper = Checkpointer(g, ctx, checkpoint, ckpt, port_types=self.pm.port_types)
-            ex = Executor(g, ctx, self.pm, checkpointer=keeper)
-        except LanegraphError as exc:
+            self.tracking.start(command)
+        except UsageError as exc:  # a tracker that cannot start: exit 2 before any frame
             raise NotStarted(exc) from exc
-        self._ex, self._frames = ex, selection
-        if ckpt is not None:
-            if ckpt.complete:
-                return self._nothing_to_resume(ex, ckpt, out_dir)
+
+    def _say_run(self, plan: Planned, out_dir: Path) -> int | None:
+        """What the run on one input did: 0, 1 (frames failed) or None (its record could not be
+        written); raises :class:`NotStarted` or :class:`RunStopped` when it did not end."""
+        out = plan.outcome
+        assert out is not None
+        if out.complete is not None:  # --resume of a complete run: its input and outputs checked, nothing ran
+            ck = out.complete
             self.err(
-                f"resuming after frame {ckpt.last_frame} ({ckpt.position} frame(s) of the selection already done)"
+                f"nothing to resume: the run in {out_dir} is complete ({ck.frames_ok} frame(s) done, "
+                f"{len(ck.failures)} failed); its outputs are left as they are"
             )
-        recorder = None
-        if debug_dir is not None:
-            from ..presentation.debug import DebugRecorder
-
-            recorder = DebugRecorder(debug_dir, debug_frames, self.pm)
-            self.pm.register(recorder)
-        try:
-            result = self._execute(ex, g, out_dir, input_path)
-        finally:
-            if recorder is not None:
-                self.pm.unregister(recorder)
-        return self._say_run(ex, result, g, out_dir, input_path, recorder, debug_frames)
-
-    def _nothing_to_resume(self, ex: Executor, ckpt: Any, out_dir: Path) -> int:
-        """``--resume`` of a complete run: its input and outputs are checked, nothing runs."""
-        try:  # the input and the outputs must still be those of the checkpoint
-            with ex:
-                pass
-        except LanegraphError as exc:
-            raise NotStarted(exc) from exc
-        self.err(
-            f"nothing to resume: the run in {out_dir} is complete ({ckpt.frames_ok} frame(s) done, "
-            f"{len(ckpt.failures)} failed); its outputs are left as they are"
-        )
-        return 1 if ckpt.failures else 0
-
-    def _execute(self, ex: Executor, g: Graph, out_dir: Path, input_path: Path | None) -> RunResult:
-        """Open and run the executor with a progress bar; when it stops, its partial record is
-        written (``run.json`` says what it did and why it stopped) and :class:`RunStopped` raised."""
-        bar = None
-        try:
-            try:
-                ex.open()
-            except (InputError, UsageError) as exc:  # unusable input found before any frame ran
-                raise NotStarted(exc) from exc
-            if self._on_open is not None:
-                self._on_open()
-            bar = progress_bar(len(ex) or None, g.name, enabled=self.progress)
-
-            log = get_logger("run")
-
-            def tick(index: int, frame: str | None) -> None:
-                bar.update(1)
-                bar.set_postfix_str(str(frame))
-                log.debug("frame %s (#%d) done", frame, index)  # -v: on the terminal and in run.log
-
-            return ex.run(on_frame=tick)
-        except NotStarted:
-            raise
-        except (LanegraphError, KeyboardInterrupt, OSError) as exc:
-            if bar is not None:
-                bar.close()
-            if isinstance(exc, KeyboardInterrupt):  # Ctrl-C, SIGTERM, SIGHUP (lanegraph.interrupts)
-                label, code = interrupts.label_and_code(exc)
-                err: LanegraphError = LanegraphError(f"interrupted ({label}); continue with --resume")
-            elif isinstance(exc, OSError):
-                err = LanegraphError(
-                    f"{str(exc.filename) + ': ' if exc.filename else ''}{exc.strerror or exc}"
-                )
-                code = 1
-            elif isinstance(exc, HookError) and isinstance(exc.cause, UsageError):
-                err, code = exc.cause, 2  # a usage error (--debug-dir) found by a hook: exit 2, its words
-            else:
-                err, code = exc, exc.exit_code
-            if ex.result is not None:  # the run started: record what it did and why it stopped
-                self._write_record(out_dir, g, input_path, ex.result, stopped=err)
-            raise RunStopped(str(err), exc, code) from None
-        finally:
-            ex.close()
-            if bar is not None:
-                bar.close()
-
-    def _write_record(
-        self,
-        out_dir: Path,
-        g: Graph,
-        input_path: Path | None,
-        result: RunResult,
-        stopped: BaseException | None = None,
-    ) -> bool:
-        """``timings.json`` and ``run.json``; False (and the reason on stderr) when they cannot be
-        written (a full disk)."""
-        extra = {**self.record_extra, **self._run_extra}
-        if "versions" in extra:  # at the end: the libraries the run loaded (ONNX Runtime ...)
-            extra["versions"] = versions(self.pm)
-        record = RunRecord.of(
-            result,
-            graph=g.file,
-            input=str(input_path) if input_path else None,
-            stopped=stopped_by(stopped) if stopped is not None else None,
-            frames=selection_text(self._frames),
-            **extra,
-        )
-        if record.selection is not None and self._resumed_ids:
-            record.selection.ids = [*self._resumed_ids, *record.selection.ids]
-        outputs = self._ex.outputs() if self._ex is not None else []
-        record.written = sorted({relative_inside(Path(p), out_dir) for p in outputs} - {None})
-        try:
-            write_run_files(out_dir, record, result.timings_json())
-        except OSError as exc:
-            self.err(f"error: cannot write {out_dir}/run.json and timings.json: {exc.strerror or exc}")
-            return False
-        return True
-
-    def _say_run(
-        self,
-        ex: Executor,
-        result: RunResult,
-        g: Graph,
-        out_dir: Path,
-        input_path: Path | None,
-        recorder: Any,
-        debug_frames: set[str] | None,
-    ) -> int | None:
-        """Write the run's record and say what it did: 0, 1 (frames failed) or None (its record
-        could not be written)."""
+            return 1 if ck.failures else 0
+        if out.unwritten is not None:
+            self.err(f"error: {out.unwritten}")
+        if out.error is not None:
+            exc, error = out.exception, out.error
+            if error["stage"] == "build" or (
+                error["stage"] == "open" and (exc is None or isinstance(exc, (InputError, UsageError)))
+            ):
+                self.tracking.end("interrupted")
+                raise NotStarted(exc if isinstance(exc, LanegraphError) else LanegraphError(error["message"]))
+            self.tracking.end("interrupted")
+            raise RunStopped(error["message"], exc, error["exit_code"]) from None
+        result = out.result
         status = 0
-        if recorder is not None and debug_frames is not None:
-            missed = sorted(f for f in debug_frames if f not in recorder.matched)
-            if missed:  # said at the end and in run.json's warnings
-                result.notes.append(
-                    f"--debug-frames {', '.join(missed)} matched no frame of the run; nothing recorded for them"
-                )
-        written = self._write_record(out_dir, g, input_path, result)
         if result.failures:
             self.err(f"{len(result.failures)} frame(s) failed:")
             for f in result.failures:
@@ -403,12 +332,11 @@ class Session:
             status = 1
         for w in result.warnings():
             self.err(f"warning: {w}")
-        if not written:
+        if out.unwritten is not None:
             return None
-        outputs = [str(p) for p in ex.outputs()]
         total = result.timings_json().get("total", {})
         self.out(
-            f"{result.frames} frame(s) processed -> {', '.join([*outputs, str(out_dir / 'timings.json')])}"
+            f"{result.frames} frame(s) processed -> {', '.join([*out.outputs, str(out_dir / 'timings.json')])}"
             + (f" (median {total['median_ms']:.1f} ms/frame)" if total else "")
         )
         return status
@@ -424,106 +352,19 @@ class Session:
         runner: Runner | None = None,
         chunk_frames: int | None = None,
         warmup: int = 0,
+        resume: bool = False,
+        debug_dir: Path | None = None,
+        debug_frames: str | None = None,
     ) -> int:
         """``lanegraph run GRAPH --dataset FILE``: the graph on every sequence, into
         ``OUT/<sequence>/``; 0, 1 when a frame failed or a sequence stopped, 2 when no sequence
-        could start. Errors found before anything runs are raised (exit 2)."""
-        from ..run.batch import describe_error
-        from ..run.runners import InProcessRunner
+        could start. Errors found before anything runs are raised (exit 2). ``resume``: a sequence
+        whose folder holds its finished run already is not run again."""
+        from .batches import run_dataset
 
-        runner = runner if runner is not None else InProcessRunner()
-        g = graph.validate(self.pm)  # a GraphError before anything runs
-        identity = dataset_identity("dataset", [g.name], dataset, frames)
-        writes = dataset_writes(dataset)
-        check_folder(out_dir, identity, overwrite=self.overwrite, writes=writes)
-        sets = list(graph.sets)
-        self.record_extra = {**self.record_extra, **provenance(self.pm, g.file, sets)}
-        try:
-            with interrupts.handling(), self.locked(out_dir, "run"), self._stack:
-                claim_folder(out_dir, identity, overwrite=self.overwrite, writes=writes)
-                self._stack.callback(seal_folder, out_dir)
-                fields = {"kind": "dataset", **self.record_extra, "identity": identity,
-                          "written": [s.name for s in dataset]}  # fmt: skip
-                self.tracking.start(
-                    CommandRecord("run", f"run {g.name} --dataset -> {out_dir}", out_dir, list(fields["command"]),
-                                  {"graph": str(g.file), "frames": identity["frames"] or "all"})
-                )  # fmt: skip
-                write_command_record(out_dir, fields)
-                seal_folder(out_dir, final=False)
-                try:
-                    with RunLog(out_dir, verbose=self.verbose > 0):
-                        summary = self._run_dataset(
-                            graph, dataset, out_dir, frames, runner, chunk_frames, warmup
-                        )
-                except BaseException:
-                    self.tracking.end("interrupted")
-                    raise
-        except LanegraphError as exc:  # a usage error, an unusable input found before any frame ran
-            if exc.exit_code == 2:
-                raise
-            raise NotStarted(exc) from exc
-        status = 0
-        for s in summary:
-            files = [str(out_dir / s["sequence"] / f) for f in s.get("results", {}).values()]
-            line = f"{s['sequence']}: {s['frames']} frame(s) -> {', '.join(files) or out_dir / s['sequence']}"
-            if s["error"] is not None and s["error"].get("before_any_frame"):
-                line = f"{s['sequence']}: not run (see {out_dir / s['sequence']}/run.json)"
-            if s["failures"]:
-                line += f", {len(s['failures'])} frame(s) failed"
-                status = 1
-            self.out(line)
-            for f in s["failures"]:
-                self.err(f"  frame {f.frame} (#{f.index}): node '{f.node_id}' ({f.node_type}): {f.error}")
-            if s["error"] is not None:
-                self.err(f"error: {describe_error(s['error'])}")
-                status = 1
-        if summary and all(s["error"] is not None and s["error"].get("before_any_frame") for s in summary):
-            status = 2  # nothing ran at all: the inputs are unusable
-        if self.tracking.started:
-            for seq in dataset:
-                self.tracking.log_run(tracked_dataset_run(g, out_dir / seq.name, seq, sets))
-            self.tracking.end("failed" if status else "ok", [])
-        return status if self.tracking.ok else max(status, 1)
-
-    def _run_dataset(
-        self, graph, dataset, out_dir, frames, runner, chunk_frames, warmup
-    ) -> list[dict[str, Any]]:
-        """One summary per sequence: ``sequence``, ``frames``, ``failures`` (failed frames),
-        ``error`` (what stopped the run, or ``None``), ``results`` (the sinks' result files)."""
-        from ..run.batch import Planner, clean_leftovers, finish_runs
-
-        graph.validate(self.pm)  # a GraphError before anything runs
-        planner = Planner(self.pm, chunk_frames, warmup, record_extra=self.record_extra)
-        plans = []
-        for seq in dataset:
-            sel = seq.frames if seq.frames is not None else frames
-            run_dir = out_dir / seq.name
-            if run_dir.exists() and not run_dir.is_dir():
-                raise UsageError(f"{run_dir}: expected a folder for sequence {seq.name!r}, found a file")
-            plans.append(planner.add(None, seq.name, graph, seq.input, sel, run_dir))
-        out_dir.mkdir(parents=True, exist_ok=True)
-        for plan in plans:
-            clean_leftovers(plan.run_dir)
-        for w in planner.warnings:  # said before anything runs (and in each run.json)
-            self.err(f"warning: {w}")
-        outcomes = runner.run(planner.tasks, progress=self.progress, echo=self.err)
-        finish_runs(plans, outcomes)
-        summary = []
-        for plan in plans:
-            out = plan.outcome
-            assert out is not None
-            results = out.result.results if out.error is None or not out.error.get("before_any_frame") else {}
-            summary.append(
-                {
-                    "sequence": plan.sequence,
-                    "frames": out.result.frames,
-                    "failures": out.result.failures,
-                    "error": out.error,
-                    "wall_s": out.wall_s,
-                    "results": results,
-                }
-            )
-        return summary
+        return run_dataset(self, graph, dataset, out_dir, frames=frames, runner=runner,
+                           chunk_frames=chunk_frames, warmup=warmup, resume=resume,
+                           debug_dir=debug_dir, debug_frames=_debug_frames(debug_frames))  # fmt: skip
 
     # -- lanegraph ablate ------------------------------------------------------------
     def ablate(
@@ -541,15 +382,20 @@ class Session:
         chunk_frames: int | None = None,
         warmup: int = 0,
         make_report: bool = False,
+        resume: bool = False,
+        debug_dir: Path | None = None,
+        debug_frames: str | None = None,
     ) -> int:
         """``lanegraph ablate``: every variant on every sequence, evaluated and tabulated; 0, 1 when
         runs or frames failed, 2 when no run could start. ``runner`` (default: the one of
-        ``scheduler``) executes the runs."""
+        ``scheduler``) executes the runs; ``resume``: the runs an earlier ablation finished in OUT
+        are reused even with ``no_cache``."""
         from .ablation import ablate
 
         return ablate(self, variants, dataset, out_dir, frames=frames, cache_dir=cache_dir,
                       cache_max_gb=cache_max_gb, no_cache=no_cache, scheduler=scheduler, runner=runner,
-                      chunk_frames=chunk_frames, warmup=warmup, make_report=make_report)  # fmt: skip
+                      chunk_frames=chunk_frames, warmup=warmup, make_report=make_report, resume=resume,
+                      debug_dir=debug_dir, debug_frames=_debug_frames(debug_frames))  # fmt: skip
 
     # -- lanegraph report -------------------------------------------------------------
     def report(
@@ -575,3 +421,25 @@ class Session:
         )
         self.out(summary.line())
         return summary
+
+
+def _debug_pictures(folder: Path | None, frames: tuple[str, ...] | None) -> tuple[Any, ...]:
+    """What ``--debug-dir`` adds to a run's events (:class:`lanegraph.presentation.debug.DebugPictures`)."""
+    if folder is None:
+        return ()
+    from ..presentation.debug import DebugPictures
+
+    return (DebugPictures(folder, frames),)
+
+
+def _debug_frames(text: str | None) -> tuple[str, ...] | None:
+    """``--debug-frames``: frame ids or indices, comma-separated (None: every frame)."""
+    if text is None:
+        return None
+    chosen = tuple(dict.fromkeys(item.strip() for item in text.split(",") if item.strip()))
+    if not chosen:
+        raise UsageError(f"--debug-frames {text!r}: expected frame ids or indices, comma-separated")
+    return chosen
+
+
+__all__ = ["Session", "refuse"]

@@ -26,11 +26,12 @@ from ..run.cache import ResultCache
 from ..run.folder import check as check_folder
 from ..run.folder import claim as claim_folder
 from ..run.folder import seal as seal_folder
-from ..run.provenance import versions, write_resolved_graph
+from ..run.provenance import write_resolved_graph
+from ..run.record import TuneEntry
 from ..run.runners import InProcessRunner
 from ..runlog import RunLog, get_logger
 from ..tracking import CommandRecord, TrackedRun, existing
-from .keeping import dataset_identity, provenance, write_command_record
+from .keeping import dataset_identity
 
 #: what a tune writes into OUT (what --overwrite may remove, with runs/ and the report)
 WRITTEN = [*TUNE_FILES, JOURNAL, f"{JOURNAL}.lock", "runs", "report", "command.json", "run.log"]
@@ -96,7 +97,7 @@ def tune(
     setup = TuneSetup(
         out_dir, o.trials, o.sampler, o.pruner, o.seed, o.frames, o.grid_points, None, runner,
         progress=session.progress, echo=session.err,
-        record_extra={**session.record_extra, **provenance(session.pm, None, [])},
+        provenance=session.provenance(None),
         on_trial=lambda t: session.tracking.log_run(_tracked_trial(t)),
     )  # fmt: skip
     try:  # reads every ground truth: a missing or malformed one is found before anything is written
@@ -219,34 +220,29 @@ def tune_kept(
     claimed (``--overwrite`` clears lanegraph's files only), ``command.json``, ``run.log`` and the
     tracker's command run."""
     claim_folder(out_dir, identity, overwrite=session.overwrite, writes=WRITES)
-    fields = {
-        "kind": "tune",
-        **provenance(session.pm, graph_path, []),
-        "graph": str(graph_path),
-        "space": str(space_file),
-        "options": {"trials": o.trials, "sampler": o.sampler, "pruner": o.pruner, "seed": o.seed},
-        "identity": identity,
-        "written": WRITTEN,
-    }
+    made = session.provenance(graph_path)
+    search = TuneEntry(
+        graph=str(graph_path), space=str(space_file),
+        options={"trials": o.trials, "sampler": o.sampler, "pruner": o.pruner, "seed": o.seed},
+    )  # fmt: skip
     # the tracker first: one that cannot start (MLflow missing) leaves no record to block a retry
     session.tracking.start(
-        CommandRecord("tune", f"tune -> {out_dir}", out_dir, list(fields["command"]),
+        CommandRecord("tune", f"tune -> {out_dir}", out_dir, list(made.command),
                       {"graph": str(graph_path), "space": str(space_file), "sampler": o.sampler,
                        "trials": str(o.trials)})
     )  # fmt: skip
     out_dir.mkdir(parents=True, exist_ok=True)
-    write_command_record(out_dir, fields)
+    session.keep_command(out_dir, "tune", made, identity, WRITTEN, search=search)
     seal_folder(out_dir, final=False)  # a killed tune's files are known as lanegraph's
     try:
         with RunLog(out_dir, verbose=session.verbose > 0, append=True):
             get_logger("run").info(
-                "tune into %s: %s", out_dir, " ".join(fields["command"]), extra={"file_only": True}
+                "tune into %s: %s", out_dir, " ".join(made.command), extra={"file_only": True}
             )
             yield
     except BaseException:
         session.tracking.end("interrupted")
         seal_folder(out_dir)
         raise
-    fields["versions"] = versions(session.pm)
-    write_command_record(out_dir, fields)
+    session.keep_command(out_dir, "tune", made, identity, WRITTEN, search=search)
     seal_folder(out_dir)

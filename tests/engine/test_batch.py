@@ -15,7 +15,8 @@ from click.testing import CliRunner
 
 from lanegraph.cli import main
 from lanegraph.errors import UsageError
-from lanegraph.run.batch import chunk_selections, clean_leftovers, parse_scheduler, place_dir
+from lanegraph.run.batch import chunk_selections, clean_leftovers, parse_scheduler
+from lanegraph.run.task import place_dir
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = str(ROOT / "graphs" / "paper.yaml")
@@ -214,10 +215,12 @@ def test_a_failed_run_is_reported_and_the_others_finish(tmp_path, synthetic_data
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["run", "paper", "--scheduler", "local:2"], "--scheduler runs the sequences of a --dataset"),
-        (["run", "paper", "--chunk-frames", "3"], "--chunk-frames runs the sequences of a --dataset"),
+        (["run", "paper", "--resume", "--chunk-frames", "3"], "a run in chunks (--chunk-frames) keeps none"),
+        (
+            ["run", "paper", "--scheduler", "local:0"],
+            "expected local:N with N a number of worker processes >= 1",
+        ),
         (["run", "paper", "--dataset", "{ds}", "--input", "x"], "--input is for a run on one input"),
-        (["run", "paper", "--dataset", "{ds}", "--resume"], "--resume is for a run on one input"),
         (
             ["run", "paper", "--dataset", "{ds}", "--scheduler", "local:0"],
             "expected local:N with N a number of worker processes >= 1",

@@ -306,12 +306,15 @@ def test_a_selecting_source_is_replaced_by_the_source_it_names(tmp_path, pm):
     d["nodes"]["src"] = {"type": "toy.pick"}
     g = load(tmp_path, pm, d)
     ex = Executor(g, RunContext(), pm)
-    assert g.source.type.name == "toy.count" and g.source.params.n == 3  # the chosen type's defaults
+    assert (
+        ex.graph.source.type.name == "toy.count" and ex.graph.source.params.n == 3
+    )  # the chosen type's defaults
     assert ex.identity["resolved"]["nodes"]["src"]["type"] == "toy.pick"  # what the user's graph says
+    assert g.source.type.name == "toy.pick"  # the graph it was given is left as it is
     d["nodes"].pop("k")
     g = load(tmp_path, pm, d)
-    Executor(g, RunContext(input_path=tmp_path / "flaky"), pm)
-    assert g.source.type.name == "toy.flaky"
+    ex = Executor(g, RunContext(input_path=tmp_path / "flaky"), pm)
+    assert ex.graph.source.type.name == "toy.flaky"
     with pytest.raises(GraphError) as info:
         Executor(load(tmp_path, pm, d), RunContext(input_path=tmp_path / "other"), pm)
     assert (

@@ -13,8 +13,8 @@ from lanegraph import hookimpl
 from lanegraph.cli import main
 from lanegraph.errors import UsageError
 from lanegraph.plugins import PluginManager, get_plugin_manager
-from lanegraph.run.batch import execute_task
 from lanegraph.run.runners import DaskRunner, InProcessRunner, Runner, runner_types, select_runner
+from lanegraph.run.task import execute_task
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = str(ROOT / "graphs" / "paper.yaml")

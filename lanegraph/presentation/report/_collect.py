@@ -80,7 +80,7 @@ def read_run(folder: Path, lanes: Path) -> RunFiles:
     """A run's lanes (the file ``lanes``, required), ``timings.json`` and ``run.json`` (optional)."""
     records = read_jsonl(lanes)
     failures: dict[str, str] = {}
-    run = read_record(folder, strict=True) or RunRecord()
+    run = read_record(folder, strict=True, empty=True)
     for f in run.failures:
         if f.get("frame") is not None:
             failures[str(f["frame"])] = f"node '{f.get('node')}' ({f.get('type')}): {f.get('error')}"
@@ -188,7 +188,7 @@ def collect(
 
 def _collect_run(run_dir, gt, dataset, input_path, frames, sets, graph, pm) -> Collected:
     notes: list[str] = []
-    run_json = read_record(run_dir, strict=True) or RunRecord()
+    run_json = read_record(run_dir, strict=True, empty=True)
     if graph is None:
         graph = load_recorded_graph(run_json, run_dir, sets, pm, notes)
     variant = graph.name if graph is not None else Path(str(run_json.graph or "run")).stem
