@@ -524,7 +524,9 @@ def verify(
                 )
                 if rough > params.max_dark_side_texture:
                     continue
-                if _stepped(params, ln, geometry, disparity, road, calib):
+                if cues.side_ratio < params.step_side_ratio and _stepped(
+                    params, ln, geometry, disparity, road, calib
+                ):
                     continue  # smooth, but not level with the other side: a kerb and its gutter
             extra["paint"] = {
                 "contrast": round(cues.contrast, 3),

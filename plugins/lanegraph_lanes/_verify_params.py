@@ -78,10 +78,18 @@ class VerifyParams(NodeParams):
         0.06,
         gt=0.0,
         le=2.0,
-        description="paint check, with the disparity, the road and the calibration wired: a much darker side "
-        "(min_side_ratio) must also be level with the other: the road's median height above the fitted road plane "
-        "0.3-0.8 m left and right of the lane may differ by at most this (a kerb is a step of 10-15 cm and the gutter "
-        "beside it dark; a shadow cast on the road is level), metres; null: not checked",
+        description="paint check, with the disparity, the road and the calibration wired: a side darker than "
+        "step_side_ratio of the other must also be level with it: the road's median height above the fitted road "
+        "plane 0.3-0.8 m left and right of the lane may differ by at most this (a kerb is a step of 10-15 cm and the "
+        "gutter beside it dark; a shadow cast on the road is level), metres; null: not checked",
+    )
+    step_side_ratio: float = Field(
+        0.45,
+        ge=0.0,
+        le=1.0,
+        description="paint check: the flatness rule (max_dark_side_step_m) asks a side darker than this fraction "
+        "of the other: a kerb's gutter in the kerb's own shade measures 0.23-0.38, the shadow of a car parked half a "
+        "metre from a line 0.57-0.71 (the car's body raises that side as a kerb does) (unitless)",
     )
     max_dark_side_texture: float = Field(
         11.0,

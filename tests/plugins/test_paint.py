@@ -54,14 +54,25 @@ def test_lane_heights_measure_a_kerb_step_and_a_flat_road():
 
 
 def test_verify_drops_a_darker_side_that_is_not_level_with_the_road():
-    """Paint with a smooth, much darker side (a shadow cast along it) is kept; the same picture with
-    that side 12 cm above the road (a kerb's gutter and the kerb) is not, when the disparity is
-    wired; without it, or with the rule off, it is kept."""
-    img, lane, g = _paint_scene("shadow")
+    """Paint with a smooth, very dark side (a shadow cast along it) is kept; the same picture with
+    that side 12 cm above the road (a kerb's gutter in its shade, and the kerb) is not, when the
+    disparity is wired; without it, or with the rule off, it is kept. A side only somewhat darker
+    (a parked car's shadow, 0.55 of the road: above step_side_ratio) is not asked."""
+    img, lane, g = _paint_scene("shadow")  # the right side at 55 against a road at 100
     cal = _calib(*img.shape)
+    raised = _disparity(*img.shape, raised_from=108)
+    assert (
+        len(
+            verify(
+                VerifyParams(), lanes=[lane], image=img, geometry=g, disparity=raised, road=ROAD, calib=cal
+            )["lanes"]
+        )
+        == 1
+    )
+    img = img.copy()
+    img[:, 103:] = (img[:, 103:].astype(np.float64) * 0.6).astype(img.dtype)  # 33: a kerb's gutter
     p = VerifyParams()
     flat = _disparity(*img.shape)
-    raised = _disparity(*img.shape, raised_from=108)
     assert len(verify(p, lanes=[lane], image=img, geometry=g)["lanes"]) == 1
     assert (
         len(verify(p, lanes=[lane], image=img, geometry=g, disparity=flat, road=ROAD, calib=cal)["lanes"])
