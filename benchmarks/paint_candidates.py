@@ -31,7 +31,7 @@ model trained on every group as the JSON that ``lanes.verify_learned`` reads (no
 ``--fold-models DIR`` writes each fold's model as ``DIR/<group>.json`` (for frame-level left-out
 runs). ``--corpus`` keeps (or with ``--reuse`` reads back) the candidate table as CSV.
 
-scikit-learn is needed by this script only (``pip install scikit-learn``); the node reads the
+scikit-learn is needed by this script only (``pip install "lanegraph[paint-model]"``); the node reads the
 weights with NumPy.
 """
 
