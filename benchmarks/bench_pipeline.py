@@ -2,6 +2,10 @@
 
     python benchmarks/bench_pipeline.py [GRAPH ...] [--input DRIVE] [--frames 0:54] [--cold-start]
 
+``--input`` is any input a source reads: a KITTI drive (PNG pairs) or a bag of raw frames, e.g. the
+same frames recorded as they are (``python -m lanegraph_io.recordings drive.mcap --from DRIVE
+--frames 54``): reading raw frames against decoding PNGs, in the same sitting.
+
 For each graph prints, over the selected frames (after one warm-up frame; each figure from the
 best of ``--repeat`` runs, default 3: the machines are shared and the best run is the least
 disturbed one):
@@ -88,11 +92,7 @@ def plain_sgbm_ms(graph, drive: Path, sel: slice, calls: int) -> tuple[float, st
     keys = ("num_disparities", "min_disparity", "block_size", "uniqueness_ratio", "mode", "p1", "p2")
     keys += ("speckle_window_size", "speckle_range", "disp12_max_diff", "prefilter_cap")
     params = SgbmParams(**{k: values[k] for k in keys if k in values})
-    lefts = sorted((drive / "image_02" / "data").glob("*.png"))[sel][:calls]
-    pairs = []
-    for lp in lefts:
-        rp = lp.parents[2] / "image_03" / "data" / lp.name
-        pairs.append(tuple(cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2GRAY) for p in (lp, rp)))
+    pairs = grey_pairs(drive, sel, calls)
     matcher = _sgbm_matcher(params, params.num_disparities, params.min_disparity)
     matcher.compute(*pairs[0])  # warm-up
     times = []
@@ -105,6 +105,31 @@ def plain_sgbm_ms(graph, drive: Path, sel: slice, calls: int) -> tuple[float, st
         f"mode {params.mode}"
     )
     return float(np.median(times)), what
+
+
+def grey_pairs(path: Path, sel: slice, calls: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The first ``calls`` grey pairs of the selection, as the source that reads ``path`` gives them
+    (a KITTI drive's PNGs, a bag's raw frames)."""
+    from lanegraph.plugins import get_plugin_manager
+    from lanegraph.run.sources import close_source, detect_source, open_source
+
+    nt = detect_source(get_plugin_manager(), path)
+    src = open_source(nt, nt.params(), path, frames=sel)
+    pairs = []
+    try:
+        for item in src:
+            if isinstance(item, dict):
+                pairs.append(
+                    tuple(
+                        g if g.ndim == 2 else cv2.cvtColor(g, cv2.COLOR_BGR2GRAY)
+                        for g in (item["left"], item["right"])
+                    )
+                )
+            if len(pairs) == calls:
+                break
+    finally:
+        close_source(src)
+    return pairs
 
 
 #: the kind of a thread that is not Python's (OpenCV's and numba's workers)
@@ -364,7 +389,9 @@ def cold_start(graph_path: str, drive: Path) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("graphs", nargs="*", default=[str(ROOT / "graphs/paper.yaml")])
-    ap.add_argument("--input", type=Path, default=DRIVE)
+    ap.add_argument(
+        "--input", type=Path, default=DRIVE, help="a KITTI drive (default: drive 0001), a bag, a video ..."
+    )
     ap.add_argument("--frames", default="0:54")
     ap.add_argument("--cold-start", action="store_true")
     ap.add_argument(
@@ -380,8 +407,8 @@ def main() -> None:
         "--repeat", type=int, default=3, help="runs per figure; the best one is reported (default 3)"
     )
     a = ap.parse_args()
-    if not a.input.is_dir():
-        sys.exit(f"input folder not found: {a.input}")
+    if not a.input.exists():
+        sys.exit(f"input not found: {a.input}")
     for gp in a.graphs:
         bench(gp, a.input, a.frames, a.repeat, a.sgbm_calls, a.read_ahead)
         if a.cold_start:

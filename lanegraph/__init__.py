@@ -3,7 +3,11 @@
 What a plugin author needs is importable from here: :func:`node_type` (a node stays a plain
 function), :class:`NodeParams`, :class:`Port` and :class:`PortType`, :data:`hookimpl`, the value
 types of :mod:`lanegraph.types`, the errors, and :func:`jit` / :data:`prange` for numba kernels with
-the project's flags (imported on first use: ``import lanegraph`` does not load numba).
+the project's flags (imported on first use: ``import lanegraph`` does not load numba). Beside it, a
+plugin imports only the core's public modules: :mod:`lanegraph.lifecycle` (what a node class
+declares), :mod:`lanegraph.storage` (how its port types store their values),
+:mod:`lanegraph.threads` (CPUs and thread pools), :mod:`lanegraph.paths`, :mod:`lanegraph.frames`,
+:mod:`lanegraph.testing` in its tests (``tests/engine/test_layout.py`` checks it).
 """
 
 from __future__ import annotations

@@ -22,6 +22,7 @@ EXIT_CODES = {"SIGINT": 130, "SIGTERM": 143, "SIGHUP": 129}
 _NAMES = {"SIGINT": "Ctrl-C", "SIGTERM": "SIGTERM", "SIGHUP": "SIGHUP"}
 
 _depth = 0  # how many handling() blocks are open (nested ones leave the handlers alone)
+_signalled: str | None = None  # the signal that stopped the command (while handling() is open)
 
 
 class Interrupted(KeyboardInterrupt):
@@ -42,7 +43,15 @@ class Interrupted(KeyboardInterrupt):
 
 
 def _raise(signum: int, frame: object) -> None:
-    raise Interrupted(signal.Signals(signum).name)
+    global _signalled
+    _signalled = signal.Signals(signum).name
+    raise Interrupted(_signalled)
+
+
+def signalled() -> str | None:
+    """The signal that is stopping the command (``SIGTERM``...), or None: work that would make it
+    wait (a node computed ahead on a thread) is then abandoned, not waited for."""
+    return _signalled
 
 
 def label_and_code(exc: BaseException) -> tuple[str, int]:
@@ -71,12 +80,13 @@ def handling(names: tuple[str, ...] = ("SIGINT", "SIGTERM", "SIGHUP")) -> Iterat
     """Within the block, the signals ``names`` raise :class:`Interrupted` in the main thread; the
     handlers before it are put back after it. Outside the main thread, or nested, it changes
     nothing."""
-    global _depth
+    global _depth, _signalled
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     saved = {}
     if _depth == 0:
+        _signalled = None
         for name in names:
             sig = getattr(signal, name, None)
             if sig is None:  # pragma: no cover - not a POSIX system

@@ -29,7 +29,11 @@ on a thread, while the current frame's later nodes run (:mod:`lanegraph.run.exec
 function must not keep anything between calls (no buffer it hands out and reuses: two frames'
 outputs are alive at once) and must be safe to call from another thread.
 
-Capabilities a node class may declare (static methods, called before anything is instantiated):
+What a node class implements beyond ``__init__`` / ``__call__`` / ``__iter__`` it declares:
+``@node_type(..., implements=("close", "resume"))``, or by subclassing the classes of
+:mod:`lanegraph.lifecycle` (which lists every capability). Registration checks that the class
+defines what it declares; the engine reads :attr:`NodeType.capabilities` and never looks for a
+method itself. Two capabilities are static methods, called before anything is instantiated:
 
 ``select_source(params, input_path, detect) -> str``
     a source that stands for others (``io.auto``): the name of the source node type that reads
@@ -47,12 +51,21 @@ import functools
 import inspect
 import re
 import typing
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
 from pydantic import BaseModel, ConfigDict, ValidationInfo, field_validator
+
+from .lifecycle import (
+    SINK_ONLY,
+    SOURCE_ONLY,
+    contract_problems,
+    declared_by_bases,
+    undeclared_capabilities,
+    unknown_capabilities,
+)
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -154,6 +167,9 @@ class NodeType:
     sink: bool = False
     #: may run for the next frame beside this frame's later nodes (see the module's text)
     ahead: bool = False
+    #: the capabilities its class declares (``implements=``), besides those of its
+    #: :mod:`lanegraph.lifecycle` base classes; see :attr:`capabilities`
+    implements: frozenset[str] = frozenset()
     plugin: str = ""  # filled in by the registry: the distribution / module providing it
 
     def __post_init__(self) -> None:
@@ -172,6 +188,33 @@ class NodeType:
             raise ValueError(f"{self.name}: ahead=True is for stateless nodes that are not sinks")
         if not self.doc:
             self.doc = inspect.cleandoc(self.func.__doc__ or "")
+        self.implements = frozenset(self.implements)
+        problems = unknown_capabilities(sorted(self.implements))
+        if problems:
+            raise ValueError(f"{self.name}: implements: {'; '.join(problems)}")
+        if self.implements and not inspect.isclass(self.func):
+            raise ValueError(f"{self.name}: implements= is declared by a node class, not a function")
+        declared = self.implements | (
+            declared_by_bases(self.func) if inspect.isclass(self.func) else frozenset()
+        )
+        #: what the class defines without declaring it (lanegraph before 0.2 looked for these):
+        #: still used, with a DeprecationWarning at registration
+        self.undeclared: frozenset[str] = undeclared_capabilities(self.func, declared)
+        #: everything the engine may call beyond the life cycle: declared (or, deprecated, undeclared)
+        self.capabilities: frozenset[str] = declared | self.undeclared
+
+    def contract_problems(self) -> list[str]:
+        """What this node type declares and its class does not define, or a capability that is
+        not its kind's (a sink's ``result_files`` on a source ...), one line each; checked at
+        registration (:class:`lanegraph.plugins.PluginManager`)."""
+        declared = self.capabilities - self.undeclared
+        problems = contract_problems(self.func, sorted(declared))
+        for cap, kind, ok in [(c, "source", self.source) for c in sorted(declared & SOURCE_ONLY)] + [
+            (c, "sink", self.sink) for c in sorted(declared & SINK_ONLY)
+        ]:
+            if not ok:
+                problems.append(f"declares {cap!r}, a capability of a {kind} (declare {kind}=True)")
+        return problems
 
     @property
     def family(self) -> str:
@@ -194,15 +237,14 @@ class NodeType:
     def selects_source(self) -> bool:
         """Whether this source stands for others: it names the source type that reads an input
         (the ``select_source`` capability, see the module docstring)."""
-        return self.source and callable(getattr(self.func, "select_source", None))
+        return self.source and "select_source" in self.capabilities
 
     def result_files(self, params: NodeParams) -> dict[str, str]:
         """The files this sink writes that other commands read back, ``{kind: path relative to the
         output folder}`` (the ``result_files`` capability; empty for a node without it)."""
-        declare = getattr(self.func, "result_files", None)
-        if not (self.sink and callable(declare)):
+        if not (self.sink and "result_files" in self.capabilities):
             return {}
-        return {str(k): str(v) for k, v in (declare(params) or {}).items()}
+        return {str(k): str(v) for k, v in (self.func.result_files(params) or {}).items()}
 
 
 def _hash_sources(h: Any, folder: Path, files: list[Path]) -> None:
@@ -287,6 +329,7 @@ def node_type(
     source: bool = False,
     sink: bool = False,
     ahead: bool = False,
+    implements: Iterable[str] = (),
     doc: str = "",
 ) -> Callable[[F], F]:
     """Decorator declaring a function (or, for stateful nodes, a class) a node type.
@@ -294,7 +337,8 @@ def node_type(
     It returns the function (or class) unchanged, with its :class:`NodeType` record attached as
     ``func.node_type`` (see :func:`node_type_of`): the node stays a plain function, callable
     without the engine as ``func(params, **inputs)``. When ``params`` is omitted it is taken from
-    the annotation of the function's first parameter.
+    the annotation of the function's first parameter. ``implements``: what a node class
+    declares beyond the life cycle (:mod:`lanegraph.lifecycle`: ``"close"``, ``"resume"``, ...).
     """
 
     def wrap(func: F) -> F:
@@ -310,6 +354,7 @@ def node_type(
             source=source,
             sink=sink,
             ahead=ahead,
+            implements=frozenset(implements),
         )
         return func
 

@@ -194,7 +194,8 @@ class OutputLock:
     directory), so it does not depend on any file name staying in place: deleting or replacing
     ``DIR/.lanegraph.lock`` (or any other file) does not let a second run in. The lock file is
     only where the holder says who it is (pid, command, start), and is locked too, for runs of an
-    older lanegraph that lock only it; it stays after the run and is harmless to leave or delete.
+    older lanegraph that lock only it; the lock removes it at its end when it created it (a refused
+    or finished run leaves none), and it is harmless to leave or delete.
     Where a file system cannot lock a directory (some network file systems), the lock file alone
     is locked. A second run into the folder gets a :class:`UsageError` saying which process holds
     it. The lock dies with its process: a killed run leaves no stale lock.
@@ -206,6 +207,7 @@ class OutputLock:
         self.command = command
         self._fh: Any = None
         self._dir_fd: int | None = None
+        self._created = False
 
     def acquire(self) -> OutputLock:
         try:
@@ -235,8 +237,13 @@ class OutputLock:
         self._dir_fd = fd
 
     def _lock_file(self, fcntl: Any) -> None:
+        nofollow = getattr(os, "O_NOFOLLOW", 0)
         try:  # never through a link planted at the lock's name (it would be truncated)
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), _FILE_MODE)
+            try:
+                fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_EXCL | nofollow, _FILE_MODE)
+                self._created = True  # removed again at the end: no lock file left in the folder
+            except FileExistsError:
+                fd = os.open(self.path, os.O_RDWR | os.O_CREAT | nofollow, _FILE_MODE)
             fh = os.fdopen(fd, "r+", encoding="utf-8")
         except OSError as exc:
             raise UsageError(f"{self.path}: cannot create the lock file: {exc.strerror or exc}") from None
@@ -310,6 +317,14 @@ class OutputLock:
 
     def release(self) -> None:
         if self._fh is not None:
+            if self._created:  # the lock file this lock made, if it is still that file
+                try:
+                    st, mine = os.lstat(self.path), os.fstat(self._fh.fileno())
+                    if (st.st_dev, st.st_ino) == (mine.st_dev, mine.st_ino):
+                        os.unlink(self.path)
+                except OSError:
+                    pass
+                self._created = False
             self._fh.close()  # closing releases the flock
             self._fh = None
         if self._dir_fd is not None:

@@ -21,6 +21,7 @@ import inspect
 import os
 import re
 import sys
+import warnings
 from dataclasses import dataclass
 from importlib import metadata
 from typing import Any
@@ -30,6 +31,7 @@ import pluggy
 from . import hookspecs, interrupts
 from .errors import HookError, did_you_mean
 from .nodes import NodeType, node_type_of
+from .port_types import BUILTIN_PORT_TYPES
 from .types import PortType
 
 ENTRY_POINT_GROUP = "lanegraph.plugins"
@@ -44,8 +46,8 @@ _PORT_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 @dataclass(frozen=True)
 class PluginError:
     """A plugin the host runs without: it failed to import, implements a hook that has no spec,
-    its registration hook raised, or it provides a node type or port type another plugin already
-    provides. ``node_types``: the node types it holds, where known (a graph that uses one is told
+    its registration hook raised, it provides a node type or port type another plugin already
+    provides, or a node type whose class lacks what it declares (:mod:`lanegraph.lifecycle`). ``node_types``: the node types it holds, where known (a graph that uses one is told
     why it is missing)."""
 
     plugin: str
@@ -91,8 +93,6 @@ class PluginManager(pluggy.PluginManager):
         self._dists: dict[str, str] = {}
         self._node_types: dict[str, NodeType] | None = None
         self._port_types: dict[str, PortType] = {}
-        from .presentation.port_types import BUILTIN_PORT_TYPES
-
         # lanegraph's own port types come through the same hook as a plugin's, registered first
         self.register(BUILTIN_PORT_TYPES, name=BUILTIN_PLUGIN)
         if os.environ.get("LANEGRAPH_TRACE_HOOKS"):
@@ -192,7 +192,7 @@ class PluginManager(pluggy.PluginManager):
     @property
     def port_types(self) -> dict[str, PortType]:
         """Every port type by name, each registered through ``lanegraph_port_types``: lanegraph's
-        own (:mod:`lanegraph.presentation.port_types`, registered first) and the plugins'."""
+        own (:mod:`lanegraph.port_types`, registered first) and the plugins'."""
         self.node_types  # noqa: B018 - built together
         return self._port_types
 
@@ -256,6 +256,10 @@ class PluginManager(pluggy.PluginManager):
                     by = "lanegraph" if by == BUILTIN_PLUGIN else repr(by)
                     bad[impl.plugin] = (f"port type {pt.name!r} is already registered by {by}", ())
                     break
+                problem = _storage_problem(pt, ports)
+                if problem is not None:
+                    bad[impl.plugin] = (f"port type {pt.name!r}: {problem}", ())
+                    break
                 ports[pt.name] = pt
                 owner.setdefault(pt.name, impl.plugin)
         for name, plugin in owner.items():
@@ -297,6 +301,14 @@ class PluginManager(pluggy.PluginManager):
                 )
                 continue
             names = tuple(nt.name for nt in records if nt is not None)
+            broken = next(
+                ((nt, p) for nt in records if nt is not None and (p := nt.contract_problems())), None
+            )
+            if broken is not None:  # the declared contract (lanegraph.lifecycle) not kept
+                nt, problems = broken
+                what = nt.func.__qualname__
+                bad[impl.plugin] = (f"node type {nt.name!r} ({what}) {'; '.join(problems)}", names)
+                continue
             clash = next((n for n in names if n in types), None)
             if clash is not None:
                 first = types[clash].plugin
@@ -309,6 +321,15 @@ class PluginManager(pluggy.PluginManager):
                 assert nt is not None
                 nt.plugin = nt.plugin or pname
                 types[nt.name] = nt
+                if nt.undeclared:
+                    warnings.warn(
+                        f"plugin {pname!r}: node type {nt.name!r} defines the methods of "
+                        f"{', '.join(sorted(nt.undeclared))} without declaring them; declare "
+                        f"implements={tuple(sorted(nt.undeclared))!r} in its "
+                        "@node_type (lanegraph.lifecycle): a later lanegraph will not look for them",
+                        DeprecationWarning,
+                        stacklevel=2,
+                    )
         return types, bad
 
     def get_node_type(self, name: str) -> NodeType | None:
@@ -329,6 +350,23 @@ class PluginManager(pluggy.PluginManager):
             names = ", ".join(repr(e.plugin) for e in self.plugin_errors)
             return f"plugin(s) {names} could not be loaded (see the warnings): one may provide it"
         return None
+
+
+def _storage_problem(pt: PortType, ports: dict[str, PortType]) -> str | None:
+    """What is wrong with a port type's storage (:mod:`lanegraph.storage`): ``stores`` a class
+    with both ``encode`` and ``decode``, one not another port type's; or neither."""
+    parts = {"stores": pt.stores, "encode": pt.encode, "decode": pt.decode}
+    if all(v is None for v in parts.values()):
+        return None
+    missing = [k for k, v in parts.items() if v is None]
+    if missing:
+        return f"declares storage without {' and '.join(missing)} (stores, encode and decode go together)"
+    if not isinstance(pt.stores, type) or not callable(pt.encode) or not callable(pt.decode):
+        return "stores must be a class, encode and decode functions"
+    other = next((o for o in ports.values() if o.stores is pt.stores and o.name != pt.name), None)
+    if other is not None:
+        return f"stores {pt.stores.__qualname__}, which port type {other.name!r} already stores"
+    return None
 
 
 def _describe(exc: BaseException) -> str:

@@ -39,6 +39,57 @@ LOG_NAME = "run.log"
 _SOURCES = (LOGGER, "py.warnings")
 
 
+#: control characters (but tab and newline), C1 controls, and the lone surrogates a file name with
+#: bytes that are not UTF-8 becomes: never written raw to a terminal or to run.log
+_CONTROLS = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f\ud800-\udfff]")
+_DIGITS = re.compile(r"\d+")
+
+
+def _escape_one(m: re.Match[str]) -> str:
+    c = ord(m.group())
+    if 0xDC80 <= c <= 0xDCFF:  # a byte of a file name that is not UTF-8 (surrogateescape)
+        return f"\\x{c - 0xDC00:02x}"
+    return f"\\x{c:02x}" if c < 0x100 else f"\\u{c:04x}"
+
+
+def escape_controls(text: str) -> str:
+    """``text`` with its control characters (escape sequences, carriage returns, NUL...) and the
+    bytes of a non-UTF-8 file name written as ``\\xNN``: what reaches a terminal or ``run.log``
+    is text, one record a line, never a sequence the terminal runs."""
+    return _CONTROLS.sub(_escape_one, text)
+
+
+class Repeats:
+    """Bounds what a handler writes: a warning said again (the same words, numbers aside) is shown
+    ``first`` times, then counted; at most ``total`` warnings are shown in all. Errors always are.
+    :meth:`summary` says what was counted and not shown."""
+
+    def __init__(self, first: int, total: int):
+        self.first, self.total = first, total
+        self.counts: dict[tuple[str, str], int] = {}
+        self.shown = 0
+        self.hidden = 0
+
+    def admit(self, record: logging.LogRecord, text: str) -> bool:
+        if record.levelno != logging.WARNING:
+            return True
+        key = (record.name, _DIGITS.sub("#", text[:300]))
+        n = self.counts[key] = self.counts.get(key, 0) + 1
+        if (n <= self.first or getattr(record, "plain", False)) and self.shown < self.total:
+            self.shown += 1
+            return True
+        self.hidden += 1
+        return False
+
+    def summary(self) -> str | None:
+        if not self.hidden:
+            return None
+        return (
+            f"{self.hidden} more warning(s) not shown: a warning said again is shown {self.first} times, "
+            f"and at most {self.total} in all"
+        )
+
+
 def get_logger(name: str = "") -> logging.Logger:
     """The ``lanegraph`` logger, or its child ``lanegraph.<name>``."""
     return logging.getLogger(f"{LOGGER}.{name}" if name else LOGGER)
@@ -73,8 +124,19 @@ class _ConsoleFormatter(logging.Formatter):
         return text
 
 
+#: the console: a warning said again is shown this many times, and at most this many in all
+CONSOLE_REPEATS, CONSOLE_WARNINGS = 3, 200
+#: run.log: the same, more generous (every failed frame of a long run is there)
+LOG_REPEATS, LOG_WARNINGS = 1000, 50_000
+
+
 class _ConsoleHandler(logging.Handler):
-    """To the current ``sys.stderr`` at every record (a test runner may swap it), through tqdm."""
+    """To the current ``sys.stderr`` at every record (a test runner may swap it), through tqdm;
+    control characters escaped, repeated warnings counted (:class:`Repeats`)."""
+
+    def __init__(self, level: int = logging.NOTSET):
+        super().__init__(level)
+        self.repeats = Repeats(CONSOLE_REPEATS, CONSOLE_WARNINGS)
 
     def emit(self, record: logging.LogRecord) -> None:
         if getattr(record, "file_only", False):  # for run.log (what a run was), not the terminal
@@ -82,7 +144,10 @@ class _ConsoleHandler(logging.Handler):
         try:
             from tqdm import tqdm
 
-            tqdm.write(self.format(record), file=sys.stderr)
+            text = escape_controls(self.format(record))
+            if not self.repeats.admit(record, text):
+                return
+            tqdm.write(text, file=sys.stderr)
             sys.stderr.flush()  # in order with what the command prints on stdout
         except Exception:  # noqa: BLE001 - logging must never stop the run
             self.handleError(record)
@@ -113,6 +178,13 @@ def configure_console(verbose: int = 0, quiet: int = 0) -> Callable[[], None]:
     logging.captureWarnings(True)
 
     def undo() -> None:
+        said = handler.repeats.summary()
+        if said is not None:
+            handler.repeats = Repeats(0, 0)
+            try:
+                print(f"warning: {said}", file=sys.stderr, flush=True)
+            except (OSError, ValueError):
+                pass
         logging.captureWarnings(False)
         for logger, mine, propagate in olds:
             logger.removeHandler(handler)
@@ -125,7 +197,23 @@ def configure_console(verbose: int = 0, quiet: int = 0) -> Callable[[], None]:
 
 
 class _FileHandler(logging.StreamHandler):
-    """A handler on a file opened by :class:`RunLog` (never through a link planted at its name)."""
+    """A handler on a file opened by :class:`RunLog` (never through a link planted at its name);
+    control characters escaped, repeated warnings counted (:class:`Repeats`)."""
+
+    def __init__(self, stream: Any):
+        super().__init__(stream)
+        self.repeats = Repeats(LOG_REPEATS, LOG_WARNINGS)
+
+    def format(self, record: logging.LogRecord) -> str:
+        return escape_controls(super().format(record))
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            if not self.repeats.admit(record, record.getMessage()):
+                return
+        except Exception:  # noqa: BLE001 - logging must never stop the run
+            pass
+        super().emit(record)
 
 
 class _NodeErrors:
@@ -197,6 +285,11 @@ class RunLog:
             self.pm.unregister(self._plugin)
             self._plugin = None
         if self._handler is not None:
+            said = self._handler.repeats.summary()
+            if said is not None:
+                self._handler.repeats = Repeats(0, 0)
+                rec = logging.LogRecord(LOGGER, logging.WARNING, __file__, 0, said, None, None)
+                logging.StreamHandler.emit(self._handler, rec)
             for name in _SOURCES:
                 logger = logging.getLogger(name)
                 logger.removeHandler(self._handler)

@@ -89,9 +89,9 @@ def run_node(
     if not nt.stateful:
         return nt.func(p, **ins)
     ctx = context or RunContext(out_dir=Path(tempfile.mkdtemp(prefix="lanegraph-")))
-    with closing(nt.func(p, ctx)) as obj:  # open, process one frame, close
+    with closing(nt.func(p, ctx), nt) as obj:  # open, process one frame, close
         if nt.source:
-            out = constants_of(obj)
+            out = constants_of(obj, nt)
             out.update(next(iter(obj)))
             return out
         return obj(**ins) or {}
@@ -172,7 +172,7 @@ def _feed_source(sample: Mapping[str, Any], types: Mapping[str, str]) -> type:
     outputs = {"frame": Port("frame_id")}
     outputs.update({k: Port(t) for k, t in types.items()})
 
-    @node_type("testing.feed", source=True, outputs=outputs)
+    @node_type("testing.feed", source=True, outputs=outputs, implements=("len",))
     class Feed:
         """Emits the sample inputs of a conformance check as frames."""
 
@@ -223,7 +223,10 @@ def check_node_type(
     2. documented params: every field has a description, numeric fields have lower and upper bounds;
     3. deterministic: two calls on the same inputs give equal outputs;
     4. does not mutate its inputs;
-    5. round-trips through a graph file: a graph feeding ``sample_inputs`` to it validates and runs.
+    5. round-trips through a graph file: a graph feeding ``sample_inputs`` to it validates and runs;
+    6. keeps its declared contract (:mod:`lanegraph.lifecycle`): a node class defines every member of
+       what it declares (``implements=`` or its base classes) and declares every capability whose
+       methods it defines (checked first, sources included).
     """
     node = _resolve(node, pm)
     if pm is None:
@@ -231,6 +234,12 @@ def check_node_type(
 
         pm = get_plugin_manager()
     port_types = pm.port_types
+    problems = node.contract_problems()
+    assert not problems, f"{node.name}: {'; '.join(problems)}"
+    assert not node.undeclared, (
+        f"{node.name}: defines the methods of {', '.join(sorted(node.undeclared))} without declaring them "
+        f"(implements={tuple(sorted(node.undeclared))!r} in its @node_type)"
+    )
     assert node.doc.strip(), f"{node.name}: no docstring"
     for where, ports in (("input", node.inputs), ("output", node.outputs)):
         for name, port in ports.items():
@@ -272,7 +281,7 @@ def _round_trip(
     """The conformance check's last rule: a graph feeding ``sample_inputs`` to ``node`` validates,
     round-trips through a graph file and runs."""
     from .graph.validation import load_graph
-    from .presentation.port_types import PORT_TYPES as own
+    from .port_types import PORT_TYPES as own
     from .run.executor import Executor
 
     types = {k: node.inputs[k].type for k in sample_inputs}

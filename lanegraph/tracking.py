@@ -22,6 +22,7 @@ command then exits 1).
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -138,6 +139,11 @@ def available_trackers(pm: Any) -> dict[str, type]:
     return out
 
 
+#: the schemes a ``--track NAME:URI`` may name (anything else, ``javascript:``, is refused; a
+#: plain folder has none)
+TRACKING_SCHEMES = ("http", "https", "file", "sqlite", "postgresql", "mysql", "mssql", "databricks")
+
+
 def parse_track(spec: str, pm: Any) -> Tracker:
     """The tracker of ``--track NAME[:URI]`` (``mlflow``, ``mlflow:http://127.0.0.1:5000``,
     ``mlflow:file:///data/mlruns``): an unknown name is a usage error listing the installed ones."""
@@ -153,6 +159,12 @@ def parse_track(spec: str, pm: Any) -> Tracker:
         )
     if sep and not uri.strip():
         raise UsageError(f"--track {spec}: expected {name}:URI with a URI after the colon, or {name} alone")
+    scheme = re.match(r"^([A-Za-z][A-Za-z0-9+.-]+):", uri.strip())
+    if sep and scheme and scheme.group(1).lower() not in TRACKING_SCHEMES:
+        raise UsageError(
+            f"--track {spec}: {scheme.group(1)!r} is not a tracking store's scheme; expected a folder or a URI "
+            f"of {', '.join(s + ':' for s in TRACKING_SCHEMES)} (e.g. --track {name}:http://127.0.0.1:5000)"
+        )
     return trackers[name](uri.strip() if sep else None)
 
 

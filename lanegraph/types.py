@@ -7,7 +7,7 @@ a *sub*-type may feed a port of its parent type (a ``gray`` image may feed an
 
 Every port type, lanegraph's own included, is registered through the ``lanegraph_port_types``
 hook (a :class:`PortType` with a parent for compatibility, its picture and its check; lanegraph's
-own: :mod:`lanegraph.presentation.port_types`), and
+own: :mod:`lanegraph.port_types`), and
 :attr:`lanegraph.plugins.PluginManager.port_types` holds them all.
 
 Coordinates: arrays are indexed ``(row, col)``; points are ``(x, y)`` pixels.
@@ -34,6 +34,15 @@ class PortType:
     render: Callable[[Any, Mapping[str, Any]], Any] | None = field(default=None, compare=False, repr=False)
     #: ``check(value) -> str or None``: what is wrong with a value of this type
     check: Callable[[Any], str | None] | None = field(default=None, compare=False, repr=False)
+    #: the class of the values ``encode`` / ``decode`` store (a port whose values are lists of
+    #: them, such as ``lanes``, names the element class); None: its values are plain data
+    #: (numbers, strings, arrays, lists, tuples, dicts), stored as they are (:mod:`lanegraph.storage`)
+    stores: type | None = field(default=None, compare=False, repr=False)
+    #: ``encode(value) -> data`` (JSON scalars, lists, tuples, dicts, numeric NumPy arrays, or values
+    #: other port types store): how the result cache and a checkpoint keep a value of ``stores``
+    encode: Callable[[Any], Any] | None = field(default=None, compare=False, repr=False)
+    #: ``decode(data) -> value``: the inverse of ``encode``; raises on data it would not have written
+    decode: Callable[[Any], Any] | None = field(default=None, compare=False, repr=False)
 
 
 def is_port_type(name: str, types: Mapping[str, PortType]) -> bool:

@@ -107,7 +107,11 @@ def test_a_crafted_pickle_in_out_never_runs(cli, tmp_path, installed_pm):
     [
         ("[]", ["expected a JSON object", "got list"]),
         ("{}", ["format: expected 'lanegraph-checkpoint'"]),
-        ('{"format": "lanegraph-checkpoint", "version": 7}', ["version: expected 2, got 7"]),
+        ('{"format": "lanegraph-checkpoint", "version": 7}', ["version: expected 3, got 7"]),
+        (
+            '{"format": "lanegraph-checkpoint", "version": 2}',
+            ["version: expected 3, got 2", "version 3 stores values by their port types", "start over"],
+        ),
         ("not json at all", ["not a valid JSON checkpoint", "line 1"]),
         ("[" * 100000, ["not a valid JSON checkpoint"]),
         (b"\xff\xfe\x00garbage", ["cannot read the checkpoint"]),
@@ -147,7 +151,8 @@ def _mutate(ckpt: dict, how: str, i: int = 0) -> dict:
             "data": "AAAAAA==",
         }
     elif how == "a lane with another field":
-        ckpt["feedback"][i]["value"] = [{"$t": "Lane", "v": {"coeffs": [1, 2, 3], "__class__": "x"}}]
+        fields = {"$t": "dict", "v": [["coeffs", [1, 2, 3]], ["__class__", "x"]]}
+        ckpt["feedback"][i]["value"] = [{"$t": "port", "type": "lanes", "v": fields}]
     elif how == "feedback from another node":
         ckpt["feedback"][i]["node"] = "disp"
     elif how == "failures not a list":
@@ -281,9 +286,9 @@ def test_a_symbolic_link_out_of_out_is_refused(cli, tmp_path):
     out.mkdir()
     (out / "lanes.jsonl").symlink_to(elsewhere / "stolen.jsonl")
     code, output = cli("run", DEMO, "--out", out, "--quiet", *SYNTH)
-    assert code == 2, output
-    assert "node 'write' (io.write_lanes) params.filename" in output and "outside" in output, output
-    assert list(elsewhere.iterdir()) == []
+    assert code == 2, output  # a link is never lanegraph's (issue 46): refused before any check of the sink
+    assert "lanes.jsonl is there and not lanegraph's" in output, output
+    assert list(elsewhere.iterdir()) == [] and (out / "lanes.jsonl").is_symlink()
     with pytest.raises(Exception, match="outside"):
         inside(out, "lanes.jsonl", "x")
 
@@ -306,9 +311,19 @@ def test_links_planted_in_out_are_never_written_through(cli, tmp_path):
     graph.write_text(
         f"extends: {DEMO}\nnodes:\n  overlay: {{type: io.write_overlay, inputs: {{frame: src.frame, image: src.left}}}}\n"
     )
-    code, output = cli(
-        "run", graph, "--out", out, "--debug-dir", dbg, "--debug-frames", "1", "--quiet", *SYNTH
-    )
+    args = ["run", graph, "--out", out, "--debug-dir", dbg, "--debug-frames", "1", "--quiet", *SYNTH]
+    code, output = cli(*args)
+    # links and a hard link at the names it writes are not lanegraph's (issue 46): refused, kept
+    assert code == 2 and "is there and not lanegraph's" in output, output
+    assert victim.read_text() == "precious\n" and hard.read_text() == "precious too\n"
+    assert all((out / n).is_symlink() for n in ("run.json", "timings.json", "checkpoint.json"))
+    for name in ("run.json", "timings.json", "checkpoint.json", "lanes.jsonl"):
+        (out / name).unlink()
+    code, output = cli(*args)  # a link in OUT's overlay folder and in --debug-dir: replaced
+    assert code == 2 and "overlay is there and not lanegraph's" in output, output
+    shutil.rmtree(out / "overlay")
+    os.link(hard, out / "overlay.png")  # beside the run's files: left alone
+    code, output = cli(*args)
     assert code == 0, output
     assert victim.read_text() == "precious\n" and hard.read_text() == "precious too\n"
     assert (
@@ -316,8 +331,9 @@ def test_links_planted_in_out_are_never_written_through(cli, tmp_path):
     )
     assert cv2.imread(str(out / "overlay" / "0000000000.png")) is not None
     assert len(lines(out / "lanes.jsonl")) == 4
+    assert not (dbg / "0000000001" / "mosaic.png").is_symlink()
     # a link at the lock's name: refused, not truncated
-    (out / ".lanegraph.lock").unlink()
+    (out / ".lanegraph.lock").unlink(missing_ok=True)
     (out / ".lanegraph.lock").symlink_to(victim)
     code, output = cli("run", DEMO, "--out", out, "--quiet", *SYNTH)
     assert code == 2 and "cannot create the lock file" in output, output
@@ -427,7 +443,7 @@ def test_a_complete_run_whose_lanes_were_deleted(cli, tmp_path):
     (out / "checkpoint.json").unlink()
     (out / "checkpoint.json").mkdir()
     code, output = cli("run", DEMO, "--out", out, "--quiet", *SYNTH)
-    assert code == 2 and "checkpoint.json: exists and is not a file" in output, output
+    assert code == 2 and "checkpoint.json is there and not lanegraph's" in output, output
 
 
 def test_failures_accumulate_over_resumes(cli, tmp_path, installed_pm):
@@ -479,6 +495,7 @@ def test_a_second_run_into_a_locked_out_is_refused(cli, tmp_path):
         code, output = cli("ablate", DEMO, "--out", out, "--quiet", "--no-cache")
         assert code == 2 and "in use by another lanegraph run" in output, output
     assert (out / "lanes.jsonl").read_text() == "the other run's\n"
+    (out / "lanes.jsonl").unlink()  # not lanegraph's by its record: a run would refuse it
     code, output = cli("run", DEMO, "--out", out, "--quiet", *SYNTH)  # released: runs
     assert code == 0, output
 

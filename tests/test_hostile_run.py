@@ -70,13 +70,8 @@ def _tamper(ckpt: dict, how: str) -> dict:
         }
     elif how == "a huge feature map":
         empty = {"$t": "ndarray", "dtype": "<i8", "shape": [0], "data": ""}
-        _lanes_feedback(ckpt)["value"] = {
-            "$t": "FeatureMap",
-            "shape": [2**30, 2**30],
-            "rows": empty,
-            "cols": empty,
-            "values": None,
-        }
+        fields = [["shape", [2**30, 2**30]], ["rows", empty], ["cols", empty], ["values", None]]
+        _lanes_feedback(ckpt)["value"] = {"$t": "port", "type": "features", "v": {"$t": "dict", "v": fields}}
     elif how == "a string where lanes belong":
         _lanes_feedback(ckpt)["value"] = "lanes"
     elif how == "invalid counts":

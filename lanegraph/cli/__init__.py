@@ -35,6 +35,14 @@ class _Lanegraph(click.Group):
         set_command_line(list(sys.argv[1:] if args is None else args))
         return super().main(args, *rest, **kwargs)
 
+    def invoke(self, ctx):  # noqa: D102 - click.Group.invoke
+        try:
+            return super().invoke(ctx)
+        except OSError as exc:  # every command (nodes --json > /dev/full): one line, exit 2
+            from ._errors import os_error_exit
+
+            os_error_exit(exc)
+
 
 @click.group(cls=_Lanegraph, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="lanegraph")

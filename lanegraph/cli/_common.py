@@ -131,16 +131,28 @@ def scale_out_options(scope: str = ""):
     return decorate
 
 
+def dataset_file(path: Path):
+    """The dataset file ``path`` loaded; one that cannot be used (not there, malformed, a sequence
+    named ``../x``) is an input refused before any frame: exit 2."""
+    from ..errors import InputError, NotStarted
+    from ..evaluation.dataset import load_dataset
+
+    try:
+        return load_dataset(path)
+    except InputError as exc:
+        raise NotStarted(exc) from exc
+
+
 def dataset_option(dataset_path: Path | None, input_path: Path | None, gt_path: Path | None):
     """The dataset of ``--dataset``, or the one sequence of ``--input`` / ``--gt``."""
-    from ..evaluation.dataset import load_dataset, single_sequence
+    from ..evaluation.dataset import single_sequence
 
     if dataset_path is not None:
         if input_path is not None or gt_path is not None:
             raise UsageError(
                 "--dataset lists the inputs and ground truths: give it instead of --input/--gt, not with them"
             )
-        return load_dataset(dataset_path)
+        return dataset_file(dataset_path)
     if input_path is not None and not input_path.exists():
         raise UsageError(f"--input {input_path}: no such file or folder")
     if gt_path is not None and not gt_path.is_file():

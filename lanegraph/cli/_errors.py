@@ -13,7 +13,9 @@ input that is unusable before any frame runs (no images, no calibration, an empt
 
 from __future__ import annotations
 
+import errno
 import functools
+import os
 import sys
 from collections.abc import Callable
 from typing import Any
@@ -32,6 +34,38 @@ def exit_code(exc: LanegraphError, input_exit: int | None = None, every_exit: in
     if input_exit is not None and isinstance(exc, (InputError, UsageError, GraphError)):
         return input_exit
     return exc.exit_code
+
+
+def os_error(exc: OSError) -> str:
+    """One line for an :class:`OSError`: the file it names (shortened when it is absurdly long)
+    and the system's reason."""
+    name = exc.filename if exc.filename is not None else None
+    where = "cannot write the output: " if name is None else ""
+    if name is not None:
+        text = os.fsdecode(name) if isinstance(name, bytes) else str(name)
+        where = (text if len(text) <= 200 else f"{text[:100]}...{text[-60:]} ({len(text)} characters)") + ": "
+    return f"{where}{exc.strerror or exc}"
+
+
+def _quiet_stdout(exc: OSError) -> None:
+    """After a failed write to stdout (``> /dev/full``), point it at ``/dev/null`` so that the
+    interpreter's last flush does not fail a second time with a traceback."""
+    if exc.errno not in (errno.ENOSPC, errno.EPIPE, errno.EIO, errno.EDQUOT):
+        return
+    try:
+        fd = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(fd, sys.stdout.fileno())
+        os.close(fd)
+    except (OSError, ValueError, AttributeError):
+        pass
+
+
+def os_error_exit(exc: OSError, code: int = 2) -> None:
+    """Say ``exc`` in one line on stderr and exit with ``code`` (2: a path, a folder or an output
+    the system refuses, found before any frame: a run's own failures are said by the run)."""
+    _quiet_stdout(exc)
+    click.echo(f"error: {os_error(exc)}", err=True)
+    sys.exit(code)
 
 
 def handled(
@@ -54,6 +88,8 @@ def handled(
                 label, code = interrupts.label_and_code(exc)
                 click.echo(f"error: interrupted ({label})", err=True)
                 sys.exit(code)
+            except OSError as exc:  # a path or an output the system refuses, before any frame: 2
+                os_error_exit(exc, every_exit if every_exit is not None else 2)
             if status is not None:
                 sys.exit(status)
 

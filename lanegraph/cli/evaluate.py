@@ -9,6 +9,7 @@ from typing import Any
 import click
 
 from ..errors import InputError, UsageError
+from ..frames import selection_text
 from ..plugins import get_plugin_manager
 from ._common import parse_frames, session
 from ._errors import handled
@@ -130,12 +131,23 @@ def run_selection(pred: Path) -> tuple[Path, list[str]] | None:
     return folder, sel[1]
 
 
+def _some(kept: list, gt_recs: list, frames: slice, where: str = "") -> None:
+    """A ``--frames`` that selects no frame of a ground truth is refused, as ``run`` refuses it."""
+    if gt_recs and not kept:
+        n = len(gt_recs)
+        raise UsageError(
+            f"--frames {selection_text(frames)}: selects no frame{where}: the ground truth has {n} "
+            f"frame(s), indices 0..{n - 1}"
+        )
+
+
 def _selected(gt_recs: list, frames: slice | None, pred: Path) -> tuple[list, int, str | None]:
     """The ground-truth records to score, how many are left out and why (for the summary)."""
     from ..evaluation.metrics import select_frames
 
     if frames is not None:
         kept, not_run = select_frames(gt_recs, frames)
+        _some(kept, gt_recs, frames)
         return kept, not_run, "--frames"
     recorded = run_selection(pred)
     if recorded is None:
@@ -257,6 +269,10 @@ def _eval_dataset(pred_dir: Path, dataset_path: Path, as_json: bool, frames: sli
         recorded = run_selection(pred_dir / seq.name)
         # --frames, else the frames the run selected, else the sequence's own frames
         chosen[seq.name] = frames if frames is not None else (recorded[1] if recorded else seq.frames)
+        if frames is not None:
+            from ..evaluation.metrics import select_frames
+
+            _some(select_frames(gt, frames)[0], gt, frames, f" of sequence {seq.name!r}")
     if not pairs:
         raise UsageError(f"{dataset_path}: no sequence has a ground truth ('gt') to evaluate against")
     from ..evaluation.dataset import evaluate_sequences

@@ -164,6 +164,7 @@ def nodes(as_json: bool, as_markdown: bool, builtin: bool) -> None:
                     "source": nt.source,
                     "sink": nt.sink,
                     "ahead": nt.ahead,
+                    "implements": sorted(nt.capabilities),
                     "inputs": {
                         p: {"type": x.type, "optional": x.optional, "rate": x.rate, "doc": x.doc}
                         for p, x in nt.inputs.items()
@@ -175,7 +176,8 @@ def nodes(as_json: bool, as_markdown: bool, builtin: bool) -> None:
                 }
             )
         ports = [
-            {"name": t.name, "description": t.description, "parent": t.parent} for t in pm.port_types.values()
+            {"name": t.name, "description": t.description, "parent": t.parent, "stored": t.stores is not None}
+            for t in pm.port_types.values()
         ]
         click.echo(
             json.dumps(
@@ -204,7 +206,7 @@ def nodes(as_json: bool, as_markdown: bool, builtin: bool) -> None:
         for fname, f in nt.params.model_fields.items():
             default = "(required)" if f.is_required() else f"= {f.default!r}"
             click.echo(f"    - {fname} {default}: {f.description or ''}")
-    from ..presentation.port_types import PORT_TYPES
+    from ..port_types import PORT_TYPES
 
     added = [t for t in pm.port_types.values() if t.name not in PORT_TYPES]
     if added:

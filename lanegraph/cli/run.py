@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import click
 
 from ..errors import UsageError
 from ..kernel_cache import compile_share, first_run_notice
-from ._common import FOLDER, keeping_options, parse_frames, scale_out_options, session
+from ._common import FOLDER, dataset_file, keeping_options, parse_frames, scale_out_options, session
 from ._errors import handled
 
 
@@ -18,7 +19,12 @@ from ._errors import handled
     "--input",
     "input_path",
     type=click.Path(path_type=Path),
-    help="input folder (KITTI raw drive, KITTI odometry sequence, folder of pairs); default: the built-in synthetic scene",
+    help="input: a KITTI raw drive or odometry sequence, a folder of pairs, a ROS bag, a stereo video (docs/inputs.md); default: the built-in synthetic scene",
+)
+@click.option(
+    "--calib",
+    help="calibration file(s) of the input, comma-separated: OpenCV YAML/XML, ROS camera_info left.yaml,right.yaml, "
+    "calib.yaml (docs/inputs.md); sets the source node's calib param",
 )
 @click.option(
     "--out",
@@ -57,6 +63,7 @@ from ._errors import handled
 def run(
     graph: str,
     input_path: Path | None,
+    calib: str | None,
     out_dir: Path,
     sets: tuple[str, ...],
     frames: str | None,
@@ -80,6 +87,7 @@ def run(
     if dataset_path is not None:
         for flag, given in (
             ("--input", input_path),
+            ("--calib", calib),
             ("--resume", resume or None),
             ("--debug-dir", debug_dir),
             ("--report", make_report or None),
@@ -88,11 +96,9 @@ def run(
                 raise UsageError(
                     f"{flag} is for a run on one input; --dataset names the inputs (give one or the other)"
                 )
-        from ..evaluation.dataset import load_dataset
-
         s = session(quiet, verbose, overwrite, track)
         runner = s.runner(scheduler)
-        dataset = load_dataset(dataset_path)
+        dataset = dataset_file(dataset_path)
         graph_ = s.open_graph(graph, sets)
         compile_share()  # the first run on a machine: its part of the kernels, beside the helper's
         return s.run_dataset(
@@ -108,8 +114,32 @@ def run(
             raise UsageError(f"{flag} runs the sequences of a --dataset: give --dataset FILE")
     s = session(quiet, verbose, overwrite, track)
     graph_ = s.open_graph(graph, sets)
+    if calib is not None:
+        graph_ = s.open_graph(graph, (*sets, *calib_sets(s.pm, graph_.raw, calib)))
     compile_share()  # the first run on a machine: its part of the kernels, beside the helper's
     return s.run(
         graph_, input_path=input_path, out_dir=out_dir, frames=parse_frames(frames),
         resume=resume, debug_dir=debug_dir, debug_frames=debug_frames, make_report=make_report,
     )  # fmt: skip
+
+
+def calib_sets(pm, raw: dict, calib: str) -> list[str]:
+    """``--calib FILES`` as a ``--set NODE.calib=FILES`` for each source node whose params have a
+    ``calib`` field (paths made absolute: the source reads them wherever it runs)."""
+    files = [str(Path(p.strip()).resolve()) for p in calib.split(",") if p.strip()]
+    nodes = [
+        nid
+        for nid, spec in (raw.get("nodes") or {}).items()
+        if isinstance(spec, dict)
+        and (nt := pm.get_node_type(str(spec.get("type")))) is not None
+        and nt.source
+        and "calib" in nt.params.model_fields
+    ]
+    if not files or not nodes:
+        why = (
+            "names no file"
+            if not files
+            else "the graph's source node takes no calibration file (no calib param)"
+        )
+        raise UsageError(f"--calib {calib!r}: {why}")
+    return [f"{nid}.calib={json.dumps(','.join(files))}" for nid in nodes]

@@ -11,6 +11,7 @@ import click
 
 from ..builtin import describe, graph_names, graphs_dir
 from ..errors import LanegraphError
+from ._common import FOLDER
 
 
 @click.command(name="graphs")
@@ -38,7 +39,7 @@ def data_cmd() -> None:
 @click.option(
     "--out",
     "out_dir",
-    type=click.Path(path_type=Path),
+    type=FOLDER,
     required=True,
     help="the folder to lay the data out in",
 )

@@ -18,7 +18,15 @@ sequences laid out (the built-in ``datasets/kitti_lanes.yaml`` names the ground 
 Everything is checked before a file is written: a file that is no zip or a truncated one, a
 folder with nothing of KITTI's in it, a drive without its date's calibration, a sequence without
 ``calib.txt``, left and right cameras with different frames, frame numbers with gaps (a partial
-download) are :class:`UsageError` (exit 2) naming the file and what was expected. Output paths are
+download), an encrypted member or one of a compression method Python cannot read, a member
+larger than its kind allows (:data:`MAX_TEXT` for a calibration or times file, as ``run`` reads
+one; :data:`MAX_PNG` for an image, whose width and height are read from its PNG header: at most
+:data:`MAX_PIXELS`), a whole larger than :data:`MAX_TOTAL` or than the free space in OUT, and a
+name OUT already holds that lanegraph did not write there (its ownership record,
+:mod:`lanegraph.run.owned`: the user's own ``kitti.yaml`` or edited calibration is never replaced)
+are :class:`UsageError` (exit 2) naming the file and what was expected. The files are then
+copied into a new folder of OUT and moved into place only when every one was copied whole (a CRC
+error found while copying leaves OUT as it was). Output paths are
 made of the parts of a member's name that the patterns below match (a date, a drive number, a
 camera, a frame number), never of the name itself: a member such as ``../../x`` matches nothing and
 is never written, and every file is written inside OUT, never through a link found there.
@@ -43,6 +51,13 @@ from ..errors import UsageError
 from ..paths import inside, prepare_dir
 
 _PNG = b"\x89PNG\r\n\x1a\n"
+#: the largest calibration, timestamps or times file (the limit ``run`` reads a calibration with)
+MAX_TEXT = 1024 * 1024
+#: the largest image file, and the most pixels of an image (a KITTI image is 1242 x 375)
+MAX_PNG, MAX_PIXELS = 64 * 1024 * 1024, 8_000_000
+#: the most bytes laid out in all (the odometry benchmark's grey images are about 22 GB)
+MAX_TOTAL = 64 * 1024**3
+_METHODS = (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED, zipfile.ZIP_BZIP2, zipfile.ZIP_LZMA)
 _DATE = r"(?P<date>\d{4}_\d{2}_\d{2})"
 RAW_IMAGE = re.compile(
     rf"(?:^|/){_DATE}/(?P<drive>(?P=date)_drive_(?P<num>\d{{4}})_sync)/(?P<cam>image_0[0-3])/data/(?P<frame>\d{{10}})\.png$"
@@ -122,6 +137,21 @@ class _Source:
         if self.zip is not None:
             return self.zip.getinfo(member).file_size
         return Path(member).stat().st_size
+
+    def unreadable(self, member: str) -> str | None:
+        """Why a zip member cannot be read (encrypted, an unknown compression method), or None."""
+        if self.zip is None:
+            return None
+        info = self.zip.getinfo(member)
+        if info.flag_bits & 0x1:
+            return "encrypted (a password is needed): lanegraph reads KITTI's plain zip files"
+        if info.compress_type not in _METHODS:
+            return f"compressed with method {info.compress_type}, which Python's zipfile cannot read"
+        return None
+
+    def head(self, member: str, n: int) -> bytes:
+        with self.open(member) as fh:
+            return fh.read(n)
 
     def close(self) -> None:
         if self.zip is not None:
@@ -257,9 +287,9 @@ def _copy(src: _Source, member: str, target: Path, png: bool) -> None:
                 fout.write(head)
                 shutil.copyfileobj(fin, fout, 1 << 20)
         os.replace(tmp, target)
-    except (zipfile.BadZipFile, EOFError, zipfile.LargeZipFile) as exc:
+    except (zipfile.BadZipFile, EOFError, zipfile.LargeZipFile, NotImplementedError, RuntimeError) as exc:
         tmp.unlink(missing_ok=True)
-        raise UsageError(f"{src.path}: {member}: damaged ({exc}); download it again") from None
+        raise UsageError(f"{src.path}: {member}: damaged or unreadable ({exc}); download it again") from None
     except OSError as exc:
         tmp.unlink(missing_ok=True)
         raise UsageError(f"{target}: cannot write: {exc.strerror or exc}") from None
@@ -286,8 +316,102 @@ def _png_size(path: Path) -> tuple[int, int] | None:
     return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
 
 
+def _plan(out: Path, seqs: dict[tuple, _Sequence], calib: dict) -> list[tuple[_Source, str, str, bool]]:
+    """Every file to lay out: ``(source, member, path relative to OUT, is a PNG)``."""
+    plan = []
+    for date, files in sorted(calib.items()):
+        if any(s.date == date for s in seqs.values()):
+            plan += [
+                (src, member, f"kitti_raw/{date}/{fname}", False)
+                for fname, (src, member) in sorted(files.items())
+            ]
+    for key in sorted(seqs, key=lambda k: (k[0], k[1] or "", k[2])):
+        s = seqs[key]
+        base = s.folder()
+        for cam, frames in sorted(s.images.items()):
+            rel = f"{base}/{cam}/data" if s.kind == "raw" else f"{base}/{cam}"
+            plan += [
+                (src, member, f"{rel}/{frame}.png", True) for frame, (src, member) in sorted(frames.items())
+            ]
+        plan += [(src, member, f"{base}/{fname}", False) for fname, (src, member) in sorted(s.files.items())]
+    return plan
+
+
+def _check_members(plan: list[tuple[_Source, str, str, bool]], out: Path) -> None:
+    """Bounds of what is unpacked, before a byte is written: each member readable, of a size its
+    kind allows (a PNG's width and height from its header), the whole within :data:`MAX_TOTAL`
+    and the free space of OUT."""
+    problems: list[str] = []
+    total = 0
+    for src, member, _rel, png in plan:
+        where = f"{src.path}: {member}" if src.zip is not None else member
+        why = src.unreadable(member)
+        if why is not None:
+            problems.append(f"{where}: {why}")
+            continue
+        size = src.size(member)
+        total += size
+        limit = MAX_PNG if png else MAX_TEXT
+        if size > limit:
+            problems.append(
+                f"{where}: {size} bytes, more than the {limit} a {'KITTI image' if png else 'calibration or times file'} may have"
+            )
+            continue
+        if png:
+            try:
+                head = src.head(member, 24)
+            except (zipfile.BadZipFile, EOFError, NotImplementedError, RuntimeError, OSError) as exc:
+                problems.append(f"{where}: damaged ({exc})")
+                continue
+            if len(head) < 24 or head[:8] != _PNG:
+                problems.append(f"{where}: not a PNG image (a damaged download?)")
+                continue
+            w, h = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+            if not (0 < w and 0 < h and w * h <= MAX_PIXELS):
+                problems.append(
+                    f"{where}: a {w} x {h} image, expected at most {MAX_PIXELS} pixels (a KITTI image is 1242 x 375)"
+                )
+        if len(problems) >= 20:
+            break
+    if total > MAX_TOTAL:
+        problems.append(f"{total} bytes in all, more than the {MAX_TOTAL} lanegraph lays out")
+    try:
+        free = shutil.disk_usage(_existing(out)).free
+    except OSError:
+        free = None
+    if not problems and free is not None and total > free:
+        problems.append(f"--out {out}: {total} bytes to write, {free} free there")
+    if problems:
+        raise UsageError("; ".join(problems[:20]) + (" (and more)" if len(problems) > 20 else ""))
+
+
+def _existing(p: Path) -> Path:
+    p = Path(p).absolute()
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    return p
+
+
+def _check_taken(out: Path, rels: list[str]) -> None:
+    """Refuse a name OUT holds that lanegraph did not write there (its ownership record)."""
+    from ..run import owned
+
+    bad = owned.taken(out, dict.fromkeys(rels, "file"))
+    if bad:
+        more = f" (and {len(bad) - 1} more)" if len(bad) > 1 else ""
+        raise UsageError(
+            f"--out {out}: {bad[0]} is there and not lanegraph's{more}: lanegraph never replaces what it "
+            "did not write; move it away or choose another folder"
+        )
+
+
 def prepare_kitti(sources: list[Path], out: Path, progress: Progress = None) -> list[str]:
     """Check and lay out ``sources`` in ``out`` (see the module's text); returns the summary lines."""
+    from ..paths import new_temp_dir
+    from ..run import owned
+
+    if str(out) == "":
+        raise UsageError("--out '': an empty folder name (it would be the current folder; give . for that)")
     say = progress or (lambda text: None)
     opened: list[_Source] = []
     try:
@@ -295,46 +419,49 @@ def prepare_kitti(sources: list[Path], out: Path, progress: Progress = None) -> 
             opened.append(_Source(Path(p)))
         seqs, calib = _scan(opened)
         _check(seqs, calib)
+        plan = _plan(out, seqs, calib)
+        _check_members(plan, out)
+        gts = {
+            s.folder(): GROUND_TRUTH[(s.kind, s.date, s.name)]
+            for s in seqs.values()
+            if (s.kind, s.date, s.name) in GROUND_TRUTH
+        }
+        rels = [rel for _src, _m, rel, _png in plan] + [f"{b}/lanes_gt.jsonl" for b in gts] + ["kitti.yaml"]
+        owned.note_absent(out, rels)
+        if out.is_dir():
+            _check_taken(out, rels)
         prepare_dir(out, "--out")
+        owned.begin(out, rels)
+        stage = new_temp_dir(out, prefix=".lanegraph-kitti-")
+        try:
+            done = 0
+            for src, member, rel, png in plan:
+                target = stage / rel
+                target.parent.mkdir(parents=True, exist_ok=True)
+                _copy(src, member, target, png=png)
+                done += 1
+                if done % 500 == 0:
+                    say(f"{done}/{len(plan)} file(s) checked and copied")
+            for _src, _member, rel, _png in plan:  # every file whole: into place
+                folder = _folder(out, str(Path(rel).parent))
+                os.replace(stage / rel, folder / Path(rel).name)
+        finally:
+            shutil.rmtree(stage, ignore_errors=True)
         lines = []
-        for date, files in sorted(calib.items()):
-            if not any(s.date == date for s in seqs.values()):
-                continue
-            folder = _folder(out, f"kitti_raw/{date}")
-            for fname, (src, member) in sorted(files.items()):
-                _copy(src, member, folder / fname, png=False)
         entries = []
         for key in sorted(seqs, key=lambda k: (k[0], k[1] or "", k[2])):
             s = seqs[key]
             base = s.folder()
-            n_files = sum(len(v) for v in s.images.values())
-            say(f"{s.label}: {n_files} image(s) -> {out / base}")
-            done = 0
-            for cam, frames in sorted(s.images.items()):
-                rel = f"{base}/{cam}/data" if s.kind == "raw" else f"{base}/{cam}"
-                folder = _folder(out, rel)
-                for frame, (src, member) in sorted(frames.items()):
-                    _copy(src, member, folder / f"{frame}.png", png=True)
-                    done += 1
-                    if done % 500 == 0:
-                        say(f"{s.label}: {done}/{n_files} image(s)")
-            for fname, (src, member) in sorted(s.files.items()):
-                _copy(
-                    src,
-                    member,
-                    _folder(out, f"{base}/{Path(fname).parent}".rstrip("/.")) / Path(fname).name,
-                    png=False,
-                )
             frames = sorted(next(iter(v for v in s.images.values() if v)))
             entry: dict[str, str] = {"name": s.dataset_name(), "input": base}
             gt_note = ""
-            gt_name = GROUND_TRUTH.get((s.kind, s.date, s.name))
-            if gt_name is not None:
-                gt_note = _write_gt(out, base, frames, gt_name, entry)
+            if base in gts:
+                gt_note = _write_gt(out, base, frames, gts[base], entry)
             entries.append(entry)
             lines.append(f"{s.label}: {len(frames)} frame(s) -> {out / base}{gt_note}")
         dataset = out / "kitti.yaml"
         _write_dataset(dataset, entries)
+        owned.seal(out)
         lines.append(
             f"dataset file: {dataset} ({len(entries)} sequence(s)); e.g. "
             f"lanegraph ablate paper ablations/slt --dataset {dataset} --out out/kitti"

@@ -1,1 +1,1 @@
-"""Evaluation: the lane metrics, datasets of sequences, ablations."""
+"""Evaluation: the lane metrics, datasets of sequences, ablations (their tables and plots)."""

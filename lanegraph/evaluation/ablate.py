@@ -33,7 +33,6 @@ from ..errors import UsageError
 from ..graph.files import ResolvedGraph
 from ..paths import inside, safe_name, write_text_atomic
 from ..plugins import get_plugin_manager
-from ..presentation.plots import write_ablation_plots
 from ..run.batch import Planned, Planner, clean_leftovers, finish_runs
 from ..run.cache import ResultCache, digest
 from ..run.provenance import git_commit
@@ -43,6 +42,7 @@ from ..run.resume import input_identity
 from ..run.runners import InProcessRunner, Runner
 from .dataset import POOLED, Dataset, evaluate_sequences, read_gt
 from .metrics import evaluate, read_predictions
+from .plots import write_ablation_plots
 
 
 @dataclass

@@ -20,13 +20,16 @@ next frame would be read on the main thread), with ``Executor(overlap=False)`` o
 from __future__ import annotations
 
 import os
+import threading
 import time
 from collections.abc import Iterator
+from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Any
 
-from .._runtime import worker_pool
+from .. import interrupts
 from ..graph.model import Graph, GraphNode
+from ..threads import leave_signals_to_the_main_thread
 from .outcome import RunResult
 from .plan import NO_VALID_FLAG, Step
 
@@ -113,6 +116,8 @@ class RunAhead:
         self._steps: list[Step] = []
         self._feedback: tuple[tuple[str, str], ...] = ()  # the feedback inputs of those nodes
         self._pending: _Pending | None = None
+        #: what a signal made the run abandon on its thread (:meth:`drop`), in words
+        self.abandoned: str | None = None
 
     def plan(self, graph: Graph, plan: list[Step], cached: bool) -> None:
         """Which nodes the next frame computes ahead, and from which step of this frame's plan on.
@@ -188,7 +193,7 @@ class RunAhead:
                 done.append((step, out, ms))
             return done
 
-        self._pending = _Pending(frame_out, previous, worker_pool("ahead", 1).submit(compute))
+        self._pending = _Pending(frame_out, previous, _on_a_thread(compute, [s.id for s in steps]))
 
     def take(self, frame_out: dict, previous: dict, hooks: frozenset[str]) -> dict[str, tuple[dict, float]]:
         """This frame's nodes computed ahead: node id -> (outputs, ms); none when nothing was
@@ -202,6 +207,9 @@ class RunAhead:
             done = pending.future.result()
         except _Abandon:
             return {}
+        except BaseException:  # a signal while it waits: drop() says what is abandoned
+            self._pending = pending
+            raise
         if pending.frame_out is not frame_out or any(
             previous.get(k) is not v for k, v in pending.previous.items()
         ):
@@ -210,11 +218,46 @@ class RunAhead:
             return {}  # it is called before the node: the node runs again in turn
         return {step.id: (out, ms) for step, out, ms in done}
 
-    def drop(self) -> None:
-        """Wait for a computation ahead that no frame will take (the stream ended or failed)."""
+    def drop(self) -> str | None:
+        """Wait for a computation ahead that no frame will take (the stream ended or failed); when
+        a signal is stopping the run, abandon it on its thread instead (it may never end: a node
+        that hangs): returns what was abandoned, in words, for the record."""
         pending, self._pending = self._pending, None
-        if pending is not None:
-            try:
-                pending.future.result()
-            except BaseException:  # noqa: BLE001 - a frame not taken: its errors are not the run's
-                pass
+        if pending is None:
+            return None
+        if interrupts.signalled() is not None and not pending.future.done():
+            nodes = ", ".join(getattr(pending.future, "nodes", []))
+            self.abandoned = (
+                f"interrupted while the next frame's node(s) computed ahead ({nodes}) were still "
+                "running: abandoned on their thread, not waited for"
+            )
+            return self.abandoned
+        try:
+            pending.future.result()
+        except BaseException:  # noqa: BLE001 - a frame not taken: its errors are not the run's
+            pass
+        return None
+
+    def stopped(self) -> list[str]:
+        """:meth:`drop` when the run stops (an error, a signal): what was abandoned, as notes."""
+        note = self.drop() or self.abandoned
+        return [note] if note else []
+
+
+def _on_a_thread(compute: Any, nodes: list[str]) -> Future:
+    """``compute()`` on a daemon thread of its own: a node that never returns is abandoned there
+    when a signal stops the run, and does not keep the process from exiting."""
+    future: Future = Future()
+    future.nodes = nodes  # type: ignore[attr-defined]
+
+    def work() -> None:
+        leave_signals_to_the_main_thread()
+        if not future.set_running_or_notify_cancel():
+            return
+        try:
+            future.set_result(compute())
+        except BaseException as exc:  # noqa: BLE001 - handed to the frame that takes it
+            future.set_exception(exc)
+
+    threading.Thread(target=work, name="lanegraph-ahead", daemon=True).start()
+    return future

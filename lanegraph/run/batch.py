@@ -345,11 +345,9 @@ def count_frames(
     nt = select_source(pm, src.type, src.params, input_path, file=g.file, node=src.id)
     inst = open_source(nt, src.params if nt is src.type else nt.params(), input_path, frames, src.id)
     try:
-        return len(inst)
-    except TypeError:
-        return None
+        return len(inst) if "len" in nt.capabilities else None
     finally:
-        close_source(inst)
+        close_source(inst, nt)
 
 
 def _as_slice(r: range) -> slice:

@@ -20,27 +20,32 @@ shared file system:
 - temporary files left by a process killed while writing are removed by the next eviction once
   they are an hour old.
 
-Entries are pickles, read by a restricted unpickler (:func:`safe_loads`) that can build only
-builtin containers, NumPy arrays, dtypes and scalars, and lanegraph's port value types
-(:mod:`lanegraph.types`): a crafted entry in a shared folder cannot run code. An entry it refuses is
-a miss (with a :class:`CacheWarning`) and is computed again and overwritten; a value it would refuse
-(a plugin's own class) is not stored.
+Entries are data (:mod:`lanegraph.storage`: a value of a class is stored by the port type that
+stores it, its ``encode`` / ``decode`` -- lanegraph's own value types and a plugin's alike), pickled
+and read by a restricted unpickler (:func:`safe_loads`) that can build only builtin containers and
+NumPy arrays, dtypes and scalars: a crafted entry in a shared folder cannot run code. An entry it
+refuses is a miss (with a :class:`CacheWarning`) and is computed again and overwritten; a value no
+registered port type stores is not stored.
 """
 
 from __future__ import annotations
 
-import hashlib
 import io
-import json
 import os
 import pickle
 import time
 import warnings
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from .._numba import cache_root
 from ..paths import new_temp_file
+from ..port_types import PORT_TYPES
+from ..storage import Codecs, StorageError, decode_value, digest, encode_value
+from ..types import PortType
+
+__all__ = ["CacheWarning", "Caching", "ResultCache", "digest", "safe_loads"]
 
 DEFAULT_MAX_BYTES = 2 * 1024**3
 #: a temporary entry file older than this (seconds) belongs to a writer that died
@@ -49,15 +54,6 @@ STALE_TMP_S = 3600.0
 
 class CacheWarning(UserWarning):
     """A cache entry was refused or could not be stored; the run goes on without it."""
-
-
-def digest(*parts: Any) -> str:
-    """A stable hex digest of JSON-able parts."""
-    h = hashlib.sha256()
-    for p in parts:
-        h.update(json.dumps(p, sort_keys=True, default=str).encode())
-        h.update(b"\0")
-    return h.hexdigest()
 
 
 #: (module, name) pairs an entry may name: builtin containers, NumPy's reconstruction functions
@@ -82,29 +78,22 @@ _ALLOWED_GLOBALS = {
     *((f"numpy.{core}.multiarray", fn) for core in ("core", "_core") for fn in ("_reconstruct", "scalar")),
     *((f"numpy.{core}.numeric", "_frombuffer") for core in ("core", "_core")),
 }
-#: the port value types of lanegraph.types an entry may hold
-_ALLOWED_TYPES = ("Calibration", "RoadModel", "BevGeometry", "FeatureMap", "Line", "Lane")
 
 
 class _RestrictedUnpickler(pickle.Unpickler):
-    """An unpickler that resolves only the globals of :data:`_ALLOWED_GLOBALS` and lanegraph's port
-    value types; anything else (``os.system``, ``builtins.eval``, a plugin's class) is refused
-    before it is even imported."""
+    """An unpickler that resolves only the globals of :data:`_ALLOWED_GLOBALS`; anything else
+    (``os.system``, ``builtins.eval``, any class, lanegraph's and a plugin's too) is refused before
+    it is even imported."""
 
     def find_class(self, module: str, name: str) -> Any:
         if (module, name) in _ALLOWED_GLOBALS:
             return super().find_class(module, name)
-        if module == "lanegraph.types" and name in _ALLOWED_TYPES:
-            from .. import types
-
-            return getattr(types, name)
         raise pickle.UnpicklingError(f"{module}.{name} is not a type a cache entry may hold")
 
 
 def safe_loads(data: bytes) -> Any:
     """Unpickle ``data`` with the restricted unpickler; raises ``pickle.UnpicklingError`` for a
-    pickle naming anything but builtin containers, NumPy arrays/dtypes/scalars and the value types
-    of :mod:`lanegraph.types`."""
+    pickle naming anything but builtin containers and NumPy arrays, dtypes and scalars."""
     return _RestrictedUnpickler(io.BytesIO(data)).load()
 
 
@@ -141,7 +130,10 @@ class ResultCache:
                 pass
         return total
 
-    def get(self, key: str) -> Any:
+    def get(self, key: str, port_types: Mapping[str, PortType] | Codecs | None = None) -> Any:
+        """The value stored under ``key``, its values of other classes than data decoded by the
+        port types of ``port_types`` that store them (default: lanegraph's own); :attr:`MISS`
+        when there is none, or it cannot be read or decoded."""
         p = self._path(key)
         try:
             data = p.read_bytes()
@@ -149,8 +141,8 @@ class ResultCache:
             self.misses += 1
             return self.MISS
         try:
-            value = safe_loads(data)
-        except pickle.UnpicklingError as exc:
+            value = decode_value(safe_loads(data), "entry", PORT_TYPES if port_types is None else port_types)
+        except (pickle.UnpicklingError, StorageError) as exc:
             warnings.warn(
                 f"result cache: {p}: entry refused ({exc}); computed again", CacheWarning, stacklevel=2
             )
@@ -166,15 +158,20 @@ class ResultCache:
         self.hits += 1
         return value
 
-    def put(self, key: str, value: Any) -> bool:
-        """Store ``value``; returns whether it was stored (not when larger than the bound, or when
-        :func:`safe_loads` would refuse it)."""
-        data = pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL)
-        if len(data) > self.max_bytes:
-            return False
+    def put(self, key: str, value: Any, port_types: Mapping[str, PortType] | Codecs | None = None) -> bool:
+        """Store ``value`` as data (:func:`lanegraph.storage.encode_value`: a value of another
+        class by the port type of ``port_types`` that stores it, default lanegraph's own); returns
+        whether it was stored (not when larger than the bound, or when no port type stores one of
+        its values)."""
         try:
+            encoded = encode_value(
+                value, "result", PORT_TYPES if port_types is None else port_types, arrays="native"
+            )
+            data = pickle.dumps(encoded, protocol=pickle.HIGHEST_PROTOCOL)
+            if len(data) > self.max_bytes:
+                return False
             safe_loads(data)  # store only what a reader will accept
-        except pickle.UnpicklingError as exc:
+        except (StorageError, pickle.UnpicklingError) as exc:
             warnings.warn(f"result cache: a result was not stored: {exc}", CacheWarning, stacklevel=2)
             return False
         p = self._path(key)

@@ -17,7 +17,6 @@ from typing import Any
 
 from ..errors import InputError, LanegraphError, UsageError
 from ..frames import selection_text
-from ..lifecycle import Resumable
 from ..types import PortType
 from .resume import (
     _HINT,
@@ -97,9 +96,8 @@ class Checkpointer:
                     raise UsageError(
                         f"{where}: feedback[{i}]: no feedback edge of the graph comes from {fb.node}.{fb.port}{_HINT}"
                     )
-            self.resumed_feedback = decode_feedback(
-                resume, where
-            )  # a malformed value: refused before anything opens
+            # a malformed value: refused before anything opens
+            self.resumed_feedback = decode_feedback(resume, where, port_types)
             # lanes are lanes, not a string: checked by the registered port types, a plugin's too
             check_feedback_types(self.resumed_feedback[0], graph, where, port_types, resume.last_frame)
 
@@ -108,7 +106,7 @@ class Checkpointer:
         return self.path or Path("checkpoint")
 
     def resume_nodes(self, graph: Any, instances: dict[str, Any], opened: OpenedInput) -> None:
-        """Resuming: the input checked against the checkpoint's, and every :class:`Resumable` node
+        """Resuming: the input checked against the checkpoint's, and every node that declares ``resume``
         handed its checkpointed state (a :class:`UsageError` or the node's
         :class:`InputError` when that is not possible)."""
         ck = self.resume
@@ -124,7 +122,7 @@ class Checkpointer:
                 f"{where}: the frame selection now has {opened.total} frame(s), the checkpoint's run had {ck.total}{_HINT}"
             )
         for nid, inst in instances.items():
-            if isinstance(inst, Resumable):
+            if "resume" in graph.nodes[nid].type.capabilities:
                 try:
                     inst.restore(ck.states.get(nid))
                 except LanegraphError:
@@ -157,13 +155,16 @@ class Checkpointer:
             problem = feedback_type_problem(previous, self.graph, self.port_types)
             reason = None if problem is None else f"frame {frame}: feedback {problem}"
             try:
-                feedback = feedback_entries(previous, prev_keys)
+                feedback = feedback_entries(previous, prev_keys, self.port_types)
             except CheckpointValueError as exc:
                 reason = f"a feedback value cannot be stored ({exc})"
             if reason is not None:
                 self.unresumable, feedback = reason, []
                 result.notes.append(f"--resume will not be possible for this run: {self.unresumable}")
-        states = {nid: inst.state() for nid, inst in instances.items() if isinstance(inst, Resumable)}
+        nodes = self.graph.nodes
+        states = {
+            nid: inst.state() for nid, inst in instances.items() if "resume" in nodes[nid].type.capabilities
+        }
         data = {
             "format": FORMAT,
             "version": VERSION,

@@ -31,18 +31,10 @@ from .. import interrupts
 from .._runtime import tune_allocator
 from ..errors import HookError, InputError, LanegraphError, NodeError
 from ..graph.model import Graph, GraphNode
-from ..lifecycle import (
-    Identified,
-    KeyedFrames,
-    Sink,
-    Sized,
-    SkipsFrames,
-    close_all,
-    constants_of,
-    verify_all,
-)
+from ..lifecycle import close_all, constants_of, verify_all
 from ..nodes import RunContext
 from ..plugins import PluginManager, call_hook, get_plugin_manager
+from ..storage import Codecs
 from .ahead import Lookahead, RunAhead, checked, count_valid
 from .cache import Caching, ResultCache, digest
 from .checkpointing import Checkpointer, OpenedInput, run_identity
@@ -116,6 +108,8 @@ class Executor:
         later nodes run (:mod:`lanegraph.run.ahead`; ``LANEGRAPH_OVERLAP=0`` turns it off too)."""
         self.graph = graph
         self.pm = pm or get_plugin_manager()
+        #: how the result cache stores the values (the registered port types', a plugin's too)
+        self.storage = Codecs(self.pm.port_types)
         ctx0 = context or RunContext()
         # what the run is (the graph as the user wrote it), checked before anything opens
         self.identity = checkpointer.identity if checkpointer is not None else run_identity(graph, ctx0)
@@ -192,7 +186,7 @@ class Executor:
             )
         use_cache = self.cache is not None and key is not None and node.id in self.cache_nodes
         if use_cache:
-            hit = self.cache.get(key)
+            hit = self.cache.get(key, self.storage)
             if hit is not self.cache.MISS:
                 result.timings_ms.setdefault(node.id, []).append(hit["ms"])  # the time it took to compute
                 result.cache_hits[node.id] = result.cache_hits.get(node.id, 0) + 1
@@ -224,7 +218,7 @@ class Executor:
                 raise _SkipFrame()
             return {p: None for p in node.type.outputs}
         if use_cache:
-            self.cache.put(key, {"outputs": out, "ms": elapsed})
+            self.cache.put(key, {"outputs": out, "ms": elapsed}, self.storage)
             result.cache_misses[node.id] = result.cache_misses.get(node.id, 0) + 1
         self._after_node(node, frame, out, elapsed, None)
         return out
@@ -260,7 +254,8 @@ class Executor:
         try:
             self._open()
         except BaseException:
-            close_all(reversed(list(self.instances.values())))  # the nodes opened before the failing one
+            # the nodes opened before the failing one
+            close_all(reversed([(inst, self.graph.nodes[nid].type) for nid, inst in self.instances.items()]))
             self.instances.clear()
             raise
 
@@ -270,6 +265,8 @@ class Executor:
             n = g.nodes[nid]
             if n.type.stateful:
                 ctx = RunContext(**{**self.context.__dict__, "node_id": nid, "graph_file": g.file})
+                if "skip" not in n.type.capabilities:  # the executor drops a resumed run's frames itself
+                    ctx.skip = 0
                 try:
                     self.instances[nid] = n.type.func(n.params, ctx)
                 except LanegraphError:
@@ -280,15 +277,12 @@ class Executor:
                     ) from exc
                 except Exception as exc:  # noqa: BLE001
                     raise NodeError(nid, n.type.name, None, exc) from exc
-        source = self.instances[g.source.id]
-        self._skipped = int(source.skipped or 0) if isinstance(source, SkipsFrames) else 0
-        try:
-            total: int | None = len(source) + self._skipped
-        except TypeError:
-            total = None
+        source, declared = self.instances[g.source.id], g.source.type.capabilities
+        self._skipped = int(source.skipped or 0) if "skip" in declared else 0
+        total = len(source) + self._skipped if "len" in declared else None
         identity = (
             str(source.identity())
-            if isinstance(source, Identified)
+            if "identity" in declared
             else input_identity(self.context.input_path, self.context.out_dir)
         )
         self._opened = OpenedInput(identity, total)
@@ -317,6 +311,7 @@ class Executor:
                 self._write_checkpoint(at.position, at.last_frame, at.previous, at.prev_keys, complete=True)
         except BaseException as exc:
             failed = exc
+            result.notes += self.ahead.stopped()  # a signal: what runs ahead is abandoned
             raise
         finally:
             self.close()  # an error of a close must not hide the run's own
@@ -364,7 +359,7 @@ class Executor:
         keys: dict[tuple[str, str], str | None] = {}
         caching = self.cache is not None
         src_params = src.params.model_dump(mode="json")
-        consts = constants_of(source)
+        consts = constants_of(source, src.type)
         for port, v in consts.items():
             values[(src.id, port)] = v
             keys[(src.id, port)] = (
@@ -468,8 +463,7 @@ class Executor:
         cur = dict(values)
         cur_keys = dict(keys)
         src = self.instances[src_id]
-        # (a runtime protocol check costs tens of microseconds: only with a cache)
-        keyed = self.cache is not None and isinstance(src, KeyedFrames)
+        keyed = self.cache is not None and "frame_key" in g.source.type.capabilities
         identity = src.frame_key(frame) if keyed else None
         src_params = g.source.params.model_dump(mode="json") if identity is not None else None
         for port, v in frame_out.items():
@@ -570,11 +564,17 @@ class Executor:
 
     def __len__(self) -> int:
         src = self.instances.get(self.graph.source.id)
-        return len(src) if isinstance(src, Sized) else 0
+        return len(src) if src is not None and "len" in self.graph.source.type.capabilities else 0
 
     def outputs(self) -> list[Any]:
-        """The files the sinks say they wrote (:class:`lanegraph.lifecycle.Sink`)."""
-        return [p for inst in self.instances.values() if isinstance(inst, Sink) for p in inst.outputs]
+        """The files the sinks say they wrote (those that declare ``outputs``, :mod:`lanegraph.lifecycle`)."""
+        nodes = self.graph.nodes
+        return [
+            p
+            for nid, inst in self.instances.items()
+            if "outputs" in nodes[nid].type.capabilities
+            for p in inst.outputs
+        ]
 
     # -- life cycle ------------------------------------------------------------
     def close(self) -> BaseException | None:
@@ -583,7 +583,7 @@ class Executor:
         if self._closed or not self.instances:
             return None
         self._closed = True
-        return close_all(self.instances.values())
+        return close_all((inst, self.graph.nodes[nid].type) for nid, inst in self.instances.items())
 
     def __enter__(self) -> Executor:
         """Open the nodes; leaving the block closes them, however it is left."""

@@ -8,54 +8,43 @@ run, killed before it could write its record); a link planted at one of these na
 record. :func:`check` (before anything is written) and :func:`claim` (under the folder's lock)
 compare that with the command about to run:
 
-- an empty folder, or one holding no record of lanegraph's: the run goes on (files of the user's
-  beside are left alone); a record of an older lanegraph, without an identity: replaced, with a
-  warning;
+- an empty folder, or one holding no record of lanegraph's: a new folder; the run goes on, its
+  files beside the user's, or is refused when one of the names it writes is taken by a path that
+  is not lanegraph's (:mod:`lanegraph.run.owned`: lanegraph replaces or removes only what its
+  genuine ownership record lists, for the very file);
 - the same run (same graph and params, input and frames), finished: it is run again into the folder;
 - the same run, unfinished (interrupted, killed, stopped): refused unless ``--resume`` continues it;
 - another run's results (another graph, params, input or frames; another ablation's variants):
   refused, saying what differs;
 
 each refusal with the hint: ``--resume``, ``--overwrite`` or a new folder, exit 2. ``--overwrite``
-removes what lanegraph wrote there (:func:`written_paths`: its result files, run files, debug
-pictures, report, ``runs/``), nothing else, then the run starts in a folder as good as new.
+removes what the ownership record lists (:func:`lanegraph.run.owned.clear`: all or nothing), nothing
+else; then the run starts in a folder as good as new.
 """
 
 from __future__ import annotations
 
 import json
-import shutil
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from ..errors import UsageError
 from ..paths import OutputLock
 from ..runlog import get_logger
+from . import owned
 
 log = get_logger("run")
 
 RECORD = "run.json"
 COMMAND_RECORD = "command.json"
 CHECKPOINT = "checkpoint.json"
-#: files and folders lanegraph writes into an output folder under fixed names (what a folder of an
-#: older lanegraph, whose record lists nothing, is known to hold)
-KNOWN_NAMES = (
-    "run.json",
-    "command.json",
-    "timings.json",
-    "checkpoint.json",
-    "checkpoint.pkl",
-    "run.log",
-    "graph.yaml",
-    "run_key.txt",
-    "results.csv",
-    "results.md",
-    "accuracy.png",
-    "accuracy_vs_ms.png",
-    "runs",
-)
-#: the mark the report leaves in its assets folder (a report folder with it is lanegraph's)
-REPORT_MARK = ".lanegraph-report"
+#: the files a run writes into its folder under fixed names (besides its sinks' files)
+RUN_NAMES = ("run.json", "timings.json", "checkpoint.json", "graph.yaml", "run.log")
+#: the files an ablation or a dataset run writes into OUT under fixed names (besides its runs)
+COMMAND_NAMES = ("command.json", "run.log")
+#: an ablation's tables and plots
+ABLATION_NAMES = ("results.csv", "results.md", "accuracy.png", "accuracy_vs_ms.png")
 LOCK = ".lanegraph.lock"
 HINT = "continue it with --resume, replace it with --overwrite (removes only what lanegraph wrote there), or choose another output folder"
 _HINT_OTHER = (
@@ -95,27 +84,6 @@ def read_state(folder: Path) -> tuple[dict[str, Any] | None, dict[str, Any] | No
     folder = Path(folder)
     record = _read_json(folder / RECORD) or _read_json(folder / COMMAND_RECORD)
     return record, _read_json(folder / CHECKPOINT)
-
-
-def holds_results(folder: Path) -> bool:
-    """Whether ``folder`` holds any file lanegraph writes under a fixed name (or its report)."""
-    folder = Path(folder)
-    if not folder.is_dir():
-        return False
-    return (
-        any((folder / n).exists() or (folder / n).is_symlink() for n in [*KNOWN_NAMES, *_result_names()])
-        or (folder / "report" / "assets" / REPORT_MARK).is_file()
-    )
-
-
-def _result_names() -> list[str]:
-    """The default files of the installed sinks' result kinds (``lanes.jsonl``: the lanes writer's)."""
-    from .results import LANES, default_names
-
-    try:
-        return default_names(LANES)
-    except Exception:  # noqa: BLE001 - no plugin manager to ask: the fixed names only
-        return []
 
 
 def _describe_identity(ident: dict[str, Any]) -> str:
@@ -192,28 +160,46 @@ def check(
     resolved: dict[str, Any] | None = None,
     option: str = "--out",
     locked: bool = False,
+    writes: Mapping[str, str] | None = None,
 ) -> None:
     """Refuse (:class:`UsageError`, exit 2) a folder that may not take the run of ``identity`` (see
-    the module's doc); reads only, writes nothing. With ``overwrite`` every folder may. ``locked``:
-    the caller holds the folder's lock (else a run writing there now is said first)."""
+    the module's doc); reads only, writes nothing. With ``overwrite`` a folder of another run may.
+    ``locked``: the caller holds the folder's lock (else a run writing there now is said first).
+    ``writes``: the paths the command writes (:func:`lanegraph.run.owned.taken`); one of them there
+    and not lanegraph's is refused, with or without ``overwrite``."""
     folder = Path(folder)
     if not locked:
         OutputLock(folder).probe()  # a run writing there now is said first, as the lock says it
-    if overwrite or not folder.is_dir():
+        owned.note_absent(folder, writes or {})  # what is not there yet, the command makes
+    if not folder.is_dir():
         return
     if resume and any((folder / n).exists() for n in (CHECKPOINT, "checkpoint.pkl")):
         return  # --resume checks its checkpoint against this run itself, naming what differs
+    if not overwrite:
+        _check_identity(folder, identity, resume, resolved, option)
+    bad = owned.taken(folder, writes or {})
+    if bad:
+        more = (
+            f" (and {len(bad) - 1} more: {', '.join(bad[1:4])}{', ...' if len(bad) > 4 else ''})"
+            if len(bad) > 1
+            else ""
+        )
+        raise UsageError(
+            f"{option} {folder}: {bad[0]} is there and not lanegraph's{more}: no genuine record of lanegraph "
+            "in the folder lists it, and lanegraph never replaces or removes what it did not write; "
+            "move it away or choose another output folder"
+        )
+
+
+def _check_identity(
+    folder: Path, identity: dict[str, Any], resume: bool, resolved: dict[str, Any] | None, option: str
+) -> None:
     record, ckpt = read_state(folder)
     recorded = record.get("identity") if record is not None else None
     if not isinstance(recorded, dict) and ckpt is not None and identity.get("kind") == "run":
         recorded = _checkpoint_identity(ckpt)  # killed before its record, or an older record
     if not isinstance(recorded, dict):
-        if record is not None:  # an older lanegraph's run: no identity to compare; replaced
-            log.warning(
-                "%s %s: holds a run of an older lanegraph (its %s records no identity): this run replaces its results",
-                option, folder, RECORD if (folder / RECORD).is_file() else COMMAND_RECORD,
-            )  # fmt: skip
-        return
+        return  # no record (or an older lanegraph's): what it holds is not lanegraph's (taken)
     diff = difference(recorded, identity, folder, resolved)
     if diff is not None:
         raise UsageError(
@@ -234,11 +220,22 @@ def claim(
     overwrite: bool = False,
     resolved: dict[str, Any] | None = None,
     option: str = "--out",
+    writes: Mapping[str, str] | None = None,
 ) -> list[Path]:
-    """:func:`check` (the caller holding the folder's lock), then with ``overwrite`` :func:`clear`:
-    returns what was removed."""
-    check(folder, identity, resume=resume, overwrite=overwrite, resolved=resolved, option=option, locked=True)
-    return clear(folder) if overwrite and holds_results(folder) else []
+    """:func:`check` (the caller holding the folder's lock), then with ``overwrite``
+    :func:`lanegraph.run.owned.clear`; notes what ``writes`` hold before the command writes
+    (:func:`lanegraph.run.owned.begin`, for :func:`seal`). Returns what was removed."""
+    check(folder, identity, resume=resume, overwrite=overwrite, resolved=resolved, option=option,
+          locked=True, writes=writes)  # fmt: skip
+    removed = owned.clear(folder, "--overwrite") if overwrite else []
+    owned.begin(folder, writes or {})
+    return removed
+
+
+def seal(folder: Path, *, final: bool = True) -> None:
+    """Record what the command wrote in ``folder`` (:func:`lanegraph.run.owned.seal`): what a later
+    ``--overwrite`` may remove. ``final=False`` early in a run, so that a killed run's files are known."""
+    owned.seal(folder, final=final)
 
 
 def _unfinished(record: dict[str, Any] | None, ckpt: dict[str, Any] | None) -> str | None:
@@ -251,51 +248,3 @@ def _unfinished(record: dict[str, Any] | None, ckpt: dict[str, Any] | None) -> s
     if record is not None and record.get("status") == "stopped" and ckpt is None:
         return f"stopped: {(record.get('stopped') or {}).get('error') or record.get('error') or 'unknown'}"
     return None
-
-
-def written_paths(folder: Path, record: dict[str, Any] | None) -> list[Path]:
-    """What lanegraph wrote in ``folder``: what its record lists (``written``, ``results``,
-    ``debug_dir``), the files of :data:`KNOWN_NAMES` and a report folder with lanegraph's mark.
-    Only paths inside ``folder`` (no absolute path, no ``..``); links count as themselves."""
-    folder = Path(folder)
-    names: list[str] = [*KNOWN_NAMES, *_result_names()]
-    if record is not None:
-        for key in ("written",):
-            names += [str(p) for p in record.get(key) or [] if isinstance(p, str)]
-        names += [str(p) for p in (record.get("results") or {}).values() if isinstance(p, str)]
-        if isinstance(record.get("debug_dir"), str):
-            names.append(record["debug_dir"])
-    if (folder / "report" / "assets" / REPORT_MARK).is_file() or (
-        (folder / "report" / "index.html").is_file() and not (folder / "report" / "assets").exists()
-    ):
-        names.append("report")
-    out: list[Path] = []
-    for name in dict.fromkeys(names):
-        parts = Path(name).parts
-        if not name or Path(name).is_absolute() or ".." in parts:
-            continue
-        p = folder / name
-        if (p.exists() or p.is_symlink()) and p not in out:
-            out.append(p)
-    return out
-
-
-def clear(folder: Path, record: dict[str, Any] | None = None) -> list[Path]:
-    """``--overwrite``: remove what lanegraph wrote in ``folder`` (:func:`written_paths`; a link is
-    removed, never followed), nothing else; returns what was removed."""
-    folder = Path(folder)
-    if record is None:
-        record, _ = read_state(folder)
-    removed = []
-    for p in written_paths(folder, record):
-        try:
-            if p.is_symlink() or not p.is_dir():
-                p.unlink()
-            else:
-                shutil.rmtree(p)
-        except FileNotFoundError:
-            continue
-        except OSError as exc:
-            raise UsageError(f"--overwrite: cannot remove {p}: {exc.strerror or exc}") from None
-        removed.append(p)
-    return removed

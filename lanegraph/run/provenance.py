@@ -15,6 +15,7 @@ from __future__ import annotations
 import os
 import platform
 import re
+import stat
 import sys
 from importlib import metadata
 from pathlib import Path
@@ -136,6 +137,48 @@ def command_line(argv: list[str] | None = None) -> list[str]:
     return args
 
 
+#: the largest ``.git`` file read (``HEAD``, a ref, ``commondir``, a ``.git`` file); ``packed-refs``
+_SMALL, _PACKED = 64 * 1024, 4 * 1024 * 1024
+_KINDS = {stat.S_IFIFO: "a FIFO", stat.S_IFCHR: "a device", stat.S_IFBLK: "a device",
+          stat.S_IFSOCK: "a socket", stat.S_IFDIR: "a folder"}  # fmt: skip
+
+
+class _Skipped(Exception):
+    """A ``.git`` file that is not read: not a regular file, too large, not UTF-8 text."""
+
+
+def _read_small(path: Path, limit: int = _SMALL) -> str | None:
+    """The text of the regular file ``path`` (a link followed), read as bytes up to ``limit`` and
+    decoded as UTF-8; None when it is not there. Never blocks (a FIFO), never reads a device
+    (``/dev/zero``) or more than ``limit``: :class:`_Skipped` says why."""
+    try:
+        st = os.stat(path)
+    except (OSError, ValueError):
+        return None
+    if not stat.S_ISREG(st.st_mode):
+        raise _Skipped(f"{path}: {_KINDS.get(stat.S_IFMT(st.st_mode), 'not a regular file')}, not read")
+    if st.st_size > limit:
+        raise _Skipped(f"{path}: {st.st_size} bytes, more than the {limit} read")
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
+    except OSError:
+        return None
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):  # replaced since: not read
+            raise _Skipped(f"{path}: not a regular file, not read")
+        data = os.read(fd, limit + 1)
+    except OSError:
+        return None
+    finally:
+        os.close(fd)
+    if len(data) > limit:
+        raise _Skipped(f"{path}: more than the {limit} bytes read")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise _Skipped(f"{path}: not UTF-8 text, not read") from None
+
+
 def _git_dir(start: Path) -> Path | None:
     """The git folder of the checkout holding ``start`` (``.git``, or the folder a ``.git`` file
     of a worktree or submodule names), or None."""
@@ -144,55 +187,55 @@ def _git_dir(start: Path) -> Path | None:
         try:
             if dot.is_dir():
                 return dot
-            if dot.is_file():
-                text = dot.read_text(encoding="utf-8", errors="replace")[:4096].strip()
+            if dot.exists():
+                text = (_read_small(dot) or "").strip()
                 if text.startswith("gitdir:"):
                     target = Path(text[len("gitdir:") :].strip())
                     return target if target.is_absolute() else (folder / target)
                 return None
-        except OSError:
+        except (OSError, ValueError):
             return None
     return None
 
 
 def _read_ref(git_dir: Path, common: Path, ref: str) -> str | None:
     for base in (git_dir, common):
-        try:
-            value = (base / ref).read_text(encoding="utf-8").strip()
-            if _SHA.match(value):
-                return value
-        except (OSError, ValueError):
-            pass
-    try:  # packed refs: "<sha> <ref>" lines
-        for line in (common / "packed-refs").read_text(encoding="utf-8").splitlines():
-            parts = line.split()
-            if len(parts) == 2 and parts[1] == ref and _SHA.match(parts[0]):
-                return parts[0]
-    except OSError:
-        pass
+        value = (_read_small(base / ref) or "").strip()
+        if _SHA.match(value):
+            return value
+    for line in (_read_small(common / "packed-refs", _PACKED) or "").splitlines():  # "<sha> <ref>"
+        parts = line.split()
+        if len(parts) == 2 and parts[1] == ref and _SHA.match(parts[0]):
+            return parts[0]
     return None
 
 
 def git_commit(path: Path) -> dict[str, str] | None:
     """``{"commit": sha, "branch": name}`` (no ``branch`` on a detached head) of the git checkout
     holding ``path``, read from its ``.git`` files (git is not run); None outside a checkout or
-    when the files are not readable."""
+    when the files are not there. The files are read only when they are regular files, small and
+    UTF-8 text (never a FIFO, a device or a huge file): otherwise ``{"skipped": why}``, a note of
+    the record, and the run goes on."""
     try:
         start = Path(path).resolve()
     except (OSError, RuntimeError):
         return None
+    try:
+        return _commit(start)
+    except _Skipped as exc:
+        return {"skipped": f"{exc}: the graph's git commit is not recorded"}
+
+
+def _commit(start: Path) -> dict[str, str] | None:
     git_dir = _git_dir(start if start.is_dir() else start.parent)
     if git_dir is None:
         return None
     common = git_dir
-    try:
-        cd = (git_dir / "commondir").read_text(encoding="utf-8").strip()
+    cd = (_read_small(git_dir / "commondir") or "").strip()
+    if cd:
         common = Path(cd) if os.path.isabs(cd) else (git_dir / cd)
-    except OSError:
-        pass
-    try:
-        head = (git_dir / "HEAD").read_text(encoding="utf-8").strip()
-    except OSError:
+    head = (_read_small(git_dir / "HEAD") or "").strip()
+    if not head:
         return None
     if _SHA.match(head):
         return {"commit": head}

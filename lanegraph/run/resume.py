@@ -2,8 +2,9 @@
 
 A run rewrites ``OUT/checkpoint.json`` atomically (a temporary file and a rename) before its first
 frame and after every frame of the selection it has consumed, done or failed. The checkpoint is
-data only -- JSON, arrays as base64 with their dtype and shape, decoded into a fixed set of value
-types; it can never run code -- and holds:
+data only -- JSON, arrays as base64 with their dtype and shape, a value of another class by the
+port type that stores it (:mod:`lanegraph.storage`: its ``encode`` / ``decode``, lanegraph's own
+and a plugin's alike); it can never run code -- and holds:
 
 - ``format``/``version``: what the file is (checked before anything else is read);
 - what the run was: the graph file, the SHA-256 of the resolved graph (every param, ``--set``
@@ -26,265 +27,45 @@ checkpoint of a complete run is not run again.
 
 from __future__ import annotations
 
-import base64
-import dataclasses
 import json
-import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
 
-import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from ..errors import UsageError
 from ..paths import write_bytes_atomic
-from ..types import BevGeometry, Calibration, FeatureMap, Lane, Line, PortType, RoadModel
-from .cache import digest
+from ..port_types import PORT_TYPES
+from ..storage import StorageError, digest
+from ..storage import decode_value as _decode
+from ..storage import encode_value as _encode
+from ..types import PortType
 
 CHECKPOINT_NAME = "checkpoint.json"
 LEGACY_NAME = "checkpoint.pkl"  # written by lanegraph before 0.1: never read (a pickle can run code)
 FORMAT = "lanegraph-checkpoint"
-VERSION = 2  # 2: the lanes writer's state counts its frames (checked against frames_ok)
+#: 2: the lanes writer's state counts its frames (checked against frames_ok); 3: values are stored by
+#: their port types (lanegraph.storage)
+VERSION = 3
 MAX_CHECKPOINT_BYTES = 1 << 30
-MAX_NDIM = 32  #: numpy's own limit on dimensions
-MAX_DIM = 1 << 31  #: the longest side of an array a checkpoint may hold
-MAX_FEATURE_MAP_PIXELS = 1 << 24  #: a FeatureMap's grid (8x the largest BEV grid bev.ipm allows)
-_HINT = "; cannot resume (run without --resume to start over)"
+_HINT = "; cannot resume (start over with --overwrite in place of --resume: it removes only what lanegraph wrote there; or choose another output folder)"
 
-#: the value types a checkpoint may hold besides JSON scalars, lists, tuples, dicts and numpy arrays
-VALUE_TYPES: dict[str, type] = {t.__name__: t for t in (Calibration, RoadModel, BevGeometry, Line, Lane)}
-
-
-class CheckpointValueError(ValueError):
-    """A value a checkpoint cannot hold (on writing) or a malformed encoded value (on reading)."""
+CheckpointValueError = StorageError  #: a value a checkpoint cannot hold, or a malformed stored one
 
 
 # --------------------------------------------------------------------------- values
-def encode_value(value: Any, where: str = "value") -> Any:
-    """A port value as JSON data: scalars as they are (non-finite floats tagged), lists, and
-    ``{"$t": tag, ...}`` for tuples, dicts, numpy arrays and scalars and the types of
-    :data:`VALUE_TYPES` (and :class:`~lanegraph.types.FeatureMap`). Raises
-    :class:`CheckpointValueError` for anything else."""
-    if value is None or isinstance(value, (bool, str)):
-        return value
-    if isinstance(value, np.ndarray):
-        if value.dtype.kind not in "biufc" or value.dtype.hasobject:
-            raise CheckpointValueError(f"{where}: an array of dtype {value.dtype} cannot be stored")
-        arr = np.ascontiguousarray(value)
-        return {
-            "$t": "ndarray",
-            "dtype": arr.dtype.str,
-            "shape": list(arr.shape),
-            "data": base64.b64encode(arr.tobytes()).decode("ascii"),
-        }
-    if isinstance(value, np.generic):
-        if value.dtype.kind not in "biufc":
-            raise CheckpointValueError(f"{where}: a numpy scalar of dtype {value.dtype} cannot be stored")
-        return {
-            "$t": "scalar",
-            "dtype": value.dtype.str,
-            "data": base64.b64encode(value.tobytes()).decode("ascii"),
-        }
-    if isinstance(value, int):
-        return value
-    if isinstance(value, float):
-        return value if math.isfinite(value) else {"$t": "float", "v": repr(value)}
-    if isinstance(value, list):
-        return [encode_value(v, f"{where}[{i}]") for i, v in enumerate(value)]
-    if isinstance(value, tuple):
-        return {"$t": "tuple", "v": [encode_value(v, f"{where}[{i}]") for i, v in enumerate(value)]}
-    if isinstance(value, dict):
-        return {
-            "$t": "dict",
-            "v": [
-                [encode_value(k, f"{where} key"), encode_value(v, f"{where}[{k!r}]")]
-                for k, v in value.items()
-            ],
-        }
-    if isinstance(value, FeatureMap):
-        rows, cols = value.points()
-        return {
-            "$t": "FeatureMap",
-            "shape": list(value.shape),
-            "rows": encode_value(rows, f"{where}.rows"),
-            "cols": encode_value(cols, f"{where}.cols"),
-            "values": encode_value(value.point_orientations(), f"{where}.values"),
-        }
-    name = type(value).__name__
-    if VALUE_TYPES.get(name) is type(value):
-        fields = {
-            f.name: encode_value(getattr(value, f.name), f"{where}.{f.name}")
-            for f in dataclasses.fields(value)
-            if f.init
-        }
-        return {"$t": name, "v": fields}
-    raise CheckpointValueError(
-        f"{where}: a {type(value).__module__}.{type(value).__qualname__} cannot be stored in a checkpoint"
-    )
+def encode_value(value: Any, where: str = "value", port_types: Mapping[str, PortType] | None = None) -> Any:
+    """A port value as JSON data (:func:`lanegraph.storage.encode_value`); a value of a class a
+    port type of ``port_types`` stores (default: lanegraph's own) by that port type's ``encode``.
+    Raises :class:`CheckpointValueError` for anything else."""
+    return _encode(value, where, PORT_TYPES if port_types is None else port_types)
 
 
-def decode_value(data: Any, where: str = "value") -> Any:
+def decode_value(data: Any, where: str = "value", port_types: Mapping[str, PortType] | None = None) -> Any:
     """The inverse of :func:`encode_value`; anything it would not have written raises
-    :class:`CheckpointValueError` naming ``where``. Only the fixed types are ever built."""
-    if data is None or isinstance(data, (bool, str, int)):
-        return data
-    if isinstance(data, float):
-        return data
-    if isinstance(data, list):
-        return [decode_value(v, f"{where}[{i}]") for i, v in enumerate(data)]
-    if not isinstance(data, dict) or not isinstance(data.get("$t"), str):
-        raise CheckpointValueError(
-            f"{where}: expected a JSON scalar, a list or a tagged object {{'$t': ...}}, got {str(data)[:80]}"
-        )
-    tag = data["$t"]
-    try:
-        decode = _DECODERS.get(tag, _decode_dataclass)
-        return decode(data, where)
-    except CheckpointValueError:
-        raise
-    except (KeyError, TypeError, ValueError) as exc:
-        raise CheckpointValueError(
-            f"{where}: malformed {tag!r} value ({type(exc).__name__}: {exc})"
-        ) from None
-
-
-def _decode_float(data: dict[str, Any], where: str) -> float:
-    if data["v"] not in ("nan", "inf", "-inf"):
-        raise CheckpointValueError(f"{where}: expected 'nan', 'inf' or '-inf', got {data['v']!r}")
-    return float(data["v"])
-
-
-def _decode_tuple(data: dict[str, Any], where: str) -> tuple:
-    return tuple(decode_value(v, f"{where}[{i}]") for i, v in enumerate(_list(data["v"], where)))
-
-
-def _decode_dict(data: dict[str, Any], where: str) -> dict:
-    out = {}
-    for i, item in enumerate(_list(data["v"], where)):
-        if not (isinstance(item, list) and len(item) == 2):
-            raise CheckpointValueError(f"{where}[{i}]: expected a [key, value] pair")
-        key = decode_value(item[0], f"{where} key")
-        try:
-            hash(key)
-        except TypeError:
-            raise CheckpointValueError(f"{where}: a dict key must be hashable, got {str(key)[:60]}") from None
-        out[key] = decode_value(item[1], f"{where}[{key!r}]")
-    return out
-
-
-def _decode_ndarray(data: dict[str, Any], where: str) -> np.ndarray:
-    dtype = _dtype(data["dtype"], where)
-    shape = _shape(data["shape"], where)
-    size = math.prod(shape) * dtype.itemsize  # Python integers: no overflow, nothing allocated yet
-    text = data["data"]
-    if not isinstance(text, str):
-        raise CheckpointValueError(f"{where}: data: expected a base64 string")
-    if size > MAX_CHECKPOINT_BYTES or len(text) != 4 * ((size + 2) // 3):
-        raise CheckpointValueError(
-            f"{where}: {len(text)} base64 characters of data do not make an array of shape {shape} and dtype {dtype}"
-        )
-    raw = base64.b64decode(text, validate=True)
-    if len(raw) != size:
-        raise CheckpointValueError(
-            f"{where}: {len(raw)} bytes of data do not make an array of shape {shape} and dtype {dtype}"
-        )
-    return np.frombuffer(raw, dtype=dtype).reshape(shape).copy()
-
-
-def _shape(shape: Any, where: str) -> list[int]:
-    """An array shape read from a checkpoint: at most :data:`MAX_NDIM` integers in
-    ``[0, MAX_DIM]``, checked before anything is allocated."""
-    if not (
-        isinstance(shape, list)
-        and len(shape) <= MAX_NDIM
-        and all(isinstance(n, int) and not isinstance(n, bool) and 0 <= n <= MAX_DIM for n in shape)
-    ):
-        raise CheckpointValueError(
-            f"{where}: shape: expected a list of at most {MAX_NDIM} integers in 0..{MAX_DIM}, got {str(shape)[:60]}"
-        )
-    return shape
-
-
-def _decode_scalar(data: dict[str, Any], where: str) -> np.generic:
-    dtype = _dtype(data["dtype"], where)
-    raw = base64.b64decode(data["data"], validate=True)
-    if len(raw) != dtype.itemsize:
-        raise CheckpointValueError(f"{where}: {len(raw)} bytes of data are not one {dtype}")
-    return np.frombuffer(raw, dtype=dtype)[0]
-
-
-def _decode_feature_map(data: dict[str, Any], where: str) -> FeatureMap:
-    shape = data["shape"]
-    if not (
-        isinstance(shape, list)
-        and len(shape) == 2
-        and all(isinstance(n, int) and not isinstance(n, bool) and 0 <= n <= MAX_DIM for n in shape)
-        and shape[0] * shape[1] <= MAX_FEATURE_MAP_PIXELS
-    ):
-        raise CheckpointValueError(
-            f"{where}: shape: expected [rows, cols] of at most {MAX_FEATURE_MAP_PIXELS} pixels, got {str(shape)[:60]}"
-        )
-    rows, cols = decode_value(data["rows"], f"{where}.rows"), decode_value(data["cols"], f"{where}.cols")
-    values = decode_value(data["values"], f"{where}.values")
-    if not (
-        isinstance(rows, np.ndarray)
-        and isinstance(cols, np.ndarray)
-        and rows.shape == cols.shape
-        and rows.ndim == 1
-    ):
-        raise CheckpointValueError(f"{where}: rows, cols: expected two 1-D arrays of one length")
-    if rows.size and (rows.min() < 0 or cols.min() < 0 or rows.max() >= shape[0] or cols.max() >= shape[1]):
-        raise CheckpointValueError(f"{where}: feature points outside the {shape[0]}x{shape[1]} map")
-    return FeatureMap.from_points(tuple(shape), rows, cols, values)
-
-
-def _decode_dataclass(data: dict[str, Any], where: str) -> Any:
-    """A value of one of :data:`VALUE_TYPES`, from exactly its fields."""
-    tag = data["$t"]
-    cls = VALUE_TYPES.get(tag)
-    if cls is None:
-        raise CheckpointValueError(
-            f"{where}: unknown value type {tag!r} (known: {', '.join(['ndarray', 'FeatureMap', *VALUE_TYPES])})"
-        )
-    fields = data["v"]
-    if not isinstance(fields, dict):
-        raise CheckpointValueError(f"{where}: expected the fields of a {tag}")
-    known = {f.name for f in dataclasses.fields(cls) if f.init}
-    if set(fields) != known:
-        raise CheckpointValueError(f"{where}: a {tag} has the fields {sorted(known)}, got {sorted(fields)}")
-    return cls(**{k: decode_value(v, f"{where}.{k}") for k, v in fields.items()})
-
-
-#: how each tag of :func:`encode_value` is decoded (any other tag: a value type's fields)
-_DECODERS = {
-    "float": _decode_float,
-    "tuple": _decode_tuple,
-    "dict": _decode_dict,
-    "ndarray": _decode_ndarray,
-    "scalar": _decode_scalar,
-    "FeatureMap": _decode_feature_map,
-}
-
-
-def _list(v: Any, where: str) -> list:
-    if not isinstance(v, list):
-        raise CheckpointValueError(f"{where}: expected a list")
-    return v
-
-
-def _dtype(text: Any, where: str) -> np.dtype:
-    if not isinstance(text, str) or len(text) > 8:
-        raise CheckpointValueError(
-            f"{where}: dtype: expected a numpy type string such as '<f4', got {str(text)[:40]}"
-        )
-    try:
-        dt = np.dtype(text)
-    except TypeError:
-        raise CheckpointValueError(f"{where}: dtype: not a numpy type: {text!r}") from None
-    if dt.kind not in "biufc" or dt.hasobject:
-        raise CheckpointValueError(f"{where}: dtype {text!r}: only numbers and booleans are stored")
-    return dt
+    :class:`CheckpointValueError` naming ``where``."""
+    return _decode(data, where, PORT_TYPES if port_types is None else port_types)
 
 
 # --------------------------------------------------------------------------- the file
@@ -317,7 +98,7 @@ class Checkpoint(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     format: Literal["lanegraph-checkpoint"]
-    version: Literal[2]
+    version: Literal[3]
     graph: str
     graph_digest: str = Field(pattern=r"^[0-9a-f]{64}$")
     resolved: dict[str, Any]
@@ -392,7 +173,9 @@ def load_checkpoint(path: Path) -> Checkpoint:
         )
     if data.get("version") != VERSION:
         raise UsageError(
-            f"{path}: version: expected {VERSION}, got {str(data.get('version'))[:20]} (written by another lanegraph version){_HINT}"
+            f"{path}: version: expected {VERSION}, got {str(data.get('version'))[:20]} (written by another lanegraph version"
+            + ("; version 3 stores values by their port types" if data.get("version") == 2 else "")
+            + f"){_HINT}"
         )
     try:
         ckpt = Checkpoint.model_validate(data)
@@ -447,13 +230,16 @@ def checkpoint_problem(ckpt: Checkpoint) -> str | None:
 
 
 def decode_feedback(
-    ckpt: Checkpoint, path: Path
+    ckpt: Checkpoint, path: Path, port_types: Mapping[str, PortType] | None = None
 ) -> tuple[dict[tuple[str, str], Any], dict[tuple[str, str], str | None]]:
-    """The feedback values and their cache keys of a checkpoint, decoded (errors name the entry)."""
+    """The feedback values and their cache keys of a checkpoint, decoded by the registered
+    ``port_types`` (default: lanegraph's own; errors name the entry)."""
     values, keys = {}, {}
     for i, fb in enumerate(ckpt.feedback):
         try:
-            values[(fb.node, fb.port)] = decode_value(fb.value, f"feedback[{i}] ({fb.node}.{fb.port})")
+            values[(fb.node, fb.port)] = decode_value(
+                fb.value, f"feedback[{i}] ({fb.node}.{fb.port})", port_types
+            )
         except CheckpointValueError as exc:
             raise UsageError(f"{path}: {exc}{_HINT}") from None
         except RecursionError:
@@ -471,7 +257,7 @@ def feedback_type_problem(
     value of port type 'lanes' (what its check says)"``, or None.
 
     ``types``: the registered port types by name (a plugin manager's ``port_types``: lanegraph's
-    own, :mod:`lanegraph.presentation.port_types`, and every plugin's); a value is checked by its
+    own, :mod:`lanegraph.port_types`, and every plugin's); a value is checked by its
     port type's own ``check``, or by that of its nearest ancestor through ``parent`` that has one
     (``any`` and a type without one take anything). ``None`` (a node that failed under ``on_error:
     empty``) is a value of every type; a ``check`` that raises says no."""
@@ -569,10 +355,18 @@ def save_checkpoint(path: Path, data: dict[str, Any]) -> None:
 
 
 def feedback_entries(
-    values: dict[tuple[str, str], Any], keys: dict[tuple[str, str], str | None]
+    values: dict[tuple[str, str], Any],
+    keys: dict[tuple[str, str], str | None],
+    port_types: Mapping[str, PortType] | None = None,
 ) -> list[dict[str, Any]]:
-    """The ``feedback`` list of a checkpoint (raises :class:`CheckpointValueError` for a value it cannot hold)."""
+    """The ``feedback`` list of a checkpoint, encoded by the registered ``port_types`` (raises
+    :class:`CheckpointValueError` for a value it cannot hold)."""
     return [
-        {"node": n, "port": p, "value": encode_value(values[(n, p)], f"{n}.{p}"), "key": keys.get((n, p))}
+        {
+            "node": n,
+            "port": p,
+            "value": encode_value(values[(n, p)], f"{n}.{p}", port_types),
+            "key": keys.get((n, p)),
+        }
         for (n, p) in sorted(values)
     ]

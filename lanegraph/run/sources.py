@@ -51,14 +51,20 @@ def chosen_params(
     """The params the source ``chosen`` by a selecting source runs with: its defaults, and every
     field the selecting source's ``params`` set explicitly (in the graph) that ``chosen``'s params
     have too (``io.auto``'s ``read_ahead`` for a KITTI or folder source); a field the chosen type
-    does not have is not passed. Raises a :class:`GraphError` located at ``file`` / ``node`` and
+    does not have, or set to the selecting source's own default, is not passed. Raises a :class:`GraphError` located at ``file`` / ``node`` and
     the field when the chosen type refuses a value."""
     from pydantic import ValidationError
 
     from ..graph.validation import _pydantic_problems
 
-    fields = chosen.params.model_fields
-    shared = {k: getattr(params, k) for k in sorted(params.model_fields_set) if k in fields}
+    fields, own = chosen.params.model_fields, type(params).model_fields
+    # a value equal to the selecting source's own default is no choice (a resolved graph spells every
+    # param out, and must run as the graph it was resolved from)
+    shared = {
+        k: getattr(params, k)
+        for k in sorted(params.model_fields_set)
+        if k in fields and not (k in own and getattr(params, k) == own[k].default)
+    }
     try:
         return chosen.params(**shared)
     except ValidationError as exc:
@@ -107,9 +113,9 @@ def open_source(
         raise NodeError(node_id, node_type.name, None, exc) from exc
 
 
-def close_source(instance: Any) -> None:
-    """Close a source opened by :func:`open_source` (:func:`lanegraph.lifecycle.close`)."""
-    close(instance)
+def close_source(instance: Any, node_type: NodeType | None = None) -> None:
+    """Close a source of ``node_type`` opened by :func:`open_source` (:func:`lanegraph.lifecycle.close`)."""
+    close(instance, node_type)
 
 
 def read_calibration(pm: PluginManager, path: Path) -> Any:
@@ -139,8 +145,8 @@ def read_calibration(pm: PluginManager, path: Path) -> Any:
     )
     if nt is None or port is None:
         raise InputError("no installed source reads a calibration from this folder", path=str(path))
-    with closing(open_source(nt, nt.params(), path)) as source:
-        consts = constants_of(source)
+    with closing(open_source(nt, nt.params(), path), nt) as source:
+        consts = constants_of(source, nt)
     if consts.get(port) is None:
         raise InputError(f"source {nt.name!r} gives no calibration for this folder", path=str(path))
     return consts[port]

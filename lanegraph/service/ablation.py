@@ -17,12 +17,14 @@ from ..paths import safe_name
 from ..run.cache import ResultCache
 from ..run.folder import check as check_folder
 from ..run.folder import claim as claim_folder
+from ..run.folder import seal as seal_folder
 from ..run.provenance import versions
 from ..run.runners import InProcessRunner, Runner
 from ..runlog import RunLog, get_logger
 from ..tracking import CommandRecord, existing
 from .keeping import (
     ABLATION_FILES,
+    ablation_writes,
     dataset_identity,
     provenance,
     tracked_ablation_runs,
@@ -76,13 +78,14 @@ def ablate(
         raise UsageError(f"--cache-max-gb: expected a size in GiB > 0, got {cache_max_gb}")
     identity = dataset_identity("ablation", [r.name for r in variants], dataset, frames)
     # another ablation's results are refused before anything is written (the folder left as it was)
-    check_folder(out_dir, identity, overwrite=session.overwrite)
+    writes = ablation_writes([_safe(r.name) for r in variants], dataset, make_report)
+    check_folder(out_dir, identity, overwrite=session.overwrite, writes=writes)
     t0 = time.perf_counter()
     cache_folder = (cache_dir, "--cache-dir") if cache_dir is not None and not no_cache else (None, "")
     with (
         interrupts.handling(),
         session.locked(out_dir, "ablate", cache_folder),
-        ablation_kept(session, out_dir, identity, variants),
+        ablation_kept(session, out_dir, identity, variants, writes),
     ):
         cache = _cache(cache_dir, cache_max_gb, no_cache)
         if isinstance(runner, InProcessRunner):
@@ -127,6 +130,8 @@ def ablate(
         except LanegraphError as exc:  # the ablation's own outputs are written: they stay
             session.tracking.end("failed", existing(out_dir, ABLATION_FILES))
             raise RunStopped(str(exc), exc) from exc
+        finally:
+            seal_folder(out_dir)
     status = _failures(session, rows)
     session.tracking.end("failed" if status else "ok", existing(out_dir, ABLATION_FILES))
     return status if session.tracking.ok else max(status, 1)
@@ -134,12 +139,16 @@ def ablate(
 
 @contextmanager
 def ablation_kept(
-    session: Any, out_dir: Path, identity: dict[str, Any], variants: list[Variant]
+    session: Any,
+    out_dir: Path,
+    identity: dict[str, Any],
+    variants: list[Variant],
+    writes: dict[str, str] | None = None,
 ) -> Iterator[None]:
     """What an ablation keeps beside its results, once OUT is locked: the folder claimed (with
     ``--overwrite``, cleared of lanegraph's files), ``command.json`` (its identity, command line,
     versions), ``run.log`` and the tracker's command run (ended ``interrupted`` if the block raises)."""
-    claim_folder(out_dir, identity, overwrite=session.overwrite)
+    claim_folder(out_dir, identity, overwrite=session.overwrite, writes=writes)
     fields = {
         "kind": "ablation",
         **provenance(session.pm, variants[0].graph, []),
@@ -147,12 +156,14 @@ def ablation_kept(
         "identity": identity,
         "written": ["results.csv", "results.md", "accuracy.png", "accuracy_vs_ms.png", "runs"],
     }
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_command_record(out_dir, fields)
+    # the tracker first: one that cannot start (MLflow missing) leaves no record to block a retry
     session.tracking.start(
         CommandRecord("ablate", f"ablate -> {out_dir}", out_dir, list(fields["command"]),
                       {"variants": " ".join(r.name for r in variants), "frames": identity["frames"] or "all"})
     )  # fmt: skip
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_command_record(out_dir, fields)
+    seal_folder(out_dir, final=False)  # a killed ablation's files are known as lanegraph's
     try:
         with RunLog(out_dir, verbose=session.verbose > 0):
             get_logger("run").info(
@@ -161,9 +172,11 @@ def ablation_kept(
             yield
     except BaseException:
         session.tracking.end("interrupted")
+        seal_folder(out_dir)
         raise
     fields["versions"] = versions(session.pm)
     write_command_record(out_dir, fields)
+    seal_folder(out_dir)
 
 
 def _end(session: Any, rows: list[dict[str, Any]], out_dir: Path, cache: Any, seconds: float) -> int:

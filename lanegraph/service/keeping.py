@@ -11,9 +11,11 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from ..errors import UsageError
 from ..evaluation.metrics import evaluate, read_ground_truth, read_predictions
 from ..frames import selection_text
-from ..run.folder import command_identity, run_identity
+from ..paths import output_fields, safe_name
+from ..run.folder import ABLATION_NAMES, COMMAND_NAMES, RUN_NAMES, command_identity, run_identity
 from ..run.provenance import command_line, git_commit, versions
 from ..run.results import LANES, find_result
 from ..run.resume import graph_identity, resolved_input
@@ -47,6 +49,55 @@ def dataset_identity(
     """The identity of an ablation or a dataset run: its variants, its sequences' inputs, its frames."""
     inputs = {s.name: resolved_input(s.input) for s in dataset}
     return command_identity(kind, list(variants), inputs, selection_text(frames))
+
+
+def run_writes(
+    g: Any, out_dir: Path, debug_dir: Path | None = None, make_report: bool = False
+) -> dict[str, str]:
+    """What ``lanegraph run`` writes in ``out_dir`` (for :func:`lanegraph.run.owned.taken`): its own
+    files and its sinks' (``file``; a sink's folder ``tree``), the ``--debug-dir`` folder inside it
+    (``dir``: its pictures go beside what is there) and the report. ``--debug-dir`` that is
+    ``--out`` itself is refused (its pictures' folders would be named by frames among the user's)."""
+    writes = dict.fromkeys(RUN_NAMES, "file")
+    for n in g.nodes.values():
+        params = getattr(n, "params", None)
+        if params is None:
+            continue
+        for field, kind in output_fields(type(params)).items():
+            value = getattr(params, field, None)
+            if isinstance(value, str):
+                writes[value] = "tree" if kind == "dir" else "file"
+    rel = relative_inside(debug_dir, out_dir)
+    if rel == ".":
+        raise UsageError(
+            f"--debug-dir {debug_dir}: is --out itself; give a folder inside it (--debug-dir {Path(out_dir) / 'debug'}) or elsewhere"
+        )
+    if rel is not None:
+        writes[rel] = "dir"
+    if make_report:
+        writes.update(REPORT_WRITES)
+    return writes
+
+
+#: what ``--report`` writes in OUT: its page and pictures (a page or pictures of the user's refused)
+REPORT_WRITES = {"report": "dir", "report/index.html": "file", "report/assets": "tree"}
+
+
+def dataset_writes(dataset: Any) -> dict[str, str]:
+    """What ``lanegraph run --dataset`` writes in OUT: its record and log, a run folder per sequence."""
+    return {**dict.fromkeys(COMMAND_NAMES, "file"), **{s.name: "tree" for s in dataset}}
+
+
+def ablation_writes(variant_folders: Sequence[str], dataset: Any, make_report: bool) -> dict[str, str]:
+    """What ``lanegraph ablate`` writes in OUT: its record, log, tables and plots, ``runs/`` and a
+    run folder per variant (``variant_folders``: their folder names) and sequence."""
+    writes = {**dict.fromkeys([*COMMAND_NAMES, *ABLATION_NAMES], "file"), "runs": "dir"}
+    for v in variant_folders:
+        for s in dataset:
+            writes[f"runs/{v}/{safe_name(s.name)}"] = "tree"
+    if make_report:
+        writes.update(REPORT_WRITES)
+    return writes
 
 
 def write_command_record(out_dir: Path, fields: Mapping[str, Any]) -> None:

@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .. import interrupts
-from ..errors import InputError, LanegraphError, NotStarted, RunStopped, UsageError
+from ..errors import HookError, InputError, LanegraphError, NotStarted, RunStopped, UsageError
 from ..frames import selection_text
 from ..graph.files import ResolvedGraph, load_graph_named, open_graph
 from ..graph.model import Graph
@@ -39,14 +39,17 @@ from ..run.checkpointing import Checkpointer
 from ..run.executor import Executor, RunResult
 from ..run.folder import check as check_folder
 from ..run.folder import claim as claim_folder
+from ..run.folder import seal as seal_folder
 from ..run.provenance import command_line, versions, write_resolved_graph
 from ..run.record import RunRecord, read_record, stopped_by, write_run_files
 from ..runlog import RunLog, get_logger, progress_bar
 from ..tracking import CommandRecord, Tracking
 from .keeping import (
     dataset_identity,
+    dataset_writes,
     provenance,
     relative_inside,
+    run_writes,
     single_identity,
     tracked_dataset_run,
     tracked_single_run,
@@ -166,7 +169,10 @@ class Session:
         resolved = g.resolved_dict()
         identity = single_identity(resolved, input_path, frames)
         # another run's results are refused before anything is written (the folder left as it was)
-        check_folder(out_dir, identity, resume=resume, overwrite=self.overwrite, resolved=resolved)
+        writes = run_writes(g, out_dir, debug_dir, make_report)
+        check_folder(
+            out_dir, identity, resume=resume, overwrite=self.overwrite, resolved=resolved, writes=writes
+        )
         sets = list(getattr(graph, "sets", ()) or ())
         self._run_extra = {
             **provenance(self.pm, g.file, sets),
@@ -190,11 +196,15 @@ class Session:
                 "run of %s on %s into %s: %s", g.file, input_path or "the synthetic scene", out_dir,
                 " ".join(command_line()), extra={"file_only": True},
             )  # fmt: skip
+            seal_folder(out_dir, final=False)  # a killed run's files are known as lanegraph's
 
         self._on_open = opened
         # Ctrl-C, SIGTERM and SIGHUP stop the run alike: its record says so, --resume continues
         with interrupts.handling(), self.locked(out_dir, "run", (debug_dir, "--debug-dir")), self._stack:
-            claim_folder(out_dir, identity, resume=resume, overwrite=self.overwrite, resolved=resolved)
+            claim_folder(
+                out_dir, identity, resume=resume, overwrite=self.overwrite, resolved=resolved, writes=writes
+            )
+            self._stack.callback(seal_folder, out_dir)  # what it wrote, once run.log is closed
             try:
                 status = self._run_locked(g, input_path, out_dir, frames, resume, debug_dir, chosen)
                 tracked = "ok" if status == 0 else "failed"
@@ -210,6 +220,8 @@ class Session:
             except LanegraphError as exc:  # the run's own outputs are written: they stay
                 self.tracking.end("failed")
                 raise RunStopped(f"report: {exc}", exc) from exc
+            finally:
+                seal_folder(out_dir)
         self._track_single(g, out_dir, input_path, sets, tracked)
         status = 1 if status is None else status
         return status if self.tracking.ok else max(status, 1)
@@ -320,6 +332,8 @@ class Session:
                     f"{str(exc.filename) + ': ' if exc.filename else ''}{exc.strerror or exc}"
                 )
                 code = 1
+            elif isinstance(exc, HookError) and isinstance(exc.cause, UsageError):
+                err, code = exc.cause, 2  # a usage error (--debug-dir) found by a hook: exit 2, its words
             else:
                 err, code = exc, exc.exit_code
             if ex.result is not None:  # the run started: record what it did and why it stopped
@@ -420,19 +434,22 @@ class Session:
         runner = runner if runner is not None else InProcessRunner()
         g = graph.validate(self.pm)  # a GraphError before anything runs
         identity = dataset_identity("dataset", [g.name], dataset, frames)
-        check_folder(out_dir, identity, overwrite=self.overwrite)
+        writes = dataset_writes(dataset)
+        check_folder(out_dir, identity, overwrite=self.overwrite, writes=writes)
         sets = list(graph.sets)
         self.record_extra = {**self.record_extra, **provenance(self.pm, g.file, sets)}
         try:
-            with interrupts.handling(), self.locked(out_dir, "run"):
-                claim_folder(out_dir, identity, overwrite=self.overwrite)
+            with interrupts.handling(), self.locked(out_dir, "run"), self._stack:
+                claim_folder(out_dir, identity, overwrite=self.overwrite, writes=writes)
+                self._stack.callback(seal_folder, out_dir)
                 fields = {"kind": "dataset", **self.record_extra, "identity": identity,
                           "written": [s.name for s in dataset]}  # fmt: skip
-                write_command_record(out_dir, fields)
                 self.tracking.start(
                     CommandRecord("run", f"run {g.name} --dataset -> {out_dir}", out_dir, list(fields["command"]),
                                   {"graph": str(g.file), "frames": identity["frames"] or "all"})
                 )  # fmt: skip
+                write_command_record(out_dir, fields)
+                seal_folder(out_dir, final=False)
                 try:
                     with RunLog(out_dir, verbose=self.verbose > 0):
                         summary = self._run_dataset(

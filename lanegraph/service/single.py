@@ -18,9 +18,9 @@ def checkpoint_for(out_dir: Path, resume: bool) -> tuple[Any, Path]:
         if resume and legacy.is_file() and not checkpoint.is_file():
             raise UsageError(
                 f"{legacy}: a checkpoint of an older lanegraph (a pickle, which could run code); it is never read; "
-                "cannot resume (run without --resume to start over)"
+                "cannot resume (start over with --overwrite in place of --resume: it removes only what lanegraph wrote there; or choose another output folder)"
             )
-        legacy.unlink(missing_ok=True)
+        # (a checkpoint.pkl of an older lanegraph is left where it is: never read, never removed by name)
         if checkpoint.exists() and not checkpoint.is_file():
             raise UsageError(f"{checkpoint}: exists and is not a file (lanegraph keeps its checkpoint there)")
         if resume and checkpoint.is_file():

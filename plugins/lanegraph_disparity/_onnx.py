@@ -21,25 +21,36 @@ from __future__ import annotations
 import logging
 import threading
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
-import cv2
 import numpy as np
-from pydantic import Field, field_validator, model_validator
 
-from lanegraph import GraphError, InputError, NodeParams, Problem, RunContext, node_type
+from lanegraph import GraphError, InputError, Problem, RunContext, node_type
 
-from ._common import upsample_disparity
+from ._onnx_params import OnnxParams
+from ._onnx_tensors import (  # noqa: F401 - the node's steps, and the tests' names in this module
+    network_inputs,
+    network_size,
+    output_map,
+    prepare_image,
+    to_image_disparity,
+    to_network_channels,
+)
 
 log = logging.getLogger("lanegraph.disparity.onnx")
 
+
 INSTALL_HINT = 'install the onnx extra: pip install "lanegraph[onnx]"'
+
 
 #: seconds the session may take to load before the log says what the run is waiting for
 SLOW_LOAD_S = 3.0
 
+
 #: element types a network input may have, and the NumPy type it is fed as
 _INPUT_TYPES = {"tensor(float)": np.float32, "tensor(float16)": np.float16, "tensor(double)": np.float64}
+
+
 #: element types of an acceptable disparity output
 _OUTPUT_TYPES = {
     *_INPUT_TYPES,
@@ -48,6 +59,8 @@ _OUTPUT_TYPES = {
     "tensor(int16)",
     "tensor(uint16)",
 }
+
+
 #: element types a disparity output may not have: 32- and 64-bit integers are indices or labels
 #: (an argmax over disparity levels, a class map), not a disparity (a 16-bit one is KITTI's
 #: fixed point: give output_factor 1/256)
@@ -57,319 +70,10 @@ _INDEX_TYPES = {
     "tensor(uint32)": "uint32",
     "tensor(uint64)": "uint64",
 }
+
+
 #: an output map smaller than this fraction of the network input (on either side) is refused
 MIN_OUTPUT_FRACTION = 1 / 16
-
-
-class OnnxParams(NodeParams):
-    """Params of ``disparity.onnx``. The defaults are PSMNet's (RGB, ImageNet normalisation)."""
-
-    model: str = Field(
-        "",
-        max_length=4096,
-        description="the network, an .onnx file (a protobuf: loading it runs no code); a relative path is "
-        "relative to the working directory; required to run (e.g. --set disp.model=psmnet.onnx)",
-    )
-    left_input: str = Field(
-        "left", min_length=1, max_length=256, description="name of the model input fed the left image"
-    )
-    right_input: str = Field(
-        "right", min_length=1, max_length=256, description="name of the model input fed the right image"
-    )
-    stacked_input: str = Field(
-        "",
-        max_length=256,
-        description="name of a single model input fed the pair stacked along the channel axis, left first "
-        "(2 channels grey, 6 colour); when set, left_input and right_input are not used",
-    )
-    output: str = Field(
-        "disparity",
-        min_length=1,
-        max_length=256,
-        description="name of the model output holding the disparity",
-    )
-    channels: Literal["rgb", "bgr", "gray"] = Field(
-        "rgb",
-        description="colour order the network takes: 'rgb' (networks trained on PIL images, PSMNet), 'bgr' "
-        "(trained on OpenCV images) or 'gray' (one channel); grey input images are repeated for colour",
-    )
-    layout: Literal["NCHW", "NHWC"] = Field(
-        "NCHW", description="the inputs' axes: batch, channels, height, width (PyTorch) or channels last"
-    )
-    pixel_scale: float = Field(
-        1.0 / 255.0,
-        ge=1e-6,
-        le=1000.0,
-        description="normalisation, first step: pixel values 0..255 are multiplied by this (1/255: 0..1; "
-        "1: raw 0..255)",
-    )
-    mean: list[float] = Field(
-        [0.485, 0.456, 0.406],
-        min_length=1,
-        max_length=3,
-        description="normalisation, second step: subtracted per channel, in the order of 'channels', after "
-        "pixel_scale (one value for all channels or one per channel; -1e4..1e4); ImageNet's by default",
-    )
-    std: list[float] = Field(
-        [0.229, 0.224, 0.225],
-        min_length=1,
-        max_length=3,
-        description="normalisation, last step: divided per channel, after subtracting mean (one value or one "
-        "per channel; 1e-6..1e4); ImageNet's by default",
-    )
-    resize: tuple[int, int] | None = Field(
-        None,
-        description="resize the pair to this [height, width] (pixels, 8..8192 each) before the network, e.g. "
-        "the fixed size a model was exported with; null: the image's own size (then padded to pad_to)",
-    )
-    pad_to: int = Field(
-        32,
-        ge=1,
-        le=256,
-        description="pad the network input (after any resize) at the top and on the right up to a multiple of "
-        "this many pixels (zeros after normalisation, i.e. the mean colour), as PSMNet's test script does; "
-        "the padding is cut off the output; 1: no padding",
-    )
-    output_unit: Literal["network_pixels", "output_pixels", "image_pixels"] = Field(
-        "network_pixels",
-        description="unit of the output's values: 'network_pixels' (pixels of the network input, after "
-        "resize and padding: PSMNet and most exports), 'output_pixels' (pixels of a smaller output map's own "
-        "width) or 'image_pixels' (already pixels of the input image); the node converts to image pixels",
-    )
-    output_factor: float = Field(
-        1.0,
-        ge=-1000.0,
-        le=1000.0,
-        description="the raw output is multiplied by this first, e.g. -1 for a network that outputs the "
-        "horizontal flow (minus the disparity) or 1/256 for KITTI's 16-bit convention; not 0",
-    )
-    interpolation: Literal["linear", "nearest"] = Field(
-        "linear",
-        description="how the disparity map is resized to the image: 'linear' (bilinear where all four "
-        "neighbours are valid, nearest elsewhere) or 'nearest'",
-    )
-    max_disparity: float = Field(
-        192.0,
-        ge=1.0,
-        le=8192.0,
-        description="largest valid disparity, pixels of the input image (PSMNet is trained for 192); larger "
-        "values, values <= 0 and non-finite ones are invalid (0)",
-    )
-    providers: Literal["auto", "cpu", "cuda"] = Field(
-        "auto",
-        description="where ONNX Runtime runs the network: 'cpu', 'cuda' (an error if this ONNX Runtime has "
-        "no CUDA provider) or 'auto' (CUDA when ONNX Runtime has it, else the CPU, said once in the log)",
-    )
-    device: int = Field(0, ge=0, le=63, description="CUDA device id (providers cuda or auto)")
-    threads: int = Field(
-        0,
-        ge=0,
-        le=256,
-        description="ONNX Runtime's threads per operator on the CPU; 0: its default (one per core)",
-    )
-
-    @field_validator("mean")
-    @classmethod
-    def _mean_bounds(cls, v: list[float]) -> list[float]:
-        if not all(np.isfinite(x) and abs(x) <= 1e4 for x in v):
-            raise ValueError(f"mean: expected finite values in -1e4..1e4, got {v}")
-        return v
-
-    @field_validator("std")
-    @classmethod
-    def _std_bounds(cls, v: list[float]) -> list[float]:
-        if not all(np.isfinite(x) and 1e-6 <= x <= 1e4 for x in v):
-            raise ValueError(f"std: expected values in 1e-6..1e4 (a division), got {v}")
-        return v
-
-    @field_validator("resize")
-    @classmethod
-    def _resize_bounds(cls, v: tuple[int, int] | None) -> tuple[int, int] | None:
-        if v is not None and not all(8 <= x <= 8192 for x in v):
-            raise ValueError(f"resize: expected [height, width], each 8..8192 pixels, got {list(v)}")
-        return v
-
-    @field_validator("output_factor")
-    @classmethod
-    def _factor_not_zero(cls, v: float) -> float:
-        if v == 0:
-            raise ValueError(
-                "output_factor: expected a non-zero factor, got 0 (every pixel would be invalid)"
-            )
-        return v
-
-    @model_validator(mode="after")
-    def _consistent(self) -> OnnxParams:
-        n = self.n_channels
-        for name in ("mean", "std"):
-            values = getattr(self, name)
-            if len(values) not in (1, n):
-                hint = f"e.g. [{sum(values) / len(values):.3g}]" if n == 1 else "one value or three"
-                raise ValueError(
-                    f"{name}: {len(values)} values for {n} channel(s) of channels '{self.channels}' ({hint})"
-                )
-        if not self.stacked_input and self.left_input == self.right_input:
-            raise ValueError(
-                f"left_input and right_input are both {self.left_input!r}: expected two different model inputs "
-                "(or stacked_input for a model with one input)"
-            )
-        return self
-
-    @property
-    def n_channels(self) -> int:
-        """Channels of one image as fed to the network: 1 grey, 3 colour."""
-        return 1 if self.channels == "gray" else 3
-
-
-# --------------------------------------------------------------------------- pre- and post-processing
-
-
-def to_network_channels(image: np.ndarray, port: str, channels: str) -> np.ndarray:
-    """An image as float32 HxWxC in the network's colour order, values 0..255.
-
-    Parameters
-    ----------
-    image : ndarray
-        HxW grey or HxWx3 BGR (HxWx4 BGRA and HxWx1 are accepted too); uint8, or any
-        integer or float array in 0..255 (non-finite values become 0).
-    port : str
-        Input port name, for the error message.
-    channels : str
-        ``"rgb"``, ``"bgr"`` or ``"gray"``.
-
-    Returns
-    -------
-    ndarray
-        HxWx3 (RGB or BGR) or HxWx1 float32.
-    """
-    img = np.asarray(image)
-    if img.ndim == 3 and img.shape[2] == 1:
-        img = img[:, :, 0]
-    if not (img.ndim == 2 or (img.ndim == 3 and img.shape[2] in (3, 4))):
-        raise InputError(
-            f"input '{port}': expected an HxW gray or HxWx3 BGR image, got shape {np.shape(image)}"
-        )
-    if img.dtype.kind not in "biuf":
-        raise InputError(f"input '{port}': expected a uint8 (or 0-255 float) image, got dtype {img.dtype}")
-    if img.shape[0] < 2 or img.shape[1] < 2:
-        raise InputError(f"input '{port}': image of {img.shape[0]}x{img.shape[1]} pixels is too small")
-    if img.dtype != np.uint8:
-        img = np.clip(np.nan_to_num(img.astype(np.float32), nan=0.0, posinf=255.0, neginf=0.0), 0, 255)
-    if img.ndim == 3 and img.shape[2] == 4:
-        img = img[:, :, :3]
-    if channels == "gray":
-        if img.ndim == 3:
-            img = cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_BGR2GRAY)
-        return img.astype(np.float32)[:, :, None]
-    if img.ndim == 2:
-        img = np.repeat(img[:, :, None], 3, axis=2)
-    if channels == "rgb":
-        img = img[:, :, ::-1]
-    return np.ascontiguousarray(img, dtype=np.float32)
-
-
-def network_size(h: int, w: int, resize: tuple[int, int] | None, pad_to: int) -> tuple[int, int, int, int]:
-    """``(hn, wn, hp, wp)``: the image size after ``resize`` (rows, cols) and after padding to ``pad_to``."""
-    hn, wn = (int(resize[0]), int(resize[1])) if resize is not None else (h, w)
-    hp = -(-hn // pad_to) * pad_to
-    wp = -(-wn // pad_to) * pad_to
-    return hn, wn, hp, wp
-
-
-def prepare_image(image: np.ndarray, port: str, params: OnnxParams) -> np.ndarray:
-    """One image as the network takes it: HpxWpxC float32, resized, normalised and padded.
-
-    Value of channel ``c``: ``(pixel * pixel_scale - mean[c]) / std[c]``; the padding (top rows,
-    right columns) is 0.
-    """
-    img = to_network_channels(image, port, params.channels)
-    h, w = img.shape[:2]
-    hn, wn, hp, wp = network_size(h, w, params.resize, params.pad_to)
-    if (hn, wn) != (h, w):
-        shrink = hn <= h and wn <= w
-        img = cv2.resize(img, (wn, hn), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
-        if img.ndim == 2:  # OpenCV drops a single channel
-            img = img[:, :, None]
-    c = img.shape[2]
-    std = np.broadcast_to(np.asarray(params.std, np.float32), (c,))
-    mean = np.broadcast_to(np.asarray(params.mean, np.float32), (c,))
-    x = img * (np.float32(params.pixel_scale) / std) - mean / std
-    if (hp, wp) != (hn, wn):
-        x = np.pad(x, ((hp - hn, 0), (0, wp - wn), (0, 0)))
-    return x.astype(np.float32, copy=False)
-
-
-def network_inputs(left: np.ndarray, right: np.ndarray, params: OnnxParams) -> dict[str, np.ndarray]:
-    """The feeds of one pair: ``{input name: 1xCxHxW (NCHW) or 1xHxWxC (NHWC) float32}``."""
-    xl, xr = prepare_image(left, "left", params), prepare_image(right, "right", params)
-    (hl, wl), (hr, wr) = np.shape(left)[:2], np.shape(right)[:2]
-    if (hl, wl) != (hr, wr):
-        raise InputError(
-            f"left and right images differ in size: left {hl}x{wl}, right {hr}x{wr} (expected a rectified pair "
-            "of the same size)"
-        )
-
-    def lay(x: np.ndarray) -> np.ndarray:
-        return np.ascontiguousarray((x.transpose(2, 0, 1) if params.layout == "NCHW" else x)[None])
-
-    if params.stacked_input:
-        return {params.stacked_input: lay(np.concatenate([xl, xr], axis=2))}
-    return {params.left_input: lay(xl), params.right_input: lay(xr)}
-
-
-def output_map(raw: np.ndarray, layout: str) -> np.ndarray:
-    """The network's output as an HxW map: leading axes of size 1 dropped (and a trailing one for NHWC).
-
-    Raises ``ValueError`` when the output is not one map (a batch, or several channels).
-    """
-    d = np.asarray(raw)
-    if d.ndim == 4 and layout == "NHWC" and d.shape[3] == 1:
-        d = d[..., 0]
-    while d.ndim > 2 and d.shape[0] == 1:
-        d = d[0]
-    if d.ndim != 2:
-        raise ValueError(
-            f"expected one HxW map (shape 1x1xHxW, 1xHxW or HxW), got shape {tuple(np.shape(raw))}"
-        )
-    return d
-
-
-def to_image_disparity(raw: np.ndarray, shape: tuple[int, int], params: OnnxParams) -> np.ndarray:
-    """The network's output as a disparity of the input image.
-
-    Parameters
-    ----------
-    raw : ndarray
-        The output as the network gives it (see :func:`output_map`), in ``params.output_unit``.
-    shape : tuple of int
-        The input image's ``(rows, cols)``.
-    params : OnnxParams
-        ``resize``, ``pad_to``, ``layout``, ``output_unit``, ``output_factor``, ``interpolation``,
-        ``max_disparity``.
-
-    Returns
-    -------
-    ndarray
-        HxW float32 disparity in pixels of the input image; invalid pixels (<= 0, non-finite,
-        above ``max_disparity``) are 0.
-    """
-    h, w = shape
-    hn, wn, hp, wp = network_size(h, w, params.resize, params.pad_to)
-    d = output_map(raw, params.layout).astype(np.float32) * np.float32(params.output_factor)
-    d[~(np.isfinite(d) & (d > 0))] = 0.0
-    image_unit = params.output_unit == "image_pixels"
-    ho, wo = d.shape
-    if (ho, wo) != (hp, wp):  # a smaller (or larger) map than the network input: to the input's size
-        unit_scale = wo / wp if params.output_unit == "output_pixels" else 1.0
-        d = upsample_disparity(d, (hp, wp), unit_scale, params.interpolation)
-    d = d[hp - hn :, :wn]  # the padding: rows at the top, columns on the right
-    if (hn, wn) != (h, w):
-        d = upsample_disparity(
-            np.ascontiguousarray(d), (h, w), 1.0 if image_unit else wn / w, params.interpolation
-        )
-    d = d.astype(np.float32, copy=False)
-    d[~(d <= np.float32(params.max_disparity))] = 0.0
-    return np.ascontiguousarray(d)
 
 
 # --------------------------------------------------------------------------- the session
@@ -399,6 +103,7 @@ def _import_onnxruntime() -> Any:
     "disparity.onnx",
     inputs={"left": "image", "right": "image"},
     outputs={"disparity": "disparity"},
+    implements=("close",),
 )
 class OnnxDisparity:
     """Disparity by a stereo network exported to ONNX (PSMNet, HITNet, CREStereo, RAFT-Stereo ...), run by ONNX Runtime on the CPU or CUDA; needs `pip install "lanegraph[onnx]"`.

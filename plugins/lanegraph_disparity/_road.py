@@ -47,7 +47,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from lanegraph import InputError, Port, node_type
-from lanegraph._runtime import available_cpus, worker_pool
+from lanegraph.threads import available_cpus, worker_pool
 from lanegraph.types import Calibration, RoadModel
 
 from ._common import gray_pair, reduce_pair, scaled_disparities, upsample_disparity

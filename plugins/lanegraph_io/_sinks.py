@@ -54,9 +54,12 @@ class WriteLanesParams(NodeParams):
     "io.write_lanes",
     sink=True,
     inputs={"frame": Port("frame_id"), "lanes": Port("lanes", "lanes with image points", optional=True)},
+    implements=("outputs", "result_files", "resume", "verify", "close"),
 )
 class WriteLanes:
     """Writes one JSON line per frame to OUT/lanes.jsonl as each frame finishes (one write, flushed)."""
+
+    outputs: list[Path]  # the lanes file
 
     @staticmethod
     def result_files(params: WriteLanesParams) -> dict[str, str]:
@@ -241,9 +244,12 @@ def draw_overlay(
         "lanes": Port("lanes", "lanes with image points", optional=True),
         "mask": Port("mask", "road mask to tint", optional=True),
     },
+    implements=("outputs", "resume"),
 )
 class WriteOverlay:
     """Writes OUT/overlay/<frame>.png: the left image with the road mask and the lanes drawn."""
+
+    outputs: list[Path]  # the overlay folder
 
     def __init__(self, params: OverlayParams, context: RunContext):
         self.dir = inside(_out_dir(context), params.subdir, _where(context, "io.write_overlay", "subdir"))

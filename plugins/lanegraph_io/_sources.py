@@ -20,14 +20,14 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from pydantic import Field, ValidationInfo, field_validator, model_validator
+from pydantic import Field, model_validator
 
 from lanegraph import NodeParams, Port, RunContext, node_type
-from lanegraph._runtime import available_cpus, leave_signals_to_the_main_thread, lower_thread_priority
 from lanegraph.errors import InputError, UsageError
 from lanegraph.frames import parse_frames as _parse_frames
 from lanegraph.frames import select_frames, selection_text
-from lanegraph.run.cache import digest
+from lanegraph.storage import digest
+from lanegraph.threads import available_cpus, leave_signals_to_the_main_thread, lower_thread_priority
 from lanegraph.types import Calibration
 
 from ._calib import (
@@ -39,6 +39,7 @@ from ._calib import (
     read_calibration_yaml,
     read_key_rows,
 )
+from ._order import disparity_votes
 from ._png import SIGNATURE as PNG_SIGNATURE
 from ._png import decode_png
 
@@ -49,6 +50,11 @@ STEREO_OUTPUTS = {
     "left": Port("image", "left rectified image (BGR uint8, or gray for grey cameras)"),
     "right": Port("image", "right rectified image"),
     "calib": Port("calibration", "rectified stereo calibration", rate="constant"),
+    "stereo": Port(
+        "stereo_calibration",
+        "the calibration as read (for a rectified input, the rectified one), for image.rectify",
+        rate="constant",
+    ),
 }
 
 
@@ -181,42 +187,6 @@ def check_monotonic(pairs: list[tuple[str, Path, Path]], folder: Path) -> None:
         prev = n
 
 
-def disparity_votes(left: np.ndarray, right: np.ndarray) -> tuple[int, int]:
-    """How many confidently matched patches of a pair lie at a positive and at a negative disparity.
-
-    Block matching by the sum of absolute differences on the lower 60 % of the (grey, halved) images,
-    shifts of up to an eighth of the width either way; a patch counts when it is textured and its
-    best shift, at least 2 px from 0, is clearly better than the best one of the other sign. A
-    rectified pair in the right order has (nearly) only positive ones; swapped images, negative ones.
-    """
-
-    def grey(img: np.ndarray) -> np.ndarray:
-        g = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-        g = g[int(0.4 * g.shape[0]) :]
-        while g.shape[1] > 700:
-            g = cv2.pyrDown(g)
-        return g.astype(np.float32)
-
-    lg, rg = grey(left), grey(right)
-    h, w = lg.shape
-    s_max = min(64, w // 8)
-    if h < 16 or s_max < 4:
-        return 0, 0
-    core = slice(s_max, w - s_max)
-    costs = []
-    for s in range(-s_max, s_max + 1):
-        diff = np.abs(lg[:, core] - rg[:, s_max - s : w - s_max - s])  # left(x) against right(x - s)
-        costs.append(cv2.boxFilter(diff, -1, (9, 9), normalize=True))
-    c = np.stack(costs)
-    shifts = np.arange(-s_max, s_max + 1)
-    pos, neg = c[shifts >= 2].min(axis=0), c[shifts <= -2].min(axis=0)
-    gx = cv2.boxFilter(np.abs(np.diff(lg, axis=1, append=lg[:, -1:]))[:, core], -1, (9, 9))
-    textured = gx > 4.0
-    n_pos = int((textured & (pos < 0.7 * neg) & (pos < 0.7 * c[s_max])).sum())
-    n_neg = int((textured & (neg < 0.7 * pos) & (neg < 0.7 * c[s_max])).sum())
-    return n_pos, n_neg
-
-
 def _read_ahead_field():
     return Field(
         -1,
@@ -284,8 +254,14 @@ class StereoSourceParams(NodeParams):
         return self
 
 
+#: what every source of pairs implements (:mod:`lanegraph.lifecycle`)
+PAIR_SOURCE_CAPABILITIES = ("constants", "identity", "frame_key", "len", "skip")
+
+
 class _PairSource:
     """Common machinery: a list of (stem, left, right) pairs and a calibration."""
+
+    skipped: int  # frames of a resumed run left out (context.skip)
 
     gray = False
     #: where the calibration was read from, and field -> key names for its messages (set by discover())
@@ -368,7 +344,10 @@ class _PairSource:
             return
 
     def constants(self) -> dict:
-        return {"calib": self.calib}
+        from ._calibfiles import from_rectified
+
+        where = str(self.calib_path or self.root)
+        return {"calib": self.calib, "stereo": from_rectified(self.calib, where, self.calib_names)}
 
     def identity(self) -> str:
         """Digest of every input file the source reads (resolved path, size, mtime), its calibration
@@ -508,7 +487,7 @@ class KittiRawParams(StereoSourceParams):
     )
 
 
-@node_type("io.kitti_raw", source=True, outputs=STEREO_OUTPUTS)
+@node_type("io.kitti_raw", source=True, outputs=STEREO_OUTPUTS, implements=PAIR_SOURCE_CAPABILITIES)
 class KittiRawSource(_PairSource):
     """A KITTI raw drive folder (``<date>/<date>_drive_NNNN_sync``), calibration in the date folder."""
 
@@ -566,7 +545,7 @@ class KittiOdometryParams(StereoSourceParams):
     )
 
 
-@node_type("io.kitti_odometry", source=True, outputs=STEREO_OUTPUTS)
+@node_type("io.kitti_odometry", source=True, outputs=STEREO_OUTPUTS, implements=PAIR_SOURCE_CAPABILITIES)
 class KittiOdometrySource(_PairSource):
     """A KITTI odometry sequence folder (``image_0``/``image_1`` or ``image_2``/``image_3``, ``calib.txt``)."""
 
@@ -605,7 +584,7 @@ class FolderParams(StereoSourceParams):
     )
 
 
-@node_type("io.folder", source=True, outputs=STEREO_OUTPUTS)
+@node_type("io.folder", source=True, outputs=STEREO_OUTPUTS, implements=PAIR_SOURCE_CAPABILITIES)
 class FolderSource(_PairSource):
     """A plain folder of rectified pairs: ``left/*.png`` + ``right/*.png`` (same stems) and ``calib.yaml``."""
 
@@ -617,70 +596,3 @@ class FolderSource(_PairSource):
         self.calib_path, self.calib_names = self.root / self.calib_name, YAML_NAMES
         calib = read_calibration_yaml(self.calib_path)
         return pair_files(self.root / "left", self.root / "right"), calib
-
-
-def detect_source(path: Path) -> str | None:
-    """The source node type that reads ``path``, or None."""
-    p = Path(path)
-    if not p.is_dir():
-        return None
-    if ((p / "image_02").is_dir() or (p / "image_00").is_dir()) and (
-        p.resolve().parent / "calib_cam_to_cam.txt"
-    ).is_file():
-        return "io.kitti_raw"
-    if (p / "calib.txt").is_file() and ((p / "image_0").is_dir() or (p / "image_2").is_dir()):
-        return "io.kitti_odometry"
-    if (p / "left").is_dir() and (p / "right").is_dir():
-        return "io.folder"
-    return None
-
-
-class AutoParams(NodeParams):
-    """Params of ``io.auto``. A field it shares with the source it chooses (``read_ahead``,
-    ``read_nice``) is passed on to that source when the graph sets it; the synthetic scene has none."""
-
-    default: str = Field(
-        "io.synthetic",
-        description="source node type used when no --input is given (an installed source type)",
-    )
-    read_ahead: int = _read_ahead_field()
-    read_nice: int = _read_nice_field()
-
-    @field_validator("default")
-    @classmethod
-    def _a_source(cls, v: str, info: ValidationInfo) -> str:
-        types = (info.context or {}).get("node_types")
-        if types is None:  # validated outside a graph: nothing to look the name up in
-            return v
-        nt = types.get(v)
-        if nt is None or not nt.source or v == "io.auto":
-            sources = sorted(n for n, t in types.items() if t.source and n != "io.auto")
-            what = "is not an installed node type" if nt is None else "is not a source node type"
-            raise ValueError(f"{v!r} {what}; expected one of {', '.join(sources)}")
-        return v
-
-
-@node_type("io.auto", source=True, outputs=STEREO_OUTPUTS)
-class AutoSource:
-    """Chooses the source from the --input path (KITTI raw, KITTI odometry, a folder of pairs, or
-    any installed source whose plugin recognises it); the built-in synthetic scene when there is
-    none. The executor runs the chosen source in its place."""
-
-    @staticmethod
-    def select_source(params: AutoParams, input_path: Path | None, detect) -> str:
-        """The source node type for ``input_path``: ``params.default`` without an input, else the
-        one a plugin's ``lanegraph_detect_source`` names (``detect``); ValueError when none does."""
-        if input_path is None:
-            return params.default
-        name = detect(input_path)
-        if name is None:
-            raise ValueError(
-                f"no installed source node type recognises the input {str(input_path)!r} (expected a KITTI raw "
-                "drive folder, a KITTI odometry sequence or a folder of left/right pairs)"
-            )
-        return name
-
-    def __init__(self, params: AutoParams, context: RunContext):  # pragma: no cover - replaced before a run
-        raise RuntimeError(
-            "io.auto stands for the source it selects (select_source) and is never instantiated"
-        )

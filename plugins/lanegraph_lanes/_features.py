@@ -21,7 +21,7 @@ import numpy as np
 from pydantic import Field, field_validator
 
 from lanegraph import InputError, NodeParams, Port, jit, node_type, prange
-from lanegraph._runtime import available_cpus, worker_pool
+from lanegraph.threads import available_cpus, worker_pool
 from lanegraph.types import FeatureMap
 
 

@@ -29,18 +29,40 @@ column. ``road.vdisparity`` counts every column.
 
 from __future__ import annotations
 
-import functools
 import math
 from typing import Literal
 
 import numpy as np
 from pydantic import Field, model_validator
-from scipy.linalg.lapack import dgesv
 
-from lanegraph import InputError, NodeParams, Port, jit, node_type
+from lanegraph import NodeParams, Port, jit, node_type
 from lanegraph.types import Calibration, RoadModel
 
 from . import geometry
+from ._line_fit import (  # noqa: F401 - the kernels' and tests' names in this module
+    _line_fit,
+    _line_refit_kernel,
+    _ransac_line_kernel,
+    _robust_fit,
+    _robust_refit_np,
+    _sample_pairs,
+    _weighted_polyfit,
+)
+from ._plane import _fit_road_plane, _plane_fit_kernel, _plane_points, _plane_sums  # noqa: F401
+from .vdisparity import (  # noqa: F401 - road.vdisparity's names, as they were here
+    MAX_BINS,
+    RoadInputError,
+    VDisparityParams,
+    _select,
+    _select_kernel,
+    bins_bounded,
+    checked_disparity,
+    compute_vdisparity,
+    n_bins,
+    road_vdisparity,
+    select_and_count,
+    select_pixels,
+)
 
 # --------------------------------------------------------------------------- kernels
 
@@ -88,43 +110,6 @@ def _dp_path_kernel(score, max_step, smoothness):
     for v in range(1, H):
         path[v] = path[v - 1] + back[v - 1, path[v - 1]]
     return path
-
-
-@jit
-def _select_kernel(disp, step, band_k, b0, b1, b2, cx, cy, s, c, bin_size, max_disp, out_rows, out_d, vd):
-    """The pixels of a profile pass, compacted, and their v-disparity, in one pass over the image.
-
-    Selects the pixels with ``d > 0`` and, when ``band_k > 0``, within the band
-    ``|d - (b0 + b1 u + b2 v)| <= band_k d`` of the road plane (disparity space; ``band_k`` is the
-    band in metres over the camera height, eq. 4), whose roll-corrected row
-    ``v' = cy + s (u - cx) + c (v - cy)``, rounded to the nearest row, lies in ``[0, H)``; only every
-    ``step``-th column (from column 0) is looked at. Writes each one's row and disparity into
-    ``out_rows`` / ``out_d`` in row-major order and counts it in ``vd[row, int(d / bin_size)]``
-    (``H x n_bins`` float32, zeroed by the caller; ``n_bins`` may be 0: no counts) when
-    ``d < max_disp`` and the bin exists. Returns the number of pixels selected.
-
-    A NaN or an infinity is invalid, as 0 is (one more comparison on the pixels read anyway)."""
-    H, W = disp.shape
-    n_bins = vd.shape[1]
-    n = 0
-    for v in range(H):
-        for u in range(0, W, step):
-            d = disp[v, u]
-            if not (d > 0.0 and d < math.inf):  # 0, negative, NaN, +-inf: invalid
-                continue
-            if band_k > 0.0 and abs(d - (b0 + b1 * u + b2 * v)) > band_k * d:
-                continue
-            r = int(math.floor(cy + s * (u - cx) + c * (v - cy) + 0.5))
-            if r < 0 or r >= H:
-                continue
-            out_rows[n] = r
-            out_d[n] = d
-            n += 1
-            if d < max_disp:
-                k = int(d / bin_size)
-                if k < n_bins:
-                    vd[r, k] += 1.0  # exact: float32 counts up to 2**24
-    return n
 
 
 @jit
@@ -329,400 +314,6 @@ def _profile_kernel(
     return profile, fit_rows, fit_d, fit_w
 
 
-@jit
-def _ransac_line_kernel(v, d, w, i, j, tol, min_slope):
-    """Score the lines through the point pairs ``(i[k], j[k])`` (pairs with ``v[i] == v[j]`` or a slope
-    ``<= min_slope`` (at least 0) are skipped): the weight ``w`` (>= 0) of the points within ``tol``.
-    Returns ``(found, inliers of the first best line)``. Integer weights are summed as integers
-    (exact)."""
-    n = v.size
-    best_score = -1.0
-    best_a0 = 0.0
-    best_a1 = 0.0
-    found = False
-    # the profile's weights are pixel counts: summed as integers, in any order and exactly, the
-    # loop over the points vectorises (float sums keep their order: they do not)
-    wi = np.empty(n, np.int64)
-    integral = True
-    for p in range(n):
-        integral = integral and w[p] == math.floor(w[p]) and abs(w[p]) < 2.0**52
-        wi[p] = int(w[p]) if integral else 0
-    for k in range(i.size):
-        vi = v[i[k]]
-        vj = v[j[k]]
-        if vi == vj:
-            continue
-        a1 = (d[i[k]] - d[j[k]]) / (vi - vj)
-        if not (a1 > 0 and a1 > min_slope):
-            continue
-        a0 = d[i[k]] - a1 * vi
-        if integral:
-            si = 0
-            for p in range(n):
-                si += wi[p] if abs(d[p] - (a0 + a1 * v[p])) < tol else 0
-            score = float(si)
-            if score > best_score:
-                best_score = score
-                best_a0 = a0
-                best_a1 = a1
-                found = True
-            continue
-        # four interleaved sums without branches (one sum would make every addition wait for the
-        # last): exact, so in any order, for integer weights (the pixel counts of the profile rows)
-        s0 = 0.0
-        s1 = 0.0
-        s2 = 0.0
-        s3 = 0.0
-        e = n - n % 4
-        for p in range(0, e, 4):
-            s0 += w[p] if abs(d[p] - (a0 + a1 * v[p])) < tol else 0.0
-            s1 += w[p + 1] if abs(d[p + 1] - (a0 + a1 * v[p + 1])) < tol else 0.0
-            s2 += w[p + 2] if abs(d[p + 2] - (a0 + a1 * v[p + 2])) < tol else 0.0
-            s3 += w[p + 3] if abs(d[p + 3] - (a0 + a1 * v[p + 3])) < tol else 0.0
-        for p in range(e, n):
-            s0 += w[p] if abs(d[p] - (a0 + a1 * v[p])) < tol else 0.0
-        score = (s0 + s1) + (s2 + s3)
-        if score > best_score:
-            best_score = score
-            best_a0 = a0
-            best_a1 = a1
-            found = True
-    inl = np.empty(n, np.bool_)
-    for p in range(n):
-        inl[p] = found and abs(d[p] - (best_a0 + best_a1 * v[p])) < tol
-    return found, inl
-
-
-@jit
-def _line_refit_kernel(v, d, w, inl, tol, rounds):
-    """Weighted least-squares line ``d = a0 + a1 v`` over the inliers ``inl``, then the points within
-    ``tol`` of it become the inliers, repeated up to ``rounds`` times (until the inliers repeat or
-    fewer than two remain). The line in closed form about the weighted mean. Returns ``(ok, a0, a1,
-    inliers)``: ok False when no line could be fitted (then ``inliers`` are the last ones)."""
-    n = v.size
-    inl = inl.copy()
-    new = np.empty(n, np.bool_)
-    ok = False
-    a0 = 0.0
-    a1 = 0.0
-    for _ in range(rounds):
-        sw = 0.0
-        swv = 0.0
-        swd = 0.0
-        k = 0
-        for i in range(n):
-            if inl[i] and w[i] > 0.0:
-                sw += w[i]
-                swv += w[i] * v[i]
-                swd += w[i] * d[i]
-                k += 1
-        if k < 2:
-            break
-        mv = swv / sw
-        md = swd / sw
-        var = 0.0
-        cov = 0.0
-        for i in range(n):
-            if inl[i]:
-                dv = v[i] - mv
-                var += w[i] * dv * dv
-                cov += w[i] * dv * (d[i] - md)
-        if not var > 0.0:
-            break
-        b1 = cov / var
-        b0 = md - b1 * mv
-        if not (math.isfinite(b0) and math.isfinite(b1)):
-            break
-        a0 = b0
-        a1 = b1
-        ok = True
-        m = 0
-        same = True
-        for i in range(n):
-            new[i] = abs(d[i] - (a0 + a1 * v[i])) < tol
-            m += new[i]
-            same = same and new[i] == inl[i]
-        if m < 2 or same:
-            break
-        for i in range(n):  # not inl[:] = new: its shape check's message took 3 s to compile
-            inl[i] = new[i]
-    return ok, a0, a1, inl
-
-
-def _line_fit(v, d, w, i, j, tol, rounds, min_slope):
-    """The robust line of a pass: RANSAC over the pairs ``(i, j)`` (:func:`_ransac_line_kernel`, slopes
-    above ``min_slope``), then up to ``rounds`` least-squares rounds (:func:`_line_refit_kernel`).
-    Returns ``(status, a0, a1, inliers)``: status 0 when RANSAC found no line or fewer than two
-    inliers, 1 when the least squares failed (``inliers``: the last ones), 2 for a line. Two kernels
-    called from Python (one kernel calling both compiled them twice over, on the first run's path)."""
-    found, inl = _ransac_line_kernel(v, d, w, i, j, tol, min_slope)
-    if not found or np.count_nonzero(inl) < 2:
-        return 0, 0.0, 0.0, inl
-    ok, a0, a1, inl = _line_refit_kernel(v, d, w, inl, tol, rounds)
-    return (2 if ok else 1), a0, a1, inl
-
-
-@jit
-def _plane_points(disp, step, v_top, min_disp):
-    """The candidates of :func:`_plane_fit_kernel`, compacted in row-major order: ``(us, vs, ds, m)``
-    (float64 columns, rows and disparities; the first ``m`` are set)."""
-    H, W = disp.shape
-    cap = ((H + step - 1) // step) * ((W + step - 1) // step)
-    us = np.empty(cap, np.float64)
-    vs = np.empty(cap, np.float64)
-    ds = np.empty(cap, np.float64)
-    m = 0
-    for v in range(0, H, step):
-        if v < v_top:
-            continue
-        for u in range(0, W, step):
-            dd = np.float64(disp[v, u])
-            if not (dd > min_disp and dd < math.inf):  # NaN, +-inf: invalid
-                continue
-            us[m] = u
-            vs[m] = v
-            ds[m] = dd
-            m += 1
-    return us, vs, ds, m
-
-
-@jit
-def _plane_sums(us, vs, ds, m, first, b0, b1, b2, first_tol, plane_tol, height, min_tol, uc, vc, M, rhs):
-    """One round of :func:`_plane_fit_kernel`: selects the candidates within the round's tolerance
-    of the plane ``b``, writes the normal equations into ``M`` (3 x 3) and ``rhs``; returns the
-    number selected."""
-    n = 0
-    su = 0.0
-    sv = 0.0
-    suu = 0.0
-    suv = 0.0
-    svv = 0.0
-    sd = 0.0
-    sud = 0.0
-    svd = 0.0
-    for p in range(m):
-        fu = us[p]
-        fv = vs[p]
-        dd = ds[p]
-        if first:
-            tol = first_tol
-        else:
-            tol = max(plane_tol * dd / height, min_tol)
-        if abs(dd - (b0 + b1 * fu + b2 * fv)) < tol:
-            x = fu - uc
-            y = fv - vc
-            n += 1
-            su += x
-            sv += y
-            suu += x * x
-            suv += x * y
-            svv += y * y
-            sd += dd
-            sud += x * dd
-            svd += y * dd
-    M[0, 0] = n
-    M[0, 1] = su
-    M[0, 2] = sv
-    M[1, 0] = su
-    M[1, 1] = suu
-    M[1, 2] = suv
-    M[2, 0] = sv
-    M[2, 1] = suv
-    M[2, 2] = svv
-    rhs[0] = sd
-    rhs[1] = sud
-    rhs[2] = svd
-    return n
-
-
-def _plane_fit_kernel(
-    disp, step, v_top, min_disp, b0, b1, b2, first_tol, plane_tol, height, min_tol, uc, vc, rounds
-):
-    """The roll plane ``d = b0 + b1 u + b2 v`` (disparity space), ``rounds`` selection and
-    least-squares rounds over every ``step``-th row and column from row 0 and column 0.
-
-    The candidates (``d > min_disp``, ``v >= v_top``) are compacted once, in row-major order
-    (:func:`_plane_points`). A round (:func:`_plane_sums`) selects those with ``|d - (b0 + b1 u + b2
-    v)| < tol`` (the plane of the previous round, the first round the one given), ``tol =
-    first_tol`` in the first round, then ``max(plane_tol * d / height, min_tol)``; sums the
-    least-squares normal equations of ``d = a + c1 (u - uc) + c2 (v - vc)`` (centred coordinates)
-    and solves them with LAPACK's ``dgesv`` (SciPy's, the one numba's ``np.linalg.solve`` calls:
-    the solve stays out of the kernels, whose first compilation it made 4 s longer):
-    ``b = (a - c1 uc - c2 vc, c1, c2)``. Returns ``(ok, b0, b1, b2)``; not ok when a round selects
-    fewer than 50 pixels, its system is singular or not finite, a coefficient is not finite, or
-    the final ``b2 <= 0``."""
-    us, vs, ds, m = _plane_points(disp, int(step), int(v_top), float(min_disp))
-    M = np.empty((3, 3), np.float64)
-    rhs = np.empty(3, np.float64)
-    b0, b1, b2 = float(b0), float(b1), float(b2)
-    args = (float(first_tol), float(plane_tol), float(height), float(min_tol), float(uc), float(vc))
-    for it in range(int(rounds)):
-        n = _plane_sums(us, vs, ds, m, it == 0, b0, b1, b2, *args, M, rhs)
-        if n < 50 or not (np.isfinite(M).all() and np.isfinite(rhs).all()):
-            return False, 0.0, 0.0, 0.0
-        _, _, sol, info = dgesv(M, rhs)
-        if info != 0:  # singular (every selected pixel on one row or column)
-            return False, 0.0, 0.0, 0.0
-        c0, c1, c2 = float(sol[0]), float(sol[1]), float(sol[2])
-        b0 = c0 - c1 * uc - c2 * vc
-        b1 = c1
-        b2 = c2
-        if not (math.isfinite(b0) and math.isfinite(b1) and math.isfinite(b2)):
-            return False, 0.0, 0.0, 0.0
-    if not b2 > 0:
-        return False, 0.0, 0.0, 0.0
-    return True, b0, b1, b2
-
-
-# --------------------------------------------------------------------------- helpers
-
-
-class RoadInputError(InputError, ValueError):
-    """An input of a road node is not what its port promises: lanegraph's own :class:`InputError`
-    (so the executor reports it like any bad input) that stays a ``ValueError`` for Python callers."""
-
-
-def checked_disparity(disparity: np.ndarray, node: str) -> np.ndarray:
-    """Validate a disparity map's shape and dtype; C-contiguous float32 (no copy when it is already).
-    NaNs and infinities stay: every road kernel treats them as invalid pixels, as it does 0 (no
-    pass over the map to look for them)."""
-    disparity = np.asarray(disparity)
-    if (
-        disparity.ndim != 2
-        or disparity.shape[0] < 1
-        or disparity.shape[1] < 1
-        or disparity.dtype.kind not in "biuf"
-    ):
-        raise RoadInputError(
-            f"{node}: disparity: expected a non-empty HxW array of numbers, "
-            f"got shape {disparity.shape} of dtype {disparity.dtype}"
-        )
-    return np.ascontiguousarray(disparity, dtype=np.float32)
-
-
-#: the most v-disparity bins (max_disparity / bin_size) the params may ask for
-MAX_BINS = 1024
-
-
-def n_bins(max_disparity: float, bin_size: float) -> int:
-    return max(1, int(math.ceil(max_disparity / bin_size)))
-
-
-def _select(disp, cx, cy, s, c, bins, bin_size, max_disparity, band, step):
-    """:func:`_select_kernel` into new arrays: ``(rows, disparities, vdisparity)``. Rows are int16
-    (half the memory traffic of int32) unless the image has too many rows for it."""
-    H, W = disp.shape
-    cap = H * -(-W // step)
-    rows = np.empty(cap, np.int16 if H < 32767 else np.int32)
-    d = np.empty(cap, np.float32)
-    vd = np.zeros((H, bins), np.float32)
-    k, b0, b1, b2 = band if band is not None else (0.0, 0.0, 0.0, 0.0)
-    n = _select_kernel(
-        disp,
-        int(step),
-        float(k),
-        float(b0),
-        float(b1),
-        float(b2),
-        float(cx),
-        float(cy),
-        float(s),
-        float(c),
-        float(bin_size),
-        float(max_disparity),
-        rows,
-        d,
-        vd,
-    )
-    return rows[:n], d[:n], vd
-
-
-def select_and_count(
-    disp: np.ndarray,
-    cx: float,
-    cy: float,
-    s: float,
-    c: float,
-    max_disparity: float,
-    bin_size: float,
-    band: tuple[float, float, float, float] | None = None,
-    step: int = 1,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The pixels of a pass and their v-disparity in one pass over a validated map
-    (:func:`_select_kernel`): ``(rows, disparities, H x D vdisparity)`` of the selected pixels of every
-    ``step``-th column, in roll-corrected rows ``v' = cy + s (u - cx) + c (v - cy)`` (pixels);
-    ``band = (band_k, b0, b1, b2)`` or None for every valid pixel."""
-    return _select(disp, cx, cy, s, c, n_bins(max_disparity, bin_size), bin_size, max_disparity, band, step)
-
-
-def select_pixels(
-    disp: np.ndarray,
-    cx: float,
-    cy: float,
-    s: float,
-    c: float,
-    band: tuple[float, float, float, float] | None = None,
-    step: int = 1,
-) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`select_and_count` without the counts: ``(rows, disparities)``."""
-    return _select(disp, cx, cy, s, c, 0, 1.0, 0.0, band, step)[:2]
-
-
-def compute_vdisparity(
-    disp: np.ndarray,
-    max_disparity: float,
-    bin_size: float,
-    roll: float = 0.0,
-    calib: Calibration | None = None,
-) -> np.ndarray:
-    """``H x D`` v-disparity of a validated disparity map, optionally in roll-corrected rows."""
-    if roll != 0.0 and calib is None:
-        raise ValueError("a roll needs the calibration (principal point)")
-    s, c = geometry.roll_row_coeffs(roll, calib) if calib is not None else (0.0, 1.0)
-    cx, cy = (calib.cx, calib.cy) if calib is not None else (0.0, 0.0)
-    return select_and_count(disp, cx, cy, s, c, max_disparity, bin_size)[2]
-
-
-# --------------------------------------------------------------------------- road.vdisparity
-
-
-def bins_bounded(params):
-    """``params`` (with ``max_disparity`` and ``bin_size``) when its v-disparity has at most
-    :data:`MAX_BINS` bins (memory and time grow with them: 8x the default's 128); else ValueError."""
-    if params.max_disparity / params.bin_size > MAX_BINS:
-        raise ValueError(
-            f"max_disparity / bin_size = {params.max_disparity / params.bin_size:.0f} disparity bins, "
-            f"more than {MAX_BINS}; raise bin_size or lower max_disparity"
-        )
-    return params
-
-
-class VDisparityParams(NodeParams):
-    """Params of ``road.vdisparity``."""
-
-    max_disparity: float = Field(
-        128.0, gt=0.0, le=1024.0, description="disparities >= this are left out, pixels; D = ceil(max / bin)"
-    )
-    bin_size: float = Field(
-        1.0, ge=0.25, le=16.0, description="width of a disparity bin, pixels (>= 0.25; at most 1024 bins)"
-    )
-
-    @model_validator(mode="after")
-    def _bins_bounded(self):
-        return bins_bounded(self)
-
-
-@node_type(
-    "road.vdisparity",
-    inputs={"disparity": Port("disparity", "left disparity map")},
-    outputs={"vdisparity": Port("vdisparity", "H x D count of disparities per row")},
-)
-def road_vdisparity(params: VDisparityParams, disparity: np.ndarray) -> dict:
-    """The v-disparity image: per image row, a histogram of its valid disparities (H x D float32)."""
-    disp = checked_disparity(disparity, "road.vdisparity")  # NaN, +-inf: invalid to the kernel
-    return {"vdisparity": compute_vdisparity(disp, params.max_disparity, params.bin_size)}
-
-
 # --------------------------------------------------------------------------- road.profile
 
 
@@ -818,88 +409,6 @@ class ProfileParams(NodeParams):
         return bins_bounded(self)
 
 
-@functools.lru_cache(maxsize=512)
-def _sample_pairs(n: int, iterations: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """The RANSAC pairs ``(i, j)`` among ``n`` points: a generator seeded with ``seed`` draws them,
-    so a frame's samples do not depend on earlier frames. Cached by ``n`` (a frame's profile has
-    a few hundred rows, so the same few counts recur): seeding a generator and drawing took 0.08 ms
-    per fit. Read-only: shared by every call with the same arguments."""
-    rng = np.random.default_rng(seed)
-    i = rng.integers(0, n, iterations)
-    j = rng.integers(0, n, iterations)
-    i.flags.writeable = False
-    j.flags.writeable = False
-    return i, j
-
-
-def _weighted_polyfit(v: np.ndarray, d: np.ndarray, w: np.ndarray, deg: int) -> np.ndarray | None:
-    """Weighted least squares, coefficients lowest power first (a line in closed form, about the
-    weighted mean: no SVD for two unknowns)."""
-    if np.count_nonzero(w > 0) < deg + 1:
-        return None
-    if deg == 1:
-        sw = w.sum()
-        mv = (w * v).sum() / sw
-        md = (w * d).sum() / sw
-        dv = v - mv
-        var = (w * dv * dv).sum()
-        if not var > 0:
-            return None
-        a1 = (w * dv * (d - md)).sum() / var
-        coef = np.array([md - a1 * mv, a1])
-        return coef if np.all(np.isfinite(coef)) else None
-    A = np.stack([v**k for k in range(deg + 1)], axis=1)
-    sw = np.sqrt(w)
-    coef, *_ = np.linalg.lstsq(A * sw[:, None], d * sw, rcond=None)
-    return coef if np.all(np.isfinite(coef)) else None
-
-
-def _robust_fit(
-    v, d, w, deg, tol, iterations, init: np.ndarray | None, seed: int = 0, min_slope: float = 0.0
-):
-    """RANSAC (for the line: ``iterations`` pairs drawn by :func:`_sample_pairs`, slopes above
-    ``min_slope``) then least squares with inlier re-selection (four rounds at most); with ``init``
-    (inliers) only the least squares. The line: :func:`_line_fit`. Returns
-    (coef, inliers), coef None when no fit (inliers None when RANSAC found none)."""
-    v = np.ascontiguousarray(v, dtype=np.float64)
-    d = np.ascontiguousarray(d, dtype=np.float64)
-    w = np.ascontiguousarray(w, dtype=np.float64)
-    if init is None:
-        if deg != 1:
-            raise ValueError("RANSAC fits a line (deg 1) only; give the inliers of a line for deg > 1")
-        if v.size < 2:
-            return None, None
-        i, j = _sample_pairs(v.size, int(iterations), int(seed))
-        status, a0, a1, inl = _line_fit(v, d, w, i, j, float(tol), 4, float(min_slope))
-        if status == 0:
-            return None, None
-        return (np.array([a0, a1]), inl) if status == 2 else (None, inl)
-    if np.count_nonzero(init) < deg + 1:
-        return None, None
-    if deg == 1:
-        ok, a0, a1, inl = _line_refit_kernel(
-            v, d, w, np.ascontiguousarray(init, dtype=np.bool_), float(tol), 4
-        )
-        return (np.array([a0, a1]), inl) if ok else (None, inl)
-    return _robust_refit_np(v, d, w, deg, tol, init)
-
-
-def _robust_refit_np(v, d, w, deg, tol, inl):
-    """The least-squares rounds of :func:`_robust_fit` in NumPy (any degree; the reference of
-    :func:`_line_refit_kernel`)."""
-    coef = None
-    for _ in range(4):
-        c = _weighted_polyfit(v[inl], d[inl], w[inl], deg)
-        if c is None:
-            break
-        coef = c
-        new = np.abs(d - np.polynomial.polynomial.polyval(v, coef)) < tol
-        if np.count_nonzero(new) < deg + 1 or np.array_equal(new, inl):
-            break
-        inl = new
-    return coef, inl
-
-
 def _profile_pass(
     H: int,
     W: int,
@@ -959,33 +468,6 @@ def _profile_pass(
         if quad is not None:
             coef = quad
     return (line, coef), profile, rows[inl].astype(int)
-
-
-def _fit_road_plane(disp, line, height: float, v_top: int, params: ProfileParams) -> np.ndarray | None:
-    """The road plane ``d = b0 + b1 u + b2 v`` (disparity space) fitted over the pixels within
-    ``roll_tolerance_px`` of the profile line, then re-fitted ``roll_iterations`` times over the
-    pixels within ``plane_tolerance_m`` (metric, eq. 4) of the plane: every round in one call of
-    :func:`_plane_fit_kernel` (normal equations in coordinates centred on the image centre, a
-    3 x 3 solve). None when a round has fewer than 50 pixels or no plane, or the plane is not
-    a road (``b2 <= 0``). ``height``: the camera height of the line (metres)."""
-    H, W = disp.shape
-    ok, b0, b1, b2 = _plane_fit_kernel(
-        disp,
-        int(params.roll_subsample),
-        int(v_top),
-        float(params.min_fit_disparity_px),
-        float(line[0]),
-        0.0,
-        float(line[1]),
-        float(params.roll_tolerance_px),
-        float(params.plane_tolerance_m),
-        float(height),
-        float(params.min_plane_tolerance_px),
-        0.5 * (W - 1),
-        0.5 * (H - 1),
-        int(params.roll_iterations),  # at least one (the param's bound): b is then a fit
-    )
-    return np.array([b0, b1, b2]) if ok else None
 
 
 def _invalid(profile: np.ndarray | None, roll: float = 0.0) -> RoadModel:

@@ -113,10 +113,13 @@ def spec_from_params(params: SyntheticParams) -> SceneSpec:
         "gt_road_mask": Port("mask", "left-view pixels on the road plane"),
         "gt_object_mask": Port("mask", "left-view pixels on objects (cars, poles, walls)"),
     },
+    implements=("constants", "identity", "frame_key", "len", "skip"),
 )
 class SyntheticSource:
     """A built-in synthetic stereo road sequence with exact ground truth (presets: straight, curved,
     clothoid, urban, no_markings, overexposed)."""
+
+    skipped: int  # frames of a resumed run left out (context.skip)
 
     def __init__(self, params: SyntheticParams, context: RunContext):
         self.params = params

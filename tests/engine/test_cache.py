@@ -216,7 +216,7 @@ def test_port_values_round_trip_and_foreign_classes_are_not_stored(tmp_path):
     assert got["outputs"]["lanes"][0].side == "left" and got["outputs"]["mixed"] == value["outputs"]["mixed"]
 
     # a plugin's own value class: not stored (a reader would refuse it), the run goes on without it
-    with pytest.warns(CacheWarning, match="_PluginValue is not a type a cache entry may hold"):
+    with pytest.warns(CacheWarning, match="_PluginValue cannot be stored"):
         assert not cache.put("e" * 64, {"outputs": {"y": _PluginValue(3)}, "ms": 1.0})
     assert cache.get("e" * 64) is ResultCache.MISS
 

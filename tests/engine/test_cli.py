@@ -81,6 +81,10 @@ def test_nodes_and_schema(cli):
     assert "toy.scale" in names
     scale = next(n for n in listing["node_types"] if n["name"] == "toy.scale")
     assert scale["inputs"]["x"]["type"] == "number" and "factor" in scale["params"]["properties"]
+    count = next(n for n in listing["node_types"] if n["name"] == "toy.count")
+    assert scale["implements"] == [] and count["implements"] == ["constants", "frame_key", "len"]
+    stored = {p["name"] for p in listing["port_types"] if p["stored"]}
+    assert "lanes" in stored and "image" not in stored
     r = cli.invoke(main, ["schema"])
     assert "node_toy_scale" in json.loads(r.output)["$defs"]
 

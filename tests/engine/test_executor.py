@@ -271,6 +271,7 @@ class PickParams(NodeParams):
     source=True,
     params=PickParams,
     outputs={"frame": "frame_id", "value": "number", "calib": Port("calibration", rate="constant")},
+    implements=("select_source",),
 )
 class Pick:
     """Stands for toy.count (no input) or the source a plugin detects for the input."""
@@ -325,7 +326,9 @@ class WriterParams(NodeParams):
     filename: str = Field("values.txt", description="output file, relative to the output folder")
 
 
-@node_type("toy.write", sink=True, inputs={"frame": "frame_id", "x": "number"})
+@node_type(
+    "toy.write", sink=True, inputs={"frame": "frame_id", "x": "number"}, implements=("result_files", "close")
+)
 class Writer:
     """Writes one line per frame."""
 

@@ -210,3 +210,103 @@ def test_real_odometry_zips(tmp_path):
     assert (got / "calib.txt").read_bytes() == (seq / "calib.txt").read_bytes()
     assert len(list((got / "image_1").glob("*.png"))) == len(list((got / "image_0").glob("*.png"))) > 0
     assert [s.name for s in load_dataset(out / "kitti.yaml").sequences] == ["odometry_05"]
+
+
+# ------------------------------------------------------------------ bounds, everything checked first
+def _png_of(w: int, h: int) -> bytes:
+    return (
+        b"\x89PNG\r\n\x1a\n" + b"\x00\x00\x00\rIHDR" + w.to_bytes(4, "big") + h.to_bytes(4, "big") + b"rest"
+    )
+
+
+def _members_of(path: Path) -> dict[str, bytes]:
+    with zipfile.ZipFile(path) as z:
+        return {n: z.read(n) for n in z.namelist()}
+
+
+def _tree(folder: Path) -> dict[str, bytes | None]:
+    return {
+        str(p.relative_to(folder)): (p.read_bytes() if p.is_file() else None) for p in sorted(folder.rglob("*"))
+    } if folder.exists() else {}  # fmt: skip
+
+
+def test_a_huge_png_is_refused_from_its_header_before_writing(tmp_path):
+    drive = _fake_drive(tmp_path)
+    members = _members_of(drive)
+    members[f"{DATE}/{DATE}_drive_0002_sync/image_02/data/0000000001.png"] = _png_of(40000, 30000)
+    _zip(drive, members)
+    out = tmp_path / "out"
+    r = _run(str(drive), str(_fake_calib(tmp_path)), "--out", str(out))
+    assert r.exit_code == 2 and "a 40000 x 30000 image, expected at most 8000000 pixels" in r.output, r.output
+    assert _tree(out) == {}
+
+
+def test_a_calibration_above_1_mb_is_refused_before_writing(tmp_path):
+    calib = _zip(tmp_path / f"{DATE}_calib.zip", {f"{DATE}/calib_cam_to_cam.txt": b"P" * (1024 * 1024 + 1)})
+    out = tmp_path / "out"
+    r = _run(str(_fake_drive(tmp_path)), str(calib), "--out", str(out))
+    assert r.exit_code == 2 and "more than the 1048576 a calibration or times file may have" in r.output, (
+        r.output
+    )
+    assert _tree(out) == {}
+
+
+@pytest.mark.parametrize("how", ["encrypted", "method 99"])
+def test_an_unreadable_member_is_refused_with_one_line(tmp_path, how):
+    drive = _fake_drive(tmp_path)
+    raw = bytearray(drive.read_bytes())
+    for sig, flag_at, method_at in ((b"PK\x03\x04", 6, 8), (b"PK\x01\x02", 8, 10)):  # every header
+        offset = raw.find(sig)
+        while offset >= 0:
+            if how == "encrypted":
+                raw[offset + flag_at] |= 0x1
+            else:
+                raw[offset + method_at : offset + method_at + 2] = (99).to_bytes(2, "little")
+            offset = raw.find(sig, offset + 4)
+    drive.write_bytes(bytes(raw))
+    out = tmp_path / "out"
+    r = _run(str(drive), str(_fake_calib(tmp_path)), "--out", str(out))
+    assert r.exit_code == 2, r.output
+    lines = [ln for ln in r.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: ") and "Traceback" not in r.output, r.output
+    assert ("encrypted" if how == "encrypted" else "method 99") in lines[0]
+    assert _tree(out) == {}
+
+
+def test_a_crc_error_leaves_out_as_it_was(tmp_path):
+    drive = _fake_drive(tmp_path, frames=5)
+    raw = bytearray(drive.read_bytes())
+    at = raw.rfind(b"rest")  # the last image's bytes (stored): its CRC no longer matches
+    raw[at : at + 4] = b"REST"
+    drive.write_bytes(bytes(raw))
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "notes.txt").write_text("the user's")
+    r = _run(str(drive), str(_fake_calib(tmp_path)), "--out", str(out))
+    assert r.exit_code == 2 and "damaged" in r.output, r.output
+    assert _tree(out) == {"notes.txt": b"the user's"}
+
+
+def test_out_given_as_an_empty_string_is_refused(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    r = _run(str(_fake_drive(tmp_path)), str(_fake_calib(tmp_path)), "--out", "")
+    assert r.exit_code == 2 and "--out" in r.output, r.output
+    assert not (tmp_path / "kitti_raw").exists() and not (tmp_path / "kitti.yaml").exists()
+
+
+def test_the_users_files_in_out_are_kept_or_refused(tmp_path):
+    out = tmp_path / "out"
+    args = [str(_fake_drive(tmp_path)), str(_fake_calib(tmp_path)), "--out", str(out)]
+    assert _run(*args).exit_code == 0
+    assert _run(*args).exit_code == 0  # its own files: replaced
+    (out / "kitti.yaml").write_text("name: mine\n")  # the user's own dataset file now
+    calib = out / "kitti_raw" / DATE / "calib_cam_to_cam.txt"
+    before = _tree(out)
+    r = _run(*args)
+    assert r.exit_code == 2 and "kitti.yaml is there and not lanegraph's" in r.output, r.output
+    assert _tree(out) == before
+    (out / "kitti.yaml").unlink()
+    calib.write_text("P_rect_02: edited by hand\n")
+    r = _run(*args)
+    assert r.exit_code == 2 and "calib_cam_to_cam.txt is there and not lanegraph's" in r.output, r.output
+    assert calib.read_text() == "P_rect_02: edited by hand\n"

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lanegraph.presentation.plots import accuracy_vs_ms_figure, place_labels, text_width
+from lanegraph.evaluation.plots import accuracy_vs_ms_figure, place_labels, text_width
 from lanegraph.presentation.report import _svg
 
 #: thirteen variants, as an ablation of the paper graph gives them: all between 100 and 140 ms,

@@ -3,6 +3,8 @@ commit of the graph's checkout (read from the .git files, git never run there)."
 
 from __future__ import annotations
 
+import json
+import os
 import shutil
 import subprocess
 from pathlib import Path
@@ -80,3 +82,64 @@ def test_no_checkout_no_commit(tmp_path):
     (bad / ".git").mkdir(parents=True)
     (bad / ".git" / "HEAD").write_text("ref: ../../etc/passwd\n")
     assert git_commit(bad / "g.yaml") is None
+
+
+def _in_time(fn, *args):
+    """``fn(*args)`` on a thread, which must end within seconds (a FIFO must not block it)."""
+    import threading
+
+    out = {}
+    th = threading.Thread(target=lambda: out.setdefault("v", fn(*args)), daemon=True)
+    th.start()
+    th.join(10)
+    assert not th.is_alive(), "blocked"
+    return out["v"]
+
+
+@pytest.mark.parametrize(
+    ("where", "what", "why"),
+    [
+        ("HEAD", "fifo", "a FIFO, not read"),
+        ("HEAD", "zero", "a device, not read"),
+        ("HEAD", b"ref: refs/heads/\xff\xfe\n", "not UTF-8 text"),
+        ("commondir", b"\xff..\n", "not UTF-8 text"),
+        ("refs/heads/main", "fifo", "a FIFO, not read"),
+        ("HEAD", b"ref: refs/heads/main\n" * 10000, "more than the 65536"),
+    ],
+)
+def test_git_files_are_read_only_when_small_regular_utf8_files(tmp_path, where, what, why):
+    graph = tmp_path / "g.yaml"
+    graph.write_text("name: g\n")
+    git = tmp_path / ".git"
+    (git / "refs" / "heads").mkdir(parents=True)
+    (git / "HEAD").write_text("ref: refs/heads/main\n")
+    (git / "refs" / "heads" / "main").write_text("a" * 40 + "\n")
+    target = git / where
+    target.unlink(missing_ok=True)
+    if what == "fifo":
+        os.mkfifo(target)
+    elif what == "zero":
+        target.symlink_to("/dev/zero")
+    else:
+        target.write_bytes(what)
+    got = _in_time(git_commit, graph)
+    assert set(got) == {"skipped"} and why in got["skipped"] and "not recorded" in got["skipped"], got
+
+
+def test_a_run_whose_graph_lies_beside_a_fifo_head_runs_and_says_so(tmp_path, monkeypatch):
+    from click.testing import CliRunner
+
+    from lanegraph.cli import main
+
+    (tmp_path / "g").mkdir()
+    graph = tmp_path / "g" / "demo.yaml"
+    graph.write_text((Path(__file__).resolve().parents[2] / "graphs" / "demo_sgbm.yaml").read_text())
+    (tmp_path / ".git").mkdir()
+    os.mkfifo(tmp_path / ".git" / "HEAD")
+    out = tmp_path / "out"
+    args = ["run", str(graph), "--out", str(out), "-q", "--set", "src.type=io.synthetic", "--set",
+            "src.scale=0.2", "--set", "src.frames=1", "--set", "disp.num_disparities=16"]  # fmt: skip
+    r = _in_time(lambda: CliRunner().invoke(main, args))
+    assert r.exit_code == 0, r.output
+    record = json.loads((out / "run.json").read_text())
+    assert "a FIFO, not read" in record["git"]["skipped"]

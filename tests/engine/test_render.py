@@ -207,14 +207,15 @@ def test_plugin_render_hook_is_used(pm, tmp_path):
     assert np.array_equal(saved, marker)
 
 
-def test_every_builtin_port_type_comes_through_the_hook_with_its_picture_and_check():
+def test_every_builtin_port_type_comes_through_the_hook_with_its_check_and_has_its_picture():
     from lanegraph.plugins import PluginManager
-    from lanegraph.presentation.port_types import PORT_TYPES
+    from lanegraph.port_types import PORT_TYPES
+    from lanegraph.presentation.port_types import picture_of
 
     pm = PluginManager()  # no plugin loaded: lanegraph's own port types only, through the hook
     assert set(pm.port_types) == set(PORT_TYPES)
     assert pm.get_plugin("lanegraph").lanegraph_port_types() == list(PORT_TYPES.values())
-    drawn = {n for n, t in PORT_TYPES.items() if t.render is not None}
+    drawn = {n for n, t in pm.port_types.items() if picture_of(t) is not None}
     assert {
         "image",
         "disparity",

@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from lanegraph.errors import UsageError
-from lanegraph.run.folder import claim, command_identity, run_identity
+from lanegraph.run.folder import claim, command_identity, run_identity, seal
 
 RESOLVED = {"name": "g", "nodes": {"fit": {"type": "fit.irls", "params": {"roi_width": 40}}}}
 ME = run_identity("a" * 64, "/data/drive", "0:20")
@@ -106,51 +106,102 @@ def test_an_unfinished_run_is_refused_without_resume(tmp_path):
         claim(out, run_identity("a" * 64, "/data/other", "0:20"))
 
 
+WRITES = {
+    "run.json": "file",
+    "timings.json": "file",
+    "graph.yaml": "file",
+    "run.log": "file",
+    "checkpoint.json": "file",
+    "lanes.jsonl": "file",
+    "overlays": "tree",
+    "pictures": "dir",
+    "runs": "dir",
+}
+
+
+def a_sealed_run(folder: Path, identity=ME, **extra) -> Path:
+    """A run as lanegraph writes it: the folder claimed, its files written, then sealed (the
+    ownership record lists each file by inode, size and digest)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    claim(folder, identity, writes=WRITES)
+    a_run(folder, identity, **extra)
+    (folder / "run.log").write_text("log\n")
+    (folder / "checkpoint.json").write_text('{"format":"lanegraph-checkpoint"}')
+    (folder / "pictures" / "0001").mkdir(parents=True)
+    (folder / "pictures" / "0001" / "mosaic.png").write_bytes(b"png")
+    (folder / "overlays").mkdir()
+    (folder / "overlays" / "0001.png").write_bytes(b"png")
+    (folder / "runs" / "paper" / "seq").mkdir(parents=True)
+    (folder / "runs" / "paper" / "seq" / "run.json").write_text("{}")
+    seal(folder)
+    return folder
+
+
 def test_overwrite_removes_only_what_lanegraph_wrote(tmp_path):
-    out = a_run(
-        tmp_path / "out", run_identity("b" * 64, "/x", None), debug_dir="pictures", written=["overlays"]
-    )
-    for name in ("checkpoint.json", "run.log"):
-        (out / name).write_text("{}")
-    (out / "pictures" / "0001").mkdir(parents=True)
-    (out / "pictures" / "0001" / "mosaic.png").write_bytes(b"png")
-    (out / "overlays").mkdir()
-    (out / "report" / "assets").mkdir(parents=True)
-    (out / "report" / "assets" / ".lanegraph-report").write_text("mark")
-    (out / "report" / "index.html").write_text("<html>")
-    (out / "runs" / "paper" / "seq").mkdir(parents=True)
+    (tmp_path / "out" / "data").mkdir(parents=True)
+    (tmp_path / "out" / "data" / "lanes.jsonl").write_text("the user's")
+    (tmp_path / "out" / "pictures").mkdir()  # the user's folder, given as --debug-dir
+    (tmp_path / "out" / "pictures" / "photo.jpg").write_bytes(b"the user's")
+    out = a_sealed_run(tmp_path / "out", run_identity("b" * 64, "/x", None))
     outside = tmp_path / "keep.txt"
     outside.write_text("keep")
     (out / "notes.txt").write_text("the user's")
-    (out / "data").mkdir()
-    (out / "data" / "lanes.jsonl").write_text("the user's")
-    removed = claim(out, ME, overwrite=True)
-    assert {p.name for p in removed} >= {"run.json", "lanes.jsonl", "pictures", "report", "runs", "overlays"}
-    assert sorted(p.name for p in out.iterdir()) == ["data", "notes.txt"]
+    (out / "runs" / "paper" / "thesis.tex").write_text("the user's, in lanegraph's folder")
+    removed = claim(out, ME, overwrite=True, writes=WRITES)
+    assert {str(p.relative_to(out)) for p in removed} >= {
+        "run.json", "lanes.jsonl", "pictures/0001", "pictures/0001/mosaic.png", "overlays", "runs/paper/seq"
+    }  # fmt: skip
+    assert sorted(str(p.relative_to(out)) for p in out.rglob("*")) == [
+        "data", "data/lanes.jsonl", "notes.txt", "pictures", "pictures/photo.jpg", "runs", "runs/paper",
+        "runs/paper/thesis.tex",
+    ]  # fmt: skip
     assert (out / "data" / "lanes.jsonl").read_text() == "the user's" and outside.read_text() == "keep"
     assert claim(out, ME) == []
+
+
+def test_a_file_changed_since_lanegraph_wrote_it_is_not_lanegraphs(tmp_path):
+    out = a_sealed_run(tmp_path / "out")
+    (out / "lanes.jsonl").write_text("edited by the user\n")
+    with pytest.raises(UsageError, match=r"lanes.jsonl is there and not lanegraph's"):
+        claim(out, run_identity("c" * 64, None, None), overwrite=True, writes=WRITES)
+    assert (out / "lanes.jsonl").read_text() == "edited by the user\n" and (out / "run.json").exists()
+
+
+def test_a_copied_or_moved_record_is_not_genuine(tmp_path):
+    import shutil
+
+    out = a_sealed_run(tmp_path / "out")
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy)  # same names, same bytes: other inodes
+    with pytest.raises(UsageError, match="is there and not lanegraph's"):
+        claim(copy, run_identity("c" * 64, None, None), overwrite=True, writes=WRITES)
+    assert (copy / "lanes.jsonl").exists()
 
 
 def test_overwrite_never_follows_a_link_nor_leaves_the_folder(tmp_path):
     victim = tmp_path / "victim"
     victim.mkdir()
     (victim / "precious.txt").write_text("keep")
-    out = a_run(tmp_path / "out", written=["../victim", "/etc", "runs"])
+    out = a_sealed_run(tmp_path / "out", written=["../victim", "/etc", "runs", "."], debug_dir=".")
+    import shutil
+
+    shutil.rmtree(out / "runs")
     (out / "runs").symlink_to(victim)
-    claim(out, run_identity("c" * 64, None, None), overwrite=True)
-    assert (victim / "precious.txt").read_text() == "keep" and not (out / "runs").exists()
+    with pytest.raises(UsageError, match="runs is there and not lanegraph's"):
+        claim(out, run_identity("c" * 64, None, None), overwrite=True, writes=WRITES)
+    assert claim(out, run_identity("c" * 64, None, None), overwrite=True) != []
+    assert (victim / "precious.txt").read_text() == "keep" and (out / "runs").is_symlink()
 
 
-def test_a_folder_of_an_older_lanegraph_is_replaced_with_a_warning(tmp_path, caplog):
+def test_a_folder_of_an_older_lanegraph_is_taken_not_replaced(tmp_path):
     out = tmp_path / "out"
     out.mkdir()
     (out / "run.json").write_text(json.dumps({"status": "ok", "results": {"lanes": "lanes.jsonl"}}))
     (out / "lanes.jsonl").write_text("{}\n")
-    with caplog.at_level("WARNING", logger="lanegraph.run"):
-        assert claim(out, ME) == []
-    assert "holds a run of an older lanegraph" in caplog.text
-    claim(out, ME, overwrite=True)
-    assert list(out.iterdir()) == []
+    for overwrite in (False, True):
+        with pytest.raises(UsageError, match=r"(run.json|lanes.jsonl) is there and not lanegraph's"):
+            claim(out, ME, overwrite=overwrite, writes=WRITES)
+    assert sorted(p.name for p in out.iterdir()) == ["lanes.jsonl", "run.json"]
 
 
 def test_loose_files_and_planted_links_are_not_a_run(tmp_path):
@@ -183,11 +234,14 @@ def test_an_ablation_folder_holds_one_ablation(tmp_path):
     out = tmp_path / "abl"
     out.mkdir()
     mine = command_identity("ablation", ["paper", "slt"], {"kerbs": "/data/kerbs"}, None)
+    writes = {"command.json": "file", "results.csv": "file", "runs": "dir"}
+    assert claim(out, mine, writes=writes) == []
     (out / "command.json").write_text(json.dumps({"identity": mine, "written": ["results.csv", "runs"]}))
     (out / "results.csv").write_text("variant\n")
     (out / "runs").mkdir()
-    assert claim(out, mine) == []
+    seal(out)
+    assert claim(out, mine, writes=writes) == []
     other = command_identity("ablation", ["paper", "paper_literal"], {"kerbs": "/data/kerbs"}, None)
     with pytest.raises(UsageError, match="other variants: paper, slt there, paper, paper_literal now"):
-        claim(out, other)
-    assert claim(out, other, overwrite=True) and list(out.iterdir()) == []
+        claim(out, other, writes=writes)
+    assert claim(out, other, overwrite=True, writes=writes) and list(out.iterdir()) == []

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import numpy as np
 from pydantic import Field
 
-from lanegraph import NodeParams, Port, RunContext, hookimpl, node_type
+from lanegraph import NodeParams, Port, PortType, RunContext, hookimpl, node_type
 
 KEY_SALT = {"salt": "v1"}  # tests change it to simulate a changed input file
 
@@ -18,6 +19,7 @@ class CountParams(NodeParams):
     "toy.count",
     source=True,
     outputs={"frame": "frame_id", "value": "number", "calib": Port("calibration", rate="constant")},
+    implements=("constants", "frame_key", "len"),
 )
 class Count:
     """Yields frames 0..n-1 with value = index."""
@@ -117,3 +119,59 @@ class Flaky:
             if i == self.p.bad:
                 raise InputError("truncated image", path=f"/data/{i:04d}.png", frame=f"{i:04d}")
             yield {"frame": f"{i:04d}", "value": float(i)}
+
+
+# --------------------------------------------------------------------------- a plugin's own value type
+class Tally:
+    """A plugin's own value type (not a dataclass): a running total and the values it has seen."""
+
+    def __init__(self, total: float, seen: np.ndarray):
+        self.total = float(total)
+        self.seen = seen
+
+    def __eq__(self, other):
+        return type(other) is Tally and other.total == self.total and np.array_equal(other.seen, self.seen)
+
+
+def encode_tally(t: Tally) -> dict:
+    return {"total": t.total, "seen": t.seen}
+
+
+def decode_tally(data) -> Tally:
+    if not (
+        isinstance(data, dict) and set(data) == {"total", "seen"} and isinstance(data["seen"], np.ndarray)
+    ):
+        raise ValueError("expected {total, seen}")
+    return Tally(data["total"], data["seen"])
+
+
+TALLY = PortType("tally", "a running total (toy)", stores=Tally, encode=encode_tally, decode=decode_tally)
+CALLS["tally"] = 0
+
+
+@node_type(
+    "toy.tally",
+    inputs={"x": "number", "prev": Port("tally", optional=True)},
+    outputs={"tally": "tally", "total": "number"},
+)
+def tally(params: NodeParams, x, prev=None):
+    """Adds x to the previous frame's tally (a feedback edge of the plugin's own type)."""
+    CALLS["tally"] += 1
+    seen = np.append(prev.seen if prev is not None else np.zeros(0, np.float32), np.float32(x))
+    t = Tally((prev.total if prev is not None else 0.0) + x, seen)
+    return {"tally": t, "total": t.total}
+
+
+class TallyPlugin:
+    """Registers the toy value type's port type (with its storage) and the node that makes it; not
+    registered by the ``pm`` fixture."""
+
+    @staticmethod
+    @hookimpl
+    def lanegraph_port_types():
+        return [TALLY]
+
+    @staticmethod
+    @hookimpl
+    def lanegraph_node_types():
+        return [tally]

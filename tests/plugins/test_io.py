@@ -233,7 +233,7 @@ def test_real_kitti_drive(kitti_drive):
 def test_io_auto_selects_the_source_by_the_input(tmp_path):
     """io.auto is never instantiated: its select_source names the source for the input (the engine
     passes every plugin's lanegraph_detect_source as ``detect``)."""
-    from lanegraph_io._sources import AutoParams, AutoSource
+    from lanegraph_io._auto import AutoParams, AutoSource
 
     odo = kitti_raw(tmp_path)
     assert AutoSource.select_source(AutoParams(), None, detect_source) == "io.synthetic"
@@ -345,7 +345,7 @@ def test_io_auto_passes_read_ahead_to_the_source_it_chooses(tmp_path, given):
 
 
 def test_a_value_the_chosen_source_refuses_is_a_located_graph_error():
-    from lanegraph_io._sources import AutoParams
+    from lanegraph_io._auto import AutoParams
     from pydantic import Field
 
     from lanegraph import NodeParams

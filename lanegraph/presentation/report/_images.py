@@ -101,7 +101,7 @@ def read_left_images(
             f"source {choice.node_type.name!r} failed after {len(order)} frame(s): {type(exc).__name__}: {exc}"
         ) from exc
     finally:
-        close(source)
+        close(source, choice.node_type)
     return order
 
 

@@ -255,9 +255,9 @@ def scatter_svg(points: Sequence[tuple[str, float | None, float | None]], x_labe
     """Accuracy against time: ``(label, x, y)`` per point, ``y`` a fraction in [0, 1].
 
     Each point has its own colour, a legend entry beside the plot, and a label placed where it
-    overlaps no other label and no point (:func:`lanegraph.plots.place_labels`; joined to its point
+    overlaps no other label and no point (:func:`lanegraph.evaluation.plots.place_labels`; joined to its point
     by a thin line when moved away, left out when there is no room: the legend names the point)."""
-    from ..plots import nearest_on_box, place_labels, text_width
+    from ...evaluation.plots import nearest_on_box, place_labels, text_width
 
     pts = [(n, float(xv), float(yv)) for n, xv, yv in points if xv is not None and yv is not None]
     if not pts:
