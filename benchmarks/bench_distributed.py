@@ -23,10 +23,12 @@ unchunked and with ``--chunk-frames K --warmup W`` for each W of ``--warmups``.
 from __future__ import annotations
 
 import argparse
+import atexit
 import csv
 import json
 import os
 import resource
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -88,6 +90,7 @@ def rows(out: Path) -> list[dict[str, str]]:
 
 def compare(graphs: list[str], dataset: str, workers: int, repeat: int, one_core: bool) -> None:
     tmp = Path(tempfile.mkdtemp(prefix="bench_distributed_"))
+    atexit.register(shutil.rmtree, tmp, True)  # nothing left in the temporary folder
     base = ["ablate", *graphs, "--dataset", dataset, "--no-cache", "--quiet"]
     print(f"{len(graphs)} graph(s) x {dataset}; {os.cpu_count()} cores; {repeat} run(s) of each, alternating")
     # numba kernels compiled and cached before any timing
@@ -152,6 +155,7 @@ def compare(graphs: list[str], dataset: str, workers: int, repeat: int, one_core
 
 def chunk_sweep(graph: str, dataset: str, chunk: int, warmups: list[int]) -> None:
     tmp = Path(tempfile.mkdtemp(prefix="bench_chunks_"))
+    atexit.register(shutil.rmtree, tmp, True)  # nothing left in the temporary folder
     keys = ("frames", "detection_ratio", "precision", "ego_recall", "mean_abs_dx_px")
     print(f"{graph} on {dataset}, pooled over its sequences")
     print(

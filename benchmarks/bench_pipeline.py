@@ -42,8 +42,10 @@ disturbed one):
 from __future__ import annotations
 
 import argparse
+import atexit
 import os
 import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -226,6 +228,7 @@ def bench(
     sel = slice(int(a or 0), int(b) if b else None)
     start_load = load()
     out_dir = Path(tempfile.mkdtemp())
+    atexit.register(shutil.rmtree, out_dir, True)  # nothing left in the temporary folder
     # warm-up: compile kernels, fill caches
     Executor(load_graph(graph_path), RunContext(input_path=drive, out_dir=out_dir, frames=slice(0, 1))).run()
     g = load_graph(graph_path)

@@ -3,11 +3,14 @@ committed text.
 
 Each generated block in the docs lies between ``<!-- figures: NAME ... -->`` and ``<!-- /figures -->``.
 
+- ``readme/quick-start``: the score line ``lanegraph run`` ends with, on the default synthetic scene;
 - ``tutorial/ablation-kerbs``: every graph of ``graphs/ablations/`` and ``paper`` on 40 frames of the
   synthetic ``kerbs`` street (its answers are exact);
 - ``tutorial/eval-drive``, ``tutorial/ablation-drive``: ``lanegraph eval`` of ``paper`` and the same
   ablation on KITTI raw drive 0001 (``../shared/data``);
-- ``readme/dev``: ``paper`` on the eight developer sources of ``graphs/datasets/dev.yaml``.
+- ``readme/dev``: ``paper`` on the eight developer sources of ``graphs/datasets/dev.yaml``;
+- ``plugins/tophat-drive``: the example plugin's graph (``docs/examples/lg_tophat``) on drive 0001,
+  beside ``paper`` (the plugin made findable for the run when it is not installed).
 
 The real ones need ``../shared/data`` (skipped with a note when it is absent). The tables leave out
 ``ms/frame``, which depends on the machine and its load (docs/pipeline.md has the timings).
@@ -31,14 +34,20 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
 DRIVE = SHARED / "kitti_raw" / "2011_09_26" / "2011_09_26_drive_0001_sync"
-DOCS = {"readme": ROOT / "README.md", "tutorial": ROOT / "docs" / "tutorial.md"}
+DOCS = {
+    "readme": ROOT / "README.md",
+    "tutorial": ROOT / "docs" / "tutorial.md",
+    "plugins": ROOT / "docs" / "writing-plugins.md",
+}
 BLOCK = re.compile(r"(<!-- figures: (?P<name>[\w/-]+)[^>]*-->\n)(?P<body>.*?)(<!-- /figures -->)", re.S)
 #: every block the generators write, by the figures they need
 BLOCKS = {
+    "readme/quick-start": "synthetic",
     "tutorial/ablation-kerbs": "synthetic",
     "tutorial/eval-drive": "real",
     "tutorial/ablation-drive": "real",
     "readme/dev": "real",
+    "plugins/tophat-drive": "real",
 }
 README_ROWS = {  # sequence of dev.yaml -> the row's label
     "drive_0001": "KITTI raw drive 0001, urban street, kerb and tram tracks (0-53)",
@@ -92,6 +101,21 @@ def gen_kerbs(tmp: Path) -> dict[str, str]:
     return {"tutorial/ablation-kerbs": pooled_table(out / "results.md")}
 
 
+def gen_quick_start(tmp: Path) -> dict[str, str]:
+    """The quick start as a new user runs it: ``lanegraph run`` in an empty folder."""
+    work = tmp / "quick_start"
+    work.mkdir()
+    proc = subprocess.run(
+        [sys.executable, "-m", "lanegraph.cli", "run"], cwd=work, capture_output=True, text=True
+    )
+    lines = [line for line in proc.stdout.splitlines() if line.startswith("detection ratio")]
+    if proc.returncode != 0 or len(lines) != 1:
+        raise SystemExit(
+            f"lanegraph run failed ({proc.returncode}):\n{proc.stdout[-2000:]}{proc.stderr[-3000:]}"
+        )
+    return {"readme/quick-start": f"```text\n{lines[0]}\n```\n"}
+
+
 def _pct(x: float | None, digits: int = 1) -> str:
     if x is None:
         return "–"
@@ -130,6 +154,55 @@ def gen_real(tmp: Path) -> dict[str, str]:
     return blocks
 
 
+def _tophat_env(tmp: Path) -> dict[str, str]:
+    """The environment of a run that finds the example plugin: as installed, or (not installed)
+    through an entry point of a stand-in distribution on PYTHONPATH."""
+    import os
+    from importlib import metadata
+
+    env = dict(os.environ)
+    try:
+        metadata.distribution("lanegraph-tophat")
+        return env
+    except metadata.PackageNotFoundError:
+        pass
+    info = tmp / "site" / "lanegraph_tophat_doc_figures-0.0.dist-info"
+    info.mkdir(parents=True)
+    (info / "METADATA").write_text(
+        "Metadata-Version: 2.1\nName: lanegraph-tophat-doc-figures\nVersion: 0.0\n"
+    )
+    (info / "entry_points.txt").write_text("[lanegraph.plugins]\nlg_tophat = lg_tophat\n")
+    paths = [str(tmp / "site"), str(ROOT / "docs" / "examples" / "lg_tophat"), env.get("PYTHONPATH", "")]
+    env["PYTHONPATH"] = os.pathsep.join(p for p in paths if p)
+    return env
+
+
+def gen_tophat(tmp: Path) -> dict[str, str]:
+    rows = [
+        "| graph (drive 0001, frames 0-53) | detection ratio | precision | ego recall |",
+        "|---|---|---|---|",
+    ]
+    env = _tophat_env(tmp)
+    for label, graph in (
+        ("`paper_tophat` (features.tophat)", "docs/examples/lg_tophat/graphs/paper_tophat.yaml"),
+        ("`paper` (features.eslt)", "graphs/paper.yaml"),
+    ):
+        out = tmp / f"tophat_{len(rows)}"
+        run = [sys.executable, "-m", "lanegraph.cli", "run", graph, "--input", str(DRIVE), "--frames", "0:54"]
+        proc = subprocess.run(
+            [*run, "--out", str(out), "--quiet"], cwd=ROOT, env=env, capture_output=True, text=True
+        )
+        if proc.returncode not in (0, 1):
+            raise SystemExit(f"{' '.join(run)} failed ({proc.returncode}):\n{proc.stderr[-3000:]}")
+        res = json.loads(
+            lanegraph("eval", str(out), str(DRIVE / "lanes_gt.jsonl"), "--json").splitlines()[-1]
+        )
+        rows.append(
+            f"| {label} | {_pct(res['detection_ratio'])} | {_pct(res['precision'])} | {_pct(res['ego_recall'])} |"
+        )
+    return {"plugins/tophat-drive": "\n".join(rows) + "\n"}
+
+
 def comparable(name: str, text: str) -> str:
     """The text as compared: trailing blanks ignored."""
     return "\n".join(line.rstrip() for line in text.strip().splitlines())
@@ -150,10 +223,12 @@ def main() -> None:
     opt = ap.parse_args()
     gens: list[tuple[str, Callable[[Path], dict[str, str]]]] = []
     if opt.only in (None, "synthetic"):
+        gens.append(("quick start", gen_quick_start))
         gens.append(("synthetic", gen_kerbs))
     if opt.only in (None, "real"):
         if (DRIVE / "image_02").is_dir():
             gens.append(("real", gen_real))
+            gens.append(("example plugin's", gen_tophat))
         else:
             print(
                 f"doc_figures: real sequences not found at {SHARED}: their figures are not checked",

@@ -405,7 +405,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--set", action="append", default=[], metavar="NODE.PARAM=VALUE", help="passed to lanegraph run"
     )
-    ap.add_argument("--work", default="", help="folder for the variants and the runs (kept)")
+    ap.add_argument(
+        "--work",
+        default="",
+        help="folder for the variants and the runs, kept (default: a temporary folder, removed at the end)",
+    )
     ap.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
     args = ap.parse_args(argv)
     if args.dataset and args.input:
@@ -421,82 +425,89 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="lanegraph-kitti-sweep-"))
-    names = list(opened)
-    col = max(len("sequence"), *(len(n) for n in names))
-    print(f"{args.graph} on {len(variants)} variant(s) of {', '.join(names)} (work: {work})")
-    print(f"{'variant':20s} {'sequence':{col}s} {HEADER}")
-    rows: list[dict] = []
-    failed_any = False
-    # on a terminal: which variant and sequence is being written or run (None: off where stderr is no terminal)
-    bar = tqdm(
-        total=len(variants) * len(names),
-        unit="run",
-        file=sys.stderr,
-        leave=False,
-        disable=True if args.quiet else None,
-    )
 
-    def show(spec: str, name: str, text: str) -> None:
-        tqdm.write(f"{spec:20s} {name:{col}s} {text}", file=sys.stdout)
-        sys.stdout.flush()
+    def sweep(work: Path) -> int:
+        names = list(opened)
+        col = max(len("sequence"), *(len(n) for n in names))
+        print(f"{args.graph} on {len(variants)} variant(s) of {', '.join(names)} (work: {work})")
+        print(f"{'variant':20s} {'sequence':{col}s} {HEADER}")
+        rows: list[dict] = []
+        failed_any = False
+        # on a terminal: which variant and sequence is being written or run (None: off where stderr is no terminal)
+        bar = tqdm(
+            total=len(variants) * len(names),
+            unit="run",
+            file=sys.stderr,
+            leave=False,
+            disable=True if args.quiet else None,
+        )
 
-    for spec, kind, arg in variants:
-        vname = spec.replace(":", "_")
-        evals, broken = [], []
-        for s in ds:
-            seq, gt = opened[s.name]
-            extra: list[str] = []
-            if kind in ("recorded", "step"):
-                data = s.input
-                picked = range(len(seq.images))[s.frames or slice(None)]
-                if kind == "step":
-                    picked = picked[:: int(arg)]
-                    ids = list(seq.images)
-                    chosen = {ids[i] for i in picked}
-                    gt = [g for g in gt if str(g["frame"]) in chosen]
-                if picked != range(len(seq.images)):
-                    extra = ["--frames", _selection_text(picked)]
-            else:
-                bar.set_description(f"{spec} / {s.name}: writing the variant")
-                data = write_variant(seq, work / "data" / vname / s.name, kind, arg, gt)
-                gt = read_ground_truth(data / "lanes_gt.jsonl")
-            bar.set_description(f"{spec} / {s.name}: lanegraph run")
-            out = work / "runs" / vname / s.name
-            failed = run_graph(args.graph, data, out, args.set, extra)
-            bar.update()
-            if not failed:
-                try:
-                    pred = read_predictions(lanes_file(out))
-                except InputError as exc:
-                    failed = f"unreadable predictions: {exc}"
-            if failed:
-                failed_any = True
-                broken.append(s.name)
-                show(spec, s.name, failed)
-                continue
-            res = evaluate(pred, gt)
-            evals.append((s.name, pred, gt))
-            rows.append(_row(spec, s.name, res, lanes_reported(pred)))
-            show(spec, s.name, metric_row(res, lanes_reported(pred)))
-        if len(names) > 1:
-            if broken:
-                show(spec, POOLED, f"- (not pooled: {', '.join(broken)} failed)")
-            else:
-                res = evaluate_sequences(evals)[POOLED]
-                n = sum(lanes_reported(pred) for _, pred, _ in evals)
-                rows.append(_row(spec, POOLED, res, n))
-                show(spec, POOLED, metric_row(res, n))
-    bar.close()
-    summary = {
-        "graph": args.graph,
-        "set": args.set,
-        "dataset": str(args.dataset) if args.dataset else None,
-        "sequences": names,
-        "rows": rows,
-    }
-    (work / "sweep.json").write_text(json.dumps(summary, indent=1) + "\n")
-    return 1 if failed_any else 0
+        def show(spec: str, name: str, text: str) -> None:
+            tqdm.write(f"{spec:20s} {name:{col}s} {text}", file=sys.stdout)
+            sys.stdout.flush()
+
+        for spec, kind, arg in variants:
+            vname = spec.replace(":", "_")
+            evals, broken = [], []
+            for s in ds:
+                seq, gt = opened[s.name]
+                extra: list[str] = []
+                if kind in ("recorded", "step"):
+                    data = s.input
+                    picked = range(len(seq.images))[s.frames or slice(None)]
+                    if kind == "step":
+                        picked = picked[:: int(arg)]
+                        ids = list(seq.images)
+                        chosen = {ids[i] for i in picked}
+                        gt = [g for g in gt if str(g["frame"]) in chosen]
+                    if picked != range(len(seq.images)):
+                        extra = ["--frames", _selection_text(picked)]
+                else:
+                    bar.set_description(f"{spec} / {s.name}: writing the variant")
+                    data = write_variant(seq, work / "data" / vname / s.name, kind, arg, gt)
+                    gt = read_ground_truth(data / "lanes_gt.jsonl")
+                bar.set_description(f"{spec} / {s.name}: lanegraph run")
+                out = work / "runs" / vname / s.name
+                failed = run_graph(args.graph, data, out, args.set, extra)
+                bar.update()
+                if not failed:
+                    try:
+                        pred = read_predictions(lanes_file(out))
+                    except InputError as exc:
+                        failed = f"unreadable predictions: {exc}"
+                if failed:
+                    failed_any = True
+                    broken.append(s.name)
+                    show(spec, s.name, failed)
+                    continue
+                res = evaluate(pred, gt)
+                evals.append((s.name, pred, gt))
+                rows.append(_row(spec, s.name, res, lanes_reported(pred)))
+                show(spec, s.name, metric_row(res, lanes_reported(pred)))
+            if len(names) > 1:
+                if broken:
+                    show(spec, POOLED, f"- (not pooled: {', '.join(broken)} failed)")
+                else:
+                    res = evaluate_sequences(evals)[POOLED]
+                    n = sum(lanes_reported(pred) for _, pred, _ in evals)
+                    rows.append(_row(spec, POOLED, res, n))
+                    show(spec, POOLED, metric_row(res, n))
+        bar.close()
+        summary = {
+            "graph": args.graph,
+            "set": args.set,
+            "dataset": str(args.dataset) if args.dataset else None,
+            "sequences": names,
+            "rows": rows,
+        }
+        (work / "sweep.json").write_text(json.dumps(summary, indent=1) + "\n")
+        return 1 if failed_any else 0
+
+    if args.work:
+        return sweep(Path(args.work))
+    # the data and the runs go to a temporary folder removed at the end (--work keeps them)
+    with tempfile.TemporaryDirectory(prefix="lanegraph-kitti-sweep-") as tmp:
+        return sweep(Path(tmp))
 
 
 def _row(variant: str, sequence: str, res: dict, lanes: int) -> dict:

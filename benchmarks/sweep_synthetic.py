@@ -192,7 +192,11 @@ def main() -> int:
     ap.add_argument(
         "--set", action="append", default=[], metavar="NODE.PARAM=VALUE", help="passed to lanegraph run"
     )
-    ap.add_argument("--work", default="", help="folder for the rendered scenes and the runs (kept)")
+    ap.add_argument(
+        "--work",
+        default="",
+        help="folder for the rendered scenes and the runs, kept (default: a temporary folder, removed at the end)",
+    )
     args = ap.parse_args()
     kinds = [k for k in args.kinds.split(",") if k]
     names = [s for s in args.scenes.split(",") if s] + [n for n, k in KIND_OF.items() if k in kinds]
@@ -200,39 +204,47 @@ def main() -> int:
     unknown = [s for s in names if s not in SCENES]
     if unknown:
         ap.error(f"--scenes: unknown scene(s) {unknown}; expected some of {list(SCENES)}")
-    work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="lanegraph-sweep-"))
-    print(f"{args.graph} on {len(names)} synthetic scenes, {args.frames} frames each (work: {work})")
-    print(f"{'scene':32s} {HEADER}")
-    per_kind: dict[str, list[int]] = {}
-    for name in names:
-        base, over = SCENES[name]
-        seq = work / "scenes" / name
-        if not (seq / "lanes_gt.jsonl").is_file():
-            if name == "single_pairs":
-                write_pairs([preset(b, **o) for b, o in SINGLE_PAIRS], seq)
-            else:
-                write_sequence(preset(base, **over), seq, args.frames)
-        out = work / "runs" / name
-        failed = run_graph(args.graph, seq, out, args.set)
-        if failed:
-            print(f"{name:32s} {failed}")
-            continue
-        pred, gt = read_jsonl(lanes_file(out)), read_jsonl(seq / "lanes_gt.jsonl")
-        n_lanes = lanes_reported(pred)
-        if name in KIND_OF:
-            res = evaluate(pred, gt)
-            pooled = per_kind.setdefault(KIND_OF[name], [0, 0])
-            pooled[0] += round(res["detection_ratio"] * len(gt))
-            pooled[1] += len(gt)
-        print(
-            f"{name:32s} {metric_row(evaluate(pred, gt), n_lanes, blank=name in LANE_COUNT_ONLY)}", flush=True
+
+    def sweep(work: Path) -> int:
+        print(f"{args.graph} on {len(names)} synthetic scenes, {args.frames} frames each (work: {work})")
+        print(f"{'scene':32s} {HEADER}")
+        per_kind: dict[str, list[int]] = {}
+        for name in names:
+            base, over = SCENES[name]
+            seq = work / "scenes" / name
+            if not (seq / "lanes_gt.jsonl").is_file():
+                if name == "single_pairs":
+                    write_pairs([preset(b, **o) for b, o in SINGLE_PAIRS], seq)
+                else:
+                    write_sequence(preset(base, **over), seq, args.frames)
+            out = work / "runs" / name
+            failed = run_graph(args.graph, seq, out, args.set)
+            if failed:
+                print(f"{name:32s} {failed}")
+                continue
+            pred, gt = read_jsonl(lanes_file(out)), read_jsonl(seq / "lanes_gt.jsonl")
+            n_lanes = lanes_reported(pred)
+            if name in KIND_OF:
+                res = evaluate(pred, gt)
+                pooled = per_kind.setdefault(KIND_OF[name], [0, 0])
+                pooled[0] += round(res["detection_ratio"] * len(gt))
+                pooled[1] += len(gt)
+            print(
+                f"{name:32s} {metric_row(evaluate(pred, gt), n_lanes, blank=name in LANE_COUNT_ONLY)}",
+                flush=True,
+            )
+        for kind, (ok, n) in per_kind.items():
+            print(f"kind {kind:27s} {100 * ok / n:8.1f} % of {n} frames", flush=True)
+        (work / "sweep.json").write_text(
+            json.dumps({"graph": args.graph, "frames": args.frames, "set": args.set, "scenes": names})
         )
-    for kind, (ok, n) in per_kind.items():
-        print(f"kind {kind:27s} {100 * ok / n:8.1f} % of {n} frames", flush=True)
-    (work / "sweep.json").write_text(
-        json.dumps({"graph": args.graph, "frames": args.frames, "set": args.set, "scenes": names})
-    )
-    return 0
+        return 0
+
+    if args.work:
+        return sweep(Path(args.work))
+    # the data and the runs go to a temporary folder removed at the end (--work keeps them)
+    with tempfile.TemporaryDirectory(prefix="lanegraph-sweep-") as tmp:
+        return sweep(Path(tmp))
 
 
 if __name__ == "__main__":

@@ -50,9 +50,9 @@ __all__ = [
 
 def __getattr__(name: str) -> Any:
     """``lanegraph.jit`` and ``lanegraph.prange``: numba's, with the project's flags and kernel
-    cache (:mod:`lanegraph._numba`), loaded when first asked for."""
+    cache (:mod:`lanegraph.kernels.decorator`), loaded when first asked for."""
     if name in ("jit", "prange"):
-        from . import _numba
+        from .kernels import decorator
 
-        return getattr(_numba, name)
+        return getattr(decorator, name)
     raise AttributeError(f"module 'lanegraph' has no attribute {name!r}")

@@ -95,3 +95,14 @@ def lanegraph_trackers() -> list[Any]:
     made with the URI (or None) and implementing :class:`lanegraph.tracking.Tracker` (``start``
     before any frame, ``log_run`` per variant and sequence once evaluated, ``end``). Import the
     tracker's library in those methods only, so that the plugin costs nothing until asked for."""
+
+
+@hookspec
+def lanegraph_kernels() -> Any:
+    """Return the path of this plugin's kernel list, a JSON file inside the plugin's package folder
+    (``benchmarks/record_kernels.py`` writes it: module, name and argument types of each
+    :func:`lanegraph.jit` kernel its nodes call, longest compilation first), or None. Its LLVM
+    bitcode may lie beside it with the suffix ``.bundle``. The first run of an installation makes
+    the listed kernels ahead, beside the run, from that bitcode where it fits this machine and the
+    installed sources (:mod:`lanegraph.kernels`). Entries naming a module outside the plugin's
+    package, and a list outside its folder, are ignored."""

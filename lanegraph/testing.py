@@ -88,7 +88,14 @@ def run_node(
         raise TypeError(f"{nt.name}: required input port(s) {missing} not given")
     if not nt.stateful:
         return nt.func(p, **ins)
-    ctx = context or RunContext(out_dir=Path(tempfile.mkdtemp(prefix="lanegraph-")))
+    if context is not None:
+        return _one_frame(nt, p, context, ins)
+    # a sink's files go to a temporary folder, removed afterwards (nothing left in the temporary folder)
+    with tempfile.TemporaryDirectory(prefix="lanegraph-") as tmp:
+        return _one_frame(nt, p, RunContext(out_dir=Path(tmp)), ins)
+
+
+def _one_frame(nt: Any, p: Any, ctx: RunContext, ins: dict[str, Any]) -> dict[str, Any]:
     with closing(nt.func(p, ctx), nt) as obj:  # open, process one frame, close
         if nt.source:
             out = constants_of(obj, nt)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-# the first run's helper process (lanegraph.kernel_cache) compiles the default run's kernels beside a
+# the first run's helper process (lanegraph.kernels.first_run) makes the plugins' kernels beside a
 # run; the suite's runs compile what they use in their own process (tests/engine/test_kernel_cache.py
 # tests the helper)
 os.environ.setdefault("LANEGRAPH_PRECOMPILE", "0")

@@ -184,7 +184,7 @@ def test_a_feedback_value_of_the_wrong_type_is_refused(tmp_path, installed_pm):
 def test_a_scheduler_that_cannot_work_is_refused_at_once(monkeypatch):
     """Issue 31, item 7: ``local:1000`` on a 2-core machine was still starting workers after 120 s;
     ``ftp://x`` waited 30 s before it was refused."""
-    pytest.importorskip("distributed")
+    pytest.importorskip("distributed", reason='Dask is not installed: pip install -e ".[distributed]"')
     from lanegraph.errors import UsageError
     from lanegraph.run import distributed
     from lanegraph.run.batch import parse_scheduler
@@ -760,7 +760,7 @@ def test_debug_frames_that_match_nothing_are_in_run_json(cli, tmp_path):
 def test_an_empty_out_and_an_unusable_scheduler_are_refused_at_once(cli, tmp_path):
     """Issue 31, items 7 and 9: ``--out ""`` wrote the run files into the current folder;
     ``--scheduler local:1000`` started workers for minutes, ``ftp://x`` waited 30 s."""
-    pytest.importorskip("distributed")
+    pytest.importorskip("distributed", reason='Dask is not installed: pip install -e ".[distributed]"')
     for args in (["run", DEMO, *SYNTH], ["ablate", DEMO], ["report", tmp_path]):
         code, output = cli(*args, "--out", "")
         assert code == 2 and "expected a folder, got ''" in output, output

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-pytest.importorskip("rosbags")
+pytest.importorskip("rosbags", reason='the io extra is not installed: pip install -e ".[io]"')
 pytest.importorskip("av")
 pytest.importorskip("mcap")
 pytest.importorskip("foxglove")

@@ -15,11 +15,13 @@ import click
 from .._version import __version__
 from ..graph.files import allowed_roots, resolve_graph_path
 from .ablate import ablate
+from .cache import cache_cmd
 from .evaluate import eval_cmd
 from .nodes import builtin_node_types, nodes, nodes_markdown, schema, show, validate
 from .report import report
 from .run import run
 from .start import data_cmd, graphs_cmd
+from .tune import tune
 
 __all__ = ["allowed_roots", "builtin_node_types", "main", "nodes_markdown", "resolve_graph_path"]
 
@@ -50,7 +52,20 @@ def main() -> None:
     """lanegraph: stereo lane-marking detection as validated, plugin-based processing graphs."""
 
 
-for _command in (run, validate, nodes, schema, show, ablate, eval_cmd, report, graphs_cmd, data_cmd):
+for _command in (
+    run,
+    validate,
+    nodes,
+    schema,
+    show,
+    ablate,
+    tune,
+    eval_cmd,
+    report,
+    graphs_cmd,
+    data_cmd,
+    cache_cmd,
+):
     main.add_command(_command)
 
 

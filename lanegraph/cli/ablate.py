@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from ..kernel_cache import compile_share, first_run_notice
+from ..kernels import compile_share, first_run_notice
 from ._common import FOLDER, dataset_option, keeping_options, parse_frames, scale_out_options, session
 from ._errors import handled
 

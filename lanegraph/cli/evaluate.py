@@ -8,7 +8,7 @@ from typing import Any
 
 import click
 
-from ..errors import InputError, UsageError
+from ..errors import InputError, LanegraphError, UsageError
 from ..frames import selection_text
 from ..plugins import get_plugin_manager
 from ._common import parse_frames, session
@@ -83,8 +83,11 @@ def eval_cmd(
     calib: Path | None,
     frames: str | None,
 ) -> None:
-    """Evaluate PRED (a run's lanes file, or its run folder) against GT lanes_gt.jsonl: the lane
-    metric of the data README, plus
+    """Evaluate PRED (a run's lanes file, or its run folder) against GT lanes_gt.jsonl (default:
+    the ground truth of the input the run recorded, or the synthetic scene's in the run folder):
+    lanegraph's lane metric (detection ratio: the share of frames where every reported lane matches
+    a distinct marking -- on 85 % of its rows within 20 px -- and every painted ego boundary is
+    matched; precision: matched lanes / reported lanes; ego recall), plus
     CULane-style F1, TuSimple-style accuracy and, for synthetic scenes, the lateral error in cm.
     With --dataset, every sequence of the dataset and all of them pooled. Only the frames the run
     selected are scored (its run.json says which; --frames chooses), and the ground-truth frames
@@ -105,14 +108,40 @@ def eval_cmd(
         _eval_dataset(pred, dataset_path, as_json, parse_frames(frames))
         return
     if gt is None:
-        raise UsageError(
-            "missing GT (a lanes_gt.jsonl), or --dataset FILE with PRED a folder of <sequence>/ run folders"
-        )
+        gt = run_ground_truth(pred)
+        if gt is None:
+            raise UsageError(
+                f"{pred}: no ground truth found (its run.json names no input folder holding a lanes_gt.jsonl, "
+                "and the run folder has none): give GT (a lanes_gt.jsonl), or --dataset FILE with PRED a "
+                "folder of <sequence>/ run folders"
+            )
+        click.echo(f"ground truth: {gt}", err=True)
     res = _eval_one(pred, gt, wanted, scene, calib, parse_frames(frames))
     if as_json:
         click.echo(json.dumps(res))
         return
     _print_eval(res)
+
+
+def run_ground_truth(pred: Path) -> Path | None:
+    """The ground truth of the run that wrote ``pred`` (a run folder, or a lanes file in one):
+    ``lanes_gt.jsonl`` in the input folder its run.json names (KITTI data laid out by ``lanegraph
+    data kitti``, a written synthetic sequence), else the one in the run folder (a run of the
+    synthetic scene writes its exact ground truth there); None when there is neither."""
+    from ..run.record import read_record
+
+    folder = pred if pred.is_dir() else pred.parent
+    record = read_record(folder)
+    if record is not None and record.input:
+        recorded = Path(record.input)
+        bases = [Path.cwd()] if recorded.is_absolute() else [Path.cwd(), *folder.resolve().parents]
+        for base in bases:
+            cand = base / recorded / "lanes_gt.jsonl"
+            if cand.is_file():
+                return cand
+        return None  # the run read an input: only that input's ground truth is its answer
+    cand = folder / "lanes_gt.jsonl"
+    return cand if cand.is_file() else None
 
 
 def run_selection(pred: Path) -> tuple[Path, list[str]] | None:
@@ -198,6 +227,22 @@ def _eval_one(
         pitch, height = _scene_pose(Path(scene))
         res["lateral_error_cm"] = lateral_error_cm(pred_recs, gt_recs, cal, pitch, height)
     return res
+
+
+def score_line(out_dir: Path) -> str | None:
+    """One line scoring the run in ``out_dir`` against its ground truth (:func:`run_ground_truth`),
+    as ``lanegraph run`` ends with; None when the run has no ground truth or cannot be scored."""
+    gt = run_ground_truth(out_dir)
+    if gt is None:
+        return None
+    try:
+        res = _eval_one(out_dir, gt, set(), None, None)
+    except LanegraphError as exc:  # the run's outputs stay as they are: only the score is missing
+        return f"not scored against {gt}: {exc}"
+    return (
+        f"detection ratio {_pct(res['detection_ratio'])} on {res['frames']} frame(s), precision "
+        f"{_pct(res['precision'])}, ego recall {_pct(res['ego_recall'])} against {gt} (lanegraph eval {out_dir})"
+    )
 
 
 def _run_lanes(folder: Path, what: str = "") -> Path:

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import re
+import textwrap
 
 import click
 import yaml
@@ -48,6 +50,13 @@ def _md_type(annotation: object) -> str:
     if isinstance(annotation, type):
         return annotation.__name__
     return str(annotation).replace("typing.", "").replace("NoneType", "None")
+
+
+def first_sentence(doc: str | None) -> str:
+    """The first sentence of a docstring's first paragraph, whole (however many lines it spans)."""
+    para = " ".join((doc or "").strip().split("\n\n")[0].split())
+    m = re.search(r"(?<=[.!?])\s+(?=[A-Z(`])", para)
+    return para[: m.start()] if m else para
 
 
 def _split_numpydoc(doc: str) -> tuple[str, str]:
@@ -198,8 +207,9 @@ def nodes(as_json: bool, as_markdown: bool, builtin: bool) -> None:
             if on
         )
         click.echo(f"{name}  [{nt.plugin}]{' (' + flags + ')' if flags else ''}")
-        if nt.summary:
-            click.echo(f"    {nt.summary}")
+        summary = first_sentence(nt.doc)
+        if summary:
+            click.echo(textwrap.fill(summary, 108, initial_indent="    ", subsequent_indent="    "))
         ins = ", ".join(f"{p}: {x.type}{'?' if x.optional else ''}" for p, x in nt.inputs.items())
         outs = ", ".join(f"{p}: {x.type}" for p, x in nt.outputs.items())
         click.echo(f"    in({ins}) -> out({outs})")

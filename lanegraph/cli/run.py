@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from ..errors import UsageError
-from ..kernel_cache import compile_share, first_run_notice
+from ..kernels import compile_share, first_run_notice
 from ._common import FOLDER, dataset_file, keeping_options, parse_frames, scale_out_options, session
 from ._errors import handled
 
@@ -117,10 +117,19 @@ def run(
     if calib is not None:
         graph_ = s.open_graph(graph, (*sets, *calib_sets(s.pm, graph_.raw, calib)))
     compile_share()  # the first run on a machine: its part of the kernels, beside the helper's
-    return s.run(
+    status = s.run(
         graph_, input_path=input_path, out_dir=out_dir, frames=parse_frames(frames),
         resume=resume, debug_dir=debug_dir, debug_frames=debug_frames, make_report=make_report,
     )  # fmt: skip
+    if not quiet:  # the result a person reads: the score against the ground truth, a picture to look at
+        from .evaluate import score_line
+
+        line = score_line(out_dir)
+        if line:
+            click.echo(line)
+        if not make_report:
+            click.echo(f"pictures: `lanegraph report {out_dir}` writes {out_dir / 'report' / 'index.html'}")
+    return status
 
 
 def calib_sets(pm, raw: dict, calib: str) -> list[str]:

@@ -5,6 +5,7 @@ ground truth that ships with lanegraph). ``lanegraph.cli`` registers them."""
 from __future__ import annotations
 
 import sys
+import textwrap
 from pathlib import Path
 
 import click
@@ -26,7 +27,12 @@ def graphs_cmd(paths: bool) -> None:
         width = max((len(n) for n in names), default=0)
         for name in names:
             file = root / f"{name}.yaml"
-            click.echo(f"  {file}" if paths else f"  {name:<{width}}  {describe(file)}".rstrip())
+            if paths:
+                click.echo(f"  {file}")
+                continue
+            lead = f"  {name:<{width}}  "
+            text = textwrap.fill(describe(file), 108, initial_indent=lead, subsequent_indent=" " * len(lead))
+            click.echo(text.rstrip() or lead.rstrip())
 
 
 @click.group(name="data")

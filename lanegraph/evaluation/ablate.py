@@ -341,6 +341,16 @@ def _write_csv(rows: list[dict[str, Any]], stages: list[str], path: Path) -> Non
     write_text_atomic(path, buf.getvalue())
 
 
+#: what an ablation's ms/frame is (results.md, the accuracy-against-time plot): what it measured,
+#: not a benchmark
+TIMING_NOTE = (
+    "ms/frame: the sum of the nodes' median times per frame in this ablation's own runs, as measured "
+    "here (a node taken from the result cache counts with the time it took when computed; on the "
+    "first run on a machine its first frames include compiling, and other jobs on the machine count): "
+    "compare variants of one ablation, not machines; benchmarks/bench_pipeline.py measures speed"
+)
+
+
 def _results_md(rows: list[dict[str, Any]], stages: list[str]) -> str:
     pooled = [r for r in rows if r.get("sequence") == POOLED]
     sequences = list(dict.fromkeys(r["sequence"] for r in rows if r.get("sequence") != POOLED))
@@ -376,6 +386,8 @@ def _results_md(rows: list[dict[str, Any]], stages: list[str]) -> str:
                 *table([r for r in rows if r.get("sequence") == name]),
             ]
     lines += [
+        "",
+        TIMING_NOTE,
         "",
         "Median ms per frame per stage (pooled):",
         "",

@@ -14,6 +14,7 @@ figures and the pooled ones.
         input: ../../../shared/data/kitti_odometry/seq1
         gt: ../../../shared/data/kitti_odometry/seq1/lanes_gt.jsonl
         frames: "0:20"      # optional: A:B or A:B:S over the input's frames (the ground truth is cut alike)
+        group: odometry     # optional: `lanegraph tune` leaves a whole group out per fold
 
 Relative paths are relative to the dataset file. A sequence's ``name`` becomes a folder name of the
 outputs (``OUT/<name>/...``), so it is a plain name: letters, digits, ``_ - .``, not ``.`` or ``..``.
@@ -32,7 +33,7 @@ from typing import Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from ..errors import InputError
+from ..errors import InputError, did_you_mean
 from ..frames import parse_frames
 from .metrics import evaluate, read_ground_truth, select_frames
 
@@ -55,6 +56,11 @@ class _SequenceModel(BaseModel):
     frames: str | None = Field(
         None,
         description="frame selection A:B or A:B:S over the input's frames (the ground truth is cut alike)",
+    )
+    group: str | None = Field(
+        None,
+        description="a group of sequences (the same street, the same drive): `lanegraph tune` leaves a whole "
+        "group out in a fold; default: the sequence is a group of its own",
     )
 
     @field_validator("frames")
@@ -89,6 +95,7 @@ class SequenceSpec:
     input: Path
     gt: Path | None = None
     frames: slice | None = None
+    group: str | None = None  # `lanegraph tune` leaves a group out per fold (None: its own)
 
 
 @dataclass(frozen=True)
@@ -132,7 +139,9 @@ def single_sequence(input_path: Path | None, gt: Path | None = None, frames: sli
 
 
 def load_dataset(path: str | Path, check_paths: bool = True) -> Dataset:
-    """Read and validate a dataset file; paths are resolved relative to it.
+    """Read and validate a dataset file (a path, or a built-in name: ``datasets/kitti_lanes``);
+    paths are resolved relative to it. Its errors are exit 2: a dataset file is read before any
+    frame runs.
 
     Raises
     ------
@@ -141,9 +150,25 @@ def load_dataset(path: str | Path, check_paths: bool = True) -> Dataset:
         that is not YAML, a field of the wrong type, a duplicate name, or (``check_paths``) an input
         folder or ground-truth file that does not exist.
     """
-    path = Path(path)
+    try:
+        return _load_dataset(path, check_paths)
+    except InputError as exc:
+        exc.exit_code = 2  # refused before any frame
+        raise
+
+
+def _load_dataset(path: str | Path, check_paths: bool) -> Dataset:
+    from ..builtin import find_dataset, graph_names
+
+    path = find_dataset(path)
     if not path.is_file():
-        raise InputError("dataset file not found (expected a YAML file listing sequences)", path=str(path))
+        hint = did_you_mean(path.with_suffix("").as_posix().removeprefix("graphs/"), graph_names("datasets"))
+        raise InputError(
+            "dataset file not found (expected a YAML file listing sequences, or a built-in name"
+            + (f"; {hint}" if hint else ": `lanegraph graphs` lists them")
+            + ")",
+            path=str(path),
+        )
     try:
         raw = yaml.safe_load(path.read_text(encoding="utf-8"))
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
@@ -177,7 +202,7 @@ def load_dataset(path: str | Path, check_paths: bool = True) -> Dataset:
                 raise InputError(f"sequence {s.name!r}: input: {inp}: no such folder", path=str(path))
             if gt is not None and not gt.is_file():
                 raise InputError(f"sequence {s.name!r}: gt: {gt}: no such file", path=str(path))
-        seqs.append(SequenceSpec(s.name, inp, gt, parse_selection(s.frames)))
+        seqs.append(SequenceSpec(s.name, inp, gt, parse_selection(s.frames), s.group))
     return Dataset(model.name or path.stem, path, tuple(seqs))
 
 

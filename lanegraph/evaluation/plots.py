@@ -167,7 +167,7 @@ def accuracy_vs_ms_figure(rows: Sequence[dict[str, Any]]) -> Any:
         ax.scatter(
             [ms], [acc], color=colour, marker=marker, s=36, edgecolors="#333", linewidths=0.5, label=name
         )
-    ax.set_xlabel("median ms per frame (all nodes)")
+    ax.set_xlabel("median ms per frame (all nodes, as measured in this ablation's runs; see results.md)")
     ax.set_ylabel("detection ratio")
     ax.set_ylim(-0.02, 1.08)
     if pts:

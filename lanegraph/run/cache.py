@@ -39,7 +39,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from .._numba import cache_root
+from ..kernels.folder import cache_root
 from ..paths import new_temp_file
 from ..port_types import PORT_TYPES
 from ..storage import Codecs, StorageError, decode_value, digest, encode_value
@@ -239,10 +239,28 @@ class ResultCache:
     def size_bytes(self) -> int:
         return self._size
 
-    def clear(self) -> None:
+    def entries(self) -> int:
+        """How many entries the folder holds now (every process's)."""
+        return sum(1 for _ in self.root.glob("*/*.pkl"))
+
+    def clear(self) -> int:
+        """Remove every entry (the cache's own files only: ``XX/<key>.pkl`` and the sub-folders
+        that held nothing else); returns the bytes freed."""
+        freed = 0
         for p in self.root.glob("*/*.pkl"):
-            p.unlink(missing_ok=True)
-        self._size = 0
+            try:
+                freed += p.stat().st_size
+                p.unlink()
+            except FileNotFoundError:  # evicted by another process meanwhile
+                pass
+        for sub in self.root.iterdir():
+            if sub.is_dir() and not sub.is_symlink() and len(sub.name) == 2:
+                try:
+                    sub.rmdir()  # only when empty
+                except OSError:
+                    pass
+        self._size = self._scan()
+        return freed
 
 
 class Caching:

@@ -196,6 +196,7 @@ class _Cluster:
 
         self.cluster = None
         self.client = None
+        self._scratch: Any = None  # the local workers' scratch folder, removed when closed
         if spec.local:
             n = spec.workers or _cores()
             threads = max(1, _cores() // n)
@@ -212,12 +213,21 @@ class _Cluster:
             echo(
                 f"starting a local Dask cluster: {n} worker process(es), 1 task and {threads} OpenCV/numba thread(s) each ..."
             )
+            import tempfile
+
             import dask
 
+            self._scratch = tempfile.TemporaryDirectory(prefix="lanegraph-dask-")
             try:
                 # a worker gets its next task when it is free, not one queued behind the running one:
                 # the tasks are long and of unequal length
-                with dask.config.set({"distributed.scheduler.worker-saturation": 1.0}):
+                # (the scheduler's and the workers' scratch folders in one temporary folder, removed at close)
+                with dask.config.set(
+                    {
+                        "distributed.scheduler.worker-saturation": 1.0,
+                        "temporary-directory": self._scratch.name,
+                    }
+                ):
                     self.cluster = distributed.LocalCluster(
                         n_workers=n,
                         threads_per_worker=1,
@@ -225,8 +235,10 @@ class _Cluster:
                         env=env,
                         silence_logs=logging.ERROR,
                         dashboard_address="127.0.0.1:8787",
+                        local_directory=self._scratch.name,  # not left in the temporary folder
                     )
             except Exception as exc:  # noqa: BLE001 - e.g. no free port, a worker that cannot start
+                self._scratch.cleanup()
                 raise UsageError(
                     f"--scheduler {spec.text}: could not start a local Dask cluster: {type(exc).__name__}: {exc}"
                 ) from None
@@ -302,6 +314,9 @@ class _Cluster:
             self.client.close(timeout=10)
         if self.cluster is not None:
             self.cluster.close(timeout=10)
+        if self._scratch is not None:
+            self._scratch.cleanup()
+            self._scratch = None
 
     def __enter__(self) -> _Cluster:
         return self

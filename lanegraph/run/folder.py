@@ -40,7 +40,8 @@ RECORD = "run.json"
 COMMAND_RECORD = "command.json"
 CHECKPOINT = "checkpoint.json"
 #: the files a run writes into its folder under fixed names (besides its sinks' files)
-RUN_NAMES = ("run.json", "timings.json", "checkpoint.json", "graph.yaml", "run.log")
+#: (lanes_gt.jsonl: the synthetic scene's exact ground truth, written by its source)
+RUN_NAMES = ("run.json", "timings.json", "checkpoint.json", "graph.yaml", "run.log", "lanes_gt.jsonl")
 #: the files an ablation or a dataset run writes into OUT under fixed names (besides its runs)
 COMMAND_NAMES = ("command.json", "run.log")
 #: an ablation's tables and plots

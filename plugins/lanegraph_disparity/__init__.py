@@ -13,6 +13,8 @@ Every map is HxW float32 at the input resolution, in pixels; invalid pixels are 
 The computing backends share :class:`DisparityParams` (``scale``, ``lr_check`` ...).
 """
 
+from pathlib import Path
+
 from lanegraph import hookimpl
 
 from ._common import DisparityParams
@@ -43,3 +45,9 @@ __all__ = [
 @hookimpl
 def lanegraph_node_types():
     return [sgbm, road_sgbm, bm, sgm, file, OnnxDisparity]
+
+
+@hookimpl
+def lanegraph_kernels():
+    """This plugin's kernel list, its LLVM bitcode beside it (:mod:`lanegraph.kernels`)."""
+    return Path(__file__).with_name("kernels.json")

@@ -85,3 +85,9 @@ def lanegraph_read_calibration(path):
     if p.suffix.lower() == ".xml":
         return None
     return read_calibration_yaml(p)
+
+
+@hookimpl
+def lanegraph_kernels():
+    """This plugin's kernel list, its LLVM bitcode beside it (:mod:`lanegraph.kernels`)."""
+    return Path(__file__).with_name("kernels.json")

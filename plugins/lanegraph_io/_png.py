@@ -26,7 +26,7 @@ import struct
 
 import numpy as np
 
-from lanegraph._numba import jit
+from lanegraph import jit
 
 try:  # ISA-L's inflate; the standard library's zlib gives the same bytes, more slowly
     from isal.isal_zlib import crc32 as _crc32

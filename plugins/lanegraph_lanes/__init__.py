@@ -3,6 +3,8 @@ histogram, 1D/2D Hough, IRLS/RANSAC parabolas, and the projection back to image 
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from lanegraph import hookimpl
 
 from ._features import eslt, mask_features, slt
@@ -35,3 +37,9 @@ def lanegraph_node_types():
         verify_learned,
         to_image,
     ]
+
+
+@hookimpl
+def lanegraph_kernels():
+    """This plugin's kernel list, its LLVM bitcode beside it (:mod:`lanegraph.kernels`)."""
+    return Path(__file__).with_name("kernels.json")

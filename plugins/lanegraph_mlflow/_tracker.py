@@ -8,6 +8,7 @@ active run), so that it nests runs the same way in every process. ``mlflow`` is 
 from __future__ import annotations
 
 import io
+import logging
 import os
 import time
 from collections.abc import Iterator, Sequence
@@ -85,6 +86,11 @@ class MlflowTracker(Tracker):
         log.info(
             "tracking: opening MLflow at %s ...", self._uri or "its default store (./mlflow.db, ./mlruns)"
         )
+        # MLflow's own INFO lines (its store being created, migrations ...) stay out of lanegraph's
+        # output; its warnings and errors still show (MLFLOW_LOGGING_LEVEL set by the user wins)
+        quiet_mlflow = "MLFLOW_LOGGING_LEVEL" not in os.environ
+        if quiet_mlflow:
+            os.environ["MLFLOW_LOGGING_LEVEL"] = "WARNING"
         try:
             import mlflow  # noqa: F401 - the library the extra installs
             from mlflow.tracking import MlflowClient
@@ -92,6 +98,9 @@ class MlflowTracker(Tracker):
             raise UsageError(
                 f'--track mlflow: MLflow is not installed ({exc}): pip install "lanegraph[mlflow]"'
             ) from None
+        if quiet_mlflow:  # imported before (by a test, a notebook): its loggers are set already
+            for name in ("mlflow", "alembic"):
+                logging.getLogger(name).setLevel(max(logging.getLogger(name).level, logging.WARNING))
         if self._uri is not None and self._uri.startswith("file:"):
             # asked for by name: MLflow 3 keeps its file store but refuses it unless allowed
             os.environ.setdefault("MLFLOW_ALLOW_FILE_STORE", "true")

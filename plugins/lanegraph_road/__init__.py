@@ -6,6 +6,8 @@ Geometry, conventions (sign of pitch and roll) and the derivations are in :mod:`
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from lanegraph import hookimpl
 
 from . import geometry
@@ -32,3 +34,9 @@ __all__ = [
 @hookimpl
 def lanegraph_node_types():
     return [road_vdisparity, road_profile, road_mask, bev_ipm]
+
+
+@hookimpl
+def lanegraph_kernels():
+    """This plugin's kernel list, its LLVM bitcode beside it (:mod:`lanegraph.kernels`)."""
+    return Path(__file__).with_name("kernels.json")

@@ -11,6 +11,8 @@ Python API::
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
 from typing import Literal
 
 from pydantic import Field
@@ -18,6 +20,7 @@ from pydantic import Field
 from lanegraph import NodeParams, Port, RunContext, hookimpl, node_type
 from lanegraph.errors import InputError
 from lanegraph.frames import select_frames, selection_text
+from lanegraph.paths import create_new, inside
 from lanegraph.types import calibration_problems
 
 from .objects import Box, Pole, car
@@ -41,6 +44,10 @@ __all__ = [
     "write_pairs",
     "write_sequence",
 ]
+
+#: the ground truth a run of the synthetic scene writes into its output folder (what ``lanegraph
+#: eval OUT`` and ``lanegraph report OUT`` score against)
+GT_FILE = "lanes_gt.jsonl"
 
 STEREO_OUTPUTS = {
     "frame": Port("frame_id", "left image file stem"),
@@ -117,7 +124,8 @@ def spec_from_params(params: SyntheticParams) -> SceneSpec:
 )
 class SyntheticSource:
     """A built-in synthetic stereo road sequence with exact ground truth (presets: straight, curved,
-    clothoid, urban, no_markings, overexposed)."""
+    clothoid, urban, no_markings, overexposed). In a run with an output folder its lane ground truth
+    goes to OUT/lanes_gt.jsonl, one line per frame rendered, for lanegraph eval and report."""
 
     skipped: int  # frames of a resumed run left out (context.skip)
 
@@ -134,6 +142,15 @@ class SyntheticSource:
         )
         self.skipped = min(max(int(getattr(context, "skip", 0)), 0), len(selected))
         self.indices = selected[self.skipped :]
+        self.gt_path = None
+        out_dir = context.out_dir if context is not None else None
+        if out_dir is not None:
+            # the exact answer beside the run's lanes: the frames a resumed run already did first
+            self.gt_path = inside(Path(out_dir), GT_FILE, f"node '{context.node_id or '?'}' (io.synthetic)")
+            self.gt_path.parent.mkdir(parents=True, exist_ok=True)
+            with create_new(self.gt_path) as fh:
+                for k in selected[: self.skipped]:
+                    fh.write(_gt_line(self.renderer.lanes_gt(k)))
 
     def constants(self) -> dict:
         return {"calib": self.renderer.calib}
@@ -152,6 +169,9 @@ class SyntheticSource:
     def __iter__(self):
         for k in self.indices:
             fr = self.renderer.render(k)
+            if self.gt_path is not None:
+                with open(self.gt_path, "ab", buffering=0) as fh:  # one write: a whole line or none
+                    fh.write(_gt_line(fr.lanes_gt))
             yield {
                 "frame": fr.frame,
                 "left": fr.left,
@@ -160,6 +180,10 @@ class SyntheticSource:
                 "gt_road_mask": fr.road_mask,
                 "gt_object_mask": fr.object_mask,
             }
+
+
+def _gt_line(record: dict) -> bytes:
+    return (json.dumps(record, separators=(",", ":")) + "\n").encode("utf-8")
 
 
 @hookimpl

@@ -22,7 +22,8 @@ def test_graphs_dir_has_every_file_of_the_repository(tmp_path, monkeypatch):
     expected = sorted(
         p.relative_to(REPO_GRAPHS).with_suffix("").as_posix() for p in REPO_GRAPHS.rglob("*.yaml")
     )
-    assert sorted(names + graph_names("datasets")) == expected
+    assert sorted(names + graph_names("datasets") + graph_names("spaces")) == expected
+    assert "spaces/paper" in graph_names("spaces") and "spaces/paper" not in names
     assert "paper" in names and "ablations/slt" in names and "datasets/dev" in graph_names("datasets")
     assert find_graph("paper").resolve() == (graphs_dir() / "paper.yaml").resolve()
     assert find_graph("ablations/slt.yaml").name == "slt.yaml"
@@ -92,3 +93,26 @@ def test_open_without_a_browser_says_so(tmp_path, monkeypatch, capsys):
 
     monkeypatch.setattr(webbrowser, "open", broken)
     assert open_in_browser(page) is False and "no web browser found" in capsys.readouterr().err
+
+
+def test_checkout_paths_and_dataset_names_are_found_from_any_folder(tmp_path, monkeypatch):
+    """``graphs/paper.yaml`` (as a checkout's docs write it) is the built-in graph where the
+    current folder has none; ``datasets/kitti_lanes`` is found like every built-in name; a
+    misspelt one gets the closest name; a dataset refused is exit 2 (before any frame)."""
+    from lanegraph.builtin import find_dataset, find_graph, graphs_dir
+    from lanegraph.errors import GraphError, InputError
+    from lanegraph.evaluation.dataset import load_dataset
+
+    monkeypatch.chdir(tmp_path)
+    assert find_graph("graphs/paper.yaml") == graphs_dir() / "paper.yaml"
+    assert find_graph("graphs/ablations/slt.yaml") == graphs_dir() / "ablations" / "slt.yaml"
+    with pytest.raises(GraphError, match="did you mean 'paper'"):
+        find_graph("graphs/papr.yaml")
+    for name in ("datasets/kitti_lanes", "graphs/datasets/kitti_lanes.yaml"):
+        assert find_dataset(name) == graphs_dir() / "datasets" / "kitti_lanes.yaml"
+    with pytest.raises(InputError, match="did you mean 'datasets/kitti_lanes'") as err:
+        load_dataset("datasets/kitti_lane")
+    assert err.value.exit_code == 2
+    with pytest.raises(InputError, match="no such folder") as err:  # its data is not downloaded here
+        load_dataset("datasets/kitti_lanes")
+    assert err.value.exit_code == 2

@@ -22,7 +22,7 @@ from lanegraph.cli import main
 from .test_batch import PAPER, ROOT, _corrupt_copy, lanes_files
 
 distributed = pytest.importorskip(
-    "distributed", reason='the Dask tests need the distributed extra: pip install -e ".[test]"'
+    "distributed", reason='the Dask tests need the distributed extra: pip install -e ".[distributed]"'
 )
 
 pytestmark = pytest.mark.cluster

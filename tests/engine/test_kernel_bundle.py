@@ -1,6 +1,7 @@
-"""The default run's kernels shipped as LLVM bitcode (lanegraph.kernel_bundle): the committed bundle
-matches the sources, a kernel made from it is not compiled and computes what the compiled one does,
-and a bundle that does not fit (other versions, other sources, turned off) is never used."""
+"""Plugins' kernels shipped as LLVM bitcode (lanegraph.kernels.bundle): each built-in plugin's bundle
+matches its sources, a kernel made from a bundle is not compiled and computes what the compiled one
+does, a bundle that does not fit (other versions, other sources, turned off) is never used, and a
+third-party plugin ships its own through the ``lanegraph_kernels`` hook."""
 
 from __future__ import annotations
 
@@ -15,44 +16,48 @@ from pathlib import Path
 
 import pytest
 
-from lanegraph import kernel_bundle, kernel_cache
+from lanegraph.kernels import bundle, first_run
 
 from .test_kernel_cache import _GOOD as _KTH  # kth_smallest's list entry
+from .test_kernel_cache import _LANES
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _py(code: str, cache: Path, *args: str, **env: str) -> subprocess.CompletedProcess:
+def _py(code: str, cache: Path, *args: str, cwd: Path = ROOT, **env: str) -> subprocess.CompletedProcess:
     full = {**os.environ, "NUMBA_CACHE_DIR": str(cache), "LANEGRAPH_PRECOMPILE": "0", **env}
     out = subprocess.run(
-        [sys.executable, "-c", code, *args], env=full, capture_output=True, text=True, timeout=300, cwd=ROOT
+        [sys.executable, "-c", code, *args], env=full, capture_output=True, text=True, timeout=300, cwd=cwd
     )
     assert out.returncode == 0, out.stderr
     return out
 
 
-def test_the_shipped_bundle_is_made_from_these_sources():
-    """Every kernel of the list has its entry, made from the sources installed here: else a first
-    run compiles them all again (about 3.5x a warm run instead of 1.5x on 2 cores)."""
-    if not kernel_bundle.applies():
-        header = kernel_bundle.read_header()
-        pytest.skip(f"the bundle was made for {header}, this is {kernel_bundle.environment()}")
-    entries = kernel_bundle._entries(kernel_bundle.BUNDLE)
-    assert entries is not None, "the bundle's entries cannot be read"
-    listed = kernel_cache._read_list(kernel_cache.KERNEL_LIST)
-    assert set(entries) == {kernel_bundle.entry_key(e) for e in listed}
-    for entry in listed:
-        kernel = getattr(importlib.import_module(entry["module"]), entry["name"])
-        assert entries[kernel_bundle.entry_key(entry)][0] == kernel_bundle._digest(kernel), (
-            f"{entry['module']}.{entry['name']}: the bundle was made from other sources; "
-            "remake it: python benchmarks/record_kernels.py --bundle-only"
-        )
+def test_the_shipped_bundles_are_made_from_these_sources(installed_pm):
+    """Every kernel of each built-in plugin's list has its entry in the plugin's bundle, made from
+    the sources installed here: else a first run compiles them all again."""
+    sets = [s for s in first_run.kernel_sets(installed_pm) if s.entries]
+    assert sets
+    for s in sets:
+        if not bundle.applies(s.bundle_path):
+            header = bundle.read_header(s.bundle_path)
+            pytest.skip(f"{s.bundle_path} was made for {header}, this is {bundle.environment()}")
+        entries = bundle._entries(s.bundle_path)
+        assert entries is not None, f"{s.bundle_path}: the entries cannot be read"
+        assert set(entries) == {bundle.entry_key(e) for e in s.entries}
+        for entry in s.entries:
+            kernel = getattr(importlib.import_module(entry["module"]), entry["name"])
+            assert entries[bundle.entry_key(entry)][0] == bundle._digest(kernel), (
+                f"{entry['module']}.{entry['name']}: the bundle was made from other sources; "
+                "remake it: python benchmarks/record_kernels.py --bundle-only"
+            )
+        assert bundle.keys(s.bundle_path) == set(entries)
 
 
 _MAKE = """
 import json, sys
 from pathlib import Path
-from lanegraph.kernel_bundle import write_bundle
+from lanegraph.kernels.bundle import write_bundle
 print(write_bundle([json.loads(sys.argv[1])], Path(sys.argv[2])))
 """
 
@@ -61,8 +66,8 @@ import json, sys
 from pathlib import Path
 import numpy as np
 from numba.core import event
-from lanegraph import kernel_bundle
-from lanegraph.kernel_cache import decode_type
+from lanegraph.kernels import bundle
+from lanegraph.kernels.bundle import decode_type
 import lanegraph_lanes._select as sel
 
 compiled = []
@@ -74,7 +79,7 @@ class _Count(event.Listener):
 event.register("numba:compile", _Count())
 entry = json.loads(sys.argv[1])
 sig = tuple(decode_type(a) for a in entry["args"])
-installed = kernel_bundle.install(sel.kth_smallest, sig, entry, Path(sys.argv[2]))
+installed = bundle.install(sel.kth_smallest, sig, entry, Path(sys.argv[2]))
 a = np.random.default_rng(7).normal(size=1001)
 got = [sel.kth_smallest(a.copy(), a.size, k) for k in (0, 17, 500, 1000)]
 hits = sel.kth_smallest.stats.cache_hits.get(sel.kth_smallest.signatures[0], 0)
@@ -84,11 +89,11 @@ print(json.dumps({"installed": installed, "compiled": compiled, "got": got,
 
 
 def test_a_kernel_from_the_bundle_is_not_compiled_and_computes_the_same(tmp_path):
-    bundle = tmp_path / "one.bundle"
-    made = _py(_MAKE, tmp_path / "maker-kernels", json.dumps(_KTH), str(bundle), LANEGRAPH_KERNEL_BUNDLE="0")
-    assert made.stdout.split() == ["1"] and kernel_bundle.read_header(bundle)["triple"]
+    made_bundle = tmp_path / "one.bundle"
+    made = _py(_MAKE, tmp_path / "maker", json.dumps(_KTH), str(made_bundle), LANEGRAPH_KERNEL_BUNDLE="0")
+    assert made.stdout.split() == ["1"] and bundle.read_header(made_bundle)["triple"]
     kernels = tmp_path / "kernels"  # empty: a first run on this machine
-    first = json.loads(_py(_USE, kernels, json.dumps(_KTH), str(bundle)).stdout)
+    first = json.loads(_py(_USE, kernels, json.dumps(_KTH), str(made_bundle)).stdout)
     assert first["installed"] is True
     assert first["compiled"] == []  # made from the bitcode: numba compiled nothing
     assert first["got"] == first["want"]
@@ -111,73 +116,163 @@ def test_a_bundle_that_does_not_fit_is_never_used(tmp_path, monkeypatch):
     from numba.core import types
 
     sig = (types.Array(types.float64, 1, "C"), types.int64, types.int64)
-    here = {**kernel_bundle.environment(), "triple": ll.get_process_triple()}
-    key = kernel_bundle.entry_key(_KTH)
+    here = {**bundle.environment(), "triple": ll.get_process_triple()}
+    key = bundle.entry_key(_KTH)
     # other sources: the digest differs, and the payload (not a pickle here) is never read
     stale = _write(tmp_path / "stale.bundle", here, {key: ("0" * 64, b"never unpickled")})
-    assert kernel_bundle.applies(stale)
-    assert kernel_bundle.install(kth_smallest, sig, _KTH, stale) is False
+    assert bundle.applies(stale) and bundle.keys(stale) == set()
+    assert bundle.install(kth_smallest, sig, _KTH, stale) is False
     # another numba, another triple, a file that is no bundle: nothing is read past the header
     other = _write(
-        tmp_path / "numba.bundle",
-        {**here, "numba": "0.1"},
-        {key: (kernel_bundle._digest(kth_smallest), b"x")},
+        tmp_path / "numba.bundle", {**here, "numba": "0.1"}, {key: (bundle._digest(kth_smallest), b"x")}
     )
-    assert not kernel_bundle.applies(other) and kernel_bundle.install(kth_smallest, sig, _KTH, other) is False
+    assert not bundle.applies(other) and bundle.install(kth_smallest, sig, _KTH, other) is False
     triple = _write(tmp_path / "triple.bundle", {**here, "triple": "riscv64-unknown-none"}, {key: ("", b"")})
-    assert kernel_bundle.install(kth_smallest, sig, _KTH, triple) is False
+    assert bundle.install(kth_smallest, sig, _KTH, triple) is False
     junk = tmp_path / "junk.bundle"
     junk.write_bytes(b"\x89PNG not a bundle")
-    assert not kernel_bundle.applies(junk) and kernel_bundle.install(kth_smallest, sig, _KTH, junk) is False
-    assert not kernel_bundle.applies(tmp_path / "missing.bundle")
+    assert not bundle.applies(junk) and bundle.install(kth_smallest, sig, _KTH, junk) is False
+    assert not bundle.applies(tmp_path / "missing.bundle")
     # turned off, or kernels not compiled at all
     for name, value in (("LANEGRAPH_KERNEL_BUNDLE", "0"), ("NUMBA_DISABLE_JIT", "1")):
         with monkeypatch.context() as m:
             m.setenv(name, value)
-            assert not kernel_bundle.enabled() and not kernel_bundle.applies(stale)
+            assert not bundle.enabled() and not bundle.applies(stale)
 
 
-def test_a_first_run_without_a_helper_makes_the_list_from_the_bundle(monkeypatch):
-    """One CPU (no helper): the run itself makes the list's kernels where the bundle applies, once;
-    not with LANEGRAPH_PRECOMPILE=0, nor when the bundle does not apply, nor on a later run."""
+def test_a_first_run_without_a_helper_makes_only_what_bitcode_holds(monkeypatch):
+    """One CPU (no helper): the run itself makes, once, the listed kernels a bundle holds, and
+    compiles nothing ahead; not with LANEGRAPH_PRECOMPILE=0, nor on a later run."""
     calls = []
     monkeypatch.setattr(
-        kernel_cache, "precompile", lambda entries, claims=None: calls.append(len(entries)) or 7
+        first_run,
+        "precompile",
+        lambda items, claims=None, compile_missing=True: calls.append(compile_missing) or 7,
     )
-    monkeypatch.setattr(kernel_cache, "_STATE", {"said": True, "armed": True, "helper": None, "claims": None})
+    state = {"said": True, "armed": True, "helper": None, "claims": None, "first": False, "folder": None}
+    monkeypatch.setattr(first_run, "_STATE", state)
     monkeypatch.setenv("LANEGRAPH_PRECOMPILE", "1")
-    monkeypatch.setattr(kernel_bundle, "applies", lambda path=None: True)
-    assert kernel_cache.compile_share() == 0 and calls == []  # not a first run
-    kernel_cache._STATE["first"] = True
+    monkeypatch.setattr(first_run, "_planned", lambda sets, compile_missing: [(_LANES, _KTH)])
+    monkeypatch.setattr(first_run, "kernel_sets", lambda pm=None: [_LANES])
+    assert first_run.compile_share() == 0 and calls == []  # not a first run
+    state["first"] = True
     monkeypatch.setenv("LANEGRAPH_PRECOMPILE", "0")
-    assert kernel_cache.compile_share() == 0 and calls == []
+    assert first_run.compile_share() == 0 and calls == []
+    state["first"] = True
     monkeypatch.setenv("LANEGRAPH_PRECOMPILE", "1")
-    monkeypatch.setattr(kernel_bundle, "applies", lambda path=None: False)
-    assert kernel_cache.compile_share() == 0 and calls == []
-    monkeypatch.setattr(kernel_bundle, "applies", lambda path=None: True)
-    assert kernel_cache.compile_share() == 7
-    assert calls == [len(kernel_cache._read_list(kernel_cache.KERNEL_LIST))]
-    assert kernel_cache.compile_share() == 0 and len(calls) == 1  # once
+    assert first_run.compile_share() == 7 and calls == [False]
+    assert first_run.compile_share() == 0 and len(calls) == 1  # once
 
 
 @pytest.mark.parametrize("fits", [True, False])
 def test_the_notice_says_what_the_first_run_costs(monkeypatch, capsys, tmp_path, fits):
+    """Issue 47: the real figure: each listed kernel's measured seconds, from bitcode where its
+    plugin's bundle holds it, compiled otherwise, shared by the run and its helper."""
     monkeypatch.setattr(
-        kernel_cache, "_STATE", {"said": False, "armed": False, "helper": None, "claims": None}
+        first_run,
+        "_STATE",
+        {"said": False, "armed": False, "helper": None, "claims": None, "folder": tmp_path},
     )
-    monkeypatch.setattr(kernel_bundle, "applies", lambda path=None: fits)
-    kernel_cache._say(tmp_path)
+    entries = [{**_KTH, "seconds": 6.0, "bitcode_seconds": 1.0}, {**_KTH, "name": "other", "seconds": 4.0}]
+    monkeypatch.setattr(bundle, "applies", lambda path: fits)
+    monkeypatch.setattr(bundle, "keys", lambda path: {bundle.entry_key(entries[0])})
+    first_run._say_plan([(_LANES, e) for e in entries], helper=True)
     err = capsys.readouterr().err
-    assert err.startswith("lanegraph: compiling the numba kernels for this machine")
-    assert ("LLVM bitcode: about a second" in err) is fits
-    assert ("about seven seconds" in err) is not fits
+    assert err.startswith("lanegraph: first run of this installation on this machine")
+    if fits:
+        assert "compiling 1 numba kernels and making 1 from LLVM bitcode (about 2 s on 2 cores" in err
+    else:
+        assert "compiling 2 numba kernels (about 5 s on 2 cores" in err
+    assert str(tmp_path) in err
 
 
-def test_a_first_run_from_the_bundle_gives_the_lanes_of_compiled_kernels(tmp_path):
+_TOY_INIT = """
+from pathlib import Path
+from lanegraph import hookimpl
+
+@hookimpl
+def lanegraph_kernels():
+    return Path(__file__).with_name("kernels.json")
+"""
+
+_TOY_KERNELS = """
+from lanegraph import jit
+
+@jit
+def _scaled_sum(a, k):
+    s = 0.0
+    for i in range(a.size):
+        s += a[i] * k
+    return s
+"""
+
+_TOY_ENTRY = {
+    "module": "lg_toy_kernels.k",
+    "name": "_scaled_sum",
+    "args": ["array(float64, 1, C)", "float64"],
+}
+
+_TOY_FIRST_RUN = """
+import json, sys
+import numpy as np
+from numba.core import event
+import lg_toy_kernels
+import lanegraph._runtime
+from lanegraph import kernels
+from lanegraph.plugins import PluginManager
+
+lanegraph._runtime.available_cpus = lambda: 1  # no helper: this process makes the list itself
+
+compiled = []
+class _Count(event.Listener):
+    def on_start(self, ev):
+        compiled.append(ev.data["dispatcher"].py_func.__qualname__)
+    def on_end(self, ev):
+        pass
+event.register("numba:compile", _Count())
+pm = PluginManager()
+pm.register(lg_toy_kernels, "lg_toy_kernels")
+kernels.first_run_notice()
+made = kernels.compile_share(pm)
+from lg_toy_kernels.k import _scaled_sum
+value = _scaled_sum(np.arange(4.0), 0.5)
+print(json.dumps({"made": made, "compiled": compiled, "value": value}))
+"""
+
+
+def test_a_third_party_plugin_ships_its_kernels_through_the_hook(tmp_path):
+    """Issue 45: a plugin's own list and bundle, named by lanegraph_kernels: its first run makes the
+    kernel from the plugin's bitcode (numba compiles nothing) and says so before any frame."""
+    pkg = tmp_path / "src" / "lg_toy_kernels"
+    pkg.mkdir(parents=True)
+    (pkg / "__init__.py").write_text(_TOY_INIT)
+    (pkg / "k.py").write_text(_TOY_KERNELS)
+    (pkg / "kernels.json").write_text(json.dumps([{**_TOY_ENTRY, "seconds": 0.3, "bitcode_seconds": 0.05}]))
+    env = {"PYTHONPATH": os.pathsep.join([str(tmp_path / "src"), os.environ.get("PYTHONPATH", "")])}
+    _py(
+        _MAKE,
+        tmp_path / "maker",
+        json.dumps(_TOY_ENTRY),
+        str(pkg / "kernels.bundle"),
+        LANEGRAPH_KERNEL_BUNDLE="0",
+        **env,
+    )
+    env["LANEGRAPH_PRECOMPILE"] = "1"
+    out = _py(_TOY_FIRST_RUN, tmp_path / "kernels", cwd=tmp_path, **env)
+    got = json.loads(out.stdout)
+    assert got == {"made": 1, "compiled": [], "value": 3.0}
+    assert "making the machine code of 1 numba kernels from the plugins' LLVM bitcode" in out.stderr
+    # without the bundle, the same first run compiles it when called
+    (pkg / "kernels.bundle").unlink()
+    got = json.loads(_py(_TOY_FIRST_RUN, tmp_path / "kernels2", cwd=tmp_path, **env).stdout)
+    assert got["made"] == 0 and got["compiled"] == ["_scaled_sum"] and got["value"] == 3.0
+
+
+def test_a_first_run_from_the_bundles_gives_the_lanes_of_compiled_kernels(tmp_path, installed_pm):
     """The default ``lanegraph run`` on an empty kernel folder (the helper and the run making the
-    kernels from the bundle) writes the lanes this test session's compiled kernels write."""
-    if not kernel_bundle.applies():
-        pytest.skip("the shipped bundle was not made for this Python, numba and machine")
+    kernels from the plugins' bundles) writes the lanes this test session's compiled kernels write."""
+    if not all(bundle.applies(s.bundle_path) for s in first_run.kernel_sets(installed_pm) if s.entries):
+        pytest.skip("the shipped bundles were not made for this Python, numba and machine")
     from click.testing import CliRunner
 
     from lanegraph.cli import main
@@ -192,7 +287,7 @@ def test_a_first_run_from_the_bundle_gives_the_lanes_of_compiled_kernels(tmp_pat
     }
     cold = subprocess.run(
         [sys.executable, "-m", "lanegraph.cli", "run", "--out", str(tmp_path / "cold")],
-        env=env, capture_output=True, text=True, timeout=300, cwd=tmp_path,
+        env=env, capture_output=True, text=True, timeout=600, cwd=tmp_path,
     )  # fmt: skip
     assert cold.returncode == 0, cold.stderr
     assert "LLVM bitcode" in cold.stderr.splitlines()[0]

@@ -118,7 +118,7 @@ def test_report_scatter_of_thirteen_clustered_variants_in_chromium(tmp_path):
     try:
         from playwright import sync_api
     except ImportError as exc:
-        pytest.skip(f"playwright is not installed ({exc}): pip install -e '.[test]'")
+        pytest.skip(f"playwright is not installed ({exc}): pip install -e '.[browser]'")
     exe = _chromium()
     if exe is None:
         pytest.skip("no Chromium found (/usr/bin/chromium; Debian: apt-get install chromium)")

@@ -240,6 +240,28 @@ def test_report_without_ground_truth_or_graph(scene, run_out, tmp_path):
     assert "gone.yaml" in index.read_text()  # the note says why there is no graph
 
 
+def test_node_pictures_come_only_from_the_runs_own_record(run_out, tmp_path):
+    """The pictures of the folder run.json records as its --debug-dir, never those of another
+    folder that happens to hold pictures of the same frames (another run's)."""
+    out, _ = run_out
+    copy = tmp_path / "run"
+    shutil.copytree(out, copy, ignore=shutil.ignore_patterns("report"))
+    record = json.loads((copy / "run.json").read_text())
+    assert record["debug_dir"] == "debug"
+    r = CliRunner().invoke(main, ["report", str(copy), "--out", str(tmp_path / "own"), "--quiet"])
+    assert r.exit_code == 0, r.output
+    assert [f["id"] for f in _page_data(tmp_path / "own" / "index.html")["frames"] if f.get("dbg")] == [
+        "0000000002"
+    ]
+    # the same pictures, now another run's folder: this run recorded none
+    (copy / "debug").rename(copy / "dbg")
+    record["debug_dir"] = None
+    (copy / "run.json").write_text(json.dumps(record))
+    r = CliRunner().invoke(main, ["report", str(copy), "--out", str(tmp_path / "other"), "--quiet"])
+    assert r.exit_code == 0, r.output
+    assert not [f for f in _page_data(tmp_path / "other" / "index.html")["frames"] if f.get("dbg")]
+
+
 def test_a_new_report_replaces_its_own_assets_and_nothing_else(run_out, tmp_path):
     out, _ = run_out
     target = tmp_path / "r"
@@ -489,7 +511,7 @@ def browser():
     try:
         from playwright import sync_api
     except ImportError as exc:
-        pytest.skip(f"playwright is not installed ({exc}): pip install -e '.[test]'")
+        pytest.skip(f"playwright is not installed ({exc}): pip install -e '.[browser]'")
     exe = _chromium()
     if exe is None:
         pytest.skip(

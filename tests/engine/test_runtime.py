@@ -1,4 +1,4 @@
-"""Process settings: the allocator tuning a run applies (lanegraph._runtime) and the OpenMP wait policy (lanegraph._numba)."""
+"""Process settings: the allocator tuning a run applies (lanegraph._runtime) and the OpenMP wait policy (lanegraph.kernels.decorator)."""
 
 from __future__ import annotations
 
@@ -59,7 +59,7 @@ def test_openmp_threads_sleep_unless_the_environment_says(preset, expected):
     env.pop("OMP_WAIT_POLICY", None)
     if preset is not None:
         env["OMP_WAIT_POLICY"] = preset
-    code = "import os, lanegraph._numba; print(os.environ['OMP_WAIT_POLICY'])"
+    code = "import os, lanegraph.kernels.decorator; print(os.environ['OMP_WAIT_POLICY'])"
     out = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True
     ).stdout.split()

@@ -13,7 +13,7 @@ from lanegraph.testing import check_node_type, make_bev_image, make_disparity, m
 def test_fixture_has_no_autoloaded_plugins(lanegraph_pm):
     assert lanegraph_pm.node_types == {}
     lanegraph_pm.register(lanegraph_image)
-    assert set(lanegraph_pm.node_types) == {"image.gray", "image.blur"}
+    assert set(lanegraph_pm.node_types) == {"image.gray", "image.blur", "image.rectify"}
 
 
 def test_run_node_validates_params_and_inputs(lanegraph_pm):

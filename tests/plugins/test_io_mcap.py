@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-pytest.importorskip("mcap")
+pytest.importorskip("mcap", reason='the io extra is not installed: pip install -e ".[io]"')
 pytest.importorskip("foxglove")
 
 from lanegraph_io._mcap_sink import WriteMcap, lane_metres  # noqa: E402

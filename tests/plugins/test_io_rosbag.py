@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-pytest.importorskip("rosbags")
+pytest.importorskip("rosbags", reason='the io extra is not installed: pip install -e ".[io]"')
 
 from lanegraph_io import detect_source  # noqa: E402
 from lanegraph_io._calibfiles import from_rectified  # noqa: E402

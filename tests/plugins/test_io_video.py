@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-av = pytest.importorskip("av")
+av = pytest.importorskip("av", reason='the io extra is not installed: pip install -e ".[io]"')
 
 from lanegraph_io import detect_source  # noqa: E402
 from lanegraph_io._video import VideoSource  # noqa: E402

@@ -210,3 +210,19 @@ def test_plain_folder_is_a_file_store(tmp_path):
     for uri in ("http://127.0.0.1:5000", "file:///data/mlruns", "sqlite:///mlflow.db", "databricks"):
         assert tracking_uri(uri) == uri
     assert tracking_uri(None) is None
+
+
+@pytest.mark.mlflow
+def test_mlflows_own_info_lines_stay_out_of_lanegraphs_output(tmp_path):
+    """A run tracked into a new store: MLflow creates its tables, and says nothing of it (its INFO
+    lines); lanegraph's own lines about tracking remain."""
+    _mlflow()
+    env = {k: v for k, v in os.environ.items() if k != "MLFLOW_LOGGING_LEVEL"}
+    proc = subprocess.run(
+        [sys.executable, "-m", "lanegraph.cli", "run", "--frames", "0:1", "-q",
+         "--track", f"mlflow:sqlite:///{tmp_path / 'm.db'}", "--out", str(tmp_path / "out")],
+        capture_output=True, text=True, env=env, timeout=600, cwd=tmp_path,  # MLflow's mlruns/ goes there
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "runs recorded in sqlite" in proc.stderr
+    assert " INFO " not in proc.stderr + proc.stdout, proc.stderr[-2000:]

@@ -21,7 +21,7 @@ from ...paths import new_temp_dir, new_temp_file, prepare_dir
 from ...plugins import PluginManager, get_plugin_manager
 from . import _page
 from ._collect import Collected, collect
-from ._images import JpegWriter, choose_source, debug_pictures, find_debug_dir, read_left_images
+from ._images import JpegWriter, choose_source, debug_pictures, read_left_images, recorded_debug_dir
 from ._page import dumps_for_html  # noqa: F401 - where the page's data is made safe
 
 #: widest left image in the report, pixels (KITTI's 1242 px: ~40 KiB per frame as JPEG)
@@ -440,7 +440,7 @@ def _node_pictures(
         return 0
     entries = {f["id"]: f for f in frames if f["s"] == 0}
     if debug_dir is None:
-        debug_dir = find_debug_dir(data.run_dir, entries, exclude=[out])
+        debug_dir = recorded_debug_dir(data.run_dir)  # only the run's own pictures
     if debug_dir is None:
         return 0
     from ..debug import _safe

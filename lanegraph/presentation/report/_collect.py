@@ -229,6 +229,9 @@ def _collect_run(run_dir, gt, dataset, input_path, frames, sets, graph, pm) -> C
         gt = _auto_gt(input_path)
         if gt is not None:
             notes.append(f"ground truth: {gt} (found in the input folder)")
+        elif input_path is None and not run_json.input and (run_dir / GT_NAME).is_file():
+            gt = run_dir / GT_NAME  # the synthetic scene's exact answer, written by its source
+            notes.append(f"ground truth: {gt} (the synthetic scene's, written by the run)")
     name = single_sequence(input_path).name
     gt_records = _gt_records(gt, frames)
     if frames is None and run_json.selection is not None:  # the frames the run selected, and only those

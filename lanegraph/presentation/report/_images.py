@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import re
 import threading
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,7 +19,6 @@ from ...errors import GraphError, LanegraphError, NodeError
 from ...lifecycle import close
 from ...plugins import PluginManager
 from ...run.sources import detect_source, open_source, select_source
-from ..debug import _safe as debug_folder_name
 from ..render import to_bgr
 
 #: the ``--debug-dir`` picture of one node output: ``<node id>.<port>.png`` (node ids have no dot)
@@ -186,18 +185,14 @@ def debug_pictures(
     return [(cap, p) for _, cap, p in found]
 
 
-def find_debug_dir(run_dir: Path, frames: Iterable[str], exclude: Iterable[Path] = ()) -> Path | None:
-    """A folder inside ``run_dir`` that ``--debug-dir`` wrote for some of ``frames`` (a sub-folder
-    per frame holding a ``mosaic.png``), or None."""
-    names = {debug_folder_name(f) for f in frames}
-    skip = {p.resolve() for p in exclude}
-    candidates = [run_dir] + sorted(p for p in run_dir.iterdir() if p.is_dir())
-    for cand in candidates:
-        if cand.resolve() in skip:
-            continue
-        try:
-            if any((cand / n / "mosaic.png").is_file() for n in names):
-                return cand
-        except OSError:
-            continue
-    return None
+def recorded_debug_dir(run_dir: Path) -> Path | None:
+    """The ``--debug-dir`` folder the run in ``run_dir`` wrote, as its ``run.json`` records it (a
+    folder inside the run folder), or None: pictures in any other folder may be another run's."""
+    from ...run.record import read_record
+
+    record = read_record(run_dir)
+    rel = record.debug_dir if record is not None else None
+    if not rel or Path(rel).is_absolute() or ".." in Path(rel).parts:
+        return None
+    folder = run_dir / rel
+    return folder if folder.is_dir() else None

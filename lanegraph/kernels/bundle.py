@@ -1,40 +1,36 @@
-"""The default run's kernels as LLVM bitcode shipped with lanegraph: a first run on a machine turns
+"""The kernels of a plugin shipped as LLVM bitcode beside its code: a first run on a machine turns
 them into machine code instead of compiling them from Python.
 
 Compiling a numba kernel is mostly numba's own work in Python (reading the bytecode, inferring the
 types, writing LLVM IR) and LLVM's optimisation of that IR; only the last step, making machine code of
-the optimised IR, belongs to the machine. ``lanegraph/data/kernels.bundle`` holds, for each kernel of
-the kernel list (``lanegraph/data/kernels.json``), what numba's own cache keeps of a compiled kernel
-(its type signature, its environment, the descriptor of its function) with the library as the
-optimised *bitcode* of its module (every function it calls linked in; taken as LLVM's code generator
-gets it) instead of machine code. :func:`install` makes machine code of it for this machine
-(numba's ``_finalize_final_module``), registers the kernel's overload with its dispatcher, as numba
-does with a kernel from its cache, and saves it to the kernel folder, as numba does after compiling
-it: the next runs load it from there like any compiled kernel. The default run's 18 kernels take
-about 1.7 s of CPU this way against about 11 s compiled (``benchmarks/bench_first_run.py``).
+the optimised IR, belongs to the machine. A plugin's bundle (``kernels.bundle`` beside the kernel
+list its ``lanegraph_kernels`` hook names, :mod:`.first_run`) holds, for each kernel of the list,
+what numba's own cache keeps of a compiled kernel (its type signature, its environment, the
+descriptor of its function) with the library as the optimised *bitcode* of its module (every
+function it calls linked in; taken as LLVM's code generator gets it) instead of machine code.
+:func:`install` makes machine code of it for this machine (numba's ``_finalize_final_module``),
+registers the kernel's overload with its dispatcher, as numba does with a kernel from its cache,
+and saves it to the kernel folder: the next runs load it from there like any compiled kernel. The
+default run's kernels take about a sixth of their compilation's CPU this way
+(``benchmarks/bench_first_run.py``).
 
-On the machine that made it, 16 of the 18 kernels get the object code of a compilation byte for
-byte; two differ in the order of a few instructions (bitcode does not keep the order of a value's
-uses, which LLVM's code generator reads), never in their values. LLVM's optimisations keep floating-point results exact
-(lanegraph's kernels are not ``fastmath``), so machine code made for another x86-64 CPU than the one
-the bundle was made on computes the same values; only its speed may differ a little (vector widths
-chosen for the maker's CPU).
+LLVM's optimisations keep floating-point results exact (lanegraph's kernels are not ``fastmath``), so
+machine code made for another x86-64 CPU than the one the bundle was made on computes the same
+values; only its speed may differ a little (vector widths chosen for the maker's CPU).
 
 A bundle is used only where it fits, else the kernels are compiled as before:
 
 - its header (the file's first line, JSON) names the Python, numba and llvmlite versions, the
-  machine, the system and LLVM's target triple it was made with: all must be this process's (numba's
-  data structures and the CPython wrapper's code depend on each);
+  machine, the system and LLVM's target triple it was made with: all must be this process's, and
+  numba and llvmlite of the versions lanegraph was tested with (:mod:`.compat`);
 - each kernel's entry records the digest of its package folder's Python files and of
-  ``lanegraph/_numba.py`` (:func:`package_digest`, the stamp of numba's cache for
-  lanegraph's kernels): an entry made from other sources than the installed ones is skipped;
+  :mod:`.decorator` (:func:`package_digest`, also the stamp of the disk cache): an entry made from
+  other sources than the installed ones is skipped;
 - ``LANEGRAPH_KERNEL_BUNDLE=0`` turns it off.
 
-The bundle is package data, read from the installed package's own folder only (never from a path a
-user or a graph names): its entries are pickles, as numba's cache files are. It is made by
-``benchmarks/record_kernels.py`` (:func:`write_bundle` in a process with an empty kernel folder);
-``tests/engine/test_kernel_bundle.py`` checks that the committed one matches the sources.
-"""
+A bundle is read only from the folder of the plugin package that names it (never from a path a user
+or a graph names): its entries are pickles, as numba's cache files are. It is made by
+``benchmarks/record_kernels.py`` (:func:`write_bundle` in a process with an empty kernel folder)."""
 
 from __future__ import annotations
 
@@ -50,8 +46,8 @@ import zlib
 from importlib import metadata
 from pathlib import Path
 
-#: the shipped bundle (package data; read from here only)
-BUNDLE = Path(__file__).resolve().parent / "data" / "kernels.bundle"
+from .compat import internals_tested
+
 #: the layout of a bundle file (header line, then the compressed entries)
 FORMAT = 1
 
@@ -61,16 +57,16 @@ _LOADED: dict[Path, dict | None] = {}
 @functools.cache
 def package_digest(folder: str) -> str:
     """SHA-256 of the Python files of ``folder`` (not its subfolders; names and contents, in name
-    order) and of ``lanegraph/_numba.py`` (the kernels' flags): what a compiled kernel of that folder
-    depends on (numba's cache stamp for lanegraph's kernels, :mod:`lanegraph._numba`, and a bundle
-    entry's). Read once per process."""
+    order) and of :mod:`.decorator` (the kernels' flags): what a compiled kernel of that folder
+    depends on (the disk cache's stamp for lanegraph's kernels and a bundle entry's). Read once per
+    process."""
     h = hashlib.sha256()
     files = sorted(f for f in os.listdir(folder) if f.endswith(".py")) if os.path.isdir(folder) else []
     for name in files:
         h.update(name.encode() + b"\0")
         with open(os.path.join(folder, name), "rb") as fh:
             h.update(hashlib.sha256(fh.read()).digest())
-    with open(Path(__file__).with_name("_numba.py"), "rb") as fh:
+    with open(Path(__file__).with_name("decorator.py"), "rb") as fh:
         h.update(hashlib.sha256(fh.read()).digest())
     return h.hexdigest()
 
@@ -101,7 +97,7 @@ def environment() -> dict:
     }
 
 
-def read_header(path: Path = BUNDLE) -> dict | None:
+def read_header(path: Path) -> dict | None:
     """The bundle's header (its first line), or None for a file that is missing or unreadable."""
     try:
         with open(path, "rb") as fh:
@@ -114,11 +110,14 @@ def read_header(path: Path = BUNDLE) -> dict | None:
 def _fits(header: object) -> bool:
     """Whether a bundle with this header (a parsed first line) may be used in this process."""
     return (
-        enabled() and isinstance(header, dict) and all(header.get(k) == v for k, v in environment().items())
+        enabled()
+        and isinstance(header, dict)
+        and all(header.get(k) == v for k, v in environment().items())
+        and internals_tested()
     )
 
 
-def applies(path: Path = BUNDLE) -> bool:
+def applies(path: Path) -> bool:
     """Whether the bundle at ``path`` was made for this Python, numba, llvmlite and machine (its
     entries' sources are checked one by one at :func:`install`). Cheap: reads one line."""
     return _fits(read_header(path))
@@ -144,8 +143,26 @@ def _entries(path: Path) -> dict | None:
     return _LOADED[path]
 
 
+def keys(path: Path) -> set[str]:
+    """The keys (:func:`entry_key`) of the bundle's entries made from the sources installed here
+    (their package folder's digest); empty when the bundle does not apply."""
+    import importlib.util
+
+    entries = _entries(path) or {}
+    held = set()
+    for key, item in entries.items():
+        module = key.split(":", 1)[0]
+        try:
+            spec = importlib.util.find_spec(module)
+        except (ImportError, ValueError):
+            continue
+        if spec is not None and spec.origin and item[0] == package_digest(os.path.dirname(spec.origin)):
+            held.add(key)
+    return held
+
+
 def read_list(path: Path) -> list[dict]:
-    """The kernel list's entries (``lanegraph/data/kernels.json``; [] for a file that cannot be read)."""
+    """A kernel list's entries (a plugin's ``kernels.json``; [] for a file that cannot be read)."""
     try:
         entries = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError):
@@ -162,7 +179,7 @@ def _digest(dispatcher) -> str:
     return package_digest(os.path.dirname(os.path.abspath(dispatcher.py_func.__code__.co_filename)))
 
 
-def install(dispatcher, sig: tuple, entry: dict, path: Path = BUNDLE) -> bool:
+def install(dispatcher, sig: tuple, entry: dict, path: Path) -> bool:
     """Give ``dispatcher`` its overload for ``sig`` (the kernel list's ``entry``) from the bundle:
     machine code made here of the shipped bitcode, registered as numba registers a kernel from its
     cache, then saved to the kernel folder. False (nothing done) when the bundle does not apply or
@@ -234,6 +251,8 @@ def write_bundle(entries: list[dict], out: Path) -> int:
     cache has no bitcode of its own module): run it in a fresh process (``record_kernels.py`` does)."""
     import importlib
 
+    if not internals_tested():
+        raise RuntimeError("a bundle is made only with the numba and llvmlite lanegraph was tested with")
     from llvmlite import binding as ll
     from numba.core import serialize
     from numba.core.codegen import CPUCodeLibrary
@@ -307,27 +326,25 @@ def decode_type(text: str):
 
 
 def _main(argv: list[str]) -> int:
-    if len(argv) != 2:
-        print("usage: python -m lanegraph.kernel_bundle LIST OUT (in a process with an empty kernel folder)")
+    if not argv or len(argv) % 2:
+        print("usage: python -m lanegraph.kernels bundle LIST OUT [LIST OUT ...] (empty kernel folder)")
         return 2
-    n = write_bundle(read_list(Path(argv[0])), Path(argv[1]))
-    print(f"{n} kernels -> {argv[1]}")
+    for k in range(0, len(argv), 2):
+        n = write_bundle(read_list(Path(argv[k])), Path(argv[k + 1]))
+        print(f"{n} kernels -> {argv[k + 1]}")
     return 0
 
 
 __all__ = [
-    "BUNDLE",
     "applies",
     "decode_type",
     "enabled",
     "encode_type",
     "environment",
     "install",
+    "keys",
     "package_digest",
     "read_header",
     "read_list",
     "write_bundle",
 ]
-
-if __name__ == "__main__":
-    sys.exit(_main(sys.argv[1:]))
