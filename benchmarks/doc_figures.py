@@ -8,7 +8,7 @@ Each generated block in the docs lies between ``<!-- figures: NAME ... -->`` and
   synthetic ``kerbs`` street (its answers are exact);
 - ``tutorial/eval-drive``, ``tutorial/ablation-drive``: ``lanegraph eval`` of ``paper`` and the same
   ablation on KITTI raw drive 0001 (``../shared/data``);
-- ``readme/dev``: ``paper`` on the four developer sequences of ``graphs/datasets/dev.yaml``;
+- ``readme/dev``: ``paper`` on the eight developer sources of ``graphs/datasets/dev.yaml``;
 - ``plugins/tophat-drive``: the example plugin's graph (``docs/examples/lg_tophat``) on drive 0001,
   beside ``paper`` (the plugin made findable for the run when it is not installed).
 
@@ -54,6 +54,10 @@ README_ROWS = {  # sequence of dev.yaml -> the row's label
     "seq1": "KITTI odometry `seq1`, residential street without painted lines (0-25)",
     "seq2": "KITTI odometry `seq2`, curved highway, edge line beside grass (32-50)",
     "seq2_ramp": "KITTI odometry `seq2_ramp`, tight on-ramp bend onto a chevron-hatched gore area (0-15)",
+    "kitti15_000024": "KITTI stereo 2015 #24, single pair: worn dashed centre line in dappled shade",
+    "kitti12_000070": "KITTI stereo 2012 #70, single pair: faint dashed parking-strip line beside parked cars",
+    "odom00": "KITTI odometry 00, two frames: tar-sealed cracks, no markings (0-1)",
+    "kitti15_000005": "KITTI stereo 2015 #5, single pair: cobbled parking bays, no longitudinal markings",
 }
 
 

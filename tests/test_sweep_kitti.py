@@ -429,6 +429,11 @@ def test_the_developer_sequences_open_and_mirror(tmp_path):
         "seq1": ("io.kitti_odometry", "image_0", 26),
         "seq2": ("io.kitti_odometry", "image_0", 19),
         "seq2_ramp": ("io.kitti_odometry", "image_0", 16),
+        # the single pairs of other streets: colour (image_2/image_3, P2/P3 of calib.txt)
+        "kitti15_000024": ("io.kitti_odometry", "image_2", 1),
+        "kitti12_000070": ("io.kitti_odometry", "image_2", 1),
+        "odom00": ("io.kitti_odometry", "image_2", 2),
+        "kitti15_000005": ("io.kitti_odometry", "image_2", 1),
     }
     seq, gt = opened["seq2"]
     out = sweep_kitti.write_variant(seq, tmp_path, "mirror", None, gt[:2])

@@ -9,10 +9,12 @@ from lanegraph import hookimpl
 
 from ._features import eslt, mask_features, slt
 from ._fit import fit_irls, fit_ransac, irls_fit, ransac_fit
-from ._follow import follow, merge_node
+from ._follow import follow
 from ._hough import line1d, line2d, orientation
+from ._merge import merge_node
 from ._temporal import temporal_mask, to_image
 from ._verify import verify
+from ._verify_learned import verify_learned
 
 __all__ = ["irls_fit", "ransac_fit"]
 
@@ -32,6 +34,7 @@ def lanegraph_node_types():
         merge_node,
         temporal_mask,
         verify,
+        verify_learned,
         to_image,
     ]
 

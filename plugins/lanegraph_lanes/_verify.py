@@ -52,236 +52,27 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
-from pydantic import Field, model_validator
 
-from lanegraph import InputError, NodeParams, Port, jit, node_type
-from lanegraph.types import BevGeometry, Lane
+from lanegraph import Port, jit, node_type
+from lanegraph.types import BevGeometry, Calibration, Lane, RoadModel
 
+from ._heights import lane_heights
 from ._select import kth_smallest, percentile_inplace
-
-#: the texture measures, as the kernels number them
-_MEASURES = {"std": 0, "diff": 1, "mdiff": 2}
-
-
-@jit
-def _small_median(buf, m, hist):
-    """The median of ``buf[:m]`` (``m >= 1``; the mean of the two middle values when ``m`` is even,
-    as ``np.median``). With a 256-bin ``hist`` (all zero; the values integers in 0..255) by counting,
-    which leaves ``hist`` zero again; with an empty one by sorting ``buf[:m]`` in place."""
-    k1 = (m - 1) // 2
-    k2 = m // 2
-    if hist.size > 0:
-        first = hist.size  # the counts start at the smallest value: the bins below it are empty
-        for i in range(m):
-            b = int(buf[i])
-            hist[b] += 1
-            first = min(first, b)
-        lo = -1
-        cum = 0
-        hi = 0
-        for v in range(first, hist.size):
-            cum += hist[v]
-            if lo < 0 and cum > k1:
-                lo = v
-            if cum > k2:
-                hi = v
-                break
-        for i in range(m):
-            hist[int(buf[i])] = 0
-        return 0.5 * (lo + hi)
-    for i in range(1, m):  # insertion sort: a band is a few dozen values
-        x = buf[i]
-        j = i - 1
-        while j >= 0 and buf[j] > x:
-            buf[j + 1] = buf[j]
-            j -= 1
-        buf[j + 1] = x
-    return 0.5 * (buf[k1] + buf[k2])
-
-
-@jit
-def _band_texture_kernel(img, r0, centre, gap_px, band_px, sign, mode, hist, out):
-    """Per lane row ``r0 + i``: the texture of the side band, columns ``round(centre[i] + sign * k)``
-    for ``k = gap_px .. band_px``, into ``out[i]``; NaN where the band leaves the image. ``mode``
-    (:data:`_MEASURES`): 0, the population standard deviation of the band pixels; 1, the mean
-    absolute difference of neighbouring band pixels; 2, their median absolute difference
-    (``hist``: see :func:`_small_median`)."""
-    rows, cols = img.shape
-    n = band_px - gap_px + 1
-    # int64 for an integer image (the differences summed as integers: exact, and no chain of
-    # float additions), float64 for a float one
-    zero = np.zeros(1, img.dtype)[0] + np.int64(0)
-    vals = np.full(n, zero)
-    diffs = np.full(max(n - 1, 1), zero)
-    step = 1 if sign > 0 else -1
-    for i in range(centre.size):
-        r = r0 + i
-        ce = centre[i]
-        full = True
-        if abs(ce - math.floor(ce) - 0.5) > 1e-9:
-            # no half to round: round(ce + k) = round(ce) + k for every integer offset k, so the
-            # band is a run of columns, checked against the image at its two ends only
-            a = int(np.round(ce)) + step * gap_px
-            b = a + step * (n - 1)
-            lo = min(a, b)
-            hi = max(a, b)
-            if lo < 0 or hi >= cols:
-                full = False
-            elif mode == 1:
-                # on the row slice, the terms in the band's order (|x - y| = |y - x|): the same sum
-                row = img[r, lo : hi + 1]
-                acc = zero
-                if step > 0:
-                    for j in range(n - 1):
-                        acc += abs((row[j + 1] + zero) - row[j])
-                else:
-                    for j in range(n - 2, -1, -1):
-                        acc += abs((row[j + 1] + zero) - row[j])
-                out[i] = acc / (n - 1) if n > 1 else 0.0
-                continue
-            elif mode == 2:
-                row = img[r, lo : hi + 1]  # the median does not depend on the order
-                for j in range(n - 1):
-                    diffs[j] = abs((row[j + 1] + zero) - row[j])
-                out[i] = _small_median(diffs, n - 1, hist) if n > 1 else 0.0
-                continue
-            else:
-                for j in range(n):
-                    vals[j] = img[r, a + step * j]
-        else:
-            for j in range(n):
-                c = int(np.round(ce + sign * (gap_px + j)))
-                if c < 0 or c >= cols:
-                    full = False
-                    break
-                vals[j] = img[r, c]
-        if not full:
-            out[i] = np.nan
-            continue
-        if mode == 1:
-            acc = zero
-            for j in range(n - 1):
-                acc += abs(vals[j + 1] - vals[j])
-            out[i] = acc / (n - 1) if n > 1 else 0.0
-        elif mode == 2:
-            for j in range(n - 1):
-                diffs[j] = abs(vals[j + 1] - vals[j])
-            out[i] = _small_median(diffs, n - 1, hist) if n > 1 else 0.0
-        else:
-            mean = 0.0
-            for j in range(n):
-                mean += vals[j]
-            mean /= n
-            acc = 0.0
-            for j in range(n):
-                acc += (vals[j] - mean) ** 2
-            out[i] = math.sqrt(acc / n)
-
-
-def _median_hist(img: np.ndarray) -> np.ndarray:
-    """The counting buffer of :func:`_small_median`: 256 bins for a uint8 image (its differences are
-    integers in 0..255), none (sorting) for any other."""
-    return np.zeros(256 if img.dtype == np.uint8 else 0, np.int64)
-
-
-def _grey_bev(image: np.ndarray) -> np.ndarray:
-    """The grey BEV image, C-contiguous (no copy when it is); an InputError for anything but Hb x Wb."""
-    img = np.ascontiguousarray(image)
-    if img.ndim != 2:
-        raise InputError(f"lanes.verify: image: expected an Hb x Wb grey BEV image, got shape {img.shape}")
-    return img
-
-
-def _lane_rows_in(image: np.ndarray, lane: Lane) -> tuple[np.ndarray, int, int]:
-    """The grey BEV image (:func:`_grey_bev`) and the lane's first and last rows clipped to it
-    (``r1 < r0``: none)."""
-    img = _grey_bev(image)
-    return img, max(int(lane.bev_rows[0]), 0), min(int(lane.bev_rows[1]), img.shape[0] - 1)
-
-
-def band_textures(
-    image: np.ndarray, lane: Lane, gap_px: int, band_px: int, measure: str = "std"
-) -> tuple[np.ndarray, np.ndarray]:
-    """Per lane row, the lateral texture of the (left, right) side band (NaN where a band leaves
-    the image): ``measure="std"``, the intensity's standard deviation across the band; ``"diff"``,
-    the mean absolute difference of neighbouring pixels across the band, which a smooth shadow
-    edge or illumination gradient barely changes while gravel or grass raise it; ``"mdiff"``, their
-    median absolute difference, which a few sharp edges in the band (a kerb's face, a hatching's
-    bars, a shadow's border) do not change either: only a surface rough across most of the band
-    raises it."""
-    img, r0, r1 = _lane_rows_in(image, lane)
-    t = img.shape[0] - 1 - np.arange(r0, r1 + 1, dtype=np.float64)
-    c0, c1, c2 = lane.coeffs
-    centre = c0 + c1 * t + c2 * t * t
-    out = []
-    for sign in (-1, 1):
-        tex = np.empty(centre.size, np.float64)
-        _band_texture_kernel(
-            img,
-            r0,
-            centre,
-            int(gap_px),
-            int(band_px),
-            float(sign),
-            _MEASURES[measure],
-            _median_hist(img),
-            tex,
-        )
-        out.append(tex)
-    return out[0], out[1]
-
-
-@jit
-def _side_texture_kernel(img, r0, r1, c0, c1, c2, gap_px, band_px, mode, hist, quantile):
-    """:func:`side_texture` in one call: the per-row textures of both side bands of the lane
-    ``col = c0 + c1 t + c2 t^2`` (``t = rows - 1 - row``) over the rows ``r0 .. r1`` (as
-    :func:`_band_texture_kernel`), then the ``quantile`` of each side's rows that stay inside the
-    image (0 when none does). Returns ``(left, right)``."""
-    rows = img.shape[0]
-    n = r1 - r0 + 1 if r1 >= r0 else 0
-    centre = np.empty(n, np.float64)
-    for i in range(n):
-        t = rows - 1 - (r0 + i)
-        centre[i] = c0 + c1 * t + c2 * t * t
-    tex = np.empty(n, np.float64)
-    res = np.zeros(2, np.float64)
-    for k in range(2):
-        _band_texture_kernel(img, r0, centre, gap_px, band_px, -1.0 if k == 0 else 1.0, mode, hist, tex)
-        m = 0
-        for i in range(n):
-            if not np.isnan(tex[i]):
-                tex[m] = tex[i]
-                m += 1
-        if m > 0:
-            res[k] = np.quantile(tex[:m], quantile)
-    return res[0], res[1]
-
-
-def side_texture(
-    image: np.ndarray, lane: Lane, gap_px: int, band_px: int, measure: str = "std", quantile: float = 0.5
-) -> tuple[float, float]:
-    """The ``quantile`` (0.5: the median) over the lane's rows of the lateral texture in the (left,
-    right) side bands (rows where a band leaves the image do not count; 0 when none is left): see
-    :func:`band_textures`, whose per-row values this takes (one kernel call for both sides)."""
-    img, r0, r1 = _lane_rows_in(image, lane)
-    c0, c1, c2 = (float(c) for c in lane.coeffs)
-    left, right = _side_texture_kernel(
-        img,
-        r0,
-        r1,
-        c0,
-        c1,
-        c2,
-        int(gap_px),
-        int(band_px),
-        _MEASURES[measure],
-        _median_hist(img),
-        float(quantile),
-    )
-    return float(left), float(right)
+from ._texture import (  # noqa: F401  (re-exported: the texture check's functions)
+    _MEASURES,
+    _band_texture_kernel,
+    _grey_bev,
+    _lane_rows_in,
+    _median_hist,
+    _side_texture_kernel,
+    _small_median,
+    band_textures,
+    road_level,
+    side_texture,
+)
+from ._verify_params import VerifyParams
 
 
 @jit
@@ -527,165 +318,6 @@ def paint_cues(
     )
 
 
-class VerifyParams(NodeParams):
-    """Params of ``lanes.verify``."""
-
-    paint_check: bool = Field(
-        True, description="drop a lane whose cross profile is not paint's (see the paint cues below)"
-    )
-    max_distance_m: float = Field(
-        25.0,
-        gt=0.0,
-        le=500.0,
-        description="paint check: the rows nearer than this are measured (where the BEV resolves paint), metres",
-    )
-    paint_band_m: float = Field(
-        1.5, ge=0.1, le=10.0, description="paint check: the side bands reach this far from the lane, metres"
-    )
-    paint_gap_m: float = Field(
-        0.25,
-        ge=0.05,
-        le=5.0,
-        description="paint check: the side bands start this far from the lane (beyond the widest paint's half), metres",
-    )
-    align_m: float = Field(
-        0.1,
-        ge=0.0,
-        le=1.0,
-        description="paint check: each row's centre is the brightest pixel within this of the fitted lane, metres",
-    )
-    min_row_contrast: float = Field(
-        0.15,
-        ge=0.0,
-        le=10.0,
-        description="paint check: a row is painted when its centre is this much brighter than the brighter side band (relative: 0.15 = 15 %)",
-    )
-    min_painted_rows: int = Field(
-        10, ge=1, le=100000, description="paint check: fewer painted rows than this and the lane is not paint"
-    )
-    min_paint_contrast: float = Field(
-        0.3,
-        ge=0.0,
-        le=10.0,
-        description="paint check: the painted rows' median contrast over the brighter side (relative): paint is "
-        "bright against the road on both sides; the edge of a road beside a darker verge or a kerb's lit face barely is",
-    )
-    min_width_m: float = Field(
-        0.09,
-        ge=0.0,
-        le=2.0,
-        description="paint check: narrowest median profile at half height, metres (the narrowest marking is 10 cm; a kerb's lit edge is narrower)",
-    )
-    max_foot_width_m: float = Field(
-        0.36,
-        gt=0.0,
-        le=5.0,
-        description="paint check: widest median profile at a quarter of its height, metres (paint is at most 30 cm wide with "
-        "sharp edges, blurred by about a BEV pixel; a concrete gutter is a wider band with soft edges)",
-    )
-    min_side_ratio: float = Field(
-        0.75,
-        ge=0.0,
-        le=1.0,
-        description="paint check: paint lies on road on both sides; a side whose level (the painted rows' median, over "
-        "the brighter side's) is below this fraction is road only when it is smooth (max_dark_side_texture): a "
-        "shadow cast along the line, not the gravel beyond a kerb (unitless; 0: not checked)",
-    )
-    max_dark_side_texture: float = Field(
-        11.0,
-        gt=0.0,
-        le=255.0,
-        description="paint check: the roughest a much darker side may be (the texture check's measure over gap_px .. "
-        "band_px, in the grey levels of a road at reference_level): shadowed asphalt measures about 3-8, the gravel "
-        "beside a kerb 15-17",
-    )
-    gap_px: int = Field(
-        6, ge=0, le=200, description="texture check: start of the side bands, BEV pixels from the lane"
-    )
-    band_px: int = Field(
-        30, ge=2, le=400, description="texture check: end of the side bands, BEV pixels from the lane"
-    )
-    max_texture: float | None = Field(
-        None,
-        gt=0.0,
-        le=255.0,
-        description="texture check: largest texture on either side, grey levels (see measure and brightness; 13.3 was "
-        "the default before the paint check; about 12 suits 'diff', 18 'std'); null: no texture check",
-    )
-    crossing_check: bool = Field(
-        True,
-        description="drop a lane with parallel bars beside it that repeat its spacing (a pedestrian crossing's bar, not a lane line)",
-    )
-    crossing_band_px: int = Field(
-        50,
-        ge=4,
-        le=400,
-        description="crossing check: how far each side bars are looked for, BEV pixels (50: 2.5 m at 5 cm; a crossing's bars are about 1 m apart; a ridge cut off at the band's end counts as wide)",
-    )
-    crossing_min_offset_px: int = Field(
-        12,
-        ge=1,
-        le=400,
-        description="crossing check: nearer bright stripes are the lane's own paint or a double line's other line, BEV pixels",
-    )
-    max_bar_px: int = Field(
-        16,
-        ge=1,
-        le=400,
-        description="crossing check: widest bar, BEV pixels (wider bright regions, a pavement, do not count)",
-    )
-    min_contrast: float = Field(
-        15.0,
-        gt=0.0,
-        le=255.0,
-        description="crossing check: a painted row's centre is this much brighter than the row's road level, grey levels",
-    )
-    measure: Literal["std", "diff", "mdiff"] = Field(
-        "mdiff",
-        description="'std': lateral intensity std in the band; 'diff': mean absolute difference of "
-        "neighbouring pixels (insensitive to shadow edges); 'mdiff': their median absolute difference "
-        "(insensitive to any few sharp edges: a kerb's face, hatching bars)",
-    )
-    row_quantile: float = Field(
-        0.75,
-        ge=0.0,
-        le=1.0,
-        description="a side's texture is this quantile of its rows' textures (unitless; 0.5: the median; 0.75: "
-        "the rougher quarter, where gravel beside a kerb is resolved, not far rows or shadows that smooth it)",
-    )
-    brightness: Literal["relative", "absolute"] = Field(
-        "relative",
-        description="'relative': textures and min_contrast are grey levels of a road whose level (the "
-        "level_quantile of the BEV road's grey levels) is reference_level, so a frame exposed darker or "
-        "brighter measures the same; 'absolute': grey levels of the image as it is",
-    )
-    reference_level: float = Field(
-        170.0,
-        ge=1.0,
-        le=255.0,
-        description="'relative': the road level the thresholds are stated for, grey levels",
-    )
-    level_quantile: float = Field(
-        0.8,
-        gt=0.0,
-        lt=1.0,
-        description="'relative': the road level is this quantile of the road's grey levels (unitless; 0.8: the "
-        "sunlit asphalt, not its shadows, nor the paint)",
-    )
-
-    @model_validator(mode="after")
-    def _band_not_empty(self) -> VerifyParams:
-        if self.band_px < self.gap_px + 2:
-            raise ValueError(
-                f"band_px ({self.band_px}) must be at least gap_px + 2 ({self.gap_px + 2}): the side bands would be empty"
-            )
-        if self.crossing_band_px <= self.crossing_min_offset_px:
-            raise ValueError(
-                f"crossing_band_px ({self.crossing_band_px}) must exceed crossing_min_offset_px ({self.crossing_min_offset_px}): no offset would be searched"
-            )
-        return self
-
-
 @jit
 def _bar_profile_kernel(img, r0, r1, c0, c1, c2, band_px, min_contrast):
     """The mean lateral profile of the lane ``col = c0 + c1 t + c2 t^2`` (``t = rows - 1 - row``)
@@ -826,34 +458,6 @@ def crossing_pattern(offsets: np.ndarray, tolerance: float = 0.25) -> bool:
     )
 
 
-#: road_level() samples every n-th row and column
-_LEVEL_STEP = 4
-
-
-def road_level(image: np.ndarray, mask: np.ndarray | None, quantile: float) -> float | None:
-    """The ``quantile`` of the grey levels of the road in a BEV image: the pixels on ``mask`` (the BEV
-    road mask), or without one every pixel inside the image (> 0), sampled on every 4th row and
-    column (an 800 x 400 BEV: about 8 000 road pixels, 0.06 ms). None with fewer than 200 such
-    pixels (no road to take a level from)."""
-    img = np.asarray(image)
-    sample = img[::_LEVEL_STEP, ::_LEVEL_STEP]
-    if mask is None:
-        sel = sample > 0
-    else:
-        if np.shape(mask) != img.shape:
-            raise InputError(
-                f"lanes.verify: mask: expected the BEV image's shape {img.shape}, got {np.shape(mask)}"
-            )
-        sel = np.asarray(mask, dtype=bool)[::_LEVEL_STEP, ::_LEVEL_STEP]
-    values = sample[sel]
-    if values.size < 200:
-        return None
-    if values.dtype == np.uint8:  # a histogram: no sort
-        cum = np.cumsum(np.bincount(values, minlength=256))
-        return float(np.searchsorted(cum, quantile * values.size))
-    return float(np.quantile(values, quantile))
-
-
 @node_type(
     "lanes.verify",
     inputs={
@@ -865,6 +469,11 @@ def road_level(image: np.ndarray, mask: np.ndarray | None, quantile: float) -> f
             "the BEV road mask: its pixels set the road level (brightness 'relative'; default: the BEV inside the image)",
             optional=True,
         ),
+        "disparity": Port(
+            "disparity", "the left disparity map: is a much darker side level with the road", optional=True
+        ),
+        "road": Port("road_model", "the road profile and pose (road.profile)", optional=True),
+        "calib": Port("calibration", "stereo calibration", optional=True, rate="constant"),
     },
     outputs={"lanes": "lanes"},
 )
@@ -874,6 +483,9 @@ def verify(
     image: np.ndarray,
     geometry: BevGeometry,
     mask: np.ndarray | None = None,
+    disparity: np.ndarray | None = None,
+    road: RoadModel | None = None,
+    calib: Calibration | None = None,
 ) -> dict:
     """Keep the lanes that look like paint on a road: a bright stripe of paint width with road of like brightness on both sides, not among a crossing's bars (optionally: no textured surface beside it)."""
     if not lanes:
@@ -912,6 +524,10 @@ def verify(
                 )
                 if rough > params.max_dark_side_texture:
                     continue
+                if cues.side_ratio < params.step_side_ratio and _stepped(
+                    params, ln, geometry, disparity, road, calib
+                ):
+                    continue  # smooth, but not level with the other side: a kerb and its gutter
             extra["paint"] = {
                 "contrast": round(cues.contrast, 3),
                 "side_ratio": round(cues.side_ratio, 3),
@@ -941,6 +557,23 @@ def verify(
             continue
         kept.append(Lane(ln.coeffs, ln.bev_rows, ln.side, ln.score, ln.points, extra))
     return {"lanes": kept}
+
+
+def _stepped(
+    p: VerifyParams,
+    lane: Lane,
+    geometry: BevGeometry,
+    disparity: np.ndarray | None,
+    road: RoadModel | None,
+    calib: Calibration | None,
+) -> bool:
+    """Whether the road's height above the fitted plane steps across ``lane`` by more than
+    ``max_dark_side_step_m`` (:func:`._heights.lane_heights`, both sides measured; False without a
+    disparity, a road and a calibration, or when a side has no disparity)."""
+    if p.max_dark_side_step_m is None or disparity is None or road is None or calib is None:
+        return False
+    left, _, right = lane_heights(lane, geometry, np.asarray(disparity), road, calib, p.max_distance_m)
+    return abs(left - right) > p.max_dark_side_step_m  # NaN: False
 
 
 def _is_paint(cues: PaintCues, p: VerifyParams) -> bool:

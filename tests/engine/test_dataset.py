@@ -144,8 +144,18 @@ def test_eval_dataset_prints_each_sequence_and_the_pooled_row(tmp_path):
     assert r.exit_code == 2 and "sequence 'b'" in r.output and "Traceback" not in r.output
 
 
-def test_the_dev_dataset_names_the_four_developer_sequences():
+def test_the_dev_dataset_names_the_eight_developer_sources():
     ds = load_dataset(ROOT / "graphs" / "datasets" / "dev.yaml", check_paths=False)
-    assert [s.name for s in ds] == ["drive_0001", "seq1", "seq2", "seq2_ramp"]
+    assert [s.name for s in ds] == [
+        "drive_0001",
+        "seq1",
+        "seq2",
+        "seq2_ramp",
+        "kitti15_000024",
+        "kitti12_000070",
+        "odom00",
+        "kitti15_000005",
+    ]
     assert all(s.gt is not None and s.gt.name == "lanes_gt.jsonl" for s in ds)
     assert ds.sequences[1].input == (ROOT.parent / "shared" / "data" / "kitti_odometry" / "seq1").resolve()
+    assert ds.sequences[6].input == (ROOT.parent / "shared" / "data" / "kitti_singles" / "odom00").resolve()

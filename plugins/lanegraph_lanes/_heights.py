@@ -1,0 +1,67 @@
+"""How high the road beside a lane stands above the fitted road plane, from the disparity: a kerb is
+a step of 10-15 cm between the two sides of its edge, paint lies flat on the road."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from lanegraph.types import BevGeometry, Calibration, Lane, RoadModel
+
+
+def lane_heights(
+    lane: Lane,
+    geometry: BevGeometry,
+    disparity: np.ndarray,
+    road: RoadModel,
+    calib: Calibration,
+    max_distance_m: float,
+    near_m: float = 0.3,
+    far_m: float = 0.8,
+    step: int = 4,
+) -> tuple[float, float, float]:
+    """The median height above the fitted road plane (metres; eq. 4 of ``road.mask``,
+    ``h (d - d_road) / d``) of the road ``near_m .. far_m`` left of ``lane``, on the lane itself
+    (+-5 cm) and right of it, sampled on every ``step``-th of its rows nearer than
+    ``max_distance_m``; NaN where fewer than 5 samples have a disparity."""
+    nan = (math.nan, math.nan, math.nan)
+    if not road.valid or not road.height > 0:
+        return nan
+    res = float(geometry.resolution)
+    rows = geometry.rows
+    near = int(math.floor(geometry.metric_to_bev(0.0, max_distance_m)[1]))
+    r = np.arange(max(int(lane.bev_rows[0]), near, 0), min(int(lane.bev_rows[1]), rows - 1) + 1, step)
+    if r.size == 0:
+        return nan
+    t = rows - 1 - r.astype(np.float64)
+    col = lane.coeffs[0] + lane.coeffs[1] * t + lane.coeffs[2] * t * t
+    offsets = {
+        "left": -np.arange(near_m, far_m + 1e-9, res) / res,
+        "line": np.array([-1.0, 0.0, 1.0]),
+        "right": np.arange(near_m, far_m + 1e-9, res) / res,
+    }
+    h, w = disparity.shape
+    if (calib.width and w != calib.width) or (calib.height and h != calib.height):
+        return nan  # a map of another size (a reduced disparity): the road model is not its
+    s, c = math.sin(road.roll) * calib.f_y / calib.f, math.cos(road.roll)
+    out = []
+    for key in ("left", "line", "right"):
+        cc = (col[:, None] + offsets[key][None, :]).ravel()
+        rr = np.repeat(r, offsets[key].size).astype(np.float64)
+        xy = geometry.bev_to_image(cc, rr)
+        ok = np.isfinite(xy).all(axis=1)
+        u = np.rint(xy[ok, 0]).astype(np.int64)
+        v = np.rint(xy[ok, 1]).astype(np.int64)
+        inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        u, v = u[inside], v[inside]
+        d = disparity[v, u].astype(np.float64)
+        valid = (d > 0) & (d < math.inf)
+        u, v, d = u[valid], v[valid], d[valid]
+        if d.size < 5:
+            out.append(math.nan)
+            continue
+        vr = calib.cy + s * (u - calib.cx) + c * (v - calib.cy)
+        d_road = road.disparity_at(vr)
+        out.append(float(np.median(road.height * (d - d_road) / d)))
+    return out[0], out[1], out[2]
