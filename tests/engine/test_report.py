@@ -277,6 +277,41 @@ def test_a_new_report_replaces_its_own_assets_and_nothing_else(run_out, tmp_path
     assert (foreign / "assets" / "mine.txt").read_text() == "keep" and not (foreign / "index.html").exists()
 
 
+def test_a_planted_mark_does_not_make_a_users_folder_the_reports(run_out, tmp_path):
+    # the report's mark file alone proves nothing: only lanegraph's ownership record does (issue 46)
+    out, _ = run_out
+    target = tmp_path / "photos"
+    (target / "assets").mkdir(parents=True)
+    (target / "assets" / "holiday.jpg").write_bytes(b"mine")
+    (target / "assets" / ".lanegraph-report").write_text("planted")
+    r = CliRunner().invoke(main, ["report", str(out), "--out", str(target), "--quiet"])
+    assert r.exit_code == 2 and "was not written by `lanegraph report`" in r.output
+    assert (target / "assets" / "holiday.jpg").read_bytes() == b"mine"
+    # a page of the user's at index.html is not replaced either
+    page = tmp_path / "site"
+    page.mkdir()
+    (page / "index.html").write_text("my page")
+    r = CliRunner().invoke(main, ["report", str(out), "--out", str(page), "--quiet"])
+    assert r.exit_code == 2 and (page / "index.html").read_text() == "my page"
+
+
+def test_a_report_inside_a_run_folder_is_kept_by_the_runs_record(run_out, tmp_path):
+    # lanegraph report RUN (into RUN/report) twice, then the run again with --overwrite: each step
+    # replaces only what lanegraph wrote, and a user's file beside them stays
+    out, _ = run_out
+    run = tmp_path / "copy"
+    r = CliRunner().invoke(main, ["run", "--frames", "0:2", "--out", str(run), "--quiet"])
+    assert r.exit_code == 0, r.output
+    (run / "notes.txt").write_text("mine")
+    for _ in range(2):
+        r = CliRunner().invoke(main, ["report", str(run), "--quiet"])
+        assert r.exit_code == 0, r.output
+    assert (run / "report" / "index.html").is_file()
+    r = CliRunner().invoke(main, ["run", "--frames", "0:2", "--out", str(run), "--quiet", "--overwrite"])
+    assert r.exit_code == 0, r.output
+    assert (run / "notes.txt").read_text() == "mine"
+
+
 def test_nothing_planted_in_the_report_folder_is_followed(run_out, tmp_path):
     out, _ = run_out
     victim = tmp_path / "victim.txt"

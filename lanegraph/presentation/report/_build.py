@@ -19,6 +19,7 @@ from ...evaluation.metrics import evaluate
 from ...graph.model import Graph
 from ...paths import new_temp_dir, new_temp_file, prepare_dir
 from ...plugins import PluginManager, get_plugin_manager
+from ...run import owned
 from . import _page
 from ._collect import Collected, collect
 from ._images import JpegWriter, choose_source, debug_pictures, read_left_images, recorded_debug_dir
@@ -174,14 +175,40 @@ class _Log:
             print(f"report: {text}", file=sys.stderr, flush=True)
 
 
+def _record_of(out: Path) -> tuple[Path, str]:
+    """The folder whose ownership record (:mod:`lanegraph.run.owned`) keeps the report's files, and
+    their names' prefix there: the run or ablation folder around ``out`` when it has a genuine
+    record (``RUN/report``), else ``out`` itself."""
+    if owned.read(out.parent):
+        return out.parent, f"{out.name}/"
+    return out, ""
+
+
+def _lanegraphs(out: Path, name: str) -> bool:
+    """Whether ``out/name`` (a file, or a folder and all it holds) is listed by a genuine ownership
+    record: ``out``'s own or that of the folder around it. A mark file alone proves nothing."""
+    for folder, rel in ((out, name), (out.parent, f"{out.name}/{name}")):
+        entries = owned.read(folder)
+        if rel in entries and owned.owns_tree(folder, rel, entries) is None:
+            return True
+    return False
+
+
 def _check_assets(out: Path) -> Path:
-    """``out/assets`` when it is absent or an earlier report's (a plain folder holding the
-    report's mark); anything else there is the user's, left alone: an error."""
+    """``out/assets`` when it is absent or an earlier report's (a plain folder that lanegraph's
+    ownership record lists whole, holding the report's mark); anything else there is the user's,
+    left alone: an error. The same for ``out/index.html``."""
     assets = out / "assets"
-    if assets.is_symlink() or (assets.exists() and not (assets.is_dir() and (assets / _OWNED).is_file())):
+    if assets.is_symlink() or (
+        assets.exists()
+        and not (assets.is_dir() and (assets / _OWNED).is_file() and _lanegraphs(out, "assets"))
+    ):
         raise UsageError(f"{assets} exists and was not written by `lanegraph report`: choose another --out")
-    if (out / "index.html").is_symlink():
-        raise UsageError(f"{out / 'index.html'} is a symbolic link: choose another --out")
+    page = out / "index.html"
+    if page.is_symlink():
+        raise UsageError(f"{page} is a symbolic link: choose another --out")
+    if page.exists() and not _lanegraphs(out, "index.html"):
+        raise UsageError(f"{page} exists and was not written by `lanegraph report`: choose another --out")
     return assets
 
 
@@ -205,6 +232,8 @@ def _swap_in(out: Path, new_assets: Path, page: str) -> None:
     with os.fdopen(fd, "w", encoding="utf-8") as fh:
         fh.write(page)
     os.replace(tmp, out / "index.html")
+    folder, prefix = _record_of(out)  # what a later report (or --overwrite) may replace: these files
+    owned.seal(folder, [f"{prefix}assets", f"{prefix}index.html"])
 
 
 # --------------------------------------------------------------------------- frames and outcomes
