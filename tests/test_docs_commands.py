@@ -66,7 +66,9 @@ def test_the_commands_of_a_page_run_in_order(page, tmp_path):
             paths[:0] = [str(p) for p in ds.stand_in_install(name, ROOT / folder, tmp_path / "site")]
     work = _checkout(tmp_path)
     env = {
-        **os.environ,
+        # a user's fresh shell: no MLflow setting that an earlier test's in-process tracker left behind
+        # (mlflow.set_tracking_uri sets MLFLOW_TRACKING_URI in this process's environment)
+        **{k: v for k, v in os.environ.items() if not k.startswith("MLFLOW_")},
         "PATH": os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")]),
         "BROWSER": "true",  # `--open` opens nothing
         "TMPDIR": str(tmp_path / "tmp"),  # what a command leaves in the temporary folder is seen
