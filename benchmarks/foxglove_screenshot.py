@@ -22,7 +22,7 @@ The viewer is not a dependency of lanegraph: build it once, outside the reposito
     node /tmp/yarn/dist/yarn.js install --mode=skip-build
     node_modules/.bin/webpack --mode development --config web/webpack.config.ts   # -> web/.webpack
 
-(about 5 min for the install and 5 for the build on two busy cores). A registry mirror that lacks
+(about 8 min for the install and 5 for the build on two busy cores). A registry mirror that lacks
 a few of the lockfile's versions needs them changed in the package.json files first, as ours did:
 ``@lichtblick/tsconfig`` 1.1.2 -> 1.0.0 (and ``"ignoreDeprecations": "6.0"``, ``"rootDir":
 "${configDir}"`` added to its ``base.json`` for TypeScript 6), ``@lichtblick/rosbag2-web`` 1.0.5 ->
