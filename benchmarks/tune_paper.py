@@ -12,9 +12,11 @@ and writes ``OUT/tuned.yaml`` (``name: paper``, ``extends: paper_base.yaml``, a 
 names that command and its pooled left-out figure) as ``graphs/paper.yaml`` -- **only if** no
 sequence has more false lanes left out (scored by the fold that did not choose on it) than with
 paper_base.yaml's own hand-set values (the tune's baseline column): a threshold set that adds a
-false lane anywhere, counted left out, is not taken whatever it gains elsewhere (issue 44). Then
-it exits 1 and leaves graphs/paper.yaml as it is. Same code, same data, same seed: the same file
-(the random sampler is seeded per trial; the description holds no path, time or machine).
+false lane anywhere, counted left out, is not taken whatever it gains elsewhere (issue 44).
+Otherwise ``graphs/paper.yaml`` sets paper_base.yaml's own values of the same params (the tune's
+starting point, kept), and its description says so, which sequences stopped it, and the search.
+Same code, same data, same seed: the same file (the random sampler is seeded per trial; the
+description holds no path of this machine, no time).
 
 ``--check``: write nothing; exit 1 when graphs/paper.yaml differs from what the tune gives.
 The search is cheap on a warm result cache: trials that differ only in late nodes share the
@@ -69,6 +71,32 @@ def new_false_lanes(results_csv: Path) -> list[str]:
     return bad
 
 
+def kept_text(tuned: Path, bad: list[str]) -> str:
+    """``tuned.yaml`` with paper_base.yaml's own values of the searched params in place of the
+    tune's choice, and a description that says they were kept, why, and what the search was."""
+    import yaml
+
+    from lanegraph.evaluation.tune_output import dump_graph
+    from lanegraph.evaluation.tune_space import load_space
+    from lanegraph.graph.files import load_graph_named
+
+    doc = yaml.safe_load(tuned.read_text(encoding="utf-8"))
+    base = load_graph_named(ROOT / "graphs" / "paper_base.yaml")
+    nodes: dict[str, dict] = {}
+    for key in load_space(ROOT / "graphs" / "spaces" / "paper.yaml", base).keys:
+        node_id, _, param = key.partition(".")
+        nodes.setdefault(node_id, {"params": {}})["params"][param] = getattr(
+            base.nodes[node_id].params, param
+        )
+    doc["nodes"] = nodes
+    doc["description"] = (
+        "paper_base.yaml's own hand-set values of the params of spaces/paper.yaml, kept: the search below "
+        f"chose params that add false lanes counted left out ({'; '.join(bad)}), and a threshold set that "
+        f"does is not taken (issue 44). The search: {doc['description']}"
+    )
+    return dump_graph(doc)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", type=Path, default=ROOT / "out" / "tune_paper", help="the tune's folder")
@@ -89,21 +117,23 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 1
-    text = HEADER + tuned.read_text(encoding="utf-8")
     bad = new_false_lanes(args.out / "results.csv")
+    text = HEADER + (kept_text(tuned, bad) if bad else tuned.read_text(encoding="utf-8"))
     if bad:
         print(
-            "tune_paper: the tuned params add false lanes, counted left out; graphs/paper.yaml left as it is:\n  "
+            "tune_paper: the tuned params add false lanes, counted left out; paper_base.yaml's own values kept:\n  "
             + "\n  ".join(bad),
             file=sys.stderr,
         )
-        return 1
     if args.check:
         same = PAPER.is_file() and PAPER.read_text(encoding="utf-8") == text
         print(f"tune_paper: graphs/paper.yaml is {'what' if same else 'NOT what'} the tune gives ({tuned})")
         return 0 if same else 1
     PAPER.write_text(text, encoding="utf-8")
-    print(f"tune_paper: wrote {PAPER.relative_to(ROOT)} from {tuned}; the table: {args.out / 'results.md'}")
+    what = "paper_base.yaml's own values (kept)" if bad else "the tune's choice"
+    print(
+        f"tune_paper: wrote {PAPER.relative_to(ROOT)}: {what}, from {tuned}; the table: {args.out / 'results.md'}"
+    )
     return 0
 
 

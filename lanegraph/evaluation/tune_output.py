@@ -222,7 +222,7 @@ def tuned_description(
         f"{graph.name} ({Path(graph_file).as_posix()}) with the params lanegraph tune chose on all "
         f"{len(result.sequences)} sequences of the dataset ({frames} frames, {groups} groups): `{command}`. "
         f"Left out (each group scored by the fold that chose on the others), pooled: {figure('left_out')}; "
-        f"tuned on (these params, on the sequences they were chosen on): {figure('tuned_on')}; "
+        f"tuned on (the params chosen on all sequences, scored on them): {figure('tuned_on')}; "
         f"{graph.name}'s own values: {figure('baseline')}. Per sequence: the tune's results.md."
     )
 
@@ -252,4 +252,22 @@ def tuned_graph(
         "extends": extends or extends_path(graph_file, out_dir),
         "nodes": nodes,
     }
-    return yaml.safe_dump(doc, sort_keys=False, width=100)
+    return dump_graph(doc)
+
+
+class _GraphDumper(yaml.SafeDumper):
+    """YAML as a graph file is written by hand: a long text folded (``>``) rather than quoted."""
+
+
+def _text(dumper: yaml.SafeDumper, value: str) -> yaml.Node:
+    folded = len(value) > 80 and "\n" not in value and value == value.strip()
+    return dumper.represent_scalar("tag:yaml.org,2002:str", value, style=">" if folded else None)
+
+
+_GraphDumper.add_representer(str, _text)
+
+
+def dump_graph(doc: dict[str, Any]) -> str:
+    """A graph file's text (keys in the given order; long texts folded), read back by
+    ``yaml.safe_load`` as the same ``doc``."""
+    return yaml.dump(doc, Dumper=_GraphDumper, sort_keys=False, width=100, allow_unicode=True)
