@@ -71,16 +71,34 @@ def new_false_lanes(results_csv: Path) -> list[str]:
     return bad
 
 
-def kept_text(tuned: Path, bad: list[str]) -> str:
-    """``tuned.yaml`` with paper_base.yaml's own values of the searched params in place of the
-    tune's choice, and a description that says they were kept, why, and what the search was."""
+#: the first sentence of paper.yaml's description (what `lanegraph graphs` shows)
+LEAD = (
+    "The paper's pipeline (graphs/paper_base.yaml: Ozgunalp, Fan et al., with the deviations its nodes "
+    "name), every threshold of graphs/spaces/paper.yaml set by one rule: lanegraph tune over the dev dataset."
+)
+
+
+def paper_text(tuned: Path, bad: list[str]) -> str:
+    """``graphs/paper.yaml``: ``tuned.yaml`` (or, when ``bad`` names sequences the tune's choice adds
+    false lanes to, paper_base.yaml's own values of the searched params in its place, and why), its
+    description led by :data:`LEAD`."""
     import yaml
 
     from lanegraph.evaluation.tune_output import dump_graph
+
+    doc = yaml.safe_load(tuned.read_text(encoding="utf-8"))
+    if bad:
+        doc = kept(doc, bad)
+    doc["description"] = f"{LEAD} {doc['description']}"
+    return HEADER + dump_graph(doc)
+
+
+def kept(doc: dict, bad: list[str]) -> dict:
+    """The tuned graph ``doc`` with paper_base.yaml's own values of the searched params in place of
+    the tune's choice, and a description that says they were kept, why, and what the search was."""
     from lanegraph.evaluation.tune_space import load_space
     from lanegraph.graph.files import load_graph_named
 
-    doc = yaml.safe_load(tuned.read_text(encoding="utf-8"))
     base = load_graph_named(ROOT / "graphs" / "paper_base.yaml")
     nodes: dict[str, dict] = {}
     for key in load_space(ROOT / "graphs" / "spaces" / "paper.yaml", base).keys:
@@ -90,11 +108,11 @@ def kept_text(tuned: Path, bad: list[str]) -> str:
         )
     doc["nodes"] = nodes
     doc["description"] = (
-        "paper_base.yaml's own hand-set values of the params of spaces/paper.yaml, kept: the search below "
-        f"chose params that add false lanes counted left out ({'; '.join(bad)}), and a threshold set that "
-        f"does is not taken (issue 44). The search: {doc['description']}"
+        "Here the starting values (paper_base.yaml's own) are kept: the search chose params that add false "
+        f"lanes counted left out ({'; '.join(bad)}), and a threshold set that does is not taken (issue 44). "
+        f"The search: {doc['description']}"
     )
-    return dump_graph(doc)
+    return doc
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -118,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
         )
         return 1
     bad = new_false_lanes(args.out / "results.csv")
-    text = HEADER + (kept_text(tuned, bad) if bad else tuned.read_text(encoding="utf-8"))
+    text = paper_text(tuned, bad)
     if bad:
         print(
             "tune_paper: the tuned params add false lanes, counted left out; paper_base.yaml's own values kept:\n  "
