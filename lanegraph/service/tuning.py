@@ -5,6 +5,7 @@ folder checked and claimed as ``ablate`` does (:mod:`lanegraph.run.folder`), the
 from __future__ import annotations
 
 import hashlib
+import json
 import math
 import re
 import shlex
@@ -130,7 +131,8 @@ def tune(
     runner = session.runner(o.scheduler)
     space_digest = hashlib.sha256(space.digest_text().encode()).hexdigest()[:16]
     identity = dataset_identity(
-        "tune", [str(graph_path.resolve()), f"space {space_digest}", f"sampler {o.sampler}", f"seed {o.seed}"],
+        "tune", [str(graph_path.resolve()), f"space {space_digest}", f"sampler {o.sampler}", f"seed {o.seed}",
+                 f"graph {_graph_digest(g)}"],
         dataset, o.frames,
     )  # fmt: skip
     setup = TuneSetup(
@@ -198,6 +200,16 @@ def tune(
     status = 1 if failed or result.final is None else 0
     session.tracking.end("failed" if status else "ok", existing(out_dir, [*TUNE_FILES, "command.json"]))
     return status if session.tracking.ok else max(status, 1)
+
+
+def _graph_digest(g: Any) -> str:
+    """What the trials' counts kept in OUT's study depend on besides the space: the graph resolved
+    (every param spelt out) and its node types' code. A tune into a folder whose study was made with
+    other values or other code is another tune (refused, or started afresh with --overwrite), not
+    resumed with counts the code no longer gives."""
+    resolved = json.dumps(g.resolved_dict(), sort_keys=True, default=str)
+    code = sorted({f"{n.type.name} {n.type.code_version}" for n in g.nodes.values()})
+    return hashlib.sha256("\n".join([resolved, *code]).encode()).hexdigest()[:16]
 
 
 def _write_tuned(

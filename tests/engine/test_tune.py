@@ -161,6 +161,20 @@ def test_name_names_the_tuned_graph_whose_description_remakes_it(tuned, toy, mon
     assert yaml.safe_load((tuned[0] / "tuned.yaml").read_text())["name"] == "toy_tuned"
 
 
+def test_a_folder_whose_study_was_made_with_other_graph_values_is_another_tune(toy, tmp_path):
+    """The study in OUT keeps each trial's counts: a graph edited since (a value outside the space)
+    would resume with counts the graph no longer gives, so the folder is another tune's (exit 2)."""
+    graph = tmp_path / "g.yaml"
+    graph.write_text(TOY.format(paper=ROOT / "graphs" / "paper.yaml"))
+    args = ["tune", str(graph), "--dataset", str(toy / "ds.yaml"), "--space", str(toy / "space.yaml"),
+            "--out", str(tmp_path / "out"), "--sampler", "grid", "--cache-dir", str(toy / "cache"), "-q"]  # fmt: skip
+    assert CliRunner().invoke(main, args).exit_code == 0
+    assert CliRunner().invoke(main, args).exit_code == 0  # unchanged: the same tune (resumed, done)
+    graph.write_text(graph.read_text() + "  hough: {params: {min_relative: 0.3}}\n")
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 2 and "holds the results of another" in r.output, r.output
+
+
 @pytest.mark.parametrize("name", ["", "../paper", "two words", "-x", "a" * 101])
 def test_a_bad_name_is_refused_before_anything(toy, tmp_path, name):
     r = _tune(toy, tmp_path / "out", "--name", name)
