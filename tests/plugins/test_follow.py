@@ -133,13 +133,15 @@ def follow_twin(
             last, m = len(h) - 1, (j + len(h) - 1) // 2
             A, B, C = h[m] - h[j], h[last] - h[m], h[last] - h[j]
             la, lb, lc = np.linalg.norm(A), np.linalg.norm(B), np.linalg.norm(C)
-            if last - j >= 2 and la > 0.5 * step and lb > 0.5 * step:
+            measured = last - j >= 2 and la > 0.5 * step and lb > 0.5 * step
+            if measured:
                 kappa = min(max(2.0 * (A[0] * B[1] - A[1] * B[0]) / (la * lb * lc), -max_kappa), max_kappa)
                 d = math.atan2(B[1], B[0]) + kappa * (0.5 * lb + step - mu) - psi
                 new_psi = psi + (d + math.pi) % (2 * math.pi) - math.pi
             else:
                 kappa = min(max(0.7 * kappa + 0.3 * (new_psi - prev_psi) / step, -max_kappa), max_kappa)
-            recorded.append((*h[last], new_psi - kappa * (step - mu), kappa))
+            # a curvature not measured over base (one window's slope) is recorded as NaN: no guide
+            recorded.append((*h[last], new_psi - kappa * (step - mu), kappa if measured else math.nan))
             mark = (u >= 0) & (u <= step) & (np.abs(v - a - b * u) <= half_w) & ok_theta & (owner < 0)
             owner[mark] = track
             taken += int(mark.sum())
@@ -168,11 +170,11 @@ def follow_twin(
 
 def guide_twin(x, y, psi, guide, guide_max, step, cos_max, max_kappa):
     """NumPy twin of ``_guide_at``: (heading, curvature) of the curve parallel to the nearest guide
-    centre facing ``(x, y)``, or None."""
+    centre facing ``(x, y)`` whose curvature was measured (not NaN), or None."""
     gx, gy, gp, gk = guide
     u = (x - gx) * np.cos(gp) + (y - gy) * np.sin(gp)
     n = np.abs(-(x - gx) * np.sin(gp) + (y - gy) * np.cos(gp))
-    ok = (np.abs(np.cos(gp - psi)) >= cos_max) & (np.abs(u) <= 0.5 * step) & (n <= guide_max)
+    ok = (np.abs(np.cos(gp - psi)) >= cos_max) & (np.abs(u) <= 0.5 * step) & (n <= guide_max) & ~np.isnan(gk)
     if not ok.any():
         return None
     k = np.flatnonzero(ok & (n == n[ok].min()))[-1]  # the kernel keeps the last of equals
@@ -244,6 +246,81 @@ def test_follow_kernel_matches_numpy_twin(radius_m):
             if radius_m == 30.0:  # the staircase's features counted: the line followed to the top
                 assert got[3] > 0.9 * rows
     assert guide.shape[1] > 5
+
+
+def test_a_guide_window_whose_curvature_was_not_measured_guides_no_line():
+    """A dashed line bending right (40 m radius; 3 m dashes, 5 m gaps) and, straight ahead of its
+    first dash, a decoy dash; beside the gap a guide heading straight ahead and bending left at
+    the tightest curvature, its windows' curvature not measured (NaN: a track's single-window
+    slope, kitti15_000024's stray guide). Skipped, the line keeps its own bend across the gap and
+    takes the next dashes, never the decoy; the same guide with its curvature taken as measured
+    (what the kernel did before) turns the line onto the decoy. The NumPy twin agrees in both."""
+    rows, cols = 400, 300
+    bev = np.full((rows, cols), 80, np.uint8)
+    c, t = arc(100.0, 40.0)
+    s = np.arange(c.size) * 0.2 * RES  # arc length, metres
+    dash = (s % 8.0) < 3.0
+    draw(bev, c[dash], t[dash])
+    decoy_t = np.arange(230.0, 290.0, 0.5)  # 11.5-14.5 m, straight ahead of the first dash's end
+    draw(bev, np.full(decoy_t.size, 104.0), decoy_t)
+    tt, cf, th, row_start = feature_arrays(bev)
+    on_line = (
+        np.min(np.hypot(cf[:, None] - c[None, dash][:, ::10], tt[:, None] - t[None, dash][:, ::10]), 1) < 3
+    )
+    on_decoy = (np.abs(cf - 104.0) < 3) & (tt >= 225)
+    assert on_decoy.sum() > 30 and not (on_line & on_decoy).any()
+    max_kappa = RES / 20.0
+    gt_ = np.arange(70.0, 240.0, 20.0)  # the guide: 3 m right of the line's gap, bending left
+    guide = np.stack(
+        [np.full(gt_.size, 160.0), gt_, np.full(gt_.size, math.pi / 2), np.full(gt_.size, np.nan)]
+    )
+    args = (
+        20.0,
+        5.0,
+        math.cos(math.radians(25)),
+        280.0,
+        max_kappa,
+        12.0,
+        math.sin(math.radians(60)),
+        0.1,
+        200.0,
+    )
+    taken = {}
+    for name, gk in (("not measured", np.nan), ("measured", max_kappa)):
+        g = guide.copy()
+        g[3] = gk
+        owner = np.full(tt.shape, -1, np.int32)
+        out = np.zeros((4, MAX_WINDOWS + 1))
+        got = _follow_kernel(
+            tt,
+            cf,
+            th,
+            row_start,
+            0.0,
+            100.0,
+            math.pi / 2,
+            *args,
+            owner,
+            0,
+            np.zeros(rows, np.uint8),
+            3,
+            *g,
+            g.shape[1],
+            90.0,
+            *out,
+        )
+        o2 = np.full(tt.shape, -1, np.int32)
+        exp, centres = follow_twin(
+            tt, cf, th, 0.0, 100.0, math.pi / 2, *args, o2, 0, np.zeros(rows, np.uint8), 3, g, 90.0, rows
+        )
+        assert got[:2] == exp[:2]
+        np.testing.assert_array_equal(owner, o2)
+        np.testing.assert_allclose(out[:, : got[5]], centres, atol=1e-6)
+        taken[name] = (np.count_nonzero((owner == 0) & on_line), np.count_nonzero((owner == 0) & on_decoy))
+    line_nm, decoy_nm = taken["not measured"]
+    line_m, decoy_m = taken["measured"]
+    assert decoy_nm == 0 and line_nm > 0.5 * on_line.sum()  # the bend kept: the dashes beyond the gap
+    assert decoy_m > 20 and line_m < line_nm  # a guide taken as measured turns the line onto the decoy
 
 
 def seeds_band_by_band(t, c, theta, row_start, rows, cols, p, res):
