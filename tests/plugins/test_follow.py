@@ -133,15 +133,16 @@ def follow_twin(
             last, m = len(h) - 1, (j + len(h) - 1) // 2
             A, B, C = h[m] - h[j], h[last] - h[m], h[last] - h[j]
             la, lb, lc = np.linalg.norm(A), np.linalg.norm(B), np.linalg.norm(C)
-            measured = last - j >= 2 and la > 0.5 * step and lb > 0.5 * step
-            if measured:
+            if last - j >= 2 and la > 0.5 * step and lb > 0.5 * step:
                 kappa = min(max(2.0 * (A[0] * B[1] - A[1] * B[0]) / (la * lb * lc), -max_kappa), max_kappa)
                 d = math.atan2(B[1], B[0]) + kappa * (0.5 * lb + step - mu) - psi
                 new_psi = psi + (d + math.pi) % (2 * math.pi) - math.pi
             else:
                 kappa = min(max(0.7 * kappa + 0.3 * (new_psi - prev_psi) / step, -max_kappa), max_kappa)
-            # a curvature not measured over base (one window's slope) is recorded as NaN: no guide
-            recorded.append((*h[last], new_psi - kappa * (step - mu), kappa if measured else math.nan))
+            # a curvature at the clamp (beyond the tightest bend followed) is recorded as NaN: no guide
+            recorded.append(
+                (*h[last], new_psi - kappa * (step - mu), kappa if abs(kappa) < max_kappa else math.nan)
+            )
             mark = (u >= 0) & (u <= step) & (np.abs(v - a - b * u) <= half_w) & ok_theta & (owner < 0)
             owner[mark] = track
             taken += int(mark.sum())
@@ -170,7 +171,7 @@ def follow_twin(
 
 def guide_twin(x, y, psi, guide, guide_max, step, cos_max, max_kappa):
     """NumPy twin of ``_guide_at``: (heading, curvature) of the curve parallel to the nearest guide
-    centre facing ``(x, y)`` whose curvature was measured (not NaN), or None."""
+    centre facing ``(x, y)`` whose curvature is not NaN (at the clamp), or None."""
     gx, gy, gp, gk = guide
     u = (x - gx) * np.cos(gp) + (y - gy) * np.sin(gp)
     n = np.abs(-(x - gx) * np.sin(gp) + (y - gy) * np.cos(gp))
@@ -248,13 +249,14 @@ def test_follow_kernel_matches_numpy_twin(radius_m):
     assert guide.shape[1] > 5
 
 
-def test_a_guide_window_whose_curvature_was_not_measured_guides_no_line():
+def test_a_guide_window_whose_curvature_reached_the_clamp_guides_no_line():
     """A dashed line bending right (40 m radius; 3 m dashes, 5 m gaps) and, straight ahead of its
     first dash, a decoy dash; beside the gap a guide heading straight ahead and bending left at
-    the tightest curvature, its windows' curvature not measured (NaN: a track's single-window
-    slope, kitti15_000024's stray guide). Skipped, the line keeps its own bend across the gap and
-    takes the next dashes, never the decoy; the same guide with its curvature taken as measured
-    (what the kernel did before) turns the line onto the decoy. The NumPy twin agrees in both."""
+    the tightest curvature followed (the clamp: kitti15_000024's stray track, its curvature from
+    one window's slope after an 8 m gap), recorded as NaN. Skipped, the line keeps its own bend
+    across the gap and takes the next dashes, never the decoy; the same guide with its clamped
+    curvature taken as it is (what the kernel did before) turns the line onto the decoy. The NumPy
+    twin agrees in both."""
     rows, cols = 400, 300
     bev = np.full((rows, cols), 80, np.uint8)
     c, t = arc(100.0, 40.0)
@@ -270,7 +272,7 @@ def test_a_guide_window_whose_curvature_was_not_measured_guides_no_line():
     on_decoy = (np.abs(cf - 104.0) < 3) & (tt >= 225)
     assert on_decoy.sum() > 30 and not (on_line & on_decoy).any()
     max_kappa = RES / 20.0
-    gt_ = np.arange(70.0, 240.0, 20.0)  # the guide: 3 m right of the line's gap, bending left
+    gt_ = np.arange(70.0, 240.0, 20.0)  # the guide: 3 m right of the line's start, bending left
     guide = np.stack(
         [np.full(gt_.size, 160.0), gt_, np.full(gt_.size, math.pi / 2), np.full(gt_.size, np.nan)]
     )
@@ -286,7 +288,7 @@ def test_a_guide_window_whose_curvature_was_not_measured_guides_no_line():
         200.0,
     )
     taken = {}
-    for name, gk in (("not measured", np.nan), ("measured", max_kappa)):
+    for name, gk in (("clamped", np.nan), ("taken", max_kappa)):
         g = guide.copy()
         g[3] = gk
         owner = np.full(tt.shape, -1, np.int32)
@@ -317,10 +319,74 @@ def test_a_guide_window_whose_curvature_was_not_measured_guides_no_line():
         np.testing.assert_array_equal(owner, o2)
         np.testing.assert_allclose(out[:, : got[5]], centres, atol=1e-6)
         taken[name] = (np.count_nonzero((owner == 0) & on_line), np.count_nonzero((owner == 0) & on_decoy))
-    line_nm, decoy_nm = taken["not measured"]
-    line_m, decoy_m = taken["measured"]
+    line_nm, decoy_nm = taken["clamped"]
+    line_m, decoy_m = taken["taken"]
     assert decoy_nm == 0 and line_nm > 0.5 * on_line.sum()  # the bend kept: the dashes beyond the gap
-    assert decoy_m > 20 and line_m < line_nm  # a guide taken as measured turns the line onto the decoy
+    assert decoy_m > 20 and line_m < line_nm  # the clamped guide taken turns the line onto the decoy
+
+
+def test_a_window_whose_curvature_reaches_the_clamp_is_recorded_as_no_guide():
+    """The tightest bend followed 60 m (the clamp); a 3 m stroke straight ahead, a 5 m gap and a
+    stroke 15 degrees off, offset by 40 cm (no road's line: a track that strays across a gap
+    onto other features): the windows after the gap reach the clamp and are recorded as NaN, as
+    the twin records them; a line on a 150 m bend is recorded with its curvature, none at the
+    clamp."""
+    rows, cols = 300, 200
+    max_kappa = RES / 60.0
+    args = (20.0, 5.0, math.cos(math.radians(25)), 280.0, max_kappa, 12.0, math.sin(math.radians(60)))
+    args += (0.1, 200.0)
+    recorded = {}
+    for name in ("kink", "bend"):
+        bev = np.full((rows, cols), 80, np.uint8)
+        if name == "kink":
+            draw(bev, np.full(300, 100.0), np.arange(0.0, 60.0, 0.2))  # a 3 m stroke
+            u = np.arange(0.0, 100.0, 0.2)  # 5 m on, 5 m of a stroke 15 degrees off
+            draw(bev, 108.0 + u * math.cos(math.radians(75)), 160.0 + u * math.sin(math.radians(75)))
+        else:
+            c, t = arc(100.0, 150.0)
+            draw(bev, c, t)
+        tt, cf, th, row_start = feature_arrays(bev)
+        owner = np.full(tt.shape, -1, np.int32)
+        out = np.zeros((4, MAX_WINDOWS + 1))
+        got = _follow_kernel(
+            tt,
+            cf,
+            th,
+            row_start,
+            0.0,
+            100.0,
+            math.pi / 2,
+            *args,
+            owner,
+            0,
+            np.zeros(rows, np.uint8),
+            3,
+            *np.zeros((4, 0)),
+            0,
+            90.0,
+            *out,
+        )
+        exp, centres = follow_twin(
+            tt,
+            cf,
+            th,
+            0.0,
+            100.0,
+            math.pi / 2,
+            *args,
+            np.full(tt.shape, -1, np.int32),
+            0,
+            np.zeros(rows, np.uint8),
+            3,
+            np.zeros((4, 0)),
+            90.0,
+            rows,
+        )
+        assert got[:2] == exp[:2] and got[0] >= 5
+        np.testing.assert_allclose(out[:, : got[5]], centres, atol=1e-6)
+        recorded[name] = out[3, : got[5]]
+    assert np.isnan(recorded["kink"]).sum() >= 3
+    assert np.isfinite(recorded["bend"]).all() and (np.abs(recorded["bend"]) < max_kappa).all()
 
 
 def seeds_band_by_band(t, c, theta, row_start, rows, cols, p, res):
