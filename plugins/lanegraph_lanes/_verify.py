@@ -243,18 +243,13 @@ def painted_rows(
     align_m: float,
     min_row_contrast: float,
 ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int, int]:
-    """The painted rows of ``lane`` in the grey BEV ``img`` nearer than ``max_distance_m``
-    (:func:`_paint_rows_kernel`; the side bands ``gap_m .. band_m`` away, the centre moved to the
-    brightest column within ``align_m``): ``(inside, row, start, inv_level, measures, saturated,
-    band, gap)`` -- the lane's rows inside the image, per painted row its BEV row, its strip's first
-    column, one over its brighter side's level and its (contrast, side ratio), the painted rows
-    whose centre is clipped, and the band and gap in pixels; the arrays cut to the painted rows.
-    What :func:`paint_cues` and :func:`lanegraph_lanes._paint.paint_features` measure on."""
+    """The painted rows of ``lane`` in the grey BEV ``img`` nearer than ``max_distance_m`` (found by
+    :func:`_paint_rows_kernel`), which :func:`paint_cues` and ``_paint.paint_features`` measure:
+    ``(inside, row, start, inv_level, measures, saturated, band, gap)``, the arrays (per painted row)
+    cut to the painted rows; ``band`` and ``gap`` in pixels."""
     res = float(geometry.resolution)
-    r0 = max(int(lane.bev_rows[0]), 0)
-    r1 = min(int(lane.bev_rows[1]), img.shape[0] - 1)
     near = int(math.floor(geometry.metric_to_bev(0.0, max_distance_m)[1]))
-    r0 = max(r0, near)
+    r0, r1 = max(int(lane.bev_rows[0]), 0, near), min(int(lane.bev_rows[1]), img.shape[0] - 1)
     band = max(int(round(band_m / res)), 2)
     gap = min(max(int(round(gap_m / res)), 1), band - 1)
     align = max(int(round(align_m / res)), 0)
@@ -287,7 +282,7 @@ def paint_cues(
     the median over the rows, offset by offset, of 64 to 127 of them spread evenly: a sun patch
     that a minority of the rows cross, a metre or more across, does not widen it as it widens
     their mean) at half and a quarter of its height above its base (the brighter of the profile's
-    two side levels). The rows by :func:`_paint_rows_kernel`."""
+    two side levels). The rows by :func:`painted_rows`."""
     img = _grey_bev(image)
     res = float(geometry.resolution)
     inside, row, start, inv_level, measures, saturated, band, gap = painted_rows(
