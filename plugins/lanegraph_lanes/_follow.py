@@ -22,7 +22,12 @@ locks onto the bars. ``lanes.follow`` finds each line from where it is seen and 
    hatching bar) guides the lines followed after it. Where one lies within ``guide_m`` across, a
    track takes its heading and curvature from it (those of the parallel curve) after every window,
    and its own windows' features only place it: a dash's own curvature (3 m of paint) is noise, and
-   over a 6-12 m gap of a bend of 30 m radius it misses the next dash by a metre or more. The
+   over a 6-12 m gap of a bend of 30 m radius it misses the next dash by a metre or more. A
+   window whose curvature reached the clamp (``min_radius_m``, the tightest bend followed) guides
+   no line: no road followed bends so, the track measured something else there -- one window's
+   1 m slope after a long gap, a track strayed onto other features (kitti15_000024: a track that
+   crossed tree shade and an 8 m gap to a kerb's edge, its curvature clamped to a left bend there,
+   turned the dashed centre line bending right beside it onto features straight ahead). The
    strongest seeds (solid lines) are followed first; a short track (a dash) followed before the
    long lines beside it is followed again with them. Far ahead the BEV repeats each image row over
    several BEV rows and a slanted line's features read steeper than the line (a staircase): there a
@@ -65,7 +70,8 @@ MAX_WINDOWS = 400
 @jit
 def _guide_at(x, y, psi, gx, gy, gpsi, gk, n_guide, guide_max, step, cos_max, max_kappa):
     """The heading and curvature at ``(x, y)`` of the curve parallel to the nearest guide facing
-    it (see ``_follow_kernel``); ``(False, psi, 0)`` when no guide is near."""
+    it (see ``_follow_kernel``; an entry whose curvature is NaN, at the clamp, is skipped);
+    ``(False, psi, 0)`` when no guide is near."""
     best = -1
     best_n = guide_max
     for k in range(n_guide):
@@ -74,6 +80,8 @@ def _guide_at(x, y, psi, gx, gy, gpsi, gk, n_guide, guide_max, step, cos_max, ma
         if abs(ex) > guide_max + step or abs(ey) > guide_max + step:
             continue
         if abs(math.cos(gpsi[k] - psi)) < cos_max:
+            continue
+        if gk[k] != gk[k]:  # NaN: its curvature reached the clamp (something else than a road's line)
             continue
         cg = math.cos(gpsi[k])
         sg = math.sin(gpsi[k])
@@ -151,8 +159,11 @@ def _follow_kernel(
     within ``guide_max`` pixels across (a centre within half a window's length along it, its
     heading within ``acos(cos_max)`` of the track's heading before the window), when there is one:
     lane markings are parallel, and the parallel curve at a distance ``n`` to the left of a guide of
-    curvature ``k`` has curvature ``k / (1 - k n)``; the window's features still place the track. ``out_x``, ``out_y``, ``out_psi``, ``out_k`` (length ``MAX_WINDOWS + 1``) receive this
-    track's window centres, headings and curvatures.
+    curvature ``k`` has curvature ``k / (1 - k n)``; the window's features still place the track.
+    A guide entry whose curvature is NaN is no guide. ``out_x``, ``out_y``, ``out_psi``, ``out_k``
+    (length ``MAX_WINDOWS + 1``) receive this track's window centres, headings and curvatures; the
+    curvature is NaN where it reached the clamp ``max_kappa`` (no road followed bends so: the track
+    measured something else there), so that such a window guides no other line.
 
     Returns ``(windows with features, features taken, lowest and highest t taken, t where the
     heading first turns further from straight ahead than ``asin(sin_turn)``, window centres written)``."""
@@ -287,7 +298,8 @@ def _follow_kernel(
             out_x[last] = hx[last]
             out_y[last] = hy[last]
             out_psi[last] = new_psi - kappa * (step - mu)
-            out_k[last] = kappa
+            # a curvature at the clamp (beyond the tightest bend followed) guides no other line
+            out_k[last] = kappa if abs(kappa) < max_kappa else math.nan
             # mark the features taken (a second pass over the window)
             for i in range(row_start[r_lo], row_start[r_hi + 1]):
                 ci = c[i]

@@ -51,7 +51,8 @@ class FollowParams(NodeParams):
         20.0,
         gt=0.0,
         le=1e6,
-        description="tightest bend followed (the curvature is clamped to 1 / this), metres",
+        description="tightest bend followed (the curvature is clamped to 1 / this; a window at the clamp guides no "
+        "other line), metres",
     )
     guide_m: float = Field(
         4.5,

@@ -51,9 +51,7 @@ from ._verify import (
     _column_medians,
     _crossing_width,
     _grey_bev,
-    _median_hist,
-    _paint_rows_kernel,
-    _saturation,
+    painted_rows,
     side_texture,
 )
 
@@ -78,46 +76,6 @@ FEATURES = (
 UNPARALLEL_M = 2.0
 
 MODEL_FILE = Path(__file__).with_name("paint_model.json")
-
-
-def _painted(img, lane, geometry, max_distance_m, band_m, gap_m, align_m, min_row_contrast):
-    """The painted rows of ``lane`` (as :func:`lanegraph_lanes._verify.paint_cues` finds them):
-    ``(inside, row, start, inv_level, measures, saturated, band, gap)``, the arrays cut to the
-    painted rows."""
-    res = float(geometry.resolution)
-    r0 = max(int(lane.bev_rows[0]), 0)
-    r1 = min(int(lane.bev_rows[1]), img.shape[0] - 1)
-    near = int(math.floor(geometry.metric_to_bev(0.0, max_distance_m)[1]))
-    r0 = max(r0, near)
-    band = max(int(round(band_m / res)), 2)
-    gap = min(max(int(round(gap_m / res)), 1), band - 1)
-    align = max(int(round(align_m / res)), 0)
-    c0, c1, c2 = (float(c) for c in lane.coeffs)
-    n = max(r1 - r0 + 1, 0)
-    row = np.empty(n, np.int64)
-    start = np.empty(n, np.int64)
-    inv_level = np.empty(n)
-    measures = np.empty((n, 2))
-    inside, painted, saturated = _paint_rows_kernel(
-        img,
-        r0,
-        r1,
-        c0,
-        c1,
-        c2,
-        band,
-        gap,
-        align,
-        float(min_row_contrast),
-        _saturation(img.dtype),
-        _median_hist(img),
-        row,
-        start,
-        inv_level,
-        measures,
-    )
-    p = int(painted)
-    return int(inside), row[:p], start[:p], inv_level[:p], measures[:p], int(saturated), band, gap
 
 
 def row_widths(strips: np.ndarray, band: int) -> np.ndarray:
@@ -184,7 +142,7 @@ def paint_features(
     docstring); NaN where one cannot be measured (fewer than 3 painted rows; no disparity)."""
     img = _grey_bev(image)
     res = float(geometry.resolution)
-    inside, row, start, inv_level, measures, saturated, band, gap = _painted(
+    inside, row, start, inv_level, measures, saturated, band, gap = painted_rows(
         img, lane, geometry, max_distance_m, band_m, gap_m, align_m, min_row_contrast
     )
     painted = row.size

@@ -233,6 +233,36 @@ def _saturation(dtype: np.dtype) -> float:
     return float(np.iinfo(dtype).max) if dtype.kind in "ui" else math.inf
 
 
+def painted_rows(
+    img: np.ndarray,
+    lane: Lane,
+    geometry: BevGeometry,
+    max_distance_m: float,
+    band_m: float,
+    gap_m: float,
+    align_m: float,
+    min_row_contrast: float,
+) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int, int]:
+    """The painted rows of ``lane`` in the grey BEV ``img`` nearer than ``max_distance_m`` (found by
+    :func:`_paint_rows_kernel`), which :func:`paint_cues` and ``_paint.paint_features`` measure:
+    ``(inside, row, start, inv_level, measures, saturated, band, gap)``, the arrays (per painted row)
+    cut to the painted rows; ``band`` and ``gap`` in pixels."""
+    res = float(geometry.resolution)
+    near = int(math.floor(geometry.metric_to_bev(0.0, max_distance_m)[1]))
+    r0, r1 = max(int(lane.bev_rows[0]), 0, near), min(int(lane.bev_rows[1]), img.shape[0] - 1)
+    band = max(int(round(band_m / res)), 2)
+    gap = min(max(int(round(gap_m / res)), 1), band - 1)
+    align = max(int(round(align_m / res)), 0)
+    n = max(r1 - r0 + 1, 0)
+    # per painted row: its BEV row, its strip's first column, 1 / its level, (contrast, side ratio)
+    out = (np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n), np.empty((n, 2)))
+    levels = (float(min_row_contrast), _saturation(img.dtype), _median_hist(img))
+    coeffs = (float(c) for c in lane.coeffs)
+    inside, painted, saturated = _paint_rows_kernel(img, r0, r1, *coeffs, band, gap, align, *levels, *out)
+    p = int(painted)
+    return (int(inside), *(a[:p] for a in out), int(saturated), band, gap)
+
+
 def paint_cues(
     image: np.ndarray,
     lane: Lane,
@@ -252,38 +282,13 @@ def paint_cues(
     the median over the rows, offset by offset, of 64 to 127 of them spread evenly: a sun patch
     that a minority of the rows cross, a metre or more across, does not widen it as it widens
     their mean) at half and a quarter of its height above its base (the brighter of the profile's
-    two side levels). The rows by :func:`_paint_rows_kernel`."""
-    img, r0, r1 = _lane_rows_in(image, lane)
+    two side levels). The rows by :func:`painted_rows`."""
+    img = _grey_bev(image)
     res = float(geometry.resolution)
-    near = int(math.floor(geometry.metric_to_bev(0.0, max_distance_m)[1]))
-    r0 = max(r0, near)
-    band = max(int(round(band_m / res)), 2)
-    gap = min(max(int(round(gap_m / res)), 1), band - 1)
-    align = max(int(round(align_m / res)), 0)
-    c0, c1, c2 = (float(c) for c in lane.coeffs)
-    n = max(r1 - r0 + 1, 0)
-    row = np.empty(n, np.int64)
-    start = np.empty(n, np.int64)
-    inv_level = np.empty(n)
-    measures = np.empty((n, 2))  # per painted row: its contrast and side ratio
-    inside, painted, saturated = _paint_rows_kernel(
-        img,
-        r0,
-        r1,
-        c0,
-        c1,
-        c2,
-        band,
-        gap,
-        align,
-        float(min_row_contrast),
-        _saturation(img.dtype),
-        _median_hist(img),
-        row,
-        start,
-        inv_level,
-        measures,
+    inside, row, start, inv_level, measures, saturated, band, gap = painted_rows(
+        img, lane, geometry, max_distance_m, band_m, gap_m, align_m, min_row_contrast
     )
+    painted = row.size
     nan = float("nan")
     if painted < max(min_rows, 1):
         return PaintCues(int(inside), int(painted), int(saturated), nan, nan, nan, nan)

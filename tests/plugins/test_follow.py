@@ -139,7 +139,10 @@ def follow_twin(
                 new_psi = psi + (d + math.pi) % (2 * math.pi) - math.pi
             else:
                 kappa = min(max(0.7 * kappa + 0.3 * (new_psi - prev_psi) / step, -max_kappa), max_kappa)
-            recorded.append((*h[last], new_psi - kappa * (step - mu), kappa))
+            # a curvature at the clamp (beyond the tightest bend followed) is recorded as NaN: no guide
+            recorded.append(
+                (*h[last], new_psi - kappa * (step - mu), kappa if abs(kappa) < max_kappa else math.nan)
+            )
             mark = (u >= 0) & (u <= step) & (np.abs(v - a - b * u) <= half_w) & ok_theta & (owner < 0)
             owner[mark] = track
             taken += int(mark.sum())
@@ -168,11 +171,11 @@ def follow_twin(
 
 def guide_twin(x, y, psi, guide, guide_max, step, cos_max, max_kappa):
     """NumPy twin of ``_guide_at``: (heading, curvature) of the curve parallel to the nearest guide
-    centre facing ``(x, y)``, or None."""
+    centre facing ``(x, y)`` whose curvature is not NaN (at the clamp), or None."""
     gx, gy, gp, gk = guide
     u = (x - gx) * np.cos(gp) + (y - gy) * np.sin(gp)
     n = np.abs(-(x - gx) * np.sin(gp) + (y - gy) * np.cos(gp))
-    ok = (np.abs(np.cos(gp - psi)) >= cos_max) & (np.abs(u) <= 0.5 * step) & (n <= guide_max)
+    ok = (np.abs(np.cos(gp - psi)) >= cos_max) & (np.abs(u) <= 0.5 * step) & (n <= guide_max) & ~np.isnan(gk)
     if not ok.any():
         return None
     k = np.flatnonzero(ok & (n == n[ok].min()))[-1]  # the kernel keeps the last of equals
@@ -244,6 +247,146 @@ def test_follow_kernel_matches_numpy_twin(radius_m):
             if radius_m == 30.0:  # the staircase's features counted: the line followed to the top
                 assert got[3] > 0.9 * rows
     assert guide.shape[1] > 5
+
+
+def test_a_guide_window_whose_curvature_reached_the_clamp_guides_no_line():
+    """A dashed line bending right (40 m radius; 3 m dashes, 5 m gaps) and, straight ahead of its
+    first dash, a decoy dash; beside the gap a guide heading straight ahead and bending left at
+    the tightest curvature followed (the clamp: kitti15_000024's stray track, its curvature from
+    one window's slope after an 8 m gap), recorded as NaN. Skipped, the line keeps its own bend
+    across the gap and takes the next dashes, never the decoy; the same guide with its clamped
+    curvature taken as it is (what the kernel did before) turns the line onto the decoy. The NumPy
+    twin agrees in both."""
+    rows, cols = 400, 300
+    bev = np.full((rows, cols), 80, np.uint8)
+    c, t = arc(100.0, 40.0)
+    s = np.arange(c.size) * 0.2 * RES  # arc length, metres
+    dash = (s % 8.0) < 3.0
+    draw(bev, c[dash], t[dash])
+    decoy_t = np.arange(230.0, 290.0, 0.5)  # 11.5-14.5 m, straight ahead of the first dash's end
+    draw(bev, np.full(decoy_t.size, 104.0), decoy_t)
+    tt, cf, th, row_start = feature_arrays(bev)
+    on_line = (
+        np.min(np.hypot(cf[:, None] - c[None, dash][:, ::10], tt[:, None] - t[None, dash][:, ::10]), 1) < 3
+    )
+    on_decoy = (np.abs(cf - 104.0) < 3) & (tt >= 225)
+    assert on_decoy.sum() > 30 and not (on_line & on_decoy).any()
+    max_kappa = RES / 20.0
+    gt_ = np.arange(70.0, 240.0, 20.0)  # the guide: 3 m right of the line's start, bending left
+    guide = np.stack(
+        [np.full(gt_.size, 160.0), gt_, np.full(gt_.size, math.pi / 2), np.full(gt_.size, np.nan)]
+    )
+    args = (
+        20.0,
+        5.0,
+        math.cos(math.radians(25)),
+        280.0,
+        max_kappa,
+        12.0,
+        math.sin(math.radians(60)),
+        0.1,
+        200.0,
+    )
+    taken = {}
+    for name, gk in (("clamped", np.nan), ("taken", max_kappa)):
+        g = guide.copy()
+        g[3] = gk
+        owner = np.full(tt.shape, -1, np.int32)
+        out = np.zeros((4, MAX_WINDOWS + 1))
+        got = _follow_kernel(
+            tt,
+            cf,
+            th,
+            row_start,
+            0.0,
+            100.0,
+            math.pi / 2,
+            *args,
+            owner,
+            0,
+            np.zeros(rows, np.uint8),
+            3,
+            *g,
+            g.shape[1],
+            90.0,
+            *out,
+        )
+        o2 = np.full(tt.shape, -1, np.int32)
+        exp, centres = follow_twin(
+            tt, cf, th, 0.0, 100.0, math.pi / 2, *args, o2, 0, np.zeros(rows, np.uint8), 3, g, 90.0, rows
+        )
+        assert got[:2] == exp[:2]
+        np.testing.assert_array_equal(owner, o2)
+        np.testing.assert_allclose(out[:, : got[5]], centres, atol=1e-6)
+        taken[name] = (np.count_nonzero((owner == 0) & on_line), np.count_nonzero((owner == 0) & on_decoy))
+    line_nm, decoy_nm = taken["clamped"]
+    line_m, decoy_m = taken["taken"]
+    assert decoy_nm == 0 and line_nm > 0.5 * on_line.sum()  # the bend kept: the dashes beyond the gap
+    assert decoy_m > 20 and line_m < line_nm  # the clamped guide taken turns the line onto the decoy
+
+
+def test_a_window_whose_curvature_reaches_the_clamp_is_recorded_as_no_guide():
+    """The tightest bend followed 60 m (the clamp); a 3 m stroke straight ahead, a 5 m gap and a
+    stroke 15 degrees off, offset by 40 cm (no road's line: a track that strays across a gap
+    onto other features): the windows after the gap reach the clamp and are recorded as NaN, as
+    the twin records them; a line on a 150 m bend is recorded with its curvature, none at the
+    clamp."""
+    rows, cols = 300, 200
+    max_kappa = RES / 60.0
+    args = (20.0, 5.0, math.cos(math.radians(25)), 280.0, max_kappa, 12.0, math.sin(math.radians(60)))
+    args += (0.1, 200.0)
+    recorded = {}
+    for name in ("kink", "bend"):
+        bev = np.full((rows, cols), 80, np.uint8)
+        if name == "kink":
+            draw(bev, np.full(300, 100.0), np.arange(0.0, 60.0, 0.2))  # a 3 m stroke
+            u = np.arange(0.0, 100.0, 0.2)  # 5 m on, 5 m of a stroke 15 degrees off
+            draw(bev, 108.0 + u * math.cos(math.radians(75)), 160.0 + u * math.sin(math.radians(75)))
+        else:
+            c, t = arc(100.0, 150.0)
+            draw(bev, c, t)
+        tt, cf, th, row_start = feature_arrays(bev)
+        owner = np.full(tt.shape, -1, np.int32)
+        out = np.zeros((4, MAX_WINDOWS + 1))
+        got = _follow_kernel(
+            tt,
+            cf,
+            th,
+            row_start,
+            0.0,
+            100.0,
+            math.pi / 2,
+            *args,
+            owner,
+            0,
+            np.zeros(rows, np.uint8),
+            3,
+            *np.zeros((4, 0)),
+            0,
+            90.0,
+            *out,
+        )
+        exp, centres = follow_twin(
+            tt,
+            cf,
+            th,
+            0.0,
+            100.0,
+            math.pi / 2,
+            *args,
+            np.full(tt.shape, -1, np.int32),
+            0,
+            np.zeros(rows, np.uint8),
+            3,
+            np.zeros((4, 0)),
+            90.0,
+            rows,
+        )
+        assert got[:2] == exp[:2] and got[0] >= 5
+        np.testing.assert_allclose(out[:, : got[5]], centres, atol=1e-6)
+        recorded[name] = out[3, : got[5]]
+    assert np.isnan(recorded["kink"]).sum() >= 3
+    assert np.isfinite(recorded["bend"]).all() and (np.abs(recorded["bend"]) < max_kappa).all()
 
 
 def seeds_band_by_band(t, c, theta, row_start, rows, cols, p, res):
