@@ -39,6 +39,7 @@ be identical too.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import resource
 import selectors
@@ -96,7 +97,20 @@ def run_once(
     notice, frames = text.find("lanegraph: first run of"), text.find(" frames")
     starts = "-" if notice < 0 else ("notice" if frames < 0 or notice < frames else "frames first")
     lanes = b"".join(p.read_bytes() for p in sorted(out.rglob("lanes.jsonl")))  # a dataset: one a sequence
+    frame_ms.append(max(_median_ms(p) for p in out.rglob("timings.json")))
     return wall, first if first is not None else wall, lanes, cpu, starts
+
+
+#: the median ms per frame of each run, in order (the run's timings.json; the kernels' own speed
+#: shows here: a warm run's frames with the bundle's machine code against compiled kernels')
+frame_ms: list[float] = []
+
+
+def _median_ms(path: Path) -> float:
+    try:
+        return float(json.loads(path.read_text())["total"]["median_ms"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return float("nan")
 
 
 KINDS = ("first on this machine", "first, bundle off", "second install", "new cache folder", "warm")
@@ -191,7 +205,7 @@ def main() -> None:
                     print(
                         f"  round {k + 1} {inst:8s} {kind:22s} wall {wall:6.2f} s, CPU {cpu:6.2f} s, first line after "
                         f"{first:5.2f} s ({starts}), lanes {'identical' if lanes == reference else 'DIFFERENT'}, "
-                        f"load {load:.2f}",
+                        f"load {load:.2f}, {frame_ms[-1]:.1f} ms/frame (median)",
                         flush=True,
                     )
     print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")

@@ -377,7 +377,8 @@ def test_a_first_run_from_the_bundles_gives_the_lanes_of_compiled_kernels(tmp_pa
         env=env, capture_output=True, text=True, timeout=600, cwd=tmp_path,
     )  # fmt: skip
     assert cold.returncode == 0, cold.stderr
-    assert "from the plugins' machine code" in cold.stderr.splitlines()[0]
+    said = [line for line in cold.stderr.splitlines() if not line.startswith("warning: plugin ")]
+    assert "from the plugins' machine code" in said[0]  # (a broken third-party plugin may warn first)
     assert "compiling numba kernel" not in cold.stderr  # every kernel it calls is in the bundles
     assert (tmp_path / "cold" / "lanes.jsonl").read_bytes() == (
         tmp_path / "here" / "lanes.jsonl"
