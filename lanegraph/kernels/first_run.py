@@ -317,9 +317,12 @@ def compile_share(pm: Any = None) -> int:
     if not _STATE["first"]:
         return 0
     _STATE["first"] = False  # once
+    if _STATE["folder"] is None:  # no kernel folder: no bundle either (read by the folder's cache)
+        _say_plan([], [], helper=False)
+        return 0
     lazy, ahead = _split(sets)
-    if not ahead or os.environ.get("LANEGRAPH_PRECOMPILE", "1") == "0" or _STATE["folder"] is None:
-        _say_plan(lazy, [], helper=False)
+    if not ahead or os.environ.get("LANEGRAPH_PRECOMPILE", "1") == "0":
+        _say_plan(lazy, ahead, helper=False)  # those compiled when called
         return 0
     _start_helper()
     proc, claims = _STATE["helper"], _STATE["claims"]
