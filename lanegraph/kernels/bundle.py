@@ -29,7 +29,8 @@ A bundle is used only where it fits, else the kernels are compiled as before:
 
 A bundle is read only from the folder of the plugin package that names it (never from a path a user
 or a graph names; :func:`register` takes the lists :func:`lanegraph.kernels.first_run.kernel_sets`
-found): its entries are pickles, as numba's cache files are. It is made by
+found, called by the commands before the first frame, or at the first kernel a process loads once
+its plugin manager exists): its entries are pickles, as numba's cache files are. It is made by
 ``benchmarks/record_kernels.py`` (:func:`write_bundle` in a process with an empty kernel folder and
 ``NUMBA_CPU_NAME=generic``)."""
 
@@ -57,6 +58,7 @@ CPU = "generic"
 _LOADED: dict[Path, dict | None] = {}
 #: the bundle of each plugin package (its top-level name), from :func:`register`
 _REGISTERED: dict[str, Path] = {}
+_AUTO = {"done": False}
 
 
 @functools.cache
@@ -185,6 +187,21 @@ def _digest(dispatcher) -> str:
     return package_digest(os.path.dirname(os.path.abspath(dispatcher.py_func.__code__.co_filename)))
 
 
+def _registered(package: str) -> Path | None:
+    """The bundle registered for ``package``; with none registered yet, those the process's plugin
+    manager names, once it exists (a process that runs nodes without a command: a runner's worker,
+    ``lanegraph.testing``, an embedding program)."""
+    if not _REGISTERED and not _AUTO["done"]:
+        plugins = sys.modules.get("lanegraph.plugins")
+        pm = getattr(plugins, "_default", None)
+        if pm is not None:
+            _AUTO["done"] = True
+            from .first_run import kernel_sets
+
+            register(kernel_sets(pm))
+    return _REGISTERED.get(package)
+
+
 def register(sets) -> None:
     """Use these kernel lists' bundles (:class:`lanegraph.kernels.first_run.KernelSet`: a package and
     its list, read from inside the plugin's folder) for their packages' kernels from now on."""
@@ -219,9 +236,9 @@ def load(py_func, sig: tuple, target_context):
     (:func:`register`), as numba's cache gives a kernel: ``(CompileResult, payload)``, the payload
     being what numba's cache keeps of it (to save it to the kernel folder); None when no registered
     bundle applies or holds it (it is then compiled). Called under numba's compiler lock."""
-    if not _REGISTERED or not enabled():
+    if not enabled():
         return None
-    path = _REGISTERED.get(str(py_func.__module__).split(".")[0])
+    path = _registered(str(py_func.__module__).split(".")[0])
     if path is None:
         return None
     payload = _payload(py_func, sig, _entries(path), _sig_key(py_func, sig))

@@ -172,6 +172,39 @@ def test_a_kernel_is_loaded_from_its_bundle_when_first_called(tmp_path):
     assert again["compiled"] == ["kth_smallest", "kth_smallest"] and again["got"] == got["want"]
 
 
+_WORKER = """
+import importlib, json
+from numba.core import event
+from lanegraph.kernels import bundle
+from lanegraph.plugins import get_plugin_manager
+
+compiled = []
+class _Count(event.Listener):
+    def on_start(self, ev):
+        compiled.append(ev.data["dispatcher"].py_func.__qualname__)
+    def on_end(self, ev):
+        pass
+event.register("numba:compile", _Count())
+get_plugin_manager()  # a runner's worker: plugins loaded, no command's compile_share
+from lanegraph.kernels.first_run import kernel_sets
+(lanes,) = [s for s in kernel_sets() if s.package == "lanegraph_lanes"]
+entry = lanes.entries[-1]
+kernel = getattr(importlib.import_module(entry["module"]), entry["name"])
+sig = tuple(bundle.decode_type(a) for a in entry["args"])
+kernel.compile(sig)
+print(json.dumps({"compiled": compiled, "hits": kernel.stats.cache_hits.get(sig, 0)}))
+"""
+
+
+def test_a_process_with_plugins_loads_kernels_from_their_bundles(tmp_path, installed_pm):
+    """A process that runs nodes without a command (a runner's worker, lanegraph.testing) finds the
+    bundles through its plugin manager at the first kernel it needs."""
+    if not all(bundle.applies(s.bundle_path) for s in first_run.kernel_sets(installed_pm) if s.entries):
+        pytest.skip("the shipped bundles were not made for this Python, numba and machine")
+    got = json.loads(_py(_WORKER, tmp_path / "kernels").stdout)
+    assert got == {"compiled": [], "hits": 1}
+
+
 def test_a_compilation_says_so_before_it_starts(tmp_path):
     """A kernel whose types no bundle holds is compiled with a notice on stderr (once per process),
     naming the kernel."""
