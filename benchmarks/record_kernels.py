@@ -14,9 +14,9 @@ signature or the graphs (a stale list costs the first run time, never a result):
 
     python benchmarks/record_kernels.py [--rounds N] [--default-only]
 
-It then writes each list's kernels as machine code for the baseline x86-64 CPU beside it
+It then writes each list's kernels as machine code for x86-64-v3 CPUs beside it
 (``kernels.bundle``, :mod:`lanegraph.kernels.bundle`), compiled in a fresh process with an empty
-kernel folder and ``NUMBA_CPU_NAME=generic``, and times loading each kernel of it
+kernel folder and ``NUMBA_CPU_NAME=x86-64-v3``, and times loading each kernel of it
 (``load_seconds``: the first run's notice adds these up).
 A bundle is used only for the sources it was made from: after any change of a plugin with kernels or
 of ``lanegraph/kernels/decorator.py`` (the signatures unchanged) remake the bundles alone
@@ -185,8 +185,10 @@ def lists() -> list[Path]:
 
 def write_bundles(paths: list[Path]) -> None:
     """Write ``kernels.bundle`` beside each list from one fresh process with an empty kernel folder
-    and the baseline CPU (:func:`lanegraph.kernels.bundle.write_bundle`), then time loading their
+    and x86-64-v3 as the CPU (:func:`lanegraph.kernels.bundle.write_bundle`), then time loading their
     kernels from it."""
+    from lanegraph.kernels.bundle import CPU
+
     paths = [p for p in paths if json.loads(p.read_text(encoding="utf-8"))]
     with tempfile.TemporaryDirectory() as tmp:
         env = {
@@ -199,10 +201,11 @@ def write_bundles(paths: list[Path]) -> None:
         argv = [str(a) for p in paths for a in (p, p.with_suffix(".bundle"))]
         subprocess.run(
             [sys.executable, "-m", "lanegraph.kernels", "bundle", *argv],
-            env={**env, "NUMBA_CPU_NAME": "generic"}, check=True, cwd=ROOT,
+            env={**env, "NUMBA_CPU_NAME": CPU, "NUMBA_CPU_FEATURES": ""}, check=True, cwd=ROOT,
         )  # fmt: skip
         env = {**env, "NUMBA_CACHE_DIR": os.path.join(tmp, "use"), "LANEGRAPH_KERNEL_BUNDLE": "1"}
         env.pop("NUMBA_CPU_NAME", None)
+        env.pop("NUMBA_CPU_FEATURES", None)
         out = subprocess.run(
             [sys.executable, "-c", _TIME_LOAD, *map(str, paths)],
             env=env, check=True, cwd=ROOT, capture_output=True, text=True,

@@ -9,7 +9,7 @@ first run of an installation.
 - :mod:`.disk`: the kernel folder's files, signed by lanegraph and checked before numba reads them.
 - :mod:`.first_run`: the plugins' kernel lists (the ``lanegraph_kernels`` hook), the first run's
   notice and the kernels it compiles ahead where no bundle holds them; :mod:`.bundle`: a plugin's
-  kernels as machine code for the baseline x86-64 CPU, each loaded when first called (by
+  kernels as machine code for x86-64-v3 CPUs, each loaded when first called (by
   :mod:`.disk`'s cache look-up).
 - :mod:`.compat`: the numba and llvmlite versions whose internals the above were tested with.
 

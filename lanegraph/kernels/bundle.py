@@ -5,23 +5,25 @@ types, writing LLVM IR), LLVM's optimisation of that IR and its making of machin
 bundle (``kernels.bundle`` beside the kernel list its ``lanegraph_kernels`` hook names,
 :mod:`.first_run`) holds, for each kernel of the list, what numba's own cache keeps of a compiled
 kernel (its type signature, its environment, the descriptor of its function and its library as
-object code), made for the baseline x86-64 CPU (numba's ``NUMBA_CPU_NAME=generic``: SSE2, no
-instruction a later x86-64 lacks), so that it runs on every machine of the bundle's kind. A run
+object code), made for the x86-64-v3 CPU (numba's ``NUMBA_CPU_NAME=x86-64-v3``, with no feature
+of the maker's own CPU beyond it: AVX2, FMA, BMI2), so that it runs on every x86-64 machine that
+has those (:func:`cpu_fits`; elsewhere the kernels compile). A run
 loads a kernel from it the first time the kernel is called with those types and none is in the
 kernel folder (:func:`load`, from :class:`lanegraph.kernels.disk.CheckedCache`'s
 ``load_overload``, numba's own cache look-up): linking the object code takes milliseconds, nothing
 is compiled, and the kernel is saved to the kernel folder as numba saves a compiled one. A run pays
 only for the kernels it calls. Types the bundle does not hold are compiled as before.
 
-LLVM's optimisations keep floating-point results exact (lanegraph's kernels are not ``fastmath``), so
-the baseline CPU's machine code computes the same values as code made for the machine's own CPU;
-only its speed may differ (narrower vectors: ``benchmarks/bench_first_run.py`` measures whole runs).
+LLVM's optimisations keep floating-point results exact (lanegraph's kernels are not ``fastmath``: no
+multiply-add is fused), so x86-64-v3 machine code computes the same values as code made for the
+machine's own CPU; only its speed may differ (no AVX-512: ``benchmarks/bench_kernels.py``).
 
 A bundle is used only where it fits, else the kernels are compiled as before:
 
 - its header (the file's first line, JSON) names the Python, numba and llvmlite versions, the
-  machine, the system and LLVM's target triple it was made with: all must be this process's, and
-  numba and llvmlite of the versions lanegraph was tested with (:mod:`.compat`);
+  machine, the system, the CPU and LLVM's target triple it was made with: all must be this
+  process's (the CPU: this one has its features), and numba and llvmlite of the versions lanegraph
+  was tested with (:mod:`.compat`);
 - each kernel's entry records the digest of its package folder's Python files and of
   :mod:`.decorator` (:func:`package_digest`, also the stamp of the disk cache): an entry made from
   other sources than the installed ones is skipped, as is one whose signature is not the one called;
@@ -31,8 +33,8 @@ A bundle is read only from the folder of the plugin package that names it (never
 or a graph names; :func:`register` takes the lists :func:`lanegraph.kernels.first_run.kernel_sets`
 found, called by the commands before the first frame, or at the first kernel a process loads once
 its plugin manager exists): its entries are pickles, as numba's cache files are. It is made by
-``benchmarks/record_kernels.py`` (:func:`write_bundle` in a process with an empty kernel folder and
-``NUMBA_CPU_NAME=generic``)."""
+``benchmarks/record_kernels.py`` (:func:`write_bundle` in a process with an empty kernel folder,
+``NUMBA_CPU_NAME=x86-64-v3`` and ``NUMBA_CPU_FEATURES`` empty)."""
 
 from __future__ import annotations
 
@@ -52,8 +54,18 @@ from .compat import internals_tested
 
 #: the layout of a bundle file (header line, then the compressed entries; 2: object code)
 FORMAT = 2
-#: the CPU a bundle's machine code is made for (numba's ``NUMBA_CPU_NAME``): x86-64's baseline
-CPU = "generic"
+#: the CPU a bundle's machine code is made for (numba's ``NUMBA_CPU_NAME``, with
+#: ``NUMBA_CPU_FEATURES`` empty: the CPU's own features only): x86-64-v3 (AVX2, FMA, BMI2: Intel
+#: since 2013, AMD since 2015). The baseline x86-64 (no SSE4.1 ``round``, no POPCNT, no AVX) made
+#: some kernels 2-10x slower (``benchmarks/bench_kernels.py``: the v-disparity selection 3 -> 16-33
+#: ms, the 2D Hough vote 5-8 -> 31-46 ms)
+CPU = "x86-64-v3"
+#: the host CPU's features (LLVM's names) that x86-64-v3 code may use: a machine without one of
+#: them compiles its kernels instead
+CPU_FEATURES = (
+    "avx", "avx2", "bmi", "bmi2", "cx16", "f16c", "fma", "lzcnt", "movbe", "popcnt", "sahf",
+    "sse3", "sse4.1", "sse4.2", "ssse3", "xsave",
+)  # fmt: skip
 
 _LOADED: dict[Path, dict | None] = {}
 #: the bundle of each plugin package (its top-level name), from :func:`register`
@@ -122,7 +134,22 @@ def _fits(header: object) -> bool:
         and isinstance(header, dict)
         and all(header.get(k) == v for k, v in environment().items())
         and internals_tested()
+        and cpu_fits()
     )
+
+
+@functools.cache
+def cpu_fits() -> bool:
+    """Whether this machine's CPU runs :data:`CPU`'s machine code (all of :data:`CPU_FEATURES`)."""
+    if platform.machine() not in ("x86_64", "AMD64"):
+        return False
+    try:
+        from llvmlite import binding as ll
+
+        features = ll.get_host_cpu_features()
+    except Exception:  # noqa: BLE001 - LLVM cannot tell: the kernels compile
+        return False
+    return all(features.get(f, False) for f in CPU_FEATURES)
 
 
 def applies(path: Path) -> bool:
@@ -278,8 +305,9 @@ def install(dispatcher, sig: tuple, entry: dict, path: Path) -> bool:
 def write_bundle(entries: list[dict], out: Path) -> int:
     """Compile each kernel list entry in this process and write the bundle to ``out``; returns how
     many entries it holds. The process's kernel folder must be empty (a kernel numba loads from its
-    cache is not compiled here) and numba's CPU the baseline one (``NUMBA_CPU_NAME=generic`` set
-    before numba is imported): run it in a fresh process (``record_kernels.py`` does)."""
+    cache is not compiled here) and numba's CPU :data:`CPU` (``NUMBA_CPU_NAME=x86-64-v3`` and an
+    empty ``NUMBA_CPU_FEATURES`` set before numba is imported): run it in a fresh process
+    (``record_kernels.py`` does)."""
     import importlib
 
     if not internals_tested():
@@ -287,9 +315,10 @@ def write_bundle(entries: list[dict], out: Path) -> int:
     from llvmlite import binding as ll
     from numba.core import config, serialize
 
-    if str(config.CPU_NAME).lower() != CPU or config.CPU_FEATURES:
+    if str(config.CPU_NAME).lower() != CPU or config.CPU_FEATURES != "":
         raise RuntimeError(
-            f"a bundle is made for the baseline CPU: set NUMBA_CPU_NAME={CPU} before numba loads"
+            f"a bundle is made for one CPU: set NUMBA_CPU_NAME={CPU} and NUMBA_CPU_FEATURES= (empty) "
+            "before numba loads"
         )
     kept = {}
     for entry in entries:
@@ -354,6 +383,7 @@ def _main(argv: list[str]) -> int:
 
 __all__ = [
     "applies",
+    "cpu_fits",
     "decode_type",
     "enabled",
     "encode_type",

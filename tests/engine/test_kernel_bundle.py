@@ -94,19 +94,19 @@ def _make(tmp_path: Path, entry: dict, out: Path, **env: str) -> subprocess.Comp
     """A bundle of ``entry`` made as record_kernels.py makes one (the baseline CPU)."""
     return _py(
         _MAKE, tmp_path / "maker", json.dumps(entry), str(out), LANEGRAPH_KERNEL_BUNDLE="0",
-        NUMBA_CPU_NAME="generic", **env,
+        NUMBA_CPU_NAME="x86-64-v3", NUMBA_CPU_FEATURES="", **env,
     )  # fmt: skip
 
 
-def test_a_bundle_is_made_for_the_baseline_cpu_only(tmp_path):
-    """Its machine code must run on every x86-64 machine: a process that would make it for its own
-    CPU refuses to."""
+def test_a_bundle_is_made_for_one_cpu_only(tmp_path):
+    """Its machine code must run on every x86-64-v3 machine: a process that would make it for its own
+    CPU (AVX-512, say) refuses to."""
     out = subprocess.run(
         [sys.executable, "-c", _MAKE, json.dumps(_KTH), str(tmp_path / "host.bundle")],
         env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "k"), "LANEGRAPH_KERNEL_BUNDLE": "0"},
         capture_output=True, text=True, timeout=300, cwd=ROOT,
     )  # fmt: skip
-    assert out.returncode != 0 and "NUMBA_CPU_NAME=generic" in out.stderr
+    assert out.returncode != 0 and "NUMBA_CPU_NAME=x86-64-v3" in out.stderr
     assert not (tmp_path / "host.bundle").exists()
 
 
@@ -252,6 +252,11 @@ def test_a_bundle_that_does_not_fit_is_never_used(tmp_path, monkeypatch):
     junk.write_bytes(b"\x89PNG not a bundle")
     assert not bundle.applies(junk) and bundle.install(kth_smallest, sig, _KTH, junk) is False
     assert not bundle.applies(tmp_path / "missing.bundle")
+    # a CPU without x86-64-v3's features (AVX2, FMA, ...): its kernels compile
+    with monkeypatch.context() as m:
+        m.setattr(bundle, "cpu_fits", lambda: False)
+        assert not bundle.applies(stale)
+    assert bundle.cpu_fits() == all(ll.get_host_cpu_features().get(f, False) for f in bundle.CPU_FEATURES)
     # turned off, or kernels not compiled at all
     for name, value in (("LANEGRAPH_KERNEL_BUNDLE", "0"), ("NUMBA_DISABLE_JIT", "1")):
         with monkeypatch.context() as m:
