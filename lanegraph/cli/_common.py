@@ -80,6 +80,37 @@ def keeping_options(command):
     return command
 
 
+def dataset_cache_options(command):
+    """The options of the commands that run a graph over a dataset's sequences and share the
+    result cache (``ablate``, ``tune``): ``--frames`` (for every sequence that does not choose its
+    own), ``--no-cache``, ``--cache-dir`` and ``--cache-max-gb``."""
+    options = [
+        click.option(
+            "--frames", help="frame selection A:B or A:B:S (for every sequence that does not choose its own)"
+        ),
+        click.option(
+            "--no-cache",
+            is_flag=True,
+            help="recompute everything (no shared results, no reuse of unchanged runs)",
+        ),
+        click.option(
+            "--cache-dir",
+            type=click.Path(path_type=Path),
+            help="result cache folder (default: ~/.cache/lanegraph/results)",
+        ),
+        click.option(
+            "--cache-max-gb",
+            type=float,
+            default=2.0,
+            show_default=True,
+            help="size bound of the result cache, GiB",
+        ),
+    ]
+    for option in reversed(options):
+        command = option(command)
+    return command
+
+
 def parse_frames(text: str | None) -> slice | None:
     """``A:B`` or ``A:B:S`` (Python slice semantics over the frame list) or a single index ``A``
     (:func:`lanegraph.frames.parse_frames`); a bad selection is a usage error naming ``--frames``."""

@@ -7,7 +7,15 @@ from pathlib import Path
 import click
 
 from ..kernels import compile_share, first_run_notice
-from ._common import FOLDER, dataset_option, keeping_options, parse_frames, scale_out_options, session
+from ._common import (
+    FOLDER,
+    dataset_cache_options,
+    dataset_option,
+    keeping_options,
+    parse_frames,
+    scale_out_options,
+    session,
+)
 from ._errors import handled
 
 
@@ -37,20 +45,7 @@ from ._errors import handled
     help="also run BASE once per value (repeatable)",
 )
 @click.option("--out", "out_dir", type=FOLDER, default=Path("out/ablation"), show_default=True)
-@click.option(
-    "--frames", help="frame selection A:B or A:B:S (for every sequence that does not choose its own)"
-)
-@click.option(
-    "--no-cache", is_flag=True, help="recompute everything (no shared results, no reuse of unchanged runs)"
-)
-@click.option(
-    "--cache-dir",
-    type=click.Path(path_type=Path),
-    help="result cache folder (default: ~/.cache/lanegraph/results)",
-)
-@click.option(
-    "--cache-max-gb", type=float, default=2.0, show_default=True, help="size bound of the result cache, GiB"
-)
+@dataset_cache_options
 @scale_out_options()
 @keeping_options
 @handled()

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from ..kernels import compile_share, first_run_notice
-from ._common import FOLDER, keeping_options, parse_frames, session
+from ._common import FOLDER, dataset_cache_options, keeping_options, parse_frames, session
 from ._errors import handled
 
 
@@ -54,34 +54,28 @@ from ._errors import handled
 )
 @click.option("--seed", type=int, default=0, show_default=True, help="the samplers' seed")
 @click.option(
-    "--frames", help="frame selection A:B or A:B:S (for every sequence that does not choose its own)"
+    "--name",
+    "graph_name",
+    metavar="NAME",
+    help="the name of the tuned graph in OUT/tuned.yaml (default: GRAPH's name and _tuned)",
 )
+@dataset_cache_options
 @click.option(
     "--scheduler", metavar="SPEC", help="run the trials on a Dask cluster: local, local:N or tcp://HOST:PORT"
-)
-@click.option(
-    "--no-cache", is_flag=True, help="recompute everything (no shared results, no reuse of unchanged runs)"
-)
-@click.option(
-    "--cache-dir",
-    type=click.Path(path_type=Path),
-    help="result cache folder (default: ~/.cache/lanegraph/results)",
-)
-@click.option(
-    "--cache-max-gb", type=float, default=2.0, show_default=True, help="size bound of the result cache, GiB"
 )
 @keeping_options
 @handled()
 def tune(
-    graph, dataset_path, space_path, out_dir, trials, sampler, pruner, grid_points, seed, frames, scheduler,
-    no_cache, cache_dir, cache_max_gb, verbose=0, quiet=0, overwrite=False, track=None,
+    graph, dataset_path, space_path, out_dir, trials, sampler, pruner, grid_points, seed, graph_name, frames,
+    no_cache, cache_dir, cache_max_gb, scheduler, verbose=0, quiet=0, overwrite=False, track=None,
 ):  # fmt: skip
     """Choose GRAPH's params in the --space over the --dataset, cross-validated: each fold leaves one
     sequence (or group) out, chooses on the others and scores the one left out. Writes into OUT the
     left-out and tuned-on scores per sequence (results.md, results.csv), each fold's choice
     (folds.json), every trial (trials.csv), the params chosen on all sequences as a graph that extends
-    GRAPH (tuned.yaml) and a report (report/index.html). The same command resumes an interrupted
-    search (the study is kept in OUT/study.journal)."""
+    GRAPH (tuned.yaml, named by --name; its description names the search and its left-out figure)
+    and a report (report/index.html). The same command resumes an interrupted search (the study is
+    kept in OUT/study.journal)."""
     from ..evaluation.dataset import load_dataset
     from ..service.tuning import TuneOptions
     from ..service.tuning import tune as run_tune
@@ -92,7 +86,7 @@ def tune(
     options = TuneOptions(
         trials=trials, sampler=sampler, pruner=pruner, seed=seed, frames=parse_frames(frames),
         grid_points=grid_points, cache_dir=cache_dir, cache_max_gb=cache_max_gb, no_cache=no_cache,
-        scheduler=scheduler,
+        scheduler=scheduler, name=graph_name, dataset_file=dataset_path,
     )  # fmt: skip
     compile_share()
     return run_tune(s, graph, dataset, space_path, out_dir, options)

@@ -198,21 +198,76 @@ def extends_path(graph_file: Path, out_dir: Path) -> str:
         return Path(os.path.relpath(graph_file, Path(out_dir).resolve())).as_posix()
 
 
-def tuned_graph(
-    graph: Any, graph_file: Path, out_dir: Path, result: TuneResult, extends: str | None = None
+def tuned_description(
+    graph: Any, graph_file: Path, result: TuneResult, rows: list[dict[str, Any]], command: str
 ) -> str:
-    """The text of ``tuned.yaml``: ``extends`` the input graph, with the params chosen on all sequences."""
+    """The description of ``tuned.yaml``: which graph, the search (``command``: the ``lanegraph
+    tune`` command line that remakes it, without ``--out``) and the pooled left-out, tuned-on and
+    baseline figures of ``rows`` (:func:`table_rows`). Nothing in it depends on the machine, the
+    output folder or the time: the same search writes the same file."""
+    total = next((r for r in rows if r["sequence"] == POOLED), {})
+
+    def figure(what: str) -> str:
+        dr = total.get(f"{what}_detection_ratio")
+        if dr is None:
+            return "n/a"
+        return (
+            f"{_pct(dr)} detection ratio (precision {_pct(total.get(f'{what}_precision'))}, "
+            f"{total.get(f'{what}_false_lanes')} false lanes)"
+        )
+
+    frames = total.get("frames") or 0
+    groups = len(dict.fromkeys(result.groups.values()))
+    return (
+        f"{graph.name} ({Path(graph_file).as_posix()}) with the params lanegraph tune chose on all "
+        f"{len(result.sequences)} sequences of the dataset ({frames} frames, {groups} groups): `{command}`. "
+        f"Left out (each group scored by the fold that chose on the others), pooled: {figure('left_out')}; "
+        f"tuned on (the params chosen on all sequences, scored on them): {figure('tuned_on')}; "
+        f"{graph.name}'s own values: {figure('baseline')}. Per sequence: the tune's results.md."
+    )
+
+
+def tuned_graph(
+    graph: Any,
+    graph_file: Path,
+    out_dir: Path,
+    result: TuneResult,
+    extends: str | None = None,
+    name: str | None = None,
+    description: str | None = None,
+) -> str:
+    """The text of ``tuned.yaml``: ``extends`` the input graph, with the params chosen on all
+    sequences; named ``name`` (default: the graph's name and ``_tuned``)."""
     nodes: dict[str, dict[str, Any]] = {}
     for key, value in (result.final.params if result.final is not None else {}).items():
-        node_id, _, name = key.partition(".")
-        nodes.setdefault(node_id, {"params": {}})["params"][name] = value
+        node_id, _, param = key.partition(".")
+        nodes.setdefault(node_id, {"params": {}})["params"][param] = value
     doc = {
-        "name": f"{graph.name}_tuned",
-        "description": (
+        "name": name or f"{graph.name}_tuned",
+        "description": description
+        or (
             f"{graph.name} ({graph_file}) with the params lanegraph tune chose on all sequences of the dataset "
             f"({result.sampler} sampler); their left-out figures are in results.md beside this file"
         ),
         "extends": extends or extends_path(graph_file, out_dir),
         "nodes": nodes,
     }
-    return yaml.safe_dump(doc, sort_keys=False, width=100)
+    return dump_graph(doc)
+
+
+class _GraphDumper(yaml.SafeDumper):
+    """YAML as a graph file is written by hand: a long text folded (``>``) rather than quoted."""
+
+
+def _text(dumper: yaml.SafeDumper, value: str) -> yaml.Node:
+    folded = len(value) > 80 and "\n" not in value and value == value.strip()
+    return dumper.represent_scalar("tag:yaml.org,2002:str", value, style=">" if folded else None)
+
+
+_GraphDumper.add_representer(str, _text)
+
+
+def dump_graph(doc: dict[str, Any]) -> str:
+    """A graph file's text (keys in the given order; long texts folded), read back by
+    ``yaml.safe_load`` as the same ``doc``."""
+    return yaml.dump(doc, Dumper=_GraphDumper, sort_keys=False, width=100, allow_unicode=True)

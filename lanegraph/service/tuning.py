@@ -5,7 +5,10 @@ folder checked and claimed as ``ablate`` does (:mod:`lanegraph.run.folder`), the
 from __future__ import annotations
 
 import hashlib
+import json
 import math
+import re
+import shlex
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -16,7 +19,7 @@ from typing import Any
 from .. import interrupts
 from ..errors import GraphError, InputError, LanegraphError, NotStarted, RunStopped, UsageError
 from ..evaluation.tune import Counts, TrialResult, Tuner, TuneSetup, pooled
-from ..evaluation.tune_output import TUNE_FILES, tuned_graph, write_tables
+from ..evaluation.tune_output import TUNE_FILES, tuned_description, tuned_graph, write_tables
 from ..evaluation.tune_runs import JOURNAL, PRUNERS, SAMPLERS, make_sampler
 from ..evaluation.tune_space import load_space
 from ..graph.files import resolve_graph_path
@@ -58,6 +61,8 @@ class TuneOptions:
     cache_max_gb: float = 2.0
     no_cache: bool = False
     scheduler: str | None = None
+    name: str | None = None  # the tuned graph's name (--name); default: the graph's name and _tuned
+    dataset_file: Path | None = None  # the dataset file as given, for the tuned graph's description
 
 
 def _check_options(o: TuneOptions) -> None:
@@ -76,6 +81,41 @@ def _check_options(o: TuneOptions) -> None:
         raise UsageError(f"--cache-max-gb: expected a size in GiB > 0, got {o.cache_max_gb}")
     if o.grid_points < 1:
         raise UsageError(f"--grid-points: expected an integer >= 1, got {o.grid_points}")
+    if o.name is not None and not GRAPH_NAME.fullmatch(o.name):
+        raise UsageError(
+            f"--name {o.name!r}: expected a graph name of 1-100 letters, digits, '_', '-' or '.', starting "
+            "with a letter or digit"
+        )
+
+
+#: what --name may be: a graph's short name, one word
+GRAPH_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,99}")
+
+
+def search_command(
+    graph: Path | str, dataset_file: Path | str | None, space: Path | str, o: TuneOptions
+) -> str:
+    """The ``lanegraph tune`` command line that makes the same search (without ``--out`` and the
+    options that change no result: the cache, the scheduler, tracking), as its arguments were given."""
+    words = ["lanegraph", "tune", str(graph)]
+    if dataset_file is not None:
+        words += ["--dataset", Path(dataset_file).as_posix()]
+    words += ["--space", Path(space).as_posix(), "--sampler", o.sampler, "--trials", str(o.trials)]
+    words += ["--seed", str(o.seed)]
+    if o.sampler == "grid":
+        words += ["--grid-points", str(o.grid_points)]
+    if o.pruner != "none":
+        words += ["--pruner", o.pruner]
+    if o.frames is not None:
+        words += ["--frames", _frames_text(o.frames)]
+    if o.name is not None:
+        words += ["--name", o.name]
+    return " ".join(shlex.quote(w) for w in words)
+
+
+def _frames_text(s: slice) -> str:
+    parts = ["" if v is None else str(v) for v in (s.start, s.stop)]
+    return ":".join(parts) + (f":{s.step}" if s.step is not None else "")
 
 
 def tune(
@@ -91,7 +131,8 @@ def tune(
     runner = session.runner(o.scheduler)
     space_digest = hashlib.sha256(space.digest_text().encode()).hexdigest()[:16]
     identity = dataset_identity(
-        "tune", [str(graph_path.resolve()), f"space {space_digest}", f"sampler {o.sampler}", f"seed {o.seed}"],
+        "tune", [str(graph_path.resolve()), f"space {space_digest}", f"sampler {o.sampler}", f"seed {o.seed}",
+                 f"graph {_graph_digest(g)}"],
         dataset, o.frames,
     )  # fmt: skip
     setup = TuneSetup(
@@ -136,7 +177,14 @@ def tune(
             ) from None
         rows = write_tables(result, out_dir)
         write_resolved_graph(out_dir, g.resolved_dict())
-        _write_tuned(g, graph_path, out_dir, result, session)
+        description = tuned_description(
+            g,
+            graph_name,
+            result,
+            rows,
+            search_command(graph_name, o.dataset_file or dataset.file, space_file, o),
+        )
+        _write_tuned(g, graph_path, out_dir, result, session, o.name, description)
         write_tune_report(result, rows, out_dir, f"lanegraph tune: {g.name} on {dataset.name}")
     for fold in result.folds:
         session.tracking.log_run(_tracked_fold(fold))
@@ -154,13 +202,28 @@ def tune(
     return status if session.tracking.ok else max(status, 1)
 
 
-def _write_tuned(g: Any, graph_path: Path, out_dir: Path, result: Any, session: Any) -> None:
+def _graph_digest(g: Any) -> str:
+    """What the trials' counts kept in OUT's study depend on besides the space: the graph resolved
+    (every param spelt out) and its node types' code. A tune into a folder whose study was made with
+    other values or other code is another tune (refused, or started afresh with --overwrite), not
+    resumed with counts the code no longer gives."""
+    resolved = json.dumps(g.resolved_dict(), sort_keys=True, default=str)
+    code = sorted({f"{n.type.name} {n.type.code_version}" for n in g.nodes.values()})
+    return hashlib.sha256("\n".join([resolved, *code]).encode()).hexdigest()[:16]
+
+
+def _write_tuned(
+    g: Any, graph_path: Path, out_dir: Path, result: Any, session: Any, name: str | None, description: str
+) -> None:
     """``tuned.yaml``, extending the input graph (a built-in one by name, else by its path from OUT),
     checked to load as ``lanegraph run`` loads it; where it does not (the input graph lies outside
     the folders ``extends`` may reach from OUT), it extends the resolved copy ``graph.yaml``."""
     path = out_dir / "tuned.yaml"
-    first = tuned_graph(g, graph_path, out_dir, result)
-    for text in (first, tuned_graph(g, graph_path, out_dir, result, extends="graph.yaml")):
+    texts = [
+        tuned_graph(g, graph_path, out_dir, result, extends=extends, name=name, description=description)
+        for extends in (None, "graph.yaml")
+    ]
+    for text in texts:
         write_text_atomic(path, text)
         try:
             session.load_graph(path)

@@ -179,7 +179,9 @@ class WriteMcap:
                     thickness=3.0,
                 )
             )
-        msgs["annotations"] = fm.ImageAnnotations(points=points)
+        msgs["annotations"] = fm.ImageAnnotations(
+            points=points, texts=[self._label(str(frame), len(lanes), image, stamp)]
+        )
         lines = []
         if geometry is not None:
             for lane in lanes:
@@ -208,6 +210,21 @@ class WriteMcap:
         self.count += 1
         self.last_time = t
         return {}
+
+    def _label(self, frame: str, n: int, image: np.ndarray, stamp: Any) -> Any:
+        """The frame id and lane count at the image's top left, stamped with the image's time: every
+        frame's annotations then carry its stamp, which the Image panel's "sync annotations" mode
+        matches (a frame without lanes would otherwise wait there for annotations that never come)."""
+        fm = self.fm
+        size = float(max(12, round(image.shape[1] / 60)))
+        return fm.TextAnnotation(
+            timestamp=stamp,
+            position=fm.Point2(x=size / 2, y=size * 1.5),
+            text=f"{frame}: {n} lane{'' if n == 1 else 's'}",
+            font_size=size,
+            text_color=fm.Color(r=1.0, g=1.0, b=1.0, a=1.0),
+            background_color=fm.Color(r=0.0, g=0.0, b=0.0, a=0.6),
+        )
 
     def _image(self, image: np.ndarray, stamp: Any) -> Any:
         fm = self.fm

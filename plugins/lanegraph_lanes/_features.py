@@ -22,7 +22,9 @@ from pydantic import Field, field_validator
 
 from lanegraph import InputError, NodeParams, Port, jit, node_type, prange
 from lanegraph.threads import available_cpus, worker_pool
-from lanegraph.types import FeatureMap
+from lanegraph.types import BevGeometry, Calibration, FeatureMap, RoadModel
+
+from ._border import obstacle_border
 
 
 @jit
@@ -477,6 +479,21 @@ class MaskParams(NodeParams):
     erode_px: int = Field(
         4, ge=0, le=100, description="erode the road mask by this many BEV pixels so its border is no feature"
     )
+    obstacle_height_m: float | None = Field(
+        None,
+        gt=0.0,
+        le=5.0,
+        description="with the disparity, road, calib and geometry wired: the border is not eroded where most pixels "
+        "with a disparity within obstacle_reach_m beyond it stand higher than this above the road plane, metres: an "
+        "obstacle's foot (a parked car, a wall), where a line painted along it lies, not a kerb (10-15 cm, at most "
+        "20: its lit edge or gutter on the mask's last pixels is what the erosion drops); None: erode everywhere",
+    )
+    obstacle_reach_m: float = Field(
+        0.4,
+        gt=0.0,
+        le=5.0,
+        description="obstacle_height_m: how far beyond the border the heights are read, metres (at least erode_px)",
+    )
 
 
 @node_type(
@@ -485,13 +502,25 @@ class MaskParams(NodeParams):
         "features": "features",
         "mask": Port("bev_mask", "BEV road mask"),
         "temporal": Port("bev_mask", "previous-frame mask", optional=True),
+        "geometry": Port("bev_geometry", "the BEV's geometry (obstacle_height_m)", optional=True),
+        "disparity": Port("disparity", "the disparity map (obstacle_height_m)", optional=True),
+        "road": Port("road_model", "the fitted road (obstacle_height_m)", optional=True),
+        "calib": Port("calibration", "the calibration (obstacle_height_m)", optional=True, rate="constant"),
     },
     outputs={"features": "features"},
 )
 def mask_features(
-    params: MaskParams, features: FeatureMap, mask: np.ndarray, temporal: np.ndarray | None = None
+    params: MaskParams,
+    features: FeatureMap,
+    mask: np.ndarray,
+    temporal: np.ndarray | None = None,
+    geometry: BevGeometry | None = None,
+    disparity: np.ndarray | None = None,
+    road: RoadModel | None = None,
+    calib: Calibration | None = None,
 ) -> dict:
-    """Features multiplied by the BEV road mask (eroded) and, when given, the previous-frame mask."""
+    """Features multiplied by the BEV road mask (eroded, except along an obstacle's foot with
+    obstacle_height_m) and, when given, the previous-frame mask."""
     shape = features.shape
     for port, m in (("mask", mask), ("temporal", temporal)):
         if m is not None and np.shape(m) != shape:
@@ -501,10 +530,17 @@ def mask_features(
     keep = np.ascontiguousarray(mask, dtype=bool)  # no copy for the usual bool BEV mask
     if params.erode_px > 0 and keep.size:
         k = 2 * params.erode_px + 1
+        full = keep
         # bool and 0/1 uint8 share their bytes: erode the view, read the result back as bool
         keep = cv2.erode(
             keep.view(np.uint8), cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)), borderValue=0
         ).view(bool)
+        wired = geometry is not None and disparity is not None and road is not None and calib is not None
+        if params.obstacle_height_m is not None and wired:
+            reach = int(round(params.obstacle_reach_m / geometry.resolution))
+            keep = keep | obstacle_border(
+                full, geometry, disparity, road, calib, params.erode_px, params.obstacle_height_m, reach
+            )
     # the masks read at the feature points only: a sparse map out, no dense pass over the features
     r, c = features.points()
     flat = r * shape[1] + c

@@ -196,6 +196,15 @@ class HoughParams(NodeParams):
     min_votes: float = Field(
         40.0, ge=0.0, le=1e7, description="a peak needs at least this many (smoothed) votes"
     )
+    min_votes_visible: float | None = Field(
+        None,
+        ge=0.0,
+        le=1e7,
+        description="with the BEV road mask wired (`mask`): a line the mask shows on a fraction f of the BEV's rows needs "
+        "max(min_votes_visible, min_votes f) (smoothed) votes, at most min_votes: a line hidden by parked cars or beyond "
+        "the road's end collects votes only where the road is seen (a metre of a 15 cm line gives about 10); None: "
+        "min_votes for every line",
+    )
     min_relative: float = Field(
         0.25,
         ge=0.0,
@@ -237,10 +246,24 @@ def _select(
     geometry: BevGeometry,
     p: HoughParams,
     previous: list[Lane] | None = None,
+    mask: np.ndarray | None = None,
 ) -> list[Line]:
     res = geometry.resolution
     sm = _smooth(acc, p.smooth_px)
-    peaks = find_peaks(sm, max(1, int(round(p.min_separation_m / res))), p.min_votes)
+    sep = max(1, int(round(p.min_separation_m / res)))
+    if mask is None or p.min_votes_visible is None or p.min_votes_visible >= p.min_votes:
+        peaks = find_peaks(sm, sep, p.min_votes)
+    else:
+        # the weaker peaks of lines the road mask shows on part of the BEV only (a weaker peak
+        # suppresses only weaker ones: the peaks above min_votes are those find_peaks gives)
+        peaks = [
+            i
+            for i in find_peaks(sm, sep, p.min_votes_visible)
+            if sm[i]
+            >= min(
+                p.min_votes, max(p.min_votes_visible, p.min_votes * visible_fraction(mask, i - offset, theta))
+            )
+        ]
 
     def lateral(i: int) -> float:
         return geometry.lateral_m(i - offset)  # the peak's offset from the vehicle at the bottom row
@@ -296,6 +319,27 @@ def _select(
     return sorted(lines, key=lambda ln: ln.rho)
 
 
+def visible_fraction(mask: np.ndarray, rho: float, theta: float) -> float:
+    """The fraction of the BEV's rows on which the road mask (bool, rows x cols) is set where the
+    line of ``rho`` (its column at the bottom edge, as the 1D Hough votes) and orientation ``theta``
+    (radians) crosses them; rows where it runs outside the BEV count as not shown."""
+    m = np.asarray(mask, dtype=bool)
+    rows, cols = m.shape
+    if rows == 0:
+        return 0.0
+    inv_tan = math.cos(theta) / max(math.sin(theta), 1e-6)
+    y = np.arange(rows)
+    x = np.floor(rho + (rows - y) * inv_tan + 0.5).astype(np.int64)
+    ok = (x >= 0) & (x < cols)
+    return float(m[y[ok], x[ok]].sum()) / rows
+
+
+_MASK_PORT = Port(
+    "bev_mask",
+    "the BEV road mask: the vote minimum of a line it shows on part of the BEV only (see min_votes_visible)",
+    optional=True,
+)
+
 _PREVIOUS_PORT = Port(
     "lanes", "the previous frame's lanes (a feedback edge): lane changes (see lane_change)", optional=True
 )
@@ -315,6 +359,7 @@ def _feature_coords(features: FeatureMap) -> tuple[np.ndarray, np.ndarray]:
         "orientation": "orientation",
         "geometry": Port("bev_geometry"),
         "previous": _PREVIOUS_PORT,
+        "mask": _MASK_PORT,
     },
     outputs={"lines": "lines"},
 )
@@ -324,6 +369,7 @@ def line1d(
     orientation: float,
     geometry: BevGeometry,
     previous: list[Lane] | None = None,
+    mask: np.ndarray | None = None,
 ) -> dict:
     """1D Hough over rho = x - (H - y) / tan(theta) with the global orientation; at most two lines."""
     rows, cols = features.shape
@@ -335,7 +381,11 @@ def line1d(
     offset = 2 * cols  # rho may lie left of the BEV when lines slant
     acc = np.zeros(5 * cols, np.float64)
     _vote_1d(r, c, float(rows), inv_tan, offset, acc)
-    return {"lines": _select(acc, offset, theta, geometry, params, previous)}
+    if mask is not None and np.shape(mask) != (rows, cols):
+        raise InputError(
+            f"hough.line1d: mask: expected a BEV mask of the features' shape {(rows, cols)}, got {np.shape(mask)}"
+        )
+    return {"lines": _select(acc, offset, theta, geometry, params, previous, mask)}
 
 
 class Hough2dParams(HoughParams):
@@ -366,6 +416,7 @@ class Hough2dParams(HoughParams):
         "orientation": Port("orientation", "ignored; kept for drop-in swaps", optional=True),
         "geometry": Port("bev_geometry"),
         "previous": _PREVIOUS_PORT,
+        "mask": _MASK_PORT,
     },
     outputs={"lines": "lines"},
 )
@@ -375,6 +426,7 @@ def line2d(
     geometry: BevGeometry,
     orientation: float | None = None,
     previous: list[Lane] | None = None,
+    mask: np.ndarray | None = None,
 ) -> dict:
     """Classic 2D (rho, theta) Hough: the strongest theta row is the lane orientation; peaks chosen as in 1D."""
     rows, cols = features.shape
@@ -391,4 +443,8 @@ def line2d(
     # the theta whose smoothed accumulator has the strongest peak structure (sum of the top peaks)
     score = [np.sort(_smooth(a, params.smooth_px))[-3:].sum() for a in acc]
     t = int(np.argmax(score))
-    return {"lines": _select(acc[t], offset, float(thetas[t]), geometry, params, previous)}
+    if mask is not None and np.shape(mask) != (rows, cols):
+        raise InputError(
+            f"hough.line2d: mask: expected a BEV mask of the features' shape {(rows, cols)}, got {np.shape(mask)}"
+        )
+    return {"lines": _select(acc[t], offset, float(thetas[t]), geometry, params, previous, mask)}

@@ -568,12 +568,16 @@ def _stepped(
     calib: Calibration | None,
 ) -> bool:
     """Whether the road's height above the fitted plane steps across ``lane`` by more than
-    ``max_dark_side_step_m`` (:func:`._heights.lane_heights`, both sides measured; False without a
+    ``max_dark_side_step_m`` (and, with ``max_kerb_step_m``, by no more than a kerb: an obstacle's
+    side beside a line is no step of the road) (:func:`._heights.lane_heights`, both sides measured; False without a
     disparity, a road and a calibration, or when a side has no disparity)."""
     if p.max_dark_side_step_m is None or disparity is None or road is None or calib is None:
         return False
     left, _, right = lane_heights(lane, geometry, np.asarray(disparity), road, calib, p.max_distance_m)
-    return abs(left - right) > p.max_dark_side_step_m  # NaN: False
+    step = abs(left - right)
+    if p.max_kerb_step_m is not None and step > p.max_kerb_step_m:
+        return False  # higher than a kerb: an obstacle's side beside the line (a parked car), not a kerb
+    return step > p.max_dark_side_step_m  # NaN: False
 
 
 def _is_paint(cues: PaintCues, p: VerifyParams) -> bool:

@@ -83,6 +83,14 @@ class VerifyParams(NodeParams):
         "plane 0.3-0.8 m left and right of the lane may differ by at most this (a kerb is a step of 10-15 cm and the "
         "gutter beside it dark; a shadow cast on the road is level), metres; null: not checked",
     )
+    max_kerb_step_m: float | None = Field(
+        None,
+        gt=0.0,
+        le=5.0,
+        description="with max_dark_side_step_m: a step across the lane higher than this is no kerb (10-15 cm, at most "
+        "20) but an obstacle's side standing beside the line (a parked car beside a parking strip's line, a wall): the "
+        "step check keeps the lane, metres; None: every step above max_dark_side_step_m drops it",
+    )
     step_side_ratio: float = Field(
         0.45,
         ge=0.0,

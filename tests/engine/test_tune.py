@@ -124,6 +124,64 @@ def test_a_second_tune_into_another_folder_reuses_the_cache_and_the_folder_rule_
     assert "resuming" not in r.output and len(_rows(other / "trials.csv")) == 2
 
 
+def test_name_names_the_tuned_graph_whose_description_remakes_it(tuned, toy, monkeypatch):
+    """``--name``: the tuned graph's name; its description names the search as a command line that
+    remakes it (no --out, no cache option) and the pooled left-out figure; the same search into
+    another folder writes the same file, byte for byte."""
+    monkeypatch.chdir(toy)
+    texts = []
+    for out in ("out_named", "out_named_again"):
+        r = CliRunner().invoke(
+            main,
+            ["tune", "toy.yaml", "--dataset", "ds.yaml", "--space", "space.yaml", "--out", out,
+             "--sampler", "grid", "--cache-dir", str(toy / "cache"), "--name", "toy_best", "-q"],
+        )  # fmt: skip
+        assert r.exit_code == 0, r.output
+        texts.append((toy / out / "tuned.yaml").read_text())
+    assert texts[0] == texts[1]
+    doc = yaml.safe_load(texts[0])
+    assert doc["name"] == "toy_best" and doc["extends"] == "../toy.yaml"
+    assert doc["nodes"] == {"verify": {"params": {"min_painted_rows": 10}}}
+    command = (
+        "`lanegraph tune toy.yaml --dataset ds.yaml --space space.yaml --sampler grid --trials 20 --seed 0 "
+        "--grid-points 5 --name toy_best`"
+    )
+    assert command in doc["description"]
+    # the grid finds 10 on every fold: left out and tuned on all right; the toy's own 50000 finds nothing
+    assert (
+        "Left out (each group scored by the fold that chose on the others), pooled: 100.0 % detection"
+        in (doc["description"])
+    )
+    assert "toy's own values: 0.0 % detection ratio" in doc["description"]
+    r = CliRunner().invoke(
+        main, ["run", str(toy / "out_named" / "tuned.yaml"), "--input", "a", "--out", "run_named", "-q"]
+    )
+    assert r.exit_code == 0, r.output
+    # the default name is the graph's and _tuned
+    assert yaml.safe_load((tuned[0] / "tuned.yaml").read_text())["name"] == "toy_tuned"
+
+
+def test_a_folder_whose_study_was_made_with_other_graph_values_is_another_tune(toy, tmp_path):
+    """The study in OUT keeps each trial's counts: a graph edited since (a value outside the space)
+    would resume with counts the graph no longer gives, so the folder is another tune's (exit 2)."""
+    graph = tmp_path / "g.yaml"
+    graph.write_text(TOY.format(paper=ROOT / "graphs" / "paper.yaml"))
+    args = ["tune", str(graph), "--dataset", str(toy / "ds.yaml"), "--space", str(toy / "space.yaml"),
+            "--out", str(tmp_path / "out"), "--sampler", "grid", "--cache-dir", str(toy / "cache"), "-q"]  # fmt: skip
+    assert CliRunner().invoke(main, args).exit_code == 0
+    assert CliRunner().invoke(main, args).exit_code == 0  # unchanged: the same tune (resumed, done)
+    graph.write_text(graph.read_text() + "  hough: {params: {min_relative: 0.3}}\n")
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 2 and "holds the results of another" in r.output, r.output
+
+
+@pytest.mark.parametrize("name", ["", "../paper", "two words", "-x", "a" * 101])
+def test_a_bad_name_is_refused_before_anything(toy, tmp_path, name):
+    r = _tune(toy, tmp_path / "out", "--name", name)
+    assert r.exit_code == 2 and "--name" in r.output, r.output
+    assert not (tmp_path / "out").exists()
+
+
 class _FakeRuns:
     """Tuner._run replaced: the counts a param set gets on a sequence, from a table, and every call
     recorded (which params ran on which sequences)."""

@@ -67,16 +67,13 @@ def test_the_file_holds_foxglove_schemas_one_message_a_frame(tmp_path):
     assert timings[0]["frame_ms"] is None and timings[2]["frame_ms"] >= 0
 
 
-def test_the_annotations_and_scene_decode_with_their_schemas(tmp_path):
+def decode(path):
+    """Every protobuf message of the file, decoded with the schema the file holds: (topic, message, log time)."""
     pytest.importorskip("google.protobuf")
-    from foxglove.messages import ImageAnnotations, SceneUpdate
     from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
-    w = sink(tmp_path, image="raw")
-    w(frame="1700000000000000000", image=np.zeros((40, 60), np.uint8), lanes=lanes(), geometry=GEOM)
-    w.close()
-    decoded = {}
-    with open(tmp_path / "lanes.mcap", "rb") as fh:
+    out = []
+    with open(path, "rb") as fh:
         for schema, ch, m in make_reader(fh).iter_messages():
             if schema.encoding != "protobuf":
                 continue
@@ -85,7 +82,17 @@ def test_the_annotations_and_scene_decode_with_their_schemas(tmp_path):
             for fd in fds.file:
                 pool.Add(fd)
             cls = message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))
-            decoded[ch.topic] = (cls.FromString(m.data), m.log_time)
+            out.append((ch.topic, cls.FromString(m.data), m.log_time))
+    return out
+
+
+def test_the_annotations_and_scene_decode_with_their_schemas(tmp_path):
+    from foxglove.messages import ImageAnnotations, SceneUpdate
+
+    w = sink(tmp_path, image="raw")
+    w(frame="1700000000000000000", image=np.zeros((40, 60), np.uint8), lanes=lanes(), geometry=GEOM)
+    w.close()
+    decoded = {topic: (msg, t) for topic, msg, t in decode(tmp_path / "lanes.mcap")}
     assert (
         decoded["/camera/left/image"][0].encoding == "mono8" and decoded["/camera/left/image"][0].width == 60
     )
@@ -99,6 +106,33 @@ def test_the_annotations_and_scene_decode_with_their_schemas(tmp_path):
     assert min(xs) == pytest.approx(5.025) and max(xs) == pytest.approx(44.975)
     assert ImageAnnotations.get_schema().name == "foxglove.ImageAnnotations"
     assert SceneUpdate.get_schema().name == "foxglove.SceneUpdate"
+
+
+def test_every_frames_annotations_carry_the_images_stamp(tmp_path):
+    # Foxglove's Image panel, in its "sync annotations" mode, shows an image only with annotations
+    # of the same stamp: a frame without lanes still gets one (its label), or the panel would wait
+    image = np.full((375, 1242, 3), 90, np.uint8)
+    w = sink(tmp_path)
+    for k in range(3):
+        w(frame=f"{k:010d}", image=image, lanes=lanes() if k != 1 else [], geometry=GEOM)
+    w.close()
+    msgs = decode(tmp_path / "lanes.mcap")
+    images = [
+        (m.timestamp.seconds, m.timestamp.nanos, t) for topic, m, t in msgs if topic == "/camera/left/image"
+    ]
+    notes = [m for topic, m, _ in msgs if topic == "/lanes/annotations"]
+    assert [t for _, _, t in images] == [0, 100_000_000, 200_000_000]  # 10 frames/s from 0
+    assert [len(a.points) for a in notes] == [1, 0, 1]
+    for (sec, nanos, _), a in zip(images, notes, strict=True):
+        stamps = {(x.timestamp.seconds, x.timestamp.nanos) for x in [*a.points, *a.texts]}
+        assert stamps == {(sec, nanos)}
+    assert [a.texts[0].text for a in notes] == [
+        "0000000000: 1 lane",
+        "0000000001: 0 lanes",
+        "0000000002: 1 lane",
+    ]
+    label = notes[0].texts[0]
+    assert 0 < label.position.x < 1242 and 0 < label.position.y < 375 and label.font_size > 0
 
 
 def test_lane_metres_is_the_bev_model_on_the_road():
