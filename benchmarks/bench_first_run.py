@@ -1,12 +1,14 @@
 """The first run against a warm one: the default ``lanegraph run`` (the paper graph on the built-in
-synthetic scene, output piped), as a new user meets it, or any other run (``-- RUN ARGS``: e.g. the
-54 frames of a KITTI drive laid out by ``lanegraph data kitti``).
+synthetic scene, output piped), as a new user meets it, the 54 frames of KITTI drive 0001 laid out
+by ``lanegraph data kitti`` (``--kitti``: from ``../shared/data``, or the KITTI zips or folders
+named), or any other run (``-- RUN ARGS``).
 
 Kinds of run, measured in turns (``--rounds`` of each, so that the load of a shared machine falls on
 all of them alike; ``--kinds`` picks some):
 
-- **first on this machine**: an empty kernel folder and an empty cache folder: every kernel is made
-  from its plugin's shipped bitcode where that applies (:mod:`lanegraph.kernels.bundle`), or compiled;
+- **first on this machine**: an empty kernel folder and an empty cache folder: each kernel is loaded
+  from its plugin's shipped machine code when first called, where that applies
+  (:mod:`lanegraph.kernels.bundle`), or compiled;
 - **first, bundle off**: the same with ``LANEGRAPH_KERNEL_BUNDLE=0``: every kernel compiles;
 - **second install**: another installation of the same sources (a copy of ``lanegraph/`` and
   ``plugins/`` in another folder, as a wheel beside an editable checkout) whose first run finds the
@@ -21,7 +23,7 @@ stretches the walls), the time to the first line the command prints (stdout or s
 that line is the first run's notice and comes before any frame's progress, and whether its
 ``lanes.jsonl`` is byte-identical to the warm run's. Prints the medians, the ratios to the warm run
 (the median and each round's: a shared machine's load changes between rounds) and the load average
-before and after.
+before and after, then one ``ratio`` line per kind: wall and CPU, median and spread.
 
 ``--baseline PYTHON`` measures another install in the same sitting, its runs interleaved with these
 (``PYTHON -m lanegraph.cli run``: e.g. the Python an older checkout is installed in); its lanes must
@@ -29,6 +31,7 @@ be identical too.
 
     python benchmarks/bench_first_run.py --rounds 3 [--baseline /path/to/before/python]
     python benchmarks/bench_first_run.py --rounds 1 --kinds "second install,warm"
+    python benchmarks/bench_first_run.py --rounds 3 --kitti --kinds "first on this machine,warm"
     python benchmarks/bench_first_run.py --rounds 1 --kinds "first on this machine,warm" -- \
         --input ../shared/data/kitti_raw/2011_09_26/2011_09_26_drive_0001_sync
 """
@@ -36,6 +39,7 @@ be identical too.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import resource
 import selectors
@@ -48,6 +52,7 @@ from pathlib import Path
 from statistics import median
 
 ROOT = Path(__file__).resolve().parents[1]
+SHARED_DRIVE = ROOT.parent / "shared" / "data" / "kitti_raw" / "2011_09_26"
 
 
 def run_once(
@@ -91,7 +96,21 @@ def run_once(
     text = head.decode(errors="replace")
     notice, frames = text.find("lanegraph: first run of"), text.find(" frames")
     starts = "-" if notice < 0 else ("notice" if frames < 0 or notice < frames else "frames first")
-    return wall, first if first is not None else wall, (out / "lanes.jsonl").read_bytes(), cpu, starts
+    lanes = b"".join(p.read_bytes() for p in sorted(out.rglob("lanes.jsonl")))  # a dataset: one a sequence
+    frame_ms.append(max(_median_ms(p) for p in out.rglob("timings.json")))
+    return wall, first if first is not None else wall, lanes, cpu, starts
+
+
+#: the median ms per frame of each run, in order (the run's timings.json; the kernels' own speed
+#: shows here: a warm run's frames with the bundle's machine code against compiled kernels')
+frame_ms: list[float] = []
+
+
+def _median_ms(path: Path) -> float:
+    try:
+        return float(json.loads(path.read_text())["total"]["median_ms"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return float("nan")
 
 
 KINDS = ("first on this machine", "first, bundle off", "second install", "new cache folder", "warm")
@@ -112,6 +131,13 @@ def main() -> None:
         "--baseline", metavar="PYTHON", help="also measure the lanegraph of this Python, interleaved"
     )
     ap.add_argument("--kinds", help=f"the kinds to run, comma-separated (default all: {', '.join(KINDS)})")
+    ap.add_argument(
+        "--kitti",
+        nargs="*",
+        metavar="SOURCE",
+        help="run on KITTI laid out by `lanegraph data kitti` from these zips or folders "
+        f"(default {SHARED_DRIVE}): its kitti.yaml, 54 frames",
+    )
     ap.add_argument("args", nargs="*", help="more arguments for lanegraph run (e.g. a graph)")
     opt = ap.parse_args()
     kinds = [k.strip() for k in opt.kinds.split(",")] if opt.kinds else list(KINDS)
@@ -129,6 +155,14 @@ def main() -> None:
     }
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
+        if opt.kitti is not None:
+            sources = opt.kitti or [str(SHARED_DRIVE)]
+            subprocess.run(
+                [sys.executable, "-m", "lanegraph.cli", "data", "kitti", "--quiet", "--out", str(root / "kitti"), *sources],
+                check=True, env={**base, "LANEGRAPH_KERNEL_CACHE": str(root / "data-kernels")}, cwd=root,
+            )  # fmt: skip
+            opt.args = ["--dataset", str(root / "kitti" / "kitti.yaml"), *opt.args]
+            print(f"KITTI laid out by `lanegraph data kitti` from {' '.join(sources)}", flush=True)
         warm_env, reference = {}, None
         for inst, python in installs.items():
             warm_env[inst] = {
@@ -171,7 +205,7 @@ def main() -> None:
                     print(
                         f"  round {k + 1} {inst:8s} {kind:22s} wall {wall:6.2f} s, CPU {cpu:6.2f} s, first line after "
                         f"{first:5.2f} s ({starts}), lanes {'identical' if lanes == reference else 'DIFFERENT'}, "
-                        f"load {load:.2f}",
+                        f"load {load:.2f}, {frame_ms[-1]:.1f} ms/frame (median)",
                         flush=True,
                     )
     print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
@@ -192,6 +226,19 @@ def main() -> None:
             print(
                 f"{inst:9s}{kind:24s} {wall:10.2f} s {wall / warm:6.1f}x {per_round:>18s} {cpu:9.2f} s "
                 f"{first:9.2f} s  {'/'.join(sorted({r[4] for r in rs})):12s} {same}"
+            )
+    what = " ".join(["lanegraph run", *opt.args]) if opt.args else "the default lanegraph run"
+    for inst in installs:
+        warm_rows = rows[inst, "warm"]
+        for kind in kinds:
+            if kind == "warm":
+                continue
+            walls = [r[0] / w[0] for r, w in zip(rows[inst, kind], warm_rows)]
+            cpus = [r[3] / w[3] for r, w in zip(rows[inst, kind], warm_rows)]
+            print(
+                f"ratio {inst} {kind!r} / warm ({what}): wall {median(walls):.2f}x "
+                f"(per round {min(walls):.2f}-{max(walls):.2f}), CPU {median(cpus):.2f}x "
+                f"(per round {min(cpus):.2f}-{max(cpus):.2f})"
             )
 
 

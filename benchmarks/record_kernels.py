@@ -1,11 +1,11 @@
-"""Write the built-in plugins' kernel lists and bitcode (lanegraph.kernels): the kernels that every
+"""Write the built-in plugins' kernel lists and machine code (lanegraph.kernels): the kernels that every
 built-in graph and every built-in source call from Python, with their argument types, each plugin's
 into its own folder (``plugins/<plugin>/kernels.json``, longest compilation first: the first run and
 its helper process take them from the front, the longest first balances the two).
 
 The kernels are found by running, in this process with an empty kernel folder: the default ``lanegraph
 run`` (its kernels are marked ``"default": true``: the ones a first run compiles ahead where no
-bitcode fits), every built-in graph on the synthetic scene, and the paper graph on every built-in
+bundle holds), every built-in graph on the synthetic scene, and the paper graph on every built-in
 source that reads files (a folder of pairs written here, and, when ``../shared/data`` is there, the
 KITTI raw drive and a KITTI odometry sequence). A kernel's ``seconds`` is the CPU its compilation took
 there (with what it calls, compiled the first time; ``--rounds N``: the least of N compilations of
@@ -14,9 +14,10 @@ signature or the graphs (a stale list costs the first run time, never a result):
 
     python benchmarks/record_kernels.py [--rounds N] [--default-only]
 
-It then writes each list's kernels as LLVM bitcode beside it (``kernels.bundle``,
-:mod:`lanegraph.kernels.bundle`), compiled in a fresh process with an empty kernel folder, and times
-making each kernel's machine code of it (``bitcode_seconds``: the first run's notice adds these up).
+It then writes each list's kernels as machine code for x86-64-v3 CPUs beside it
+(``kernels.bundle``, :mod:`lanegraph.kernels.bundle`), compiled in a fresh process with an empty
+kernel folder and ``NUMBA_CPU_NAME=x86-64-v3``, and times loading each kernel of it
+(``load_seconds``: the first run's notice adds these up).
 A bundle is used only for the sources it was made from: after any change of a plugin with kernels or
 of ``lanegraph/kernels/decorator.py`` (the signatures unchanged) remake the bundles alone
 (``tests/engine/test_kernel_bundle.py`` fails until then):
@@ -141,9 +142,9 @@ with kept_call_types():
     print(time.process_time() - t)
 """
 
-#: makes every entry of the lists (argv[1:]) from its bundle in a fresh process with an empty kernel
+#: loads every entry of the lists (argv[1:]) from its bundle in a fresh process with an empty kernel
 #: folder and prints {key: CPU seconds} as JSON
-_TIME_BITCODE = """
+_TIME_LOAD = """
 import gc, json, sys, time, importlib
 from pathlib import Path
 from lanegraph.kernels.bundle import decode_type, entry_key, install, read_list
@@ -157,7 +158,7 @@ for name in sys.argv[1:]:
         sig = tuple(decode_type(a) for a in e["args"])
         t = time.process_time()
         if install(kernel, sig, e, path.with_suffix(".bundle")):
-            out[entry_key(e)] = round(time.process_time() - t, 2)
+            out[entry_key(e)] = round(time.process_time() - t, 3)
 print(json.dumps(out))
 """
 
@@ -184,7 +185,10 @@ def lists() -> list[Path]:
 
 def write_bundles(paths: list[Path]) -> None:
     """Write ``kernels.bundle`` beside each list from one fresh process with an empty kernel folder
-    (:func:`lanegraph.kernels.bundle.write_bundle`), then time making their kernels of it."""
+    and x86-64-v3 as the CPU (:func:`lanegraph.kernels.bundle.write_bundle`), then time loading their
+    kernels from it."""
+    from lanegraph.kernels.bundle import CPU
+
     paths = [p for p in paths if json.loads(p.read_text(encoding="utf-8"))]
     with tempfile.TemporaryDirectory() as tmp:
         env = {
@@ -193,13 +197,17 @@ def write_bundles(paths: list[Path]) -> None:
             "LANEGRAPH_PRECOMPILE": "0",
             "LANEGRAPH_KERNEL_BUNDLE": "0",
         }
+        env.pop("NUMBA_CPU_FEATURES", None)
         argv = [str(a) for p in paths for a in (p, p.with_suffix(".bundle"))]
         subprocess.run(
-            [sys.executable, "-m", "lanegraph.kernels", "bundle", *argv], env=env, check=True, cwd=ROOT
-        )
+            [sys.executable, "-m", "lanegraph.kernels", "bundle", *argv],
+            env={**env, "NUMBA_CPU_NAME": CPU, "NUMBA_CPU_FEATURES": ""}, check=True, cwd=ROOT,
+        )  # fmt: skip
         env = {**env, "NUMBA_CACHE_DIR": os.path.join(tmp, "use"), "LANEGRAPH_KERNEL_BUNDLE": "1"}
+        env.pop("NUMBA_CPU_NAME", None)
+        env.pop("NUMBA_CPU_FEATURES", None)
         out = subprocess.run(
-            [sys.executable, "-c", _TIME_BITCODE, *map(str, paths)],
+            [sys.executable, "-c", _TIME_LOAD, *map(str, paths)],
             env=env, check=True, cwd=ROOT, capture_output=True, text=True,
         )  # fmt: skip
     timed = json.loads(out.stdout.splitlines()[-1])
@@ -208,10 +216,13 @@ def write_bundles(paths: list[Path]) -> None:
     for p in paths:
         entries = json.loads(p.read_text(encoding="utf-8"))
         for e in entries:
-            e["bitcode_seconds"] = timed.get(entry_key(e))
+            e.pop("bitcode_seconds", None)
+            e["load_seconds"] = timed.get(entry_key(e))
         _write_list(p, entries)
         made = sum(timed.get(entry_key(e)) or 0.0 for e in entries)
-        print(f"{p.relative_to(ROOT)}: {len(entries)} kernels, {made:.1f} s of CPU from bitcode", flush=True)
+        print(
+            f"{p.relative_to(ROOT)}: {len(entries)} kernels, {made:.1f} s of CPU to load them all", flush=True
+        )
 
 
 def _write_list(path: Path, entries: list[dict]) -> None:

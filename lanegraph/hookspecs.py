@@ -101,8 +101,9 @@ def lanegraph_trackers() -> list[Any]:
 def lanegraph_kernels() -> Any:
     """Return the path of this plugin's kernel list, a JSON file inside the plugin's package folder
     (``benchmarks/record_kernels.py`` writes it: module, name and argument types of each
-    :func:`lanegraph.jit` kernel its nodes call, longest compilation first), or None. Its LLVM
-    bitcode may lie beside it with the suffix ``.bundle``. The first run of an installation makes
-    the listed kernels ahead, beside the run, from that bitcode where it fits this machine and the
-    installed sources (:mod:`lanegraph.kernels`). Entries naming a module outside the plugin's
+    :func:`lanegraph.jit` kernel its nodes call, longest compilation first), or None. Their machine
+    code may lie beside it with the suffix ``.bundle`` (``record_kernels.py`` writes it, for
+    x86-64-v3 CPUs): a run loads each kernel from it when first called, where it fits this
+    machine and the installed sources; the first run of an installation compiles ahead the default
+    run's kernels no bundle holds (:mod:`lanegraph.kernels`). Entries naming a module outside the plugin's
     package, and a list outside its folder, are ignored."""

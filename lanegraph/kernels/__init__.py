@@ -8,11 +8,13 @@ first run of an installation.
   cache's root; no numba.
 - :mod:`.disk`: the kernel folder's files, signed by lanegraph and checked before numba reads them.
 - :mod:`.first_run`: the plugins' kernel lists (the ``lanegraph_kernels`` hook), the first run's
-  notice and its kernels made beside it; :mod:`.bundle`: a plugin's kernels as LLVM bitcode.
+  notice and the kernels it compiles ahead where no bundle holds them; :mod:`.bundle`: a plugin's
+  kernels as machine code for x86-64-v3 CPUs, each loaded when first called (by
+  :mod:`.disk`'s cache look-up).
 - :mod:`.compat`: the numba and llvmlite versions whose internals the above were tested with.
 
 The run service calls :func:`first_run_notice` before it loads anything and :func:`compile_share`
-once the graph is read, before the first frame.
+once the graph is read, before the first frame (it registers the plugins' bundles).
 """
 
 from __future__ import annotations

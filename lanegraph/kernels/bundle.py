@@ -1,36 +1,40 @@
-"""The kernels of a plugin shipped as LLVM bitcode beside its code: a first run on a machine turns
-them into machine code instead of compiling them from Python.
+"""The kernels of a plugin shipped as machine code beside its code, loaded when first called.
 
 Compiling a numba kernel is mostly numba's own work in Python (reading the bytecode, inferring the
-types, writing LLVM IR) and LLVM's optimisation of that IR; only the last step, making machine code of
-the optimised IR, belongs to the machine. A plugin's bundle (``kernels.bundle`` beside the kernel
-list its ``lanegraph_kernels`` hook names, :mod:`.first_run`) holds, for each kernel of the list,
-what numba's own cache keeps of a compiled kernel (its type signature, its environment, the
-descriptor of its function) with the library as the optimised *bitcode* of its module (every
-function it calls linked in; taken as LLVM's code generator gets it) instead of machine code.
-:func:`install` makes machine code of it for this machine (numba's ``_finalize_final_module``),
-registers the kernel's overload with its dispatcher, as numba does with a kernel from its cache,
-and saves it to the kernel folder: the next runs load it from there like any compiled kernel. The
-default run's kernels take about a sixth of their compilation's CPU this way
-(``benchmarks/bench_first_run.py``).
+types, writing LLVM IR), LLVM's optimisation of that IR and its making of machine code. A plugin's
+bundle (``kernels.bundle`` beside the kernel list its ``lanegraph_kernels`` hook names,
+:mod:`.first_run`) holds, for each kernel of the list, what numba's own cache keeps of a compiled
+kernel (its type signature, its environment, the descriptor of its function and its library as
+object code), made for the x86-64-v3 CPU (numba's ``NUMBA_CPU_NAME=x86-64-v3``, with no feature
+of the maker's own CPU beyond it: AVX2, FMA, BMI2), so that it runs on every x86-64 machine that
+has those (:func:`cpu_fits`; elsewhere the kernels compile). A run
+loads a kernel from it the first time the kernel is called with those types and none is in the
+kernel folder (:func:`load`, from :class:`lanegraph.kernels.disk.CheckedCache`'s
+``load_overload``, numba's own cache look-up): linking the object code takes milliseconds, nothing
+is compiled, and the kernel is saved to the kernel folder as numba saves a compiled one. A run pays
+only for the kernels it calls. Types the bundle does not hold are compiled as before.
 
-LLVM's optimisations keep floating-point results exact (lanegraph's kernels are not ``fastmath``), so
-machine code made for another x86-64 CPU than the one the bundle was made on computes the same
-values; only its speed may differ a little (vector widths chosen for the maker's CPU).
+LLVM's optimisations keep floating-point results exact (lanegraph's kernels are not ``fastmath``: no
+multiply-add is fused), so x86-64-v3 machine code computes the same values as code made for the
+machine's own CPU; only its speed may differ (no AVX-512: ``benchmarks/bench_kernels.py``).
 
 A bundle is used only where it fits, else the kernels are compiled as before:
 
 - its header (the file's first line, JSON) names the Python, numba and llvmlite versions, the
-  machine, the system and LLVM's target triple it was made with: all must be this process's, and
-  numba and llvmlite of the versions lanegraph was tested with (:mod:`.compat`);
+  machine, the system, the CPU and LLVM's target triple it was made with: all must be this
+  process's (the CPU: this one has its features), and numba and llvmlite of the versions lanegraph
+  was tested with (:mod:`.compat`);
 - each kernel's entry records the digest of its package folder's Python files and of
   :mod:`.decorator` (:func:`package_digest`, also the stamp of the disk cache): an entry made from
-  other sources than the installed ones is skipped;
+  other sources than the installed ones is skipped, as is one whose signature is not the one called;
 - ``LANEGRAPH_KERNEL_BUNDLE=0`` turns it off.
 
 A bundle is read only from the folder of the plugin package that names it (never from a path a user
-or a graph names): its entries are pickles, as numba's cache files are. It is made by
-``benchmarks/record_kernels.py`` (:func:`write_bundle` in a process with an empty kernel folder)."""
+or a graph names; :func:`register` takes the lists :func:`lanegraph.kernels.first_run.kernel_sets`
+found, called by the commands before the first frame, or at the first kernel a process loads once
+its plugin manager exists): its entries are pickles, as numba's cache files are. It is made by
+``benchmarks/record_kernels.py`` (:func:`write_bundle` in a process with an empty kernel folder,
+``NUMBA_CPU_NAME=x86-64-v3`` and ``NUMBA_CPU_FEATURES`` empty)."""
 
 from __future__ import annotations
 
@@ -48,10 +52,25 @@ from pathlib import Path
 
 from .compat import internals_tested
 
-#: the layout of a bundle file (header line, then the compressed entries)
-FORMAT = 1
+#: the layout of a bundle file (header line, then the compressed entries; 2: object code)
+FORMAT = 2
+#: the CPU a bundle's machine code is made for (numba's ``NUMBA_CPU_NAME``, with
+#: ``NUMBA_CPU_FEATURES`` empty: the CPU's own features only): x86-64-v3 (AVX2, FMA, BMI2: Intel
+#: since 2013, AMD since 2015). The baseline x86-64 (no SSE4.1 ``round``, no POPCNT, no AVX) made
+#: some kernels 2-10x slower (``benchmarks/bench_kernels.py``: the v-disparity selection 3 -> 16-33
+#: ms, the 2D Hough vote 5-8 -> 31-46 ms)
+CPU = "x86-64-v3"
+#: the host CPU's features (LLVM's names) that x86-64-v3 code may use: a machine without one of
+#: them compiles its kernels instead
+CPU_FEATURES = (
+    "avx", "avx2", "bmi", "bmi2", "cx16", "f16c", "fma", "lzcnt", "movbe", "popcnt", "sahf",
+    "sse3", "sse4.1", "sse4.2", "ssse3", "xsave",
+)  # fmt: skip
 
 _LOADED: dict[Path, dict | None] = {}
+#: the bundle of each plugin package (its top-level name), from :func:`register`
+_REGISTERED: dict[str, Path] = {}
+_AUTO = {"done": False}
 
 
 @functools.cache
@@ -94,6 +113,7 @@ def environment() -> dict:
         "llvmlite": _version("llvmlite"),
         "machine": platform.machine(),
         "system": platform.system(),
+        "cpu": CPU,
     }
 
 
@@ -114,7 +134,22 @@ def _fits(header: object) -> bool:
         and isinstance(header, dict)
         and all(header.get(k) == v for k, v in environment().items())
         and internals_tested()
+        and cpu_fits()
     )
+
+
+@functools.cache
+def cpu_fits() -> bool:
+    """Whether this machine's CPU runs :data:`CPU`'s machine code (all of :data:`CPU_FEATURES`)."""
+    if platform.machine() not in ("x86_64", "AMD64"):
+        return False
+    try:
+        from llvmlite import binding as ll
+
+        features = ll.get_host_cpu_features()
+    except Exception:  # noqa: BLE001 - LLVM cannot tell: the kernels compile
+        return False
+    return all(features.get(f, False) for f in CPU_FEATURES)
 
 
 def applies(path: Path) -> bool:
@@ -179,114 +214,125 @@ def _digest(dispatcher) -> str:
     return package_digest(os.path.dirname(os.path.abspath(dispatcher.py_func.__code__.co_filename)))
 
 
+def _registered(package: str) -> Path | None:
+    """The bundle registered for ``package``; with none registered yet, those the process's plugin
+    manager names, once it exists (a process that runs nodes without a command: a runner's worker,
+    ``lanegraph.testing``, an embedding program)."""
+    if not _REGISTERED and not _AUTO["done"]:
+        plugins = sys.modules.get("lanegraph.plugins")
+        pm = getattr(plugins, "_default", None)
+        if pm is not None:
+            _AUTO["done"] = True
+            from .first_run import kernel_sets
+
+            register(kernel_sets(pm))
+    return _REGISTERED.get(package)
+
+
+def register(sets) -> None:
+    """Use these kernel lists' bundles (:class:`lanegraph.kernels.first_run.KernelSet`: a package and
+    its list, read from inside the plugin's folder) for their packages' kernels from now on."""
+    for s in sets:
+        if s.entries:
+            _REGISTERED[s.package] = s.bundle_path
+
+
+def _payload(py_func, sig: tuple, entries: dict | None, key: str | None):
+    """The unpickled entry ``key`` of a bundle for ``py_func`` called with ``sig``; None when it is
+    missing, made from other sources or for another signature."""
+    item = entries.get(key) if entries and key else None
+    if item is None:
+        return None
+    if item[0] != package_digest(os.path.dirname(os.path.abspath(py_func.__code__.co_filename))):
+        return None
+    payload = pickle.loads(item[1])
+    if tuple(payload[3].args) != tuple(sig):  # its signature: checked before any machine code is linked
+        return None
+    return payload
+
+
+def _sig_key(py_func, sig: tuple) -> str | None:
+    args = [encode_type(t) for t in sig]
+    if None in args:
+        return None
+    return f"{py_func.__module__}:{py_func.__qualname__}:{'|'.join(args)}"
+
+
+def load(py_func, sig: tuple, target_context):
+    """The kernel ``py_func`` for the argument types ``sig`` from its plugin's registered bundle
+    (:func:`register`), as numba's cache gives a kernel: ``(CompileResult, payload)``, the payload
+    being what numba's cache keeps of it (to save it to the kernel folder); None when no registered
+    bundle applies or holds it (it is then compiled). Called under numba's compiler lock."""
+    if not enabled():
+        return None
+    path = _registered(str(py_func.__module__).split(".")[0])
+    if path is None:
+        return None
+    payload = _payload(py_func, sig, _entries(path), _sig_key(py_func, sig))
+    if payload is None:
+        return None
+    from numba.core.compiler import CompileResult
+
+    return CompileResult._rebuild(target_context, *payload), payload
+
+
 def install(dispatcher, sig: tuple, entry: dict, path: Path) -> bool:
-    """Give ``dispatcher`` its overload for ``sig`` (the kernel list's ``entry``) from the bundle:
-    machine code made here of the shipped bitcode, registered as numba registers a kernel from its
-    cache, then saved to the kernel folder. False (nothing done) when the bundle does not apply or
-    has no entry for it from these sources; the caller then compiles it."""
+    """Give ``dispatcher`` its overload for ``sig`` (the kernel list's ``entry``) from the bundle at
+    ``path`` ahead of its first call, registered as numba registers a kernel from its cache and
+    saved to the kernel folder. False (nothing done) when the bundle does not apply or has no entry
+    for it from these sources; the caller then compiles it."""
     if not enabled():
         return False
-    entries = _entries(path)
-    item = entries.get(entry_key(entry)) if entries else None
-    if item is None or item[0] != _digest(dispatcher):
-        return False
+    from numba.core.compiler import CompileResult
     from numba.core.compiler_lock import global_compiler_lock
 
     with global_compiler_lock:
         if sig in dispatcher.overloads:
             return True
-        payload = pickle.loads(item[1])
-        if tuple(payload[3].args) != tuple(sig):  # its signature: checked before any machine code
+        payload = _payload(dispatcher.py_func, sig, _entries(path), entry_key(entry))
+        if payload is None:
             return False
         dispatcher.targetctx.refresh()  # numba's runtime (NRT) and registries, as its cache's load does
-        cres = _rebuild(dispatcher.targetctx, payload)
+        cres = CompileResult._rebuild(dispatcher.targetctx, *payload)
         dispatcher.targetctx.insert_user_function(cres.entry_point, cres.fndesc, [cres.library])
         dispatcher.add_overload(cres)
-        dispatcher._cache.save_overload(sig, cres)  # a NullCache without the disk cache
+        save = getattr(dispatcher._cache, "save_payload", None)  # a NullCache without the disk cache
+        if save is not None:
+            save(sig, dispatcher.targetctx.codegen(), payload)
     return True
-
-
-def _rebuild(target_context, payload: tuple):
-    """numba's ``CompileResult._rebuild`` for a library kept as bitcode, with the object code kept
-    (numba's ``enable_object_caching``) so that the kernel can be saved to numba's cache."""
-    from llvmlite import binding as ll
-    from numba.core.compiler import CompileResult
-
-    libdata, fndesc, env, signature, objectmode, lifted, typeann, reload_init, referenced_envs = payload
-    name, kind, bitcode = libdata
-    if kind != "bitcode":
-        raise ValueError(f"bundle entry {name!r}: expected bitcode, got {kind!r}")
-    for fn in reload_init or ():
-        fn()
-    library = target_context.codegen().create_library(name)
-    library.enable_object_caching()
-    library._final_module = ll.parse_bitcode(bitcode)
-    library._finalize_final_module()
-    cfunc = target_context.get_executable(library, fndesc, env)
-    cres = CompileResult(
-        target_context=target_context,
-        typing_context=target_context.typing_context,
-        library=library,
-        environment=env,
-        entry_point=cfunc,
-        fndesc=fndesc,
-        type_annotation=typeann,
-        signature=signature,
-        objectmode=objectmode,
-        lifted=lifted,
-        typing_error=None,
-        call_helper=None,
-        metadata=None,
-        reload_init=reload_init,
-        referenced_envs=referenced_envs,
-    )
-    for referenced in referenced_envs:
-        library.codegen.set_env(referenced.env_name, referenced)
-    return cres
 
 
 def write_bundle(entries: list[dict], out: Path) -> int:
     """Compile each kernel list entry in this process and write the bundle to ``out``; returns how
     many entries it holds. The process's kernel folder must be empty (a kernel numba loads from its
-    cache has no bitcode of its own module): run it in a fresh process (``record_kernels.py`` does)."""
+    cache is not compiled here) and numba's CPU :data:`CPU` (``NUMBA_CPU_NAME=x86-64-v3`` and an
+    empty ``NUMBA_CPU_FEATURES`` set before numba is imported): run it in a fresh process
+    (``record_kernels.py`` does)."""
     import importlib
 
     if not internals_tested():
         raise RuntimeError("a bundle is made only with the numba and llvmlite lanegraph was tested with")
     from llvmlite import binding as ll
-    from numba.core import serialize
-    from numba.core.codegen import CPUCodeLibrary
+    from numba.core import config, serialize
 
-    # the bitcode of each library as LLVM's code generator gets it: it rewrites the module in place
-    # as it makes machine code (its IR preparation for the target), and bitcode taken afterwards
-    # would be prepared twice (the same values, other machine code)
-    finalize = CPUCodeLibrary._finalize_final_module
-
-    def _kept(self):
-        self._lanegraph_bitcode = self._final_module.as_bitcode()
-        return finalize(self)
-
-    CPUCodeLibrary._finalize_final_module = _kept
-    kernels = []  # (entry, kernel, signature), each compiled as it is resolved
-    try:
-        for entry in entries:
-            kernel = getattr(importlib.import_module(str(entry["module"])), str(entry["name"]))
-            sig = tuple(decode_type(str(a)) for a in entry["args"])
-            kernel.compile(sig)
-            kernels.append((entry, kernel, sig))
-    finally:
-        CPUCodeLibrary._finalize_final_module = finalize
+    if str(config.CPU_NAME).lower() != CPU or config.CPU_FEATURES != "":
+        raise RuntimeError(
+            f"a bundle is made for one CPU: set NUMBA_CPU_NAME={CPU} and NUMBA_CPU_FEATURES= (empty) "
+            "before numba loads"
+        )
     kept = {}
-    for entry, kernel, sig in kernels:
+    for entry in entries:
+        kernel = getattr(importlib.import_module(str(entry["module"])), str(entry["name"]))
+        sig = tuple(decode_type(str(a)) for a in entry["args"])
+        kernel.compile(sig)
         cres = kernel.overloads.get(sig)
         if cres is None or kernel.stats.cache_hits.get(sig, 0):
             raise RuntimeError(f"{entry_key(entry)}: not compiled in this process (empty the kernel folder)")
-        reduced = cres._reduce()  # as numba's cache keeps it, the library then replaced by its bitcode
-        # and the type annotation (a text for numba's ``inspect_types``, with the addresses of this
-        # process's objects in it) by a note: the bundle is the same bytes for the same sources
+        reduced = cres._reduce()  # as numba's cache keeps it (object code), with the type annotation
+        # (a text for numba's ``inspect_types``, with the addresses of this process's objects in it)
+        # replaced by a note: the bundle is the same bytes for the same sources
         note = f"{entry_key(entry)}: from lanegraph's kernel bundle (no type annotation kept)"
-        library = cres.library
-        payload = ((library.name, "bitcode", library._lanegraph_bitcode), *reduced[1:6], note, *reduced[7:])
+        payload = (*reduced[:6], note, *reduced[7:])
         kept[entry_key(entry)] = (_digest(kernel), serialize.dumps(payload))
     header = {**environment(), "triple": ll.get_process_triple()}
     body = zlib.compress(pickle.dumps(kept, protocol=pickle.HIGHEST_PROTOCOL), 9)
@@ -337,14 +383,17 @@ def _main(argv: list[str]) -> int:
 
 __all__ = [
     "applies",
+    "cpu_fits",
     "decode_type",
     "enabled",
     "encode_type",
     "environment",
     "install",
     "keys",
+    "load",
     "package_digest",
     "read_header",
     "read_list",
+    "register",
     "write_bundle",
 ]

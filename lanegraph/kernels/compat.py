@@ -2,8 +2,8 @@
 
 Three pieces reach past numba's public surface: the checked disk cache (:mod:`.disk`: a subclass of
 numba's function cache, its locator and its cache file), the bundle (:mod:`.bundle`: a compiled
-kernel rebuilt from bitcode, and the bitcode taken from ``CPUCodeLibrary`` when a bundle is made)
-and the kept resolutions of :func:`kept_call_types` (``BaseFunction.get_call_type``). Each is used
+kernel rebuilt from what numba's cache keeps of it, and saved to the kernel folder as numba's cache
+saves one) and the kept resolutions of :func:`kept_call_types` (``BaseFunction.get_call_type``). Each is used
 only where :func:`internals_tested` holds; elsewhere lanegraph's kernels are plain numba kernels
 without a disk cache (compiled in every process), and ``pyproject.toml`` pins numba and llvmlite to
 these ranges.

@@ -13,6 +13,9 @@ which it unpickles when it looks for a kernel. lanegraph's kernels (:func:`laneg
   process) and the kernel is compiled again, and saved over it;
 - a file that cannot be written (a full disk) turns the disk cache off for the process with a
   warning: the run goes on, compiling what it needs.
+- a kernel the folder does not hold is looked up in its plugin's bundle of machine code
+  (:func:`lanegraph.kernels.bundle.load`) before numba compiles it, and saved to the folder from
+  there as numba saves a compiled one.
 
 The folder itself is one the user owns and no one else can write to (:mod:`.folder`), so no one
 else can read the key or replace it. numba keeps a kernel while its own source file is unchanged;
@@ -34,6 +37,7 @@ from pathlib import Path
 
 from numba.core import caching as _caching
 
+from . import bundle
 from .bundle import package_digest
 from .folder import KernelCacheWarning, kernel_folder, write_private
 
@@ -226,13 +230,45 @@ class CheckedCache(_caching.FunctionCache):
         )
 
     def load_overload(self, sig, target_context):
+        """The kernel for ``sig`` from the kernel folder, else from its plugin's bundle (then saved to
+        the folder: :func:`lanegraph.kernels.bundle.load`); None: numba compiles it."""
+        cres = None
+        if not _STATE["off"]:
+            try:
+                cres = super().load_overload(sig, target_context)
+            except Exception as exc:  # noqa: BLE001 - a signed entry numba cannot rebuild: compiled again
+                warn_once(
+                    f"load:{self._cache_path}", f"kernel cache {self._cache_path}: {exc}: compiled again"
+                )
+        if cres is None:
+            try:
+                target_context.refresh()  # numba's runtime and registries, as its cache's load does
+                made = bundle.load(self._py_func, sig, target_context)
+            except Exception as exc:  # noqa: BLE001 - a bundle entry numba cannot rebuild: compiled
+                warn_once(
+                    f"bundle:{self._cache_path}", f"kernel bundle entry of {self._name}: {exc}: compiled"
+                )
+                made = None
+            if made is not None:
+                cres, payload = made
+                self.save_payload(sig, target_context.codegen(), payload)
+        return cres
+
+    def save_payload(self, sig, codegen, payload: tuple) -> None:
+        """Save what numba's cache keeps of a kernel (a bundle's entry: the library as object code)
+        for ``sig`` to the kernel folder, as :meth:`save_overload` saves a compiled one."""
         if _STATE["off"]:
-            return None
+            return
         try:
-            return super().load_overload(sig, target_context)
-        except Exception as exc:  # noqa: BLE001 - a signed entry numba cannot rebuild: compiled again
-            warn_once(f"load:{self._cache_path}", f"kernel cache {self._cache_path}: {exc}: compiled again")
-            return None
+            self._impl.locator.ensure_cache_path()
+            self._cache_file.save(self._index_key(sig, codegen), payload)
+        except OSError as exc:
+            _STATE["off"] = True
+            warn_once(
+                "off",
+                f"kernel cache {self._cache_path}: cannot be written ({exc.strerror or exc}): "
+                "running without a kernel cache (the kernels compile again in the next run)",
+            )
 
     def save_overload(self, sig, data):
         if _STATE["off"]:

@@ -3,31 +3,34 @@
 Kernels belong to their plugins. A plugin distribution names its kernel list through the
 ``lanegraph_kernels`` hook: a JSON file beside its code (``kernels.json``: module, name and argument
 types of each kernel, longest compilation first, written by ``benchmarks/record_kernels.py``), with
-the kernels' LLVM bitcode beside it (``kernels.bundle``, :mod:`.bundle`). A list is read only from
+the kernels' machine code beside it (``kernels.bundle``, :mod:`.bundle`). A list is read only from
 inside the package folder of the plugin that names it, and only its entries that name a module of
 that package are used (:func:`kernel_sets`). The engine names no plugin.
 
 :func:`first_run_notice`, called by the commands that run kernels before they load anything, looks
 for a stamp in the kernel folder (:mod:`.folder`) that records that this installation (lanegraph's
-folder and version, numba's, Python's and the CPU) has made its kernels on this machine. Without
-one, with two CPUs or more, it starts a helper process (``python -m lanegraph.kernels helper
-CLAIMS``) that loads the plugins and makes their listed kernels into the kernel folder. Once the run
-has read its graph (before its first frame), :func:`compile_share` says what will happen, with the
-figure the lists give (their kernels' measured seconds, from bitcode or compiled), and has the run
-take its part of the same lists: the two processes take the kernels one at a time from the front,
-each claiming one (an exclusive file named by the kernel in the folder ``CLAIMS``, made by the run)
-before it makes it, so none is made twice and both CPUs stay busy to the end. The run then waits for
-the kernels the helper is still making, and loads those from the kernel folder when it calls them;
-it stops the helper and removes ``CLAIMS`` when it ends. A kernel is made from its plugin's bitcode
-where that fits (:func:`lanegraph.kernels.bundle.install`), else compiled -- then only the kernels
-the default run needs (``"default": true`` in the list), as the others (another graph's, another
-source's) may never be called. Without a helper (one CPU, ``LANEGRAPH_PRECOMPILE=0``,
-``LANEGRAPH_NUMBA_CACHE=0``) the run makes from bitcode what fits and compiles nothing ahead.
+folder and version, numba's, Python's and the CPU) has made its kernels on this machine. Once the
+run has read its graph (before its first frame), :func:`compile_share` registers the plugins'
+bundles: from then on a kernel not in the kernel folder is loaded from its plugin's bundle when it
+is first called (:func:`lanegraph.kernels.bundle.load`: machine code linked, nothing compiled), so a
+run pays only for the kernels it calls. On a first run it also says what will happen, with the
+figure the lists give (their kernels' measured seconds, loaded or compiled), before any frame.
 
-Should the stamp be wrong (the kernel folder emptied, a plugin changed), the notice comes at the
-first compilation of the process instead. Python's cyclic garbage collector is off while a list is
-made (numba's compiler makes millions of objects; the collections took 5-17 % of the CPU), and
-numba's resolutions of built-in calls are kept (:func:`lanegraph.kernels.compat.kept_call_types`).
+Where a bundle does not apply (another Python, numba or machine, ``LANEGRAPH_KERNEL_BUNDLE=0``) the
+default run's kernels of its list (``"default": true``) are compiled ahead: with two CPUs or more
+by the run and a helper process (``python -m lanegraph.kernels helper CLAIMS``) that loads the
+plugins and compiles the same kernels into the kernel folder. The two processes take the kernels one
+at a time from the front, each claiming one (an exclusive file named by the kernel in the folder
+``CLAIMS``, made by the run) before it makes it, so none is made twice and both CPUs stay busy to
+the end. The run then waits for the kernels the helper is still making, and loads those from the
+kernel folder when it calls them; it stops the helper and removes ``CLAIMS`` when it ends. Without
+a helper (one CPU, ``LANEGRAPH_PRECOMPILE=0``, ``LANEGRAPH_NUMBA_CACHE=0``) nothing is compiled
+ahead. Other kernels (another graph's, another source's, types no bundle holds) are compiled when
+called, with a notice.
+
+Python's cyclic garbage collector is off while a list is compiled (numba's compiler makes millions
+of objects; the collections took 5-17 % of the CPU), and numba's resolutions of built-in calls are
+kept (:func:`lanegraph.kernels.compat.kept_call_types`).
 """
 
 from __future__ import annotations
@@ -52,7 +55,16 @@ from .bundle import decode_type, encode_type, install, read_list
 from .compat import internals_tested, kept_call_types
 from .folder import kernel_folder, write_private
 
-_STATE: dict = {"said": False, "armed": False, "helper": None, "claims": None, "first": False, "folder": None}
+_STATE: dict = {
+    "said": False,
+    "armed": False,
+    "helper": None,
+    "claims": None,
+    "first": False,
+    "folder": None,
+    "compiling": False,
+    "quiet": False,
+}
 
 #: the folder that holds the ``lanegraph`` package (site-packages, or a checkout's root)
 _PACKAGE_ROOT = Path(__file__).resolve().parent.parent.parent
@@ -69,7 +81,7 @@ class KernelSet:
 
     @property
     def bundle_path(self) -> Path:
-        """The bitcode of the list's kernels, beside it."""
+        """The machine code of the list's kernels, beside it."""
         return self.list_path.with_suffix(".bundle")
 
 
@@ -102,17 +114,29 @@ def kernel_sets(pm: Any = None) -> list[KernelSet]:
     return sets
 
 
-def _planned(sets: list[KernelSet], compile_missing: bool) -> list[tuple[KernelSet, dict]]:
-    """The kernels a first run makes ahead, longest first: those its plugin's bitcode holds, and,
-    when ``compile_missing``, the default run's others (compiled)."""
-    items = []
+def _held(s: KernelSet) -> set[str]:
+    """The keys of ``s``'s entries its plugin's bundle holds and may be used for here."""
+    return bundle.keys(s.bundle_path) if bundle.applies(s.bundle_path) else set()
+
+
+def _split(sets: list[KernelSet]) -> tuple[list[tuple[KernelSet, dict]], list[tuple[KernelSet, dict]]]:
+    """(the entries loaded from a bundle when called, the default run's others: compiled ahead,
+    longest first)."""
+    lazy, ahead = [], []
     for s in sets:
-        fits = bundle.applies(s.bundle_path)
-        held = bundle.keys(s.bundle_path) if fits else set()
+        held = _held(s)
         for e in s.entries:
-            if bundle.entry_key(e) in held or (compile_missing and e.get("default")):
-                items.append((s, e))
-    return sorted(items, key=lambda item: -float(item[1].get("seconds") or 0.0))
+            if bundle.entry_key(e) in held:
+                lazy.append((s, e))
+            elif e.get("default"):
+                ahead.append((s, e))
+    return lazy, sorted(ahead, key=lambda item: -float(item[1].get("seconds") or 0.0))
+
+
+def _planned(sets: list[KernelSet], compile_missing: bool = True) -> list[tuple[KernelSet, dict]]:
+    """The kernels a first run compiles ahead (the helper's list): the default run's kernels no
+    bundle holds, longest first (none unless ``compile_missing``)."""
+    return _split(sets)[1] if compile_missing else []
 
 
 def _install_key() -> str:
@@ -147,23 +171,6 @@ def _stamped(stamp: Path) -> bool:
         return False
 
 
-def _estimate(items: list[tuple[KernelSet, dict]], workers: int) -> tuple[int, int, float]:
-    """(kernels made from bitcode, kernels compiled, seconds) of a first run's kernels."""
-    made = compiled = 0
-    seconds = 0.0
-    fits: dict[Path, set[str]] = {}
-    for s, e in items:
-        if s.bundle_path not in fits:
-            fits[s.bundle_path] = bundle.keys(s.bundle_path) if bundle.applies(s.bundle_path) else set()
-        if bundle.entry_key(e) in fits[s.bundle_path]:
-            made += 1
-            seconds += float(e.get("bitcode_seconds") or 0.2 * float(e.get("seconds") or 0.0))
-        else:
-            compiled += 1
-            seconds += float(e.get("seconds") or 0.0)
-    return made, compiled, seconds / max(1, workers)
-
-
 def _say(text: str) -> None:
     if _STATE["said"] or os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0"):
         return
@@ -171,41 +178,52 @@ def _say(text: str) -> None:
     print(f"lanegraph: {text} ...", file=sys.stderr, flush=True)
 
 
-def _say_plan(items: list[tuple[KernelSet, dict]], helper: bool) -> None:
+def _plan_text(lazy: list[tuple[KernelSet, dict]], ahead: list[tuple[KernelSet, dict]], workers: int) -> str:
+    """What a first run will do with its kernels, with the lists' figures."""
+    parts = []
+    if lazy:
+        # the CPU of linking each kernel's machine code, measured by record_kernels.py; a run links
+        # only those it calls
+        load = sum(float(e.get("load_seconds") or 0.02) for _, e in lazy)
+        parts.append(
+            f"loading each of its numba kernels from the plugins' machine code when first called "
+            f"({len(lazy)} kernels, {load:.1f} s at most)"
+        )
+    if ahead:
+        seconds = sum(float(e.get("seconds") or 0.0) for _, e in ahead) / max(1, workers)
+        cores = "on 2 cores" if workers > 1 else "on 1 core"
+        parts.append(
+            f"compiling {len(ahead)} numba kernels (about {max(1, round(seconds))} s {cores}, "
+            "longer on a busy machine)"
+        )
+    if not parts:
+        parts.append("compiling the numba kernels as they are called (a few seconds each)")
+    return " and ".join(parts)
+
+
+def _say_plan(lazy: list[tuple[KernelSet, dict]], ahead: list[tuple[KernelSet, dict]], helper: bool) -> None:
     folder = _STATE["folder"]
     kept = f"kept in {folder} for later runs" if folder else "not kept: compiled again in every run"
-    made, compiled, seconds = _estimate(items, 2 if helper else 1)
-    cores = "on 2 cores" if helper else "on 1 core"
-    figure = f"about {max(1, round(seconds))} s {cores}, longer on a busy machine"
-    if made and not compiled:
-        what = f"making the machine code of {made} numba kernels from the plugins' LLVM bitcode"
-    elif compiled:
-        what = f"compiling {compiled} numba kernels" + (
-            f" and making {made} from LLVM bitcode" if made else ""
-        )
-    else:
-        what = "compiling the numba kernels as they are called"
-        figure = "a few seconds each"
-    _say(f"first run of this installation on this machine: {what} ({figure}; {kept})")
+    what = _plan_text(lazy, ahead, 2 if helper else 1)
+    _say(f"first run of this installation on this machine: {what}; {kept}")
 
 
 def first_run_notice(quiet: bool = False) -> None:
     """Called by the commands that run kernels, before they load anything: decides whether this is
-    the first run of this installation on this machine and, if so, starts the helper; the notice
-    itself comes from :func:`compile_share`, before the first frame (or at the first compilation of
-    the process should the stamp be wrong). Records the stamp at exit. ``quiet``: no notice."""
+    the first run of this installation on this machine; the notice itself comes from
+    :func:`compile_share`, before the first frame (a compilation says so when it starts). Records
+    the stamp at exit. ``quiet``: no notice."""
     if _STATE["armed"]:
         return
     _STATE["armed"] = True
     _STATE["said"] = _STATE["said"] or quiet
+    _STATE["quiet"] = quiet
     cached = os.environ.get("LANEGRAPH_NUMBA_CACHE", "1") != "0" and internals_tested()
     folder = kernel_folder() if cached else None
     _STATE["folder"] = folder
     stamp = folder / f".compiled-{_install_key()}" if folder is not None else None
     if stamp is None or not _stamped(stamp):
         _STATE["first"] = True
-        if stamp is not None:
-            _start_helper()
     if stamp is not None:
         _listen(folder)
         atexit.register(_write_stamp, stamp)
@@ -214,17 +232,27 @@ def first_run_notice(quiet: bool = False) -> None:
 def _listen(where: Path) -> None:
     from numba.core import event
 
-    class _FirstCompile(event.Listener):
+    class _Compile(event.Listener):
         def on_start(self, ev: event.Event) -> None:
             disp = ev.data.get("dispatcher") if isinstance(ev.data, dict) else None
-            module = getattr(getattr(disp, "py_func", None), "__module__", "") or ""
-            if not module.startswith("numba"):
-                _say(f"compiling numba kernels not kept in {where} (a plugin or its sources changed)")
+            func = getattr(disp, "py_func", None)
+            module = getattr(func, "__module__", "") or ""
+            if func is None or module.startswith("numba") or _STATE["compiling"] or _STATE["quiet"]:
+                return
+            if os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0"):
+                return
+            _STATE["compiling"] = True  # once per process
+            print(
+                f"lanegraph: compiling numba kernel {module}.{func.__qualname__} for types no plugin "
+                f"ships machine code for (a few seconds; kept in {where} for later runs) ...",
+                file=sys.stderr,
+                flush=True,
+            )
 
         def on_end(self, ev: event.Event) -> None:
             pass
 
-    event.register("numba:compile", _FirstCompile())
+    event.register("numba:compile", _Compile())
 
 
 def _write_stamp(stamp: Path) -> None:
@@ -280,24 +308,31 @@ def _stop_helper(proc: subprocess.Popen, claims: str | None = None) -> None:
 
 
 def compile_share(pm: Any = None) -> int:
-    """The first run's part of making its kernels, once its graph is read (before its first frame):
-    the notice, with its figure, then the kernels of the plugins' lists that the helper has not
-    claimed, then a wait for those it is still making (see the module's text). Returns how many the
-    run made; 0 (at once) on a later run."""
+    """Once the run's graph is read (before its first frame): the plugins' bundles registered (a
+    kernel is loaded from its bundle when first called); on a first run the notice, with its figure,
+    then the default run's kernels no bundle holds compiled ahead, shared with the helper (see the
+    module's text). Returns how many the run compiled ahead; 0 on a later run."""
+    sets = kernel_sets(pm)
+    bundle.register(sets)
     if not _STATE["first"]:
         return 0
     _STATE["first"] = False  # once
+    if _STATE["folder"] is None:  # no kernel folder: no bundle either (read by the folder's cache)
+        _say_plan([], [], helper=False)
+        return 0
+    lazy, ahead = _split(sets)
+    if not ahead or os.environ.get("LANEGRAPH_PRECOMPILE", "1") == "0":
+        _say_plan(lazy, ahead, helper=False)  # those compiled when called
+        return 0
+    _start_helper()
     proc, claims = _STATE["helper"], _STATE["claims"]
     _STATE["helper"] = None
-    ahead = os.environ.get("LANEGRAPH_PRECOMPILE", "1") != "0"
-    sets = kernel_sets(pm)
-    _say_plan(_planned(sets, compile_missing=True), helper=proc is not None)
-    items = _planned(sets, compile_missing=proc is not None)
+    _say_plan(lazy, ahead, helper=proc is not None)
     if proc is None or claims is None:
-        return precompile(items, compile_missing=False) if ahead and items else 0
+        return 0  # one CPU: compiled when called
     folder = Path(claims)
-    done = precompile(items, folder)
-    names = [claim_name(e) for _, e in items]
+    done = precompile(ahead, folder)
+    names = [claim_name(e) for _, e in ahead]
     while proc.poll() is None:  # the helper's kernels in progress: loaded from the folder when called
         if all((folder / f"{n}.done").exists() for n in names):
             break
@@ -333,7 +368,7 @@ def precompile(
     items: list[tuple[KernelSet, dict]], claims: Path | None = None, compile_missing: bool = True
 ) -> int:
     """Make each ``(set, entry)`` of ``items`` in order, each one this process claims in the folder
-    ``claims`` (every one without it): from its plugin's bitcode where that fits, else compiled
+    ``claims`` (every one without it): from its plugin's bundle where that fits, else compiled
     (when ``compile_missing``; else passed over); returns how many were made. An entry whose module
     is not its plugin's, or whose kernel or types cannot be resolved, is passed over: a list is a
     hint, the run compiles what it needs. The cyclic garbage collector is off meanwhile and numba's
@@ -381,8 +416,7 @@ def _main(argv: list[str]) -> int:
     if len(argv) != 1:
         print("usage: python -m lanegraph.kernels helper CLAIMS", file=sys.stderr)
         return 2
-    items = _planned(kernel_sets(), compile_missing=True)
-    precompile(items, Path(argv[0]))
+    precompile(_planned(kernel_sets()), Path(argv[0]))
     return 0
 
 

@@ -38,5 +38,5 @@ def lanegraph_node_types():
 
 @hookimpl
 def lanegraph_kernels():
-    """This plugin's kernel list, its LLVM bitcode beside it (:mod:`lanegraph.kernels`)."""
+    """This plugin's kernel list, its kernels' machine code beside it (:mod:`lanegraph.kernels`)."""
     return Path(__file__).with_name("kernels.json")

@@ -1,6 +1,7 @@
-"""Plugins' kernels shipped as LLVM bitcode (lanegraph.kernels.bundle): each built-in plugin's bundle
-matches its sources, a kernel made from a bundle is not compiled and computes what the compiled one
-does, a bundle that does not fit (other versions, other sources, turned off) is never used, and a
+"""Plugins' kernels shipped as machine code (lanegraph.kernels.bundle): each built-in plugin's bundle
+matches its sources, a kernel is loaded from its bundle when first called (not compiled) and
+computes what the compiled one does, types a bundle does not hold are compiled with a notice, a
+bundle that does not fit (other versions, other sources, turned off) is never used, and a
 third-party plugin ships its own through the ``lanegraph_kernels`` hook."""
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from pathlib import Path
 import pytest
 
 from lanegraph.kernels import bundle, first_run
+from lanegraph.kernels.first_run import KernelSet
 
 from .test_kernel_cache import _GOOD as _KTH  # kth_smallest's list entry
 from .test_kernel_cache import _LANES
@@ -88,20 +90,135 @@ print(json.dumps({"installed": installed, "compiled": compiled, "got": got,
 """
 
 
+def _make(tmp_path: Path, entry: dict, out: Path, **env: str) -> subprocess.CompletedProcess:
+    """A bundle of ``entry`` made as record_kernels.py makes one (the baseline CPU)."""
+    return _py(
+        _MAKE, tmp_path / "maker", json.dumps(entry), str(out), LANEGRAPH_KERNEL_BUNDLE="0",
+        NUMBA_CPU_NAME="x86-64-v3", NUMBA_CPU_FEATURES="", **env,
+    )  # fmt: skip
+
+
+def test_a_bundle_is_made_for_one_cpu_only(tmp_path):
+    """Its machine code must run on every x86-64-v3 machine: a process that would make it for its own
+    CPU (AVX-512, say) refuses to."""
+    out = subprocess.run(
+        [sys.executable, "-c", _MAKE, json.dumps(_KTH), str(tmp_path / "host.bundle")],
+        env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "k"), "LANEGRAPH_KERNEL_BUNDLE": "0"},
+        capture_output=True, text=True, timeout=300, cwd=ROOT,
+    )  # fmt: skip
+    assert out.returncode != 0 and "NUMBA_CPU_NAME=x86-64-v3" in out.stderr
+    assert not (tmp_path / "host.bundle").exists()
+
+
 def test_a_kernel_from_the_bundle_is_not_compiled_and_computes_the_same(tmp_path):
     made_bundle = tmp_path / "one.bundle"
-    made = _py(_MAKE, tmp_path / "maker", json.dumps(_KTH), str(made_bundle), LANEGRAPH_KERNEL_BUNDLE="0")
+    made = _make(tmp_path, _KTH, made_bundle)
     assert made.stdout.split() == ["1"] and bundle.read_header(made_bundle)["triple"]
     kernels = tmp_path / "kernels"  # empty: a first run on this machine
     first = json.loads(_py(_USE, kernels, json.dumps(_KTH), str(made_bundle)).stdout)
     assert first["installed"] is True
-    assert first["compiled"] == []  # made from the bitcode: numba compiled nothing
+    assert first["compiled"] == []  # loaded from the machine code: numba compiled nothing
     assert first["got"] == first["want"]
     assert any(kernels.rglob("*.nbi")), "the kernel was not saved to the kernel folder"
     # the next process loads it from the kernel folder, as a compiled kernel (the bundle not used)
     again = json.loads(_py(_USE, kernels, json.dumps(_KTH), str(tmp_path / "none.bundle")).stdout)
     assert again["installed"] is False and again["compiled"] == [] and again["hits"] == 1
     assert again["got"] == first["want"]
+
+
+_LAZY = """
+import json, sys
+from pathlib import Path
+import numpy as np
+from numba.core import event
+from lanegraph.kernels import bundle
+from lanegraph.kernels.first_run import KernelSet
+import lanegraph_lanes._select as sel
+
+compiled = []
+class _Count(event.Listener):
+    def on_start(self, ev):
+        func = ev.data["dispatcher"].py_func
+        if func.__module__.startswith("lanegraph"):  # not numba's own implementations
+            compiled.append(func.__qualname__)
+    def on_end(self, ev):
+        pass
+event.register("numba:compile", _Count())
+entry = json.loads(sys.argv[1])
+bundle.register([KernelSet("lanegraph_lanes", Path(sys.argv[2]).with_suffix(".json"), (entry,))])
+a = np.random.default_rng(7).normal(size=1001)
+got = [sel.kth_smallest(a.copy(), a.size, k) for k in (0, 17, 500)]
+got32 = sel.kth_smallest(a.astype(np.float32), a.size, 3)  # types the bundle does not hold
+hits = {str(s): sel.kth_smallest.stats.cache_hits.get(s, 0) for s in sel.kth_smallest.signatures}
+print(json.dumps({"compiled": compiled, "got": got, "want": [float(np.sort(a)[k]) for k in (0, 17, 500)],
+                  "got32": float(got32), "want32": float(np.sort(a.astype(np.float32))[3]), "hits": hits}))
+"""
+
+
+def test_a_kernel_is_loaded_from_its_bundle_when_first_called(tmp_path):
+    """Issue 47: no kernel is made ahead; the first call of a kernel whose types the plugin's bundle
+    holds loads its machine code (numba compiles nothing, a cache hit) and saves it to the kernel
+    folder; other types compile when called, as before, with the same results as the NumPy sort."""
+    made_bundle = tmp_path / "kernels.bundle"
+    _make(tmp_path, _KTH, made_bundle)
+    kernels = tmp_path / "kernels"
+    got = json.loads(_py(_LAZY, kernels, json.dumps(_KTH), str(made_bundle)).stdout)
+    assert got["got"] == got["want"] and got["got32"] == got["want32"]
+    assert got["compiled"] == ["kth_smallest"]  # the float32 call only
+    assert sorted(got["hits"].values()) == [0, 1]  # float64: from the bundle, as from numba's cache
+    assert len(list(kernels.rglob("*.nbc"))) == 2  # both kept for the next run
+    # no registered bundle (a process that never read the plugins' lists): compiled as before
+    again = json.loads(_py(_LAZY, tmp_path / "k2", json.dumps(_KTH), str(tmp_path / "none.bundle")).stdout)
+    assert again["compiled"] == ["kth_smallest", "kth_smallest"] and again["got"] == got["want"]
+
+
+_WORKER = """
+import importlib, json
+from numba.core import event
+from lanegraph.kernels import bundle
+from lanegraph.plugins import get_plugin_manager
+
+compiled = []
+class _Count(event.Listener):
+    def on_start(self, ev):
+        compiled.append(ev.data["dispatcher"].py_func.__qualname__)
+    def on_end(self, ev):
+        pass
+event.register("numba:compile", _Count())
+get_plugin_manager()  # a runner's worker: plugins loaded, no command's compile_share
+from lanegraph.kernels.first_run import kernel_sets
+(lanes,) = [s for s in kernel_sets() if s.package == "lanegraph_lanes"]
+entry = lanes.entries[-1]
+kernel = getattr(importlib.import_module(entry["module"]), entry["name"])
+sig = tuple(bundle.decode_type(a) for a in entry["args"])
+kernel.compile(sig)
+print(json.dumps({"compiled": compiled, "hits": kernel.stats.cache_hits.get(sig, 0)}))
+"""
+
+
+def test_a_process_with_plugins_loads_kernels_from_their_bundles(tmp_path, installed_pm):
+    """A process that runs nodes without a command (a runner's worker, lanegraph.testing) finds the
+    bundles through its plugin manager at the first kernel it needs."""
+    if not all(bundle.applies(s.bundle_path) for s in first_run.kernel_sets(installed_pm) if s.entries):
+        pytest.skip("the shipped bundles were not made for this Python, numba and machine")
+    got = json.loads(_py(_WORKER, tmp_path / "kernels").stdout)
+    assert got == {"compiled": [], "hits": 1}
+
+
+def test_a_compilation_says_so_before_it_starts(tmp_path):
+    """A kernel whose types no bundle holds is compiled with a notice on stderr (once per process),
+    naming the kernel."""
+    code = (
+        "import numpy as np\n"
+        "from lanegraph.kernels import first_run\n"
+        "first_run.first_run_notice()\n"
+        "first_run._STATE['first'] = False\n"
+        "import lanegraph_lanes._select as sel\n"
+        "sel.kth_smallest(np.arange(5.0), 5, 1); sel.kth_smallest(np.arange(5, dtype=np.float32), 5, 1)\n"
+    )
+    err = _py(code, tmp_path / "k").stderr
+    assert err.count("lanegraph: compiling numba kernel lanegraph_lanes._select.kth_smallest") == 1, err
+    assert str(tmp_path / "k") in err
 
 
 def _write(path: Path, header: dict, entries: dict) -> Path:
@@ -122,6 +239,8 @@ def test_a_bundle_that_does_not_fit_is_never_used(tmp_path, monkeypatch):
     stale = _write(tmp_path / "stale.bundle", here, {key: ("0" * 64, b"never unpickled")})
     assert bundle.applies(stale) and bundle.keys(stale) == set()
     assert bundle.install(kth_smallest, sig, _KTH, stale) is False
+    monkeypatch.setattr(bundle, "_REGISTERED", {"lanegraph_lanes": stale})
+    assert bundle.load(kth_smallest.py_func, sig, kth_smallest.targetctx) is None
     # another numba, another triple, a file that is no bundle: nothing is read past the header
     other = _write(
         tmp_path / "numba.bundle", {**here, "numba": "0.1"}, {key: (bundle._digest(kth_smallest), b"x")}
@@ -133,6 +252,11 @@ def test_a_bundle_that_does_not_fit_is_never_used(tmp_path, monkeypatch):
     junk.write_bytes(b"\x89PNG not a bundle")
     assert not bundle.applies(junk) and bundle.install(kth_smallest, sig, _KTH, junk) is False
     assert not bundle.applies(tmp_path / "missing.bundle")
+    # a CPU without x86-64-v3's features (AVX2, FMA, ...): its kernels compile
+    with monkeypatch.context() as m:
+        m.setattr(bundle, "cpu_fits", lambda: False)
+        assert not bundle.applies(stale)
+    assert bundle.cpu_fits() == all(ll.get_host_cpu_features().get(f, False) for f in bundle.CPU_FEATURES)
     # turned off, or kernels not compiled at all
     for name, value in (("LANEGRAPH_KERNEL_BUNDLE", "0"), ("NUMBA_DISABLE_JIT", "1")):
         with monkeypatch.context() as m:
@@ -140,49 +264,57 @@ def test_a_bundle_that_does_not_fit_is_never_used(tmp_path, monkeypatch):
             assert not bundle.enabled() and not bundle.applies(stale)
 
 
-def test_a_first_run_without_a_helper_makes_only_what_bitcode_holds(monkeypatch):
-    """One CPU (no helper): the run itself makes, once, the listed kernels a bundle holds, and
-    compiles nothing ahead; not with LANEGRAPH_PRECOMPILE=0, nor on a later run."""
-    calls = []
+def test_a_first_run_registers_the_bundles_and_makes_nothing_ahead(monkeypatch):
+    """Where the bundles hold the default run's kernels a first run compiles and loads nothing
+    ahead (each kernel is loaded when called), on every run the bundles are registered."""
+    calls, registered = [], []
     monkeypatch.setattr(
         first_run,
         "precompile",
         lambda items, claims=None, compile_missing=True: calls.append(compile_missing) or 7,
     )
-    state = {"said": True, "armed": True, "helper": None, "claims": None, "first": False, "folder": None}
+    monkeypatch.setattr(bundle, "register", lambda sets: registered.append(list(sets)))
+    state = {
+        "said": True,
+        "armed": True,
+        "helper": None,
+        "claims": None,
+        "first": False,
+        "folder": Path("/k"),
+    }
     monkeypatch.setattr(first_run, "_STATE", state)
     monkeypatch.setenv("LANEGRAPH_PRECOMPILE", "1")
-    monkeypatch.setattr(first_run, "_planned", lambda sets, compile_missing: [(_LANES, _KTH)])
+    monkeypatch.setattr(first_run, "_split", lambda sets: ([(_LANES, _KTH)], []))
     monkeypatch.setattr(first_run, "kernel_sets", lambda pm=None: [_LANES])
-    assert first_run.compile_share() == 0 and calls == []  # not a first run
+    assert first_run.compile_share() == 0 and calls == [] and registered == [[_LANES]]  # a later run
     state["first"] = True
-    monkeypatch.setenv("LANEGRAPH_PRECOMPILE", "0")
-    assert first_run.compile_share() == 0 and calls == []
-    state["first"] = True
-    monkeypatch.setenv("LANEGRAPH_PRECOMPILE", "1")
-    assert first_run.compile_share() == 7 and calls == [False]
-    assert first_run.compile_share() == 0 and len(calls) == 1  # once
+    assert first_run.compile_share() == 0 and calls == [] and len(registered) == 2
 
 
 @pytest.mark.parametrize("fits", [True, False])
 def test_the_notice_says_what_the_first_run_costs(monkeypatch, capsys, tmp_path, fits):
-    """Issue 47: the real figure: each listed kernel's measured seconds, from bitcode where its
-    plugin's bundle holds it, compiled otherwise, shared by the run and its helper."""
+    """Issue 47: the real figure: the machine code's load time of the kernels a bundle holds (each
+    loaded when called), and the compilation of the default run's others, shared with the helper."""
     monkeypatch.setattr(
         first_run,
         "_STATE",
         {"said": False, "armed": False, "helper": None, "claims": None, "folder": tmp_path},
     )
-    entries = [{**_KTH, "seconds": 6.0, "bitcode_seconds": 1.0}, {**_KTH, "name": "other", "seconds": 4.0}]
+    entries = [
+        {**_KTH, "seconds": 6.0, "load_seconds": 0.25, "default": True},
+        {**_KTH, "name": "other", "seconds": 4.0, "load_seconds": 0.1, "default": True},
+    ]
+    sets = [KernelSet("lanegraph_lanes", tmp_path / "kernels.json", tuple(entries))]
     monkeypatch.setattr(bundle, "applies", lambda path: fits)
     monkeypatch.setattr(bundle, "keys", lambda path: {bundle.entry_key(entries[0])})
-    first_run._say_plan([(_LANES, e) for e in entries], helper=True)
+    lazy, ahead = first_run._split(sets)
+    first_run._say_plan(lazy, ahead, helper=True)
     err = capsys.readouterr().err
     assert err.startswith("lanegraph: first run of this installation on this machine")
     if fits:
-        assert "compiling 1 numba kernels and making 1 from LLVM bitcode (about 2 s on 2 cores" in err
+        assert "when first called (1 kernels, 0.2 s at most) and compiling 1 numba kernels (about 2 s" in err
     else:
-        assert "compiling 2 numba kernels (about 5 s on 2 cores" in err
+        assert lazy == [] and "compiling 2 numba kernels (about 5 s on 2 cores" in err
     assert str(tmp_path) in err
 
 
@@ -241,27 +373,20 @@ print(json.dumps({"made": made, "compiled": compiled, "value": value}))
 
 
 def test_a_third_party_plugin_ships_its_kernels_through_the_hook(tmp_path):
-    """Issue 45: a plugin's own list and bundle, named by lanegraph_kernels: its first run makes the
-    kernel from the plugin's bitcode (numba compiles nothing) and says so before any frame."""
+    """Issue 45: a plugin's own list and bundle, named by lanegraph_kernels: its first run loads the
+    kernel from the plugin's machine code (numba compiles nothing) and says so before any frame."""
     pkg = tmp_path / "src" / "lg_toy_kernels"
     pkg.mkdir(parents=True)
     (pkg / "__init__.py").write_text(_TOY_INIT)
     (pkg / "k.py").write_text(_TOY_KERNELS)
-    (pkg / "kernels.json").write_text(json.dumps([{**_TOY_ENTRY, "seconds": 0.3, "bitcode_seconds": 0.05}]))
+    (pkg / "kernels.json").write_text(json.dumps([{**_TOY_ENTRY, "seconds": 0.3, "load_seconds": 0.01}]))
     env = {"PYTHONPATH": os.pathsep.join([str(tmp_path / "src"), os.environ.get("PYTHONPATH", "")])}
-    _py(
-        _MAKE,
-        tmp_path / "maker",
-        json.dumps(_TOY_ENTRY),
-        str(pkg / "kernels.bundle"),
-        LANEGRAPH_KERNEL_BUNDLE="0",
-        **env,
-    )
+    _make(tmp_path, _TOY_ENTRY, pkg / "kernels.bundle", **env)
     env["LANEGRAPH_PRECOMPILE"] = "1"
     out = _py(_TOY_FIRST_RUN, tmp_path / "kernels", cwd=tmp_path, **env)
     got = json.loads(out.stdout)
-    assert got == {"made": 1, "compiled": [], "value": 3.0}
-    assert "making the machine code of 1 numba kernels from the plugins' LLVM bitcode" in out.stderr
+    assert got == {"made": 0, "compiled": [], "value": 3.0}  # loaded when called: nothing compiled
+    assert "loading each of its numba kernels from the plugins' machine code when first called" in out.stderr
     # without the bundle, the same first run compiles it when called
     (pkg / "kernels.bundle").unlink()
     got = json.loads(_py(_TOY_FIRST_RUN, tmp_path / "kernels2", cwd=tmp_path, **env).stdout)
@@ -269,8 +394,8 @@ def test_a_third_party_plugin_ships_its_kernels_through_the_hook(tmp_path):
 
 
 def test_a_first_run_from_the_bundles_gives_the_lanes_of_compiled_kernels(tmp_path, installed_pm):
-    """The default ``lanegraph run`` on an empty kernel folder (the helper and the run making the
-    kernels from the plugins' bundles) writes the lanes this test session's compiled kernels write."""
+    """The default ``lanegraph run`` on an empty kernel folder (each kernel loaded from its plugin's
+    bundle when called) writes the lanes this test session's compiled kernels write."""
     if not all(bundle.applies(s.bundle_path) for s in first_run.kernel_sets(installed_pm) if s.entries):
         pytest.skip("the shipped bundles were not made for this Python, numba and machine")
     from click.testing import CliRunner
@@ -290,7 +415,9 @@ def test_a_first_run_from_the_bundles_gives_the_lanes_of_compiled_kernels(tmp_pa
         env=env, capture_output=True, text=True, timeout=600, cwd=tmp_path,
     )  # fmt: skip
     assert cold.returncode == 0, cold.stderr
-    assert "LLVM bitcode" in cold.stderr.splitlines()[0]
+    said = [line for line in cold.stderr.splitlines() if not line.startswith("warning: plugin ")]
+    assert "from the plugins' machine code" in said[0]  # (a broken third-party plugin may warn first)
+    assert "compiling numba kernel" not in cold.stderr  # every kernel it calls is in the bundles
     assert (tmp_path / "cold" / "lanes.jsonl").read_bytes() == (
         tmp_path / "here" / "lanes.jsonl"
     ).read_bytes()
