@@ -35,15 +35,15 @@ from ..graph.model import Graph, GraphNode
 from ..lifecycle import close_all, constants_of, verify_all
 from ..nodes import RunContext
 from ..plugins import PluginManager, call_hook, get_plugin_manager
+from ..records.checkpointing import Checkpointer, OpenedInput, run_identity
+from ..records.results import graph_result_files
+from ..records.resume import Checkpoint, input_identity
 from ..storage import Codecs
 from .ahead import Lookahead, RunAhead, checked, count_valid
 from .cache import Caching, ResultCache, digest
-from .checkpointing import Checkpointer, OpenedInput, run_identity
 from .outcome import FrameFailure, RunResult
 from .plan import Step, frame_plan
 from .prefetch import Prefetch
-from .results import graph_result_files
-from .resume import Checkpoint, input_identity
 from .sources import chosen_params, select_source
 from .warmup import WarmUp
 
@@ -89,7 +89,7 @@ class Executor:
     ):
         """The jobs around execution are pieces passed in, each of :mod:`lanegraph.run`:
 
-        - ``checkpointer``: the checkpoint (:class:`~lanegraph.run.checkpointing.Checkpointer`): a
+        - ``checkpointer``: the checkpoint (:class:`~lanegraph.records.checkpointing.Checkpointer`): a
           file rewritten (atomically) before the first frame and after every frame consumed, and
           the checkpoint of an interrupted run to continue -- refused (:class:`UsageError`) unless
           the graph, params, input and frame selection are its own (``context.skip`` must then be

@@ -353,7 +353,7 @@ class Writer:
 def test_a_run_records_the_result_files_its_sinks_declare(tmp_path, pm):
     import copy
 
-    from lanegraph.run.results import default_names, find_result, graph_result_files
+    from lanegraph.records.results import default_names, find_result, graph_result_files
 
     class Writers:
         @staticmethod
@@ -384,7 +384,7 @@ def test_a_run_records_the_result_files_its_sinks_declare(tmp_path, pm):
 
 def test_a_run_json_naming_a_result_outside_its_folder_is_refused(tmp_path, pm):
     from lanegraph.errors import UsageError
-    from lanegraph.run.results import find_result
+    from lanegraph.records.results import find_result
 
     run = tmp_path / "run"
     run.mkdir()
@@ -401,8 +401,8 @@ def test_the_jobs_around_execution_are_pieces_passed_in(tmp_path, pm):
     import copy
     import json
 
+    from lanegraph.records.checkpointing import Checkpointer
     from lanegraph.run.cache import Caching, ResultCache
-    from lanegraph.run.checkpointing import Checkpointer
     from lanegraph.run.prefetch import Prefetch
     from lanegraph.run.warmup import WarmUp
 

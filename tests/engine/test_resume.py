@@ -173,8 +173,8 @@ def test_a_source_that_cannot_skip_is_read_past_the_frames_done(tmp_path, pm):
     """toy.count ignores context.skip: the executor drops the frames done itself, and the feedback
     value (a running sum) continues where the checkpoint left it."""
     from lanegraph.nodes import RunContext
+    from lanegraph.records.resume import load_checkpoint
     from lanegraph.run.executor import Executor
-    from lanegraph.run.resume import load_checkpoint
 
     from . import toyplugin
 
@@ -213,8 +213,8 @@ def test_a_feedback_value_a_checkpoint_cannot_hold(tmp_path, pm):
     from lanegraph import NodeParams, Port, hookimpl, node_type
     from lanegraph.errors import UsageError
     from lanegraph.nodes import RunContext
+    from lanegraph.records.resume import load_checkpoint
     from lanegraph.run.executor import Executor
-    from lanegraph.run.resume import load_checkpoint
 
     class Opaque:
         pass
@@ -280,8 +280,8 @@ def test_a_restored_feedback_value_passes_its_registered_port_types_check(tmp_pa
     from lanegraph import NodeParams, Port, PortType, hookimpl, node_type
     from lanegraph.errors import UsageError
     from lanegraph.nodes import RunContext
+    from lanegraph.records.resume import encode_value, load_checkpoint
     from lanegraph.run.executor import Executor
-    from lanegraph.run.resume import encode_value, load_checkpoint
 
     def cloud_check(v):
         ok = isinstance(v, np.ndarray) and v.ndim == 2 and v.shape[1] == 3 and v.dtype == np.float64

@@ -10,9 +10,9 @@ import pytest
 
 from lanegraph.nodes import RunContext
 from lanegraph.port_types import PORT_TYPES
+from lanegraph.records.resume import load_checkpoint
 from lanegraph.run.cache import ResultCache
 from lanegraph.run.executor import Executor
-from lanegraph.run.resume import load_checkpoint
 from lanegraph.storage import StorageError, dataclass_storage, decode_value, encode_value
 
 from . import toyplugin
