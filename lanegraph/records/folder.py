@@ -87,12 +87,6 @@ def read_state(folder: Path) -> tuple[dict[str, Any] | None, dict[str, Any] | No
     return record, _read_json(folder / CHECKPOINT)
 
 
-def _describe_identity(ident: dict[str, Any]) -> str:
-    if ident.get("kind") == "run":
-        return f"input {ident.get('input') or '(the synthetic scene)'}, frames {ident.get('frames') or 'all'}"
-    return f"{len(ident.get('variants') or [])} variant(s) {', '.join(ident.get('variants') or [])} on {', '.join(ident.get('inputs') or {}) or '?'}, frames {ident.get('frames') or 'all'}"
-
-
 def difference(
     recorded: dict[str, Any],
     current: dict[str, Any],
