@@ -178,6 +178,13 @@ def upward_imports(graph: dict[str, set[str]]) -> set[tuple[str, str]]:
     return out
 
 
+def test_every_folder_of_modules_is_a_package():
+    """A folder of modules without ``__init__.py`` imports (a namespace package) but is left out
+    of the wheel (setuptools' ``packages.find``)."""
+    folders = {p.parent for p in PACKAGE.rglob("*.py")}
+    assert sorted(str(f.relative_to(ROOT)) for f in folders if not (f / "__init__.py").is_file()) == []
+
+
 def test_every_subpackage_is_a_layer():
     assert {layer_of(m) for m in import_graph()} == set(LAYERS)
 
