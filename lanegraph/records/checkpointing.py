@@ -1,8 +1,7 @@
 """The checkpoint piece of a run: what ``lanegraph run`` keeps after every frame and what
 ``--resume`` continues from (the file format and its checks: :mod:`lanegraph.records.resume`).
 
-A :class:`Checkpointer` is handed to the executor (its ``checkpoint=`` / ``resume=`` arguments make
-one): it checks a checkpoint to resume against the graph, params, input and frame selection before
+A :class:`Checkpointer` is handed to the executor (``checkpointer=``): it checks a checkpoint to resume against the graph, params, input and frame selection before
 anything opens, against the opened source and hands the stateful nodes their states after the
 nodes open (:meth:`Checkpointer.resume_nodes`), and writes the checkpoint after every frame
 consumed (:meth:`Checkpointer.write`).
