@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from lanegraph.errors import InputError
-from lanegraph.run.results import describe, find_result
+from lanegraph.records.results import describe, find_result
 
 KEYS = ("detection_ratio", "precision", "ego_recall")
 HEADER = f"{'detection':>9s} {'precision':>9s} {'ego rec.':>9s} {'lanes':>6s}"

@@ -36,7 +36,7 @@ import threading
 import time
 from pathlib import Path
 
-from lanegraph.run.results import find_result
+from lanegraph.records.results import find_result
 
 ROOT = Path(__file__).resolve().parents[1]
 KITTI_RAW_FRAMES = 40_000

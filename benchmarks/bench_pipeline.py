@@ -61,6 +61,7 @@ from lanegraph._runtime import available_cpus
 from lanegraph.graph.validation import load_graph
 from lanegraph.nodes import RunContext
 from lanegraph.run.executor import Executor
+from lanegraph.run.prefetch import Prefetch
 
 ROOT = Path(__file__).resolve().parents[1]
 DRIVE = ROOT.parent / "shared/data/kitti_raw/2011_09_26/2011_09_26_drive_0001_sync"
@@ -253,7 +254,9 @@ def bench(
     #    disturbed one, as timeit's best of N)
     def no_read_ahead() -> Executor:
         ex = Executor(
-            load_graph(graph_path), RunContext(input_path=drive, out_dir=out_dir, frames=sel), prefetch=0
+            load_graph(graph_path),
+            RunContext(input_path=drive, out_dir=out_dir, frames=sel),
+            prefetcher=Prefetch(0),
         )
         src_node = ex.graph.source
         if "read_ahead" in type(src_node.params).model_fields:  # the source decodes no frame ahead either

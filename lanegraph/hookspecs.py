@@ -30,7 +30,7 @@ def lanegraph_port_types() -> list[Any]:
 
 @hookspec
 def lanegraph_runners() -> list[Any]:
-    """Return the runner types this plugin adds (:mod:`lanegraph.run.runners`): classes with a
+    """Return the runner types this plugin adds (:mod:`lanegraph.batches.runners`): classes with a
     ``name`` and a class method ``from_spec(text)`` that returns a runner -- an object with
     ``run(tasks, progress, echo, done)`` -- for a ``--scheduler`` text it understands, or None.
     ``run --dataset`` and ``ablate`` run their units of work on it."""

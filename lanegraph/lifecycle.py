@@ -24,7 +24,7 @@ What a class implements beyond ``__init__`` / ``__call__`` / ``__iter__`` it dec
     subclasses declare it with an empty default).
 ``resume``
     ``state() -> JSON-able`` after every frame, ``restore(state)`` after open when a run resumes
-    (``lanegraph run --resume``; :mod:`lanegraph.run.resume`) (:class:`Resumable`).
+    (``lanegraph run --resume``; :mod:`lanegraph.records.resume`) (:class:`Resumable`).
 ``constants`` (a source)
     ``constants()``: its outputs that do not change per frame (:class:`Source`, :class:`SourceNode`).
 ``len`` (a source)

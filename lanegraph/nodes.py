@@ -42,7 +42,7 @@ method itself. Two capabilities are static methods, called before anything is in
     source fits.
 ``result_files(params) -> dict[str, str]``
     a sink: the files it writes that other commands read back, by kind, relative to the output
-    folder (``{"lanes": ...}``: the lanes the metrics read, see :mod:`lanegraph.run.results`).
+    folder (``{"lanes": ...}``: the lanes the metrics read, see :mod:`lanegraph.records.results`).
 """
 
 from __future__ import annotations

@@ -29,7 +29,7 @@ from pydantic import AfterValidator
 from .errors import UsageError
 
 #: the files a run writes into ``--out`` itself; no sink may write them (the record, the timings,
-#: the checkpoint, the lock, the resolved graph of ``lanegraph.run.provenance``, the log of
+#: the checkpoint, the lock, the resolved graph of ``lanegraph.records.provenance``, the log of
 #: ``lanegraph.runlog``, a batch run's key)
 RUN_FILES = (
     "timings.json",

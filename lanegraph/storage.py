@@ -1,7 +1,7 @@
 """How a port value is stored: data only, through its port type's ``encode`` / ``decode``.
 
 A run stores values in two places: the checkpoint (``checkpoint.json``: the feedback edges'
-values, :mod:`lanegraph.run.resume`) and the result cache (:mod:`lanegraph.run.cache`). Both hold
+values, :mod:`lanegraph.records.resume`) and the result cache (:mod:`lanegraph.run.cache`). Both hold
 *data* -- JSON scalars, lists, tagged tuples and dicts, numeric NumPy arrays and scalars -- never a
 pickled object, so that reading a crafted file can build nothing but data. A value of another class
 is stored by the port type that registered it (as datasette's column types carry their own

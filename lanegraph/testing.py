@@ -289,6 +289,7 @@ def _round_trip(
     round-trips through a graph file and runs."""
     from .graph.validation import load_graph
     from .port_types import PORT_TYPES as own
+    from .run.prefetch import Prefetch
     from .run.task import run_graph
 
     types = {k: node.inputs[k].type for k in sample_inputs}
@@ -326,7 +327,7 @@ def _round_trip(
         path2.write_text(yaml.safe_dump(g.resolved_dict(), sort_keys=False))
         g2 = load_graph(path2, pm=pm)
         assert g2.resolved_dict() == g.resolved_dict(), f"{node.name}: graph file does not round-trip"
-        res = run_graph(g2, RunContext(out_dir=Path(tmp)), pm, prefetch=0)
+        res = run_graph(g2, RunContext(out_dir=Path(tmp)), pm, prefetcher=Prefetch(0))
         assert res.frames == 2, f"{node.name}: did not run in a graph"
 
 

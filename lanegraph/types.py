@@ -45,11 +45,6 @@ class PortType:
     decode: Callable[[Any], Any] | None = field(default=None, compare=False, repr=False)
 
 
-def is_port_type(name: str, types: Mapping[str, PortType]) -> bool:
-    """Whether ``name`` is a port type of ``types`` (a plugin manager's ``port_types``)."""
-    return name in types
-
-
 def port_compatible(produced: str, expected: str, types: Mapping[str, PortType]) -> bool:
     """Whether a value of port type ``produced`` may feed a port of type ``expected``: the same
     type, one of its ancestors through ``parent`` (in ``types``: a plugin manager's ``port_types``), or

@@ -46,6 +46,12 @@ class ShellBlock:
     lines: list[str]
     needs: str | None = None  # why it is skipped
     notest: bool = False
+    source: str | None = None  # ``<!-- from: PATH -->``: the file it is an excerpt of
+
+    @property
+    def text(self) -> str:
+        """The block's code, as one string ending in a newline."""
+        return "\n".join(self.lines) + "\n"
 
     @property
     def id(self) -> str:
@@ -64,8 +70,10 @@ class ShellBlock:
 
 
 def parse(path: Path, root: Path = ROOT) -> list[ShellBlock]:
-    """The fenced blocks of a page tagged as shell, with the markers just above each; every other
-    block too (``lang`` as tagged), for the check that no command hides in an untagged block."""
+    """The fenced blocks of a page, with the markers just above each (``tests/test_docs.py`` and
+    the executed-docs test read pages through this one parser): the blocks tagged as shell, and every
+    other block too (``lang`` as tagged: the python and yaml blocks test_docs runs and validates, and
+    the check that no command hides in an untagged block)."""
     rel = path.relative_to(root).as_posix()
     lines = path.read_text(encoding="utf-8").splitlines()
     blocks: list[ShellBlock] = []
@@ -75,7 +83,7 @@ def parse(path: Path, root: Path = ROOT) -> list[ShellBlock]:
         if not m:
             i += 1
             continue
-        needs, notest = None, False
+        needs, notest, source = None, False, None
         j = i - 1
         while j >= 0 and (not lines[j].strip() or _MARKER.match(lines[j].strip())):
             mk = _MARKER.match(lines[j].strip())
@@ -83,11 +91,14 @@ def parse(path: Path, root: Path = ROOT) -> list[ShellBlock]:
                 needs = mk["arg"] or ""
             elif mk and mk["kind"] == "notest":
                 notest = True
+            elif mk and mk["kind"] == "from:":
+                source = source or mk["arg"].split()[0]
             j -= 1
         end = i + 1
         while end < len(lines) and lines[end].rstrip() != "```":
             end += 1
-        blocks.append(ShellBlock(rel, i + 2, m.group(1).lower(), lines[i + 1 : end], needs, notest))
+        assert end < len(lines), f"{rel}:{i + 1}: unclosed code fence"
+        blocks.append(ShellBlock(rel, i + 2, m.group(1).lower(), lines[i + 1 : end], needs, notest, source))
         i = end + 1
     return blocks
 

@@ -82,11 +82,12 @@ def test_node_cpu_sees_every_node_of_a_run(tmp_path):
     from lanegraph.graph.validation import load_graph
     from lanegraph.nodes import RunContext
     from lanegraph.run.executor import Executor
+    from lanegraph.run.prefetch import Prefetch
 
     ex = Executor(
         load_graph(ROOT / "graphs" / "paper.yaml"),
         RunContext(input_path=None, out_dir=tmp_path, frames=slice(0, 2)),
-        prefetch=0,
+        prefetcher=Prefetch(0),
     )
     clock = bench_pipeline.NodeCpu()
     ex.pm.register(clock)

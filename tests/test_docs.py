@@ -22,7 +22,6 @@ import re
 import sys
 import traceback
 import types
-from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -34,63 +33,21 @@ from lanegraph.graph.model import GraphSpec
 from lanegraph.graph.validation import load_graph
 from lanegraph.plugins import PluginManager
 
+from ._doc_shell import ShellBlock as Block
+from ._doc_shell import doc_files, parse
+
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "docs" / "examples" / "lg_tophat"
-DOC_FILES = sorted({*ROOT.glob("docs/*.md"), *ROOT.glob("docs/examples/*/README.md"), ROOT / "README.md"})
+DOC_FILES = doc_files()
 
 #: doc blocks known to be wrong, keyed by (doc file, text in the block): a strict xfail giving the
 #: reason. Fix the doc, then delete the entry (it is inert once the text no longer matches).
 KNOWN_BROKEN = {}
 
-_FENCE = re.compile(r"^```\s*([\w+-]*)\s*$")
-_MARKER = re.compile(r"^<!--\s*(notest|from:\s*(?P<path>\S+))\s*-->$")
 _REF = re.compile(r"^([A-Za-z_][\w-]*)\.\w+(@prev)?$")
 
 
-@dataclass
-class Block:
-    doc: str  # repository-relative path of the markdown file
-    line: int  # 1-based line of the block's first code line
-    lang: str
-    text: str
-    notest: bool = False
-    source: str | None = None  # the file it is an excerpt of
-
-    @property
-    def id(self) -> str:
-        return f"{self.doc}:{self.line}"
-
-
-def parse_blocks(path: Path) -> list[Block]:
-    """Fenced code blocks of a markdown file, with the markers just above each."""
-    rel = path.relative_to(ROOT).as_posix()
-    lines = path.read_text().splitlines()
-    blocks: list[Block] = []
-    i = 0
-    while i < len(lines):
-        m = _FENCE.match(lines[i])
-        if not m:
-            i += 1
-            continue
-        notest, source = False, None
-        j = i - 1
-        while j >= 0 and (not lines[j].strip() or _MARKER.match(lines[j].strip())):
-            mk = _MARKER.match(lines[j].strip())
-            if mk:
-                notest |= mk.group(1) == "notest"
-                source = source or mk.group("path")
-            j -= 1
-        end = i + 1
-        while end < len(lines) and lines[end].rstrip() != "```":
-            end += 1
-        assert end < len(lines), f"{rel}:{i + 1}: unclosed code fence"
-        text = "\n".join(lines[i + 1 : end]) + "\n"
-        blocks.append(Block(rel, i + 2, m.group(1).lower(), text, notest, source))
-        i = end + 1
-    return blocks
-
-
-ALL_BLOCKS = [b for doc in DOC_FILES for b in parse_blocks(doc)]
+ALL_BLOCKS = [b for doc in DOC_FILES for b in parse(doc)]
 
 
 def _mark(block: Block):

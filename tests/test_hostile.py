@@ -224,7 +224,7 @@ def test_torn_and_changed_lanes_files(cli, tmp_path, installed_pm):
 
 
 def test_checkpoint_values_round_trip_exactly():
-    from lanegraph.run.resume import CheckpointValueError, decode_value, encode_value
+    from lanegraph.records.resume import CheckpointValueError, decode_value, encode_value
     from lanegraph.types import BevGeometry, FeatureMap, Lane, Line, RoadModel
 
     lane = Lane(
@@ -856,7 +856,7 @@ def test_a_full_disk_during_the_run(cli, tmp_path, monkeypatch):
 
 
 def test_a_checkpoint_that_cannot_be_written(cli, tmp_path, monkeypatch):
-    from lanegraph.run import checkpointing as executor
+    from lanegraph.records import checkpointing as executor
 
     calls = {"n": 0}
     real = executor.save_checkpoint

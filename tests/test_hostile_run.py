@@ -159,7 +159,7 @@ def test_a_feedback_value_of_the_wrong_type_is_refused(tmp_path, installed_pm):
     """A string where lanes belong used to fail frame 3 with an AttributeError."""
     from lanegraph.errors import UsageError
     from lanegraph.graph.validation import load_graph
-    from lanegraph.run.resume import check_feedback_types
+    from lanegraph.records.resume import check_feedback_types
     from lanegraph.types import Lane
 
     g = load_graph(PAPER, pm=installed_pm)
@@ -185,9 +185,9 @@ def test_a_scheduler_that_cannot_work_is_refused_at_once(monkeypatch):
     """Issue 31, item 7: ``local:1000`` on a 2-core machine was still starting workers after 120 s;
     ``ftp://x`` waited 30 s before it was refused."""
     pytest.importorskip("distributed", reason='Dask is not installed: pip install -e ".[distributed]"')
+    from lanegraph.batches import distributed
+    from lanegraph.batches.batch import parse_scheduler
     from lanegraph.errors import UsageError
-    from lanegraph.run import distributed
-    from lanegraph.run.batch import parse_scheduler
 
     monkeypatch.setattr(distributed, "_cores", lambda: 2)
     for text, words in [

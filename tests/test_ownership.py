@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 
 from lanegraph import plugins
 from lanegraph.cli import main
-from lanegraph.run import owned
+from lanegraph.records import owned
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO = str(ROOT / "graphs" / "demo_sgbm.yaml")

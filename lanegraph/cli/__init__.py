@@ -32,7 +32,7 @@ class _Lanegraph(click.Group):
     def main(self, args=None, *rest, **kwargs):  # noqa: D102 - click.Group.main
         import sys
 
-        from ..run.provenance import set_command_line
+        from ..records.provenance import set_command_line
 
         set_command_line(list(sys.argv[1:] if args is None else args))
         return super().main(args, *rest, **kwargs)

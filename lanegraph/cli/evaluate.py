@@ -128,7 +128,7 @@ def run_ground_truth(pred: Path) -> Path | None:
     ``lanes_gt.jsonl`` in the input folder its run.json names (KITTI data laid out by ``lanegraph
     data kitti``, a written synthetic sequence), else the one in the run folder (a run of the
     synthetic scene writes its exact ground truth there); None when there is neither."""
-    from ..run.record import read_record
+    from ..records.record import read_record
 
     folder = pred if pred.is_dir() else pred.parent
     record = read_record(folder)
@@ -147,7 +147,7 @@ def run_ground_truth(pred: Path) -> Path | None:
 def run_selection(pred: Path) -> tuple[Path, list[str]] | None:
     """The frames the run that wrote ``pred`` (a run folder, or the lanes file its run.json names)
     selected: ``(its folder, the frame ids)``; None when no record says."""
-    from ..run.results import LANES, find_result, recorded_selection
+    from ..records.results import LANES, find_result, recorded_selection
 
     folder = pred if pred.is_dir() else pred.parent
     sel = recorded_selection(folder)
@@ -246,8 +246,8 @@ def score_line(out_dir: Path) -> str | None:
 
 
 def _run_lanes(folder: Path, what: str = "") -> Path:
-    """The lanes file of run folder ``folder`` (the one its run.json records; :mod:`lanegraph.run.results`)."""
-    from ..run.results import LANES, describe, find_result
+    """The lanes file of run folder ``folder`` (the one its run.json records; :mod:`lanegraph.records.results`)."""
+    from ..records.results import LANES, describe, find_result
 
     lanes = find_result(folder, LANES, get_plugin_manager())
     if lanes is None:

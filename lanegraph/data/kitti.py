@@ -23,7 +23,7 @@ larger than its kind allows (:data:`MAX_TEXT` for a calibration or times file, a
 one; :data:`MAX_PNG` for an image, whose width and height are read from its PNG header: at most
 :data:`MAX_PIXELS`), a whole larger than :data:`MAX_TOTAL` or than the free space in OUT, and a
 name OUT already holds that lanegraph did not write there (its ownership record,
-:mod:`lanegraph.run.owned`: the user's own ``kitti.yaml`` or edited calibration is never replaced)
+:mod:`lanegraph.records.owned`: the user's own ``kitti.yaml`` or edited calibration is never replaced)
 are :class:`UsageError` (exit 2) naming the file and what was expected. The files are then
 copied into a new folder of OUT and moved into place only when every one was copied whole (a CRC
 error found while copying leaves OUT as it was). Output paths are
@@ -394,7 +394,7 @@ def _existing(p: Path) -> Path:
 
 def _check_taken(out: Path, rels: list[str]) -> None:
     """Refuse a name OUT holds that lanegraph did not write there (its ownership record)."""
-    from ..run import owned
+    from ..records import owned
 
     bad = owned.taken(out, dict.fromkeys(rels, "file"))
     if bad:
@@ -408,7 +408,7 @@ def _check_taken(out: Path, rels: list[str]) -> None:
 def prepare_kitti(sources: list[Path], out: Path, progress: Progress = None) -> list[str]:
     """Check and lay out ``sources`` in ``out`` (see the module's text); returns the summary lines."""
     from ..paths import new_temp_dir
-    from ..run import owned
+    from ..records import owned
 
     if str(out) == "":
         raise UsageError("--out '': an empty folder name (it would be the current folder; give . for that)")

@@ -3,7 +3,7 @@ tabulated, with the work the variants share computed once (:mod:`lanegraph.run.c
 
 The input is a :class:`~lanegraph.evaluation.dataset.Dataset` (one or more sequences). Writes
 ``OUT/runs/<variant>/<sequence>/`` per run (what its sinks write, ``timings.json``, ``run.json``;
-its lanes are found through :mod:`lanegraph.run.results`), and ``OUT/results.csv``
+its lanes are found through :mod:`lanegraph.records.results`), and ``OUT/results.csv``
 (one row per variant and sequence, and a pooled row per variant with ``sequence`` = ``all``),
 ``OUT/results.md``, ``OUT/accuracy.png`` (pooled accuracy per variant) and ``OUT/accuracy_vs_ms.png``.
 A run whose resolved graph, input files and frame selection are unchanged since the last ablation
@@ -30,13 +30,13 @@ from typing import TYPE_CHECKING, Any
 
 from ..errors import UsageError
 from ..paths import write_text_atomic
-from ..run.results import LANES, find_result
+from ..records.results import LANES, find_result
 from .dataset import POOLED, evaluate_sequences
 from .metrics import evaluate, read_predictions
 from .plots import write_ablation_plots
 
 if TYPE_CHECKING:
-    from ..run.batch import Planned
+    from ..batches.batch import Planned
 
 
 @dataclass

@@ -263,7 +263,7 @@ def _check_frame(rec: dict[str, Any], where: str, seen: dict[str, int], k: int) 
 
 
 def validate_predictions(records: list[dict[str, Any]], lines: list[int]) -> None:
-    """Check predictions records (a run's lanes, :data:`lanegraph.run.results.LANES`): ``{"frame": id,
+    """Check predictions records (a run's lanes, :data:`lanegraph.records.results.LANES`): ``{"frame": id,
     "lanes": [{"points": [[x, y], ...], ...}]}``,
     one record per frame; raises ``ValueError`` naming the line."""
     seen: dict[str, int] = {}

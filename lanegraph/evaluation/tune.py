@@ -38,9 +38,9 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ..batches.runners import Runner
 from ..errors import UsageError
 from ..run.cache import ResultCache, digest
-from ..run.runners import Runner
 from .dataset import Dataset, SequenceSpec, read_gt
 from .metrics import evaluate, read_predictions
 from .tune_runs import (
@@ -234,7 +234,7 @@ class TuneSetup:
     runner: Runner | None = None
     progress: bool = True
     echo: Callable[[str], None] = print
-    provenance: Any = None  # how the runs are made (lanegraph.run.record.Provenance), in each run.json
+    provenance: Any = None  # how the runs are made (lanegraph.records.record.Provenance), in each run.json
     on_trial: Callable[[TrialResult], None] | None = None
 
 

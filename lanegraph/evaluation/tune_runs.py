@@ -1,8 +1,8 @@
 """What ``lanegraph tune`` needs from elsewhere: its runs and its Optuna study.
 
 - :func:`run_variants` is the **one** place tune runs graphs: a list of (graph variant, sequence)
-  requests made into the batch machinery's units of work (:mod:`lanegraph.run.batch`) and run by a
-  runner (in this process or on Dask, :mod:`lanegraph.run.runners`), the result cache shared; it
+  requests made into the batch machinery's units of work (:mod:`lanegraph.batches.batch`) and run by a
+  runner (in this process or on Dask, :mod:`lanegraph.batches.runners`), the result cache shared; it
   returns each run's folder, lanes file or error. A run whose resolved graph, input and frames are
   unchanged since an earlier tune into the same folder is reused, as ``ablate`` does.
 - :func:`open_study` / :func:`make_sampler`: Optuna's study on a journal file in the output folder
@@ -18,15 +18,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ..batches.batch import Planned, Planner, run_planned
+from ..batches.runners import InProcessRunner, Runner
 from ..errors import GraphError, UsageError
 from ..graph.files import ResolvedGraph
 from ..paths import inside, safe_name
 from ..plugins import get_plugin_manager
-from ..run.batch import Planned, Planner, run_planned
+from ..records.record import Provenance
+from ..records.results import LANES, find_result
 from ..run.cache import ResultCache
-from ..run.record import Provenance
-from ..run.results import LANES, find_result
-from ..run.runners import InProcessRunner, Runner
 from ..run.task import describe_error
 from .dataset import SequenceSpec
 

@@ -155,7 +155,7 @@ class Graph:
     def carried_state(self) -> str | None:
         """What outlives a frame, as text: the feedback edges (``node.port@prev``) and the stateful
         nodes other than the source and the sinks; None when nothing does (a chunked run of such a
-        graph may differ from a whole run: :mod:`lanegraph.run.batch` says so)."""
+        graph may differ from a whole run: :mod:`lanegraph.batches.batch` says so)."""
         feedback = sorted({f"{e.src_node}.{e.src_port}@prev" for e in self.edges if e.previous})
         stateful = sorted(
             nid for nid, n in self.nodes.items() if n.type.stateful and not n.type.source and not n.type.sink

@@ -25,7 +25,6 @@ import dataclasses
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 from .. import interrupts
@@ -35,15 +34,15 @@ from ..graph.model import Graph, GraphNode
 from ..lifecycle import close_all, constants_of, verify_all
 from ..nodes import RunContext
 from ..plugins import PluginManager, call_hook, get_plugin_manager
+from ..records.checkpointing import Checkpointer, OpenedInput, run_identity
+from ..records.results import graph_result_files
+from ..records.resume import input_identity
 from ..storage import Codecs
 from .ahead import Lookahead, RunAhead, checked, count_valid
-from .cache import Caching, ResultCache, digest
-from .checkpointing import Checkpointer, OpenedInput, run_identity
+from .cache import Caching, digest
 from .outcome import FrameFailure, RunResult
 from .plan import Step, frame_plan
 from .prefetch import Prefetch
-from .results import graph_result_files
-from .resume import Checkpoint, input_identity
 from .sources import chosen_params, select_source
 from .warmup import WarmUp
 
@@ -75,12 +74,6 @@ class Executor:
         graph: Graph,
         context: RunContext | None = None,
         pm: PluginManager | None = None,
-        prefetch: int = 1,
-        cache: ResultCache | None = None,
-        cache_nodes: set[str] | None = None,
-        checkpoint: Path | None = None,
-        resume: Checkpoint | None = None,
-        warmup: int = 0,
         checkpointer: Checkpointer | None = None,
         caching: Caching | None = None,
         prefetcher: Prefetch | None = None,
@@ -89,7 +82,7 @@ class Executor:
     ):
         """The jobs around execution are pieces passed in, each of :mod:`lanegraph.run`:
 
-        - ``checkpointer``: the checkpoint (:class:`~lanegraph.run.checkpointing.Checkpointer`): a
+        - ``checkpointer``: the checkpoint (:class:`~lanegraph.records.checkpointing.Checkpointer`): a
           file rewritten (atomically) before the first frame and after every frame consumed, and
           the checkpoint of an interrupted run to continue -- refused (:class:`UsageError`) unless
           the graph, params, input and frame selection are its own (``context.skip`` must then be
@@ -97,16 +90,14 @@ class Executor:
         - ``caching``: the result cache (:class:`~lanegraph.run.cache.Caching`): results keyed by
           node type, params, upstream keys and the identity of the source's input files;
         - ``prefetcher``: the source read ahead on a thread (:class:`~lanegraph.run.prefetch.Prefetch`,
-          default one frame);
+          default one frame ahead);
         - ``warming``: warm-up frames (:class:`~lanegraph.run.warmup.WarmUp`): the first frames only
           bring the feedback edges and stateful nodes up to date (a chunk of a longer sequence
           starts from the frames before it), unseen by the sinks, untimed, without ``on_frame``.
 
-        The flags make them where a piece is not given: ``checkpoint`` (the file) and ``resume``
-        (the checkpoint to continue), ``cache`` (a :class:`~lanegraph.run.cache.ResultCache`) and
-        ``cache_nodes`` (default: every stateless node), ``prefetch`` (frames ahead, 0: none),
-        ``warmup`` (frames). ``overlap``: compute the next frame's ``ahead`` nodes while this frame's
-        later nodes run (:mod:`lanegraph.run.ahead`; ``LANEGRAPH_OVERLAP=0`` turns it off too)."""
+        A piece not given is not there (no checkpoint, no cache, no warm-up; one frame read ahead).
+        ``overlap``: compute the next frame's ``ahead`` nodes while this frame's later nodes run
+        (:mod:`lanegraph.run.ahead`; ``LANEGRAPH_OVERLAP=0`` turns it off too)."""
         self.graph = graph
         self.pm = pm or get_plugin_manager()
         #: how the result cache stores the values (the registered port types', a plugin's too)
@@ -114,19 +105,14 @@ class Executor:
         ctx0 = context or RunContext()
         # what the run is (the graph as the user wrote it), checked before anything opens
         self.identity = checkpointer.identity if checkpointer is not None else run_identity(graph, ctx0)
-        if checkpointer is None and (checkpoint is not None or resume is not None):
-            checkpointer = Checkpointer(graph, ctx0, checkpoint, resume, self.identity, self.pm.port_types)
         self.checkpointer = checkpointer
         self.checkpoint = checkpointer.path if checkpointer is not None else None
         self.resume = checkpointer.resume if checkpointer is not None else None
-        if caching is None and cache is not None:
-            caching = Caching(cache, cache_nodes)
         self.caching = caching
         self.cache = caching.cache if caching is not None else None
         self.cache_nodes = caching.nodes_of(graph) if caching is not None else set()
-        self.prefetcher = prefetcher if prefetcher is not None else Prefetch(max(0, int(prefetch)))
-        self.warming = warming if warming is not None else WarmUp(max(0, int(warmup)))
-        self.warmup = self.warming.frames
+        self.prefetcher = prefetcher if prefetcher is not None else Prefetch(1)
+        self.warming = warming if warming is not None else WarmUp(0)
         self.context = context or RunContext()
         self._select_source()
         self.result_files = graph_result_files(graph)

@@ -50,7 +50,7 @@ class RunResult:
     notes: list[str] = field(default_factory=list)
     results: dict[str, str] = field(
         default_factory=dict
-    )  # the sinks' result files by kind (lanegraph.run.results)
+    )  # the sinks' result files by kind (lanegraph.records.results)
     #: the ids of the frames of the selection the run consumed (done or failed), in order: what
     #: ``eval`` and ``report`` score (warm-up frames are not among them)
     frame_ids: list[str] = field(default_factory=list)

@@ -4,7 +4,7 @@
 
 A task is one graph on one input: ``lanegraph run`` on one input (written in place into OUT,
 checkpointed), a sequence of ``run --dataset``, a variant on a sequence of ``ablate``, or a chunk
-of any of them. Runners (:mod:`lanegraph.run.runners`) only decide where it runs. What a run keeps
+of any of them. Runners (:mod:`lanegraph.batches.runners`) only decide where it runs. What a run keeps
 beside its frames subscribes to its events (:class:`Subscriber`, as Hamilton's lifecycle adapters):
 the checkpoint, the debug pictures, ``run.log``; its record is kept when it ends (:func:`keep_record`).
 
@@ -31,15 +31,15 @@ from ..graph.files import ResolvedGraph
 from ..graph.model import Graph
 from ..nodes import RunContext
 from ..plugins import PluginManager, get_plugin_manager
+from ..records.checkpointing import Checkpointer, checkpoint_for, resumed_frame_ids
+from ..records.folder import seal
+from ..records.provenance import versions, write_resolved_graph
+from ..records.record import Provenance, RunRecord, Stopped, write_run_files
+from ..records.resume import Checkpoint
 from ..runlog import RunLog, get_logger
 from .cache import Caching, ResultCache
-from .checkpointing import Checkpointer, checkpoint_for, resumed_frame_ids
 from .executor import Executor
-from .folder import seal
 from .outcome import FrameFailure, RunResult
-from .provenance import versions, write_resolved_graph
-from .record import Provenance, RunRecord, Stopped, write_run_files
-from .resume import Checkpoint
 from .warmup import WarmUp
 
 
@@ -210,7 +210,7 @@ class Logging(Subscriber):
 
 class Sealing(Subscriber):
     """A run in place: what it wrote is recorded as lanegraph's once it has started (a killed run's
-    files are known as lanegraph's: :func:`lanegraph.run.folder.seal`)."""
+    files are known as lanegraph's: :func:`lanegraph.records.folder.seal`)."""
 
     def started(self, task, ex, folder):
         seal(folder, final=False)
@@ -266,7 +266,7 @@ def task_record(
     frame_ids: list[str] | None = None,
     pm: PluginManager | None = None,
 ) -> RunRecord:
-    """The one builder of a run's :class:`~lanegraph.run.record.RunRecord` (``task``: None for a
+    """The one builder of a run's :class:`~lanegraph.records.record.RunRecord` (``task``: None for a
     run known only by its outcome)."""
     stop = Stopped(error=error["message"], node=error["node"], frame=error["frame"]) if error else None
     made = task.provenance if task is not None else None

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 class WarmUp:
     """The first ``frames`` frames of a run only bring the feedback edges and the stateful nodes up
     to date: the sinks do not see them, their times and failures are not recorded, ``on_frame``
-    is not called for them (:mod:`lanegraph.run.batch` runs a chunk after the frames before it)."""
+    is not called for them (:mod:`lanegraph.batches.batch` runs a chunk after the frames before it)."""
 
     frames: int = 0
 

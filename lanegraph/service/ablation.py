@@ -10,18 +10,18 @@ from pathlib import Path
 from typing import Any
 
 from .. import interrupts
+from ..batches.batch import BatchRun
+from ..batches.runners import InProcessRunner, Runner
 from ..errors import InputError, LanegraphError, NotStarted, RunStopped, UsageError
 from ..evaluation.ablate import Variant, _safe, ablation_rows, distinct_folders, expand_sweeps, write_reports
 from ..evaluation.dataset import read_gt
 from ..graph.files import resolve_graph_path
 from ..paths import inside, safe_name
-from ..run.batch import BatchRun
+from ..records.folder import check as check_folder
+from ..records.folder import claim as claim_folder
+from ..records.folder import seal as seal_folder
+from ..records.provenance import git_commit, versions
 from ..run.cache import ResultCache
-from ..run.folder import check as check_folder
-from ..run.folder import claim as claim_folder
-from ..run.folder import seal as seal_folder
-from ..run.provenance import git_commit, versions
-from ..run.runners import InProcessRunner, Runner
 from ..runlog import RunLog, get_logger
 from ..tracking import CommandRecord as TrackedCommand
 from ..tracking import existing

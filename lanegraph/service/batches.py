@@ -7,12 +7,12 @@ from pathlib import Path
 from typing import Any
 
 from .. import interrupts
+from ..batches.batch import BatchRun
 from ..errors import LanegraphError, NotStarted
 from ..graph.files import ResolvedGraph
-from ..run.batch import BatchRun
-from ..run.folder import check as check_folder
-from ..run.folder import claim as claim_folder
-from ..run.folder import seal as seal_folder
+from ..records.folder import check as check_folder
+from ..records.folder import claim as claim_folder
+from ..records.folder import seal as seal_folder
 from ..runlog import RunLog
 from ..tracking import CommandRecord as TrackedCommand
 from .keeping import dataset_identity, dataset_writes, tracked_run

@@ -1,5 +1,5 @@
 """What the run service keeps beside a command's results, so that they can be trusted months later:
-the output folder claimed for one run (:mod:`lanegraph.run.folder`), the resolved graph
+the output folder claimed for one run (:mod:`lanegraph.records.folder`), the resolved graph
 (``graph.yaml``), the record's provenance (command line, overrides, versions, git commit), the run's
 log (``run.log``, :mod:`lanegraph.runlog`) and its experiment tracking (:mod:`lanegraph.tracking`).
 """
@@ -14,10 +14,10 @@ from ..errors import UsageError
 from ..evaluation.metrics import evaluate, read_ground_truth, read_predictions
 from ..frames import selection_text
 from ..paths import output_fields, safe_name
-from ..run.folder import ABLATION_NAMES, COMMAND_NAMES, RUN_NAMES, command_identity, run_identity
-from ..run.provenance import command_line, git_commit, versions
-from ..run.results import LANES, find_result
-from ..run.resume import graph_identity, resolved_input
+from ..records.folder import ABLATION_NAMES, COMMAND_NAMES, RUN_NAMES, command_identity, run_identity
+from ..records.provenance import command_line, git_commit, versions
+from ..records.results import LANES, find_result
+from ..records.resume import graph_identity, resolved_input
 from ..tracking import TrackedRun, flatten_params, tracked_row
 
 #: the ground truth a run's input folder may hold (scored when a single run is tracked)
@@ -38,7 +38,7 @@ def provenance(pm: Any, graph_file: str | Path | None, sets: Sequence[str] = ())
 def single_identity(
     resolved: dict[str, Any], input_path: Path | None, frames: slice | None
 ) -> dict[str, Any]:
-    """The identity of ``lanegraph run`` on one input (:func:`lanegraph.run.folder.run_identity`)."""
+    """The identity of ``lanegraph run`` on one input (:func:`lanegraph.records.folder.run_identity`)."""
     return run_identity(graph_identity(resolved), resolved_input(input_path), selection_text(frames))
 
 
@@ -53,7 +53,7 @@ def dataset_identity(
 def run_writes(
     g: Any, out_dir: Path, debug_dir: Path | None = None, make_report: bool = False
 ) -> dict[str, str]:
-    """What ``lanegraph run`` writes in ``out_dir`` (for :func:`lanegraph.run.owned.taken`): its own
+    """What ``lanegraph run`` writes in ``out_dir`` (for :func:`lanegraph.records.owned.taken`): its own
     files and its sinks' (``file``; a sink's folder ``tree``), the ``--debug-dir`` folder inside it
     (``dir``: its pictures go beside what is there) and the report. ``--debug-dir`` that is
     ``--out`` itself is refused (its pictures' folders would be named by frames among the user's)."""

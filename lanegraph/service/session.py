@@ -2,7 +2,7 @@
 
 A :class:`Session` (Kedro's ``KedroSession.run(runner=...)``) loads a graph, checks and locks the
 output folder, and runs every command alike: **plan** (each run a task,
-:class:`~lanegraph.run.batch.Planner`) -> **runner** (:mod:`lanegraph.run.runners`, ``--scheduler``)
+:class:`~lanegraph.batches.batch.Planner`) -> **runner** (:mod:`lanegraph.batches.runners`, ``--scheduler``)
 -> **finish** (what the command says and keeps). ``lanegraph run`` on one input is one run written
 in place into OUT (checkpointed: ``--resume``); ``run --dataset`` and ``ablate`` are batches of runs
 into folders of their own (:meth:`Session.run_tasks`, the public batch entry point). An option a
@@ -30,19 +30,19 @@ from ..graph.files import ResolvedGraph, load_graph_named, open_graph
 from ..graph.model import Graph
 from ..paths import OutputLock, prepare_dir
 from ..plugins import PluginManager, get_plugin_manager
-from ..run.folder import check as check_folder
-from ..run.folder import claim as claim_folder
-from ..run.folder import seal as seal_folder
-from ..run.provenance import command_line
-from ..run.record import CommandRecord, Provenance, VariantEntry, write_command_record
+from ..records.folder import check as check_folder
+from ..records.folder import claim as claim_folder
+from ..records.folder import seal as seal_folder
+from ..records.provenance import command_line
+from ..records.record import CommandRecord, Provenance, VariantEntry, write_command_record
 from ..runlog import RunLog
 from ..tracking import CommandRecord as TrackedCommand
 from ..tracking import Tracking
 from .keeping import GT_NAME, provenance, run_writes, single_identity, tracked_run
 
 if TYPE_CHECKING:  # the batch modules load only for a run: `lanegraph run --help` keeps its start-up
-    from ..run.batch import Batch, BatchRun, Planned
-    from ..run.runners import Runner
+    from ..batches.batch import Batch, BatchRun, Planned
+    from ..batches.runners import Runner
 
 
 def _stdout(msg: str) -> None:
@@ -117,8 +117,8 @@ class Session:
         return load_graph_named(name, sets, self.pm)
 
     def runner(self, scheduler: str | None, cache: Any = None) -> Runner:
-        """The runner of ``--scheduler`` (:func:`lanegraph.run.runners.select_runner`)."""
-        from ..run.runners import select_runner
+        """The runner of ``--scheduler`` (:func:`lanegraph.batches.runners.select_runner`)."""
+        from ..batches.runners import select_runner
 
         return select_runner(scheduler, self.pm, cache)
 
@@ -176,12 +176,12 @@ class Session:
         """Run ``runs`` (each a graph on a sequence into a folder of its own) on ``runner`` (default:
         in this process, sharing ``cache``): planned (frames counted, chunks of ``chunk_frames`` after
         ``warmup`` frames; with ``reuse`` a run whose folder holds its result already is not run
-        again), run, finished. Returns the :class:`~lanegraph.run.batch.Batch`: every run's plan
+        again), run, finished. Returns the :class:`~lanegraph.batches.batch.Batch`: every run's plan
         with its ``outcome`` and ``record`` (in memory: nothing is read back), and ``interrupted``
         when Ctrl-C stopped it (the runs that ended are kept). A run's failure is in its outcome;
         what is wrong before anything runs is raised (:class:`UsageError`, ...)."""
-        from ..run.batch import Planner, run_planned
-        from ..run.runners import InProcessRunner
+        from ..batches.batch import Planner, run_planned
+        from ..batches.runners import InProcessRunner
 
         runner = runner if runner is not None else InProcessRunner(cache)
         planner = Planner(self.pm, chunk_frames, warmup, cache, reuse=reuse, verbose=self.verbose > 0)
@@ -216,9 +216,9 @@ class Session:
         """``lanegraph run``: the graph on one input into ``out_dir``; 0, or 1 when frames failed.
         Raises :class:`NotStarted` for an input, checkpoint or folder unusable before any frame,
         :class:`RunStopped` when the run stopped (its record written), a :class:`GraphError`."""
-        from ..run.batch import Planner, run_planned
-        from ..run.checkpointing import checkpoint_for
-        from ..run.runners import InProcessRunner
+        from ..batches.batch import Planner, run_planned
+        from ..batches.runners import InProcessRunner
+        from ..records.checkpointing import checkpoint_for
 
         g = graph.validate(self.pm)
         if input_path is not None and not input_path.exists():

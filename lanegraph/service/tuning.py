@@ -1,5 +1,5 @@
 """The tune path of the run service (``lanegraph tune``): the graph and space checked, the output
-folder checked and claimed as ``ablate`` does (:mod:`lanegraph.run.folder`), the search
+folder checked and claimed as ``ablate`` does (:mod:`lanegraph.records.folder`), the search
 (:mod:`lanegraph.evaluation.tune`), its tables, tuned graph and report written, the trials tracked."""
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import interrupts
+from ..batches.runners import InProcessRunner
 from ..errors import GraphError, InputError, LanegraphError, NotStarted, RunStopped, UsageError
 from ..evaluation.tune import Counts, TrialResult, Tuner, TuneSetup, pooled
 from ..evaluation.tune_output import TUNE_FILES, tuned_description, tuned_graph, write_tables
@@ -25,20 +26,19 @@ from ..evaluation.tune_space import load_space
 from ..graph.files import resolve_graph_path
 from ..paths import write_text_atomic
 from ..presentation.tune_report import write_tune_report
+from ..records.folder import check as check_folder
+from ..records.folder import claim as claim_folder
+from ..records.folder import seal as seal_folder
+from ..records.provenance import write_resolved_graph
+from ..records.record import TuneEntry
 from ..run.cache import ResultCache
-from ..run.folder import check as check_folder
-from ..run.folder import claim as claim_folder
-from ..run.folder import seal as seal_folder
-from ..run.provenance import write_resolved_graph
-from ..run.record import TuneEntry
-from ..run.runners import InProcessRunner
 from ..runlog import RunLog, get_logger
 from ..tracking import CommandRecord, TrackedRun, existing
 from .keeping import dataset_identity
 
 #: what a tune writes into OUT (what --overwrite may remove, with runs/ and the report)
 WRITTEN = [*TUNE_FILES, JOURNAL, f"{JOURNAL}.lock", "runs", "report", "command.json", "run.log"]
-#: the names a tune writes, by kind (lanegraph.run.owned.taken): a name held by the user is refused
+#: the names a tune writes, by kind (lanegraph.records.owned.taken): a name held by the user is refused
 WRITES = {
     **dict.fromkeys([*TUNE_FILES, JOURNAL, f"{JOURNAL}.lock", "command.json", "run.log"], "file"),
     "runs": "tree",

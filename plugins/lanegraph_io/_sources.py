@@ -187,29 +187,26 @@ def check_monotonic(pairs: list[tuple[str, Path, Path]], folder: Path) -> None:
         prev = n
 
 
-def _read_ahead_field():
-    return Field(
-        -1,
-        ge=-1,
-        le=16,
-        description="frames decoded ahead of the one the run asks for, on threads (as many as the CPUs free to "
-        "the process less the one the nodes run on, at most two a frame; with 0, a pair's two images in "
-        "parallel when 2 CPUs are free); -1 = auto: 2 when the process has 2 or more CPUs free to it "
-        "(affinity mask, cgroup quota), else 0 with one image after the other",
-    )
+def _read_ahead_field(
+    description: str = "frames decoded ahead of the one the run asks for, on threads (as many as the CPUs free to "
+    "the process less the one the nodes run on, at most two a frame; with 0, a pair's two images in "
+    "parallel when 2 CPUs are free); -1 = auto: 2 when the process has 2 or more CPUs free to it "
+    "(affinity mask, cgroup quota), else 0 with one image after the other",
+):
+    """``read_ahead`` of the pair sources, and of the stream sources (``_streams``, their own
+    ``description``): one default and one range."""
+    return Field(-1, ge=-1, le=16, description=description)
 
 
-def _read_nice_field():
-    return Field(
-        0,
-        ge=0,
-        le=19,
-        description="reading ahead, how many nice steps (Linux scheduling priority) the decoding threads run "
-        "below the nodes: they then take the CPU the nodes leave idle instead of sharing it with the nodes' "
-        "threads. It pays where the nodes' threads are the longest part of a frame (paper.yaml's SGBM bands "
-        "on two CPUs: 10) and costs where the decoding is (half_res.yaml: 0). 0 = the nodes' priority; not "
-        "on other systems than Linux, nor without reading ahead",
-    )
+def _read_nice_field(
+    description: str = "reading ahead, how many nice steps (Linux scheduling priority) the decoding threads run "
+    "below the nodes: they then take the CPU the nodes leave idle instead of sharing it with the nodes' "
+    "threads. It pays where the nodes' threads are the longest part of a frame (paper.yaml's SGBM bands "
+    "on two CPUs: 10) and costs where the decoding is (half_res.yaml: 0). 0 = the nodes' priority; not "
+    "on other systems than Linux, nor without reading ahead",
+):
+    """``read_nice`` of the pair sources, and of the stream sources (their own ``description``)."""
+    return Field(0, ge=0, le=19, description=description)
 
 
 class StereoSourceParams(NodeParams):

@@ -28,7 +28,7 @@ from lanegraph.threads import available_cpus, leave_signals_to_the_main_thread, 
 
 from ._calibfiles import read_stereo_calibration
 from ._order import disparity_votes
-from ._sources import STEREO_OUTPUTS, parse_frames
+from ._sources import STEREO_OUTPUTS, _read_ahead_field, _read_nice_field, parse_frames
 from ._stereo import Rectifier, StereoCalibration
 
 log = get_logger("io")
@@ -99,20 +99,13 @@ class StreamParams(NodeParams):
         True,
         description="refuse an input whose first pair matches at negative disparities (left and right swapped)",
     )
-    read_ahead: int = Field(
-        -1,
-        ge=-1,
-        le=16,
-        description="frames decoded (and rectified) ahead of the one the run asks for, on a thread; "
-        "-1 = auto: 2 when the process has 2 or more CPUs free to it, else 0",
+    read_ahead: int = _read_ahead_field(
+        "frames decoded (and rectified) ahead of the one the run asks for, on a thread; "
+        "-1 = auto: 2 when the process has 2 or more CPUs free to it, else 0"
     )
-
-    read_nice: int = Field(
-        0,
-        ge=0,
-        le=19,
-        description="reading ahead, how many nice steps (Linux scheduling priority) the reading thread runs below "
-        "the nodes (as the pair sources' read_nice: io.auto passes paper.yaml's 10 on); 0 = the nodes' priority",
+    read_nice: int = _read_nice_field(
+        "reading ahead, how many nice steps (Linux scheduling priority) the reading thread runs below "
+        "the nodes (as the pair sources' read_nice: io.auto passes paper.yaml's 10 on); 0 = the nodes' priority"
     )
 
     @model_validator(mode="after")

@@ -13,9 +13,9 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
+from lanegraph.batches.batch import chunk_selections, clean_leftovers, parse_scheduler
 from lanegraph.cli import main
 from lanegraph.errors import UsageError
-from lanegraph.run.batch import chunk_selections, clean_leftovers, parse_scheduler
 from lanegraph.run.task import place_dir
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -257,7 +257,7 @@ for args in (sys.argv[1:5], sys.argv[5:]):
         main(args, standalone_mode=False)
     except SystemExit as exc:
         assert not exc.code, exc.code
-loaded = sorted(m for m in sys.modules if m.split(".")[0] in ("dask", "distributed") or m == "lanegraph.run.distributed")
+loaded = sorted(m for m in sys.modules if m.split(".")[0] in ("dask", "distributed") or m == "lanegraph.batches.distributed")
 print("LOADED", loaded)
 """
 
@@ -280,7 +280,7 @@ def test_no_dask_without_a_scheduler(tmp_path, synthetic_dataset):
 
 def test_a_plain_run_imports_nothing_new():
     # `lanegraph run` on one input keeps its start-up: neither the batch module nor Dask
-    code = "import sys, lanegraph.cli, lanegraph.run.executor; print(sorted(m for m in sys.modules if m.split('.')[0] in ('dask', 'distributed') or m in ('lanegraph.run.batch', 'lanegraph.run.distributed')))"
+    code = "import sys, lanegraph.cli, lanegraph.run.executor; print(sorted(m for m in sys.modules if m.split('.')[0] in ('dask', 'distributed') or m in ('lanegraph.batches.batch', 'lanegraph.batches.distributed')))"
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert p.returncode == 0 and p.stdout.strip() == "[]", p.stdout + p.stderr
 
@@ -339,9 +339,9 @@ def test_the_carried_state_is_said_only_when_a_chunk_starts_from_another_state(t
     """A chunked run of a graph with feedback edges says its lanes may differ from a whole run's
     only when a chunk's warm-up does not reach back to the selection's first frame; one chunk, or
     a warm-up as long as the frames before every chunk, runs the whole run's frames from its state."""
+    from lanegraph.batches.batch import Planner
     from lanegraph.graph.files import ResolvedGraph
     from lanegraph.plugins import get_plugin_manager
-    from lanegraph.run.batch import Planner
 
     pm, graph = get_plugin_manager(), ResolvedGraph.load(PAPER, [])
     curve = synthetic_dataset.parent / "b"  # 7 frames

@@ -8,7 +8,7 @@ import yaml
 
 from lanegraph.graph.validation import load_graph
 from lanegraph.nodes import RunContext
-from lanegraph.run.cache import ResultCache
+from lanegraph.run.cache import Caching, ResultCache
 from lanegraph.run.executor import Executor
 
 from . import toyplugin
@@ -22,7 +22,7 @@ CHAIN["nodes"]["triple"] = {"type": "toy.scale", "params": {"factor": 3}, "input
 def run(tmp_path, pm, cache, data=CHAIN, sets=()):
     p = tmp_path / "g.yaml"
     p.write_text(yaml.safe_dump(data))
-    res = Executor(load_graph(p, sets=list(sets), pm=pm), RunContext(), pm, cache=cache).run()
+    res = Executor(load_graph(p, sets=list(sets), pm=pm), RunContext(), pm, caching=Caching(cache)).run()
     return res, list(toyplugin.Collect.out)
 
 

@@ -12,6 +12,8 @@ from lanegraph.errors import GraphError, NodeError
 from lanegraph.graph.validation import load_graph
 from lanegraph.nodes import RunContext
 from lanegraph.run.executor import Executor
+from lanegraph.run.prefetch import Prefetch
+from lanegraph.run.warmup import WarmUp
 
 from . import toyplugin
 from .test_graph import VALID
@@ -130,7 +132,7 @@ def test_failure_policy_skip_and_empty(tmp_path, pm):
 
 @pytest.mark.parametrize("prefetch", [0, 1, 3])
 def test_prefetch_gives_the_same_frames(tmp_path, pm, prefetch):
-    Executor(load(tmp_path, pm), RunContext(), pm, prefetch=prefetch).run()
+    Executor(load(tmp_path, pm), RunContext(), pm, prefetcher=Prefetch(prefetch)).run()
     assert [x for _, x in toyplugin.Collect.out] == [0.0, 2.0, 6.0, 12.0]
 
 
@@ -142,11 +144,11 @@ def test_source_read_error_located_and_policy(tmp_path, pm, prefetch):
     d["nodes"]["src"] = {"type": "toy.flaky", "params": {"n": 4, "bad": 1}}
     d["nodes"].pop("k")
     with pytest.raises(NodeError) as info:
-        Executor(load(tmp_path, pm, d), RunContext(), pm, prefetch=prefetch).run()
+        Executor(load(tmp_path, pm, d), RunContext(), pm, prefetcher=Prefetch(prefetch)).run()
     assert "frame 0001" in str(info.value) and "/data/0001.png" in str(info.value)
     # a generator cannot resume after raising: later frames are lost, the failure is recorded
     d["nodes"]["src"]["on_error"] = "skip"
-    res = Executor(load(tmp_path, pm, d), RunContext(), pm, prefetch=prefetch).run()
+    res = Executor(load(tmp_path, pm, d), RunContext(), pm, prefetcher=Prefetch(prefetch)).run()
     assert [(f.frame, f.node_id) for f in res.failures] == [("0001", "src")]
     assert [f for f, _ in toyplugin.Collect.out] == ["0000"]
 
@@ -162,7 +164,7 @@ def test_source_yielding_an_error_goes_on(tmp_path, pm, prefetch):
         "on_error": "skip",
     }
     d["nodes"].pop("k")
-    res = Executor(load(tmp_path, pm, d), RunContext(), pm, prefetch=prefetch).run()
+    res = Executor(load(tmp_path, pm, d), RunContext(), pm, prefetcher=Prefetch(prefetch)).run()
     assert [f for f, _ in toyplugin.Collect.out] == ["0000", "0002", "0003"]
     assert res.failures[0].frame == "0001" and res.frames == 3
 
@@ -173,7 +175,7 @@ def test_warmup_frames_feed_the_feedback_edges_but_no_sink(tmp_path, pm):
     d = copy.deepcopy(VALID)
     d["nodes"]["src"]["params"]["n"] = 6
     seen = []
-    res = Executor(load(tmp_path, pm, d), RunContext(frames=slice(1, 6)), pm, warmup=2).run(
+    res = Executor(load(tmp_path, pm, d), RunContext(frames=slice(1, 6)), pm, warming=WarmUp(2)).run(
         on_frame=lambda i, f: seen.append((i, f))
     )
     # frames 1 and 2 only warm up acc (2, then 2 + 4); the sink and on_frame see 3, 4, 5
@@ -194,9 +196,9 @@ def test_failures_of_warmup_frames_are_not_recorded(tmp_path, pm):
     d["nodes"]["double"]["params"]["fail_on"] = 1.0
     d["nodes"]["double"]["on_error"] = "empty"
     d["nodes"]["acc"]["on_error"] = "empty"
-    res = Executor(load(tmp_path, pm, d), RunContext(), pm, warmup=2).run()
+    res = Executor(load(tmp_path, pm, d), RunContext(), pm, warming=WarmUp(2)).run()
     assert res.failures == [] and res.frames == 3
-    res = Executor(load(tmp_path, pm, d), RunContext(), pm, warmup=1).run()
+    res = Executor(load(tmp_path, pm, d), RunContext(), pm, warming=WarmUp(1)).run()
     assert [(f.frame, f.index, f.node_id) for f in res.failures] == [
         ("0001", 1, "double"),
         ("0001", 1, "acc"),
@@ -256,7 +258,7 @@ def test_after_node_receives_the_error_of_a_frame_the_source_could_not_read(tmp_
         "on_error": "skip",
     }
     d["nodes"].pop("k")
-    Executor(load(tmp_path, pm, d), RunContext(), pm, prefetch=0).run()
+    Executor(load(tmp_path, pm, d), RunContext(), pm, prefetcher=Prefetch(0)).run()
     src = [(f, o is None, type(e).__name__ if e else None) for n, f, o, e in spy.calls if n == "src"]
     assert src == [("0000", False, None), ("0001", True, "InputError"), ("0002", False, None)]
 
@@ -353,7 +355,7 @@ class Writer:
 def test_a_run_records_the_result_files_its_sinks_declare(tmp_path, pm):
     import copy
 
-    from lanegraph.run.results import default_names, find_result, graph_result_files
+    from lanegraph.records.results import default_names, find_result, graph_result_files
 
     class Writers:
         @staticmethod
@@ -384,7 +386,7 @@ def test_a_run_records_the_result_files_its_sinks_declare(tmp_path, pm):
 
 def test_a_run_json_naming_a_result_outside_its_folder_is_refused(tmp_path, pm):
     from lanegraph.errors import UsageError
-    from lanegraph.run.results import find_result
+    from lanegraph.records.results import find_result
 
     run = tmp_path / "run"
     run.mkdir()
@@ -396,43 +398,36 @@ def test_a_run_json_naming_a_result_outside_its_folder_is_refused(tmp_path, pm):
 
 def test_the_jobs_around_execution_are_pieces_passed_in(tmp_path, pm):
     """The result cache, the prefetch and the warm-up are pieces of lanegraph.run handed to the
-    executor as the checkpoint is (``caching=``, ``prefetcher=``, ``warming=``, ``checkpointer=``);
-    the flags ``cache=``, ``prefetch=``, ``warmup=``, ``checkpoint=`` make the same pieces."""
+    executor as the checkpoint is (``caching=``, ``prefetcher=``, ``warming=``, ``checkpointer=``;
+    the executor has no flags that make them); a second run reads the first one's cache."""
     import copy
     import json
 
+    from lanegraph.records.checkpointing import Checkpointer
     from lanegraph.run.cache import Caching, ResultCache
-    from lanegraph.run.checkpointing import Checkpointer
-    from lanegraph.run.prefetch import Prefetch
-    from lanegraph.run.warmup import WarmUp
 
     d = copy.deepcopy(VALID)
     d["nodes"]["src"]["params"]["n"] = 6
     cache = ResultCache(tmp_path / "cache")
     outs = []
-    for i, how in enumerate(("flags", "pieces")):
+    for i in range(2):
         g, ctx, ck = load(tmp_path, pm, d), RunContext(frames=slice(1, 6)), tmp_path / f"checkpoint{i}.json"
-        if how == "flags":
-            ex = Executor(
-                g, ctx, pm, prefetch=0, cache=cache, cache_nodes={"double"}, warmup=2, checkpoint=ck
-            )
-        else:
-            ex = Executor(
-                g,
-                ctx,
-                pm,
-                caching=Caching(cache, {"double"}),
-                prefetcher=Prefetch(0),
-                warming=WarmUp(2),
-                checkpointer=Checkpointer(g, ctx, ck, port_types=pm.port_types),
-            )
+        ex = Executor(
+            g,
+            ctx,
+            pm,
+            caching=Caching(cache, {"double"}),
+            prefetcher=Prefetch(0),
+            warming=WarmUp(2),
+            checkpointer=Checkpointer(g, ctx, ck, port_types=pm.port_types),
+        )
         assert ex.prefetcher == Prefetch(0) and ex.warming == WarmUp(2) and ex.cache_nodes == {"double"}
         res = ex.run()
         outs.append(list(toyplugin.Collect.out))
         assert res.frames == 3 and json.loads(ck.read_text())["complete"]  # the checkpoint piece wrote it
         hits = (res.cache_hits, res.cache_misses)
         # one cache (the warm-up frames' counts are not the run's)
-        assert hits == (({}, {"double": 3}) if how == "flags" else ({"double": 3}, {}))
+        assert hits == (({}, {"double": 3}) if i == 0 else ({"double": 3}, {}))
     assert outs[0] == outs[1] == [("0003", 12.0), ("0004", 20.0), ("0005", 30.0)]
     for bad in (lambda: WarmUp(-1), lambda: Prefetch(-1), lambda: WarmUp(True)):
         with pytest.raises(ValueError, match="expected an integer >= 0"):

@@ -16,8 +16,10 @@ from lanegraph import NodeParams, Port, hookimpl, node_type
 from lanegraph.errors import NodeError
 from lanegraph.graph.validation import load_graph
 from lanegraph.nodes import NodeType, RunContext
-from lanegraph.run.cache import ResultCache
+from lanegraph.run.cache import Caching, ResultCache
 from lanegraph.run.executor import Executor
+from lanegraph.run.prefetch import Prefetch
+from lanegraph.run.warmup import WarmUp
 
 from . import toyplugin
 
@@ -144,11 +146,11 @@ def test_nothing_runs_ahead_where_it_must_not(tmp_path, opm, monkeypatch, why):
     if why == "overlap=False":
         kw["overlap"] = False
     elif why == "prefetch=0":
-        kw["prefetch"] = 0
+        kw["prefetcher"] = Prefetch(0)
     elif why == "env":
         monkeypatch.setenv("LANEGRAPH_OVERLAP", "0")
     elif why == "cache":
-        kw["cache"] = ResultCache(tmp_path / "cache")
+        kw["caching"] = Caching(ResultCache(tmp_path / "cache"))
     else:
 
         class Before:
@@ -231,8 +233,8 @@ def test_a_frame_the_source_cannot_read_is_never_computed_ahead(tmp_path, opm):
 
 
 def test_warm_up_frames_run_ahead_too(tmp_path, opm):
-    seq, _, _ = run(tmp_path, opm, warmup=2, overlap=False)
-    got, _, _ = run(tmp_path, opm, warmup=2)
+    seq, _, _ = run(tmp_path, opm, warming=WarmUp(2), overlap=False)
+    got, _, _ = run(tmp_path, opm, warming=WarmUp(2))
     assert got == seq and [f for f, _ in got] == ["0002", "0003", "0004", "0005"]
 
 

@@ -11,6 +11,7 @@ from lanegraph import GraphError, NodeParams, Port, PortType, RunContext, hookim
 from lanegraph.graph.validation import validate_raw
 from lanegraph.plugins import PluginManager
 from lanegraph.run.executor import Executor
+from lanegraph.run.prefetch import Prefetch
 from lanegraph.testing import check_node_type
 
 from . import toyplugin
@@ -94,7 +95,7 @@ def test_a_graph_wires_through_a_plugin_port_type_and_its_subtype(pm):
             "out": {"type": "toy.collect", "inputs": {"frame": "src.frame", "x": "n2.n"}},
         },
     )
-    Executor(g, RunContext(), pm, prefetch=0).run()
+    Executor(g, RunContext(), pm, prefetcher=Prefetch(0)).run()
     assert [x for _, x in toyplugin.Collect.out] == [2.0, 3.0, 4.0]
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from lanegraph.graph.validation import load_graph
-from lanegraph.run.provenance import command_line, git_commit, versions, write_resolved_graph
+from lanegraph.records.provenance import command_line, git_commit, versions, write_resolved_graph
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -8,8 +8,7 @@ import pytest
 from pydantic import ValidationError
 
 from lanegraph.errors import InputError, NodeError
-from lanegraph.run.outcome import FrameFailure, RunResult
-from lanegraph.run.record import (
+from lanegraph.records.record import (
     RECORD_VERSION,
     CommandRecord,
     Provenance,
@@ -20,7 +19,8 @@ from lanegraph.run.record import (
     write_command_record,
     write_run_files,
 )
-from lanegraph.run.results import find_result
+from lanegraph.records.results import find_result
+from lanegraph.run.outcome import FrameFailure, RunResult
 
 
 def _result() -> RunResult:

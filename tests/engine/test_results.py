@@ -1,4 +1,4 @@
-"""The engine finds a run's lanes through what its sinks declare (lanegraph.run.results), never by a
+"""The engine finds a run's lanes through what its sinks declare (lanegraph.records.results), never by a
 file name of its own: a lanes file the graph renames is found by eval, report and ablate; eval's
 lateral error reads the calibration through the installed plugins."""
 
@@ -12,7 +12,7 @@ from click.testing import CliRunner
 
 from lanegraph import plugins
 from lanegraph.cli import main
-from lanegraph.run.results import LANES, default_names, find_result, recorded_result_files
+from lanegraph.records.results import LANES, default_names, find_result, recorded_result_files
 
 ROOT = Path(__file__).resolve().parents[2]
 DEMO = str(ROOT / "graphs" / "demo_sgbm.yaml")
@@ -146,7 +146,7 @@ def test_eval_lateral_reads_the_calibration_through_the_plugins(cli, scene, tmp_
 def test_the_frames_a_run_selected_are_read_from_its_record(tmp_path):
     import json
 
-    from lanegraph.run.results import recorded_selection
+    from lanegraph.records.results import recorded_selection
 
     assert recorded_selection(tmp_path) is None
     (tmp_path / "run.json").write_text(json.dumps({"status": "ok"}))

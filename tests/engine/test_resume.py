@@ -169,12 +169,21 @@ def _toy_graph(tmp_path, pm, extra: dict | None = None):
     return load_graph(p, pm=pm)
 
 
+def checkpointed(graph, context, pm, path, resume=None):
+    """An executor keeping its checkpoint in ``path`` (resuming ``resume``), as ``lanegraph run`` does."""
+    from lanegraph.records.checkpointing import Checkpointer
+    from lanegraph.run.executor import Executor
+
+    return Executor(
+        graph, context, pm, checkpointer=Checkpointer(graph, context, path, resume, port_types=pm.port_types)
+    )
+
+
 def test_a_source_that_cannot_skip_is_read_past_the_frames_done(tmp_path, pm):
     """toy.count ignores context.skip: the executor drops the frames done itself, and the feedback
     value (a running sum) continues where the checkpoint left it."""
     from lanegraph.nodes import RunContext
-    from lanegraph.run.executor import Executor
-    from lanegraph.run.resume import load_checkpoint
+    from lanegraph.records.resume import load_checkpoint
 
     from . import toyplugin
 
@@ -190,17 +199,17 @@ def test_a_source_that_cannot_skip_is_read_past_the_frames_done(tmp_path, pm):
 
     pm.register(Stop(), name="stop")
     with pytest.raises(KeyboardInterrupt):
-        Executor(_toy_graph(tmp_path, pm), RunContext(), pm, checkpoint=ck).run()
+        checkpointed(_toy_graph(tmp_path, pm), RunContext(), pm, ck).run()
     pm.unregister(name="stop")
     assert toyplugin.Collect.out == [("0000", 0.0), ("0001", 2.0)]
     state = load_checkpoint(ck)
     assert state.position == 2 and state.total == 4 and state.feedback[0].value == 2.0
-    ex = Executor(
+    ex = checkpointed(
         _toy_graph(tmp_path, pm),
         RunContext(skip=state.position, extra={"resume": True}),
         pm,
-        checkpoint=ck,
-        resume=state,
+        ck,
+        state,
     )
     res = ex.run()
     assert toyplugin.Collect.out == [("0002", 6.0), ("0003", 12.0)]  # as in the uninterrupted run
@@ -213,8 +222,7 @@ def test_a_feedback_value_a_checkpoint_cannot_hold(tmp_path, pm):
     from lanegraph import NodeParams, Port, hookimpl, node_type
     from lanegraph.errors import UsageError
     from lanegraph.nodes import RunContext
-    from lanegraph.run.executor import Executor
-    from lanegraph.run.resume import load_checkpoint
+    from lanegraph.records.resume import load_checkpoint
 
     class Opaque:
         pass
@@ -235,7 +243,7 @@ def test_a_feedback_value_a_checkpoint_cannot_hold(tmp_path, pm):
     g = _toy_graph(
         tmp_path, pm, {"op": {"type": "toy.opaque", "inputs": {"x": "src.value", "prev": "op.o@prev"}}}
     )
-    res = Executor(g, RunContext(), pm, checkpoint=ck).run()
+    res = checkpointed(g, RunContext(), pm, ck).run()
     assert res.frames == 4
     assert any(
         "--resume will not be possible" in w and "Opaque cannot be stored" in w for w in res.warnings()
@@ -246,7 +254,7 @@ def test_a_feedback_value_a_checkpoint_cannot_hold(tmp_path, pm):
         tmp_path, pm, {"op": {"type": "toy.opaque", "inputs": {"x": "src.value", "prev": "op.o@prev"}}}
     )
     with pytest.raises(UsageError, match="cannot be resumed: a feedback value cannot be stored"):
-        Executor(g, RunContext(skip=state.position), pm, checkpoint=ck, resume=state)
+        checkpointed(g, RunContext(skip=state.position), pm, ck, state)
 
 
 @pytest.mark.parametrize("sig, code, label", [("TERM", 143, "SIGTERM"), ("HUP", 129, "SIGHUP")])
@@ -280,8 +288,7 @@ def test_a_restored_feedback_value_passes_its_registered_port_types_check(tmp_pa
     from lanegraph import NodeParams, Port, PortType, hookimpl, node_type
     from lanegraph.errors import UsageError
     from lanegraph.nodes import RunContext
-    from lanegraph.run.executor import Executor
-    from lanegraph.run.resume import encode_value, load_checkpoint
+    from lanegraph.records.resume import encode_value, load_checkpoint
 
     def cloud_check(v):
         ok = isinstance(v, np.ndarray) and v.ndim == 2 and v.shape[1] == 3 and v.dtype == np.float64
@@ -326,7 +333,7 @@ def test_a_restored_feedback_value_passes_its_registered_port_types_check(tmp_pa
             "inputs": {"x": "src.value", "prev": "grow.cloud@prev", "disp": "grow.disparity@prev"},
         }
     }
-    Executor(_toy_graph(tmp_path, pm, extra), RunContext(), pm, checkpoint=ck).run()
+    checkpointed(_toy_graph(tmp_path, pm, extra), RunContext(), pm, ck).run()
     good = json.loads(ck.read_text())
     good.update(position=3, frames_ok=3, last_frame="0002", complete=False)
     good["states"] = {
@@ -339,12 +346,12 @@ def test_a_restored_feedback_value_passes_its_registered_port_types_check(tmp_pa
         data["feedback"] = [{"node": "grow", "port": port, "value": encode_value(value), "key": None}]
         ck.write_text(json.dumps(data))
         state = load_checkpoint(ck)
-        return Executor(
+        return checkpointed(
             _toy_graph(tmp_path, pm, extra),
             RunContext(skip=state.position, extra={"resume": True}),
             pm,
-            checkpoint=ck,
-            resume=state,
+            ck,
+            state,
         )
 
     resume(np.ones((3, 3)))  # a cloud: accepted
@@ -375,7 +382,7 @@ def test_a_restored_feedback_value_passes_its_registered_port_types_check(tmp_pa
     # will refuse it (not only when --resume reads it back)
     pm.port_types["point_cloud"] = PortType("point_cloud", "N x 3", check=lambda v: "expected a cloud")
     ck.unlink()
-    res = Executor(_toy_graph(tmp_path, pm, extra), RunContext(), pm, checkpoint=ck).run()
+    res = checkpointed(_toy_graph(tmp_path, pm, extra), RunContext(), pm, ck).run()
     said = "frame 0000: feedback (grow.cloud): not a value of port type 'ground_cloud' (expected a cloud)"
     assert res.frames == 4 and f"--resume will not be possible for this run: {said}" in res.warnings()
     assert load_checkpoint(ck).unresumable == said and load_checkpoint(ck).feedback == []

@@ -20,13 +20,13 @@ PAPER = str(ROOT / "graphs" / "paper.yaml")
 #: (qualified name, how it is called) -> the one module that may call it so
 ONE_PLACE = {
     ("lanegraph.run.executor.Executor", "call"): "lanegraph/run/task.py",
-    ("lanegraph.run.record.RunRecord", "call"): "lanegraph/run/record.py",
-    ("lanegraph.run.record.RunRecord", "of"): "lanegraph/run/task.py",
-    ("lanegraph.run.record.RunRecord", "model_validate"): "lanegraph/run/record.py",
-    ("lanegraph.run.record.RunRecord", "model_construct"): "lanegraph/run/record.py",
-    ("lanegraph.run.record.CommandRecord", "call"): "lanegraph/run/record.py",
-    ("lanegraph.run.record.CommandRecord", "of"): "lanegraph/service/session.py",
-    ("lanegraph.run.record.CommandRecord", "model_construct"): "lanegraph/run/record.py",
+    ("lanegraph.records.record.RunRecord", "call"): "lanegraph/records/record.py",
+    ("lanegraph.records.record.RunRecord", "of"): "lanegraph/run/task.py",
+    ("lanegraph.records.record.RunRecord", "model_validate"): "lanegraph/records/record.py",
+    ("lanegraph.records.record.RunRecord", "model_construct"): "lanegraph/records/record.py",
+    ("lanegraph.records.record.CommandRecord", "call"): "lanegraph/records/record.py",
+    ("lanegraph.records.record.CommandRecord", "of"): "lanegraph/service/session.py",
+    ("lanegraph.records.record.CommandRecord", "model_construct"): "lanegraph/records/record.py",
 }
 
 
@@ -80,8 +80,8 @@ def test_one_function_builds_every_executor_and_every_record():
     seen = {(q, how) for q, how, _, _ in found}
     # the scan finds the one places themselves (it would find the others)
     assert ("lanegraph.run.executor.Executor", "call") in seen
-    assert ("lanegraph.run.record.RunRecord", "of") in seen
-    assert ("lanegraph.run.record.CommandRecord", "of") in seen
+    assert ("lanegraph.records.record.RunRecord", "of") in seen
+    assert ("lanegraph.records.record.CommandRecord", "of") in seen
     elsewhere = [
         f"{file}:{line}: {q}{'' if how == 'call' else '.' + how}(...)"
         for q, how, file, line in found

@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from lanegraph.errors import UsageError
-from lanegraph.run.folder import claim, command_identity, run_identity, seal
+from lanegraph.records.folder import claim, command_identity, run_identity, seal
 
 RESOLVED = {"name": "g", "nodes": {"fit": {"type": "fit.irls", "params": {"roi_width": 40}}}}
 ME = run_identity("a" * 64, "/data/drive", "0:20")
@@ -215,7 +215,7 @@ def test_loose_files_and_planted_links_are_not_a_run(tmp_path):
 
 def test_a_run_writing_the_folder_now_is_said_first(tmp_path):
     from lanegraph.paths import OutputLock
-    from lanegraph.run.folder import check
+    from lanegraph.records.folder import check
 
     out = a_run(tmp_path / "out")
     with OutputLock(out, "ablate"):

@@ -10,10 +10,10 @@ import pytest
 from click.testing import CliRunner
 
 from lanegraph import hookimpl
+from lanegraph.batches.runners import DaskRunner, InProcessRunner, Runner, runner_types, select_runner
 from lanegraph.cli import main
 from lanegraph.errors import UsageError
 from lanegraph.plugins import PluginManager, get_plugin_manager
-from lanegraph.run.runners import DaskRunner, InProcessRunner, Runner, runner_types, select_runner
 from lanegraph.run.task import execute_task
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -10,12 +10,13 @@ import pytest
 
 from lanegraph.nodes import RunContext
 from lanegraph.port_types import PORT_TYPES
-from lanegraph.run.cache import ResultCache
+from lanegraph.records.resume import load_checkpoint
+from lanegraph.run.cache import Caching, ResultCache
 from lanegraph.run.executor import Executor
-from lanegraph.run.resume import load_checkpoint
 from lanegraph.storage import StorageError, dataclass_storage, decode_value, encode_value
 
 from . import toyplugin
+from .test_resume import checkpointed
 from .toyplugin import Tally, TallyPlugin
 
 GRAPH = {
@@ -95,13 +96,13 @@ def test_a_port_types_storage_is_checked_at_registration(pm):
 
 def test_a_graph_of_a_plugins_value_type_is_cached(tmp_path, tally_pm):
     cache = ResultCache(tmp_path / "cache")
-    first = Executor(_graph(tmp_path, tally_pm), RunContext(), tally_pm, cache=cache).run()
+    first = Executor(_graph(tmp_path, tally_pm), RunContext(), tally_pm, caching=Caching(cache)).run()
     out1 = list(toyplugin.Collect.out)
     assert out1 == [("0000", 0.0), ("0001", 1.0), ("0002", 3.0), ("0003", 6.0)]
     assert first.cache_misses.get("t") == 4 and not first.cache_hits
     calls = toyplugin.CALLS["tally"]
     again = Executor(
-        _graph(tmp_path, tally_pm), RunContext(), tally_pm, cache=ResultCache(tmp_path / "cache")
+        _graph(tmp_path, tally_pm), RunContext(), tally_pm, caching=Caching(ResultCache(tmp_path / "cache"))
     ).run()
     assert toyplugin.Collect.out == out1
     assert again.cache_hits.get("t") == 4 and toyplugin.CALLS["tally"] == calls  # served, not computed
@@ -125,19 +126,19 @@ def test_a_plugins_value_on_a_feedback_edge_is_carried_across_a_resumed_checkpoi
     ck = tmp_path / "checkpoint.json"
     tally_pm.register(Stop(), name="stop")
     with pytest.raises(KeyboardInterrupt):
-        Executor(_graph(tmp_path, tally_pm), RunContext(), tally_pm, checkpoint=ck).run()
+        checkpointed(_graph(tmp_path, tally_pm), RunContext(), tally_pm, ck).run()
     tally_pm.unregister(name="stop")
     before = list(toyplugin.Collect.out)
     state = load_checkpoint(ck)
     [fb] = state.feedback
     assert (fb.node, fb.port) == ("t", "tally") and fb.value["$t"] == "port" and fb.value["type"] == "tally"
     assert state.unresumable is None
-    ex = Executor(
+    ex = checkpointed(
         _graph(tmp_path, tally_pm),
         RunContext(skip=state.position, extra={"resume": True}),
         tally_pm,
-        checkpoint=ck,
-        resume=state,
+        ck,
+        state,
     )
     res = ex.run()
     assert before + toyplugin.Collect.out == uninterrupted  # the tally went on from frame 1's

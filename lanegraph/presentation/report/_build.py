@@ -19,7 +19,7 @@ from ...evaluation.metrics import evaluate
 from ...graph.model import Graph
 from ...paths import new_temp_dir, new_temp_file, prepare_dir
 from ...plugins import PluginManager, get_plugin_manager
-from ...run import owned
+from ...records import owned
 from . import _page
 from ._collect import Collected, collect
 from ._images import JpegWriter, choose_source, debug_pictures, read_left_images, recorded_debug_dir
@@ -176,7 +176,7 @@ class _Log:
 
 
 def _record_of(out: Path) -> tuple[Path, str]:
-    """The folder whose ownership record (:mod:`lanegraph.run.owned`) keeps the report's files, and
+    """The folder whose ownership record (:mod:`lanegraph.records.owned`) keeps the report's files, and
     their names' prefix there: the run or ablation folder around ``out`` when it has a genuine
     record (``RUN/report``), else ``out`` itself."""
     if owned.read(out.parent):

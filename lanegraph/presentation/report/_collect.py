@@ -2,7 +2,7 @@
 ``run.json``; with a dataset file, a run folder ``<sequence>/`` per sequence) or a ``lanegraph
 ablate`` output folder (``runs/<variant>/<sequence>/``, ``results.csv``), the ground truth, and the
 graph the run names. A run folder's lanes are the file its ``run.json`` records
-(:mod:`lanegraph.run.results`)."""
+(:mod:`lanegraph.records.results`)."""
 
 from __future__ import annotations
 
@@ -18,8 +18,8 @@ from ...evaluation.metrics import read_jsonl, select_frames
 from ...frames import parse_frames
 from ...graph.model import Graph
 from ...plugins import PluginManager
-from ...run.record import RunRecord, read_record
-from ...run.results import LANES, describe, find_result
+from ...records.record import RunRecord, read_record
+from ...records.results import LANES, describe, find_result
 
 #: the ground truth looked for in an input folder when none is given
 GT_NAME = "lanes_gt.jsonl"

@@ -188,7 +188,7 @@ def debug_pictures(
 def recorded_debug_dir(run_dir: Path) -> Path | None:
     """The ``--debug-dir`` folder the run in ``run_dir`` wrote, as its ``run.json`` records it (a
     folder inside the run folder), or None: pictures in any other folder may be another run's."""
-    from ...run.record import read_record
+    from ...records.record import read_record
 
     record = read_record(run_dir)
     rel = record.debug_dir if record is not None else None

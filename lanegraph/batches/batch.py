@@ -1,5 +1,5 @@
 """Batches: runs planned as tasks (:mod:`lanegraph.run.task`), run one after another in this process or
-in parallel on a Dask cluster (:mod:`lanegraph.run.distributed`), with the same outputs byte for
+in parallel on a Dask cluster (:mod:`lanegraph.batches.distributed`), with the same outputs byte for
 byte, and finished (chunks merged, folders of runs that could not start written, leftovers removed).
 
 A unit of work (:class:`~lanegraph.run.task.RunTask`) is one graph on one sequence: the executor sees every frame of the
@@ -28,13 +28,12 @@ from ..errors import GraphError, InputError, NodeError, UsageError
 from ..frames import selection_text
 from ..graph.files import ResolvedGraph
 from ..plugins import PluginManager
-from ..runlog import progress_bar
-from .cache import ResultCache, digest
-from .outcome import RunResult
-from .record import Provenance, RunRecord, read_record, write_run_files
-from .resume import input_identity
-from .sources import chosen_params, close_source, open_source, select_source
-from .task import (
+from ..records.record import Provenance, RunRecord, read_record, write_run_files
+from ..records.resume import input_identity
+from ..run.cache import ResultCache, digest
+from ..run.outcome import RunResult
+from ..run.sources import chosen_params, close_source, open_source, select_source
+from ..run.task import (
     RunTask,
     TaskOutcome,
     chunks_dir,
@@ -44,6 +43,7 @@ from .task import (
     task_record,
     tmp_dir,
 )
+from ..runlog import progress_bar
 
 _SCHEDULER = re.compile(r"^local(?::(?P<n>[^:]*))?$")
 

@@ -1,8 +1,7 @@
 """The checkpoint piece of a run: what ``lanegraph run`` keeps after every frame and what
-``--resume`` continues from (the file format and its checks: :mod:`lanegraph.run.resume`).
+``--resume`` continues from (the file format and its checks: :mod:`lanegraph.records.resume`).
 
-A :class:`Checkpointer` is handed to the executor (its ``checkpoint=`` / ``resume=`` arguments make
-one): it checks a checkpoint to resume against the graph, params, input and frame selection before
+A :class:`Checkpointer` is handed to the executor (``checkpointer=``): it checks a checkpoint to resume against the graph, params, input and frame selection before
 anything opens, against the opened source and hands the stateful nodes their states after the
 nodes open (:meth:`Checkpointer.resume_nodes`), and writes the checkpoint after every frame
 consumed (:meth:`Checkpointer.write`).
@@ -67,7 +66,7 @@ class Checkpointer:
 
     ``port_types``: the registered port types (a plugin manager's ``port_types``; default: the
     installed plugins'): every feedback value read back from ``resume`` must pass its port type's
-    ``check`` (:func:`~lanegraph.run.resume.check_feedback_types`), a plugin's port type's too,
+    ``check`` (:func:`~lanegraph.records.resume.check_feedback_types`), a plugin's port type's too,
     before anything opens."""
 
     def __init__(
@@ -153,7 +152,7 @@ class Checkpointer:
     ) -> None:
         """After a frame is consumed (done -- its sinks have written -- or failed): how far the run
         got, its failures, the values of the feedback edges and the stateful nodes' states, so that
-        a resumed run continues exactly where this one stopped (:mod:`lanegraph.run.resume`)."""
+        a resumed run continues exactly where this one stopped (:mod:`lanegraph.records.resume`)."""
         assert self.path is not None
         feedback: list[dict[str, Any]] = []
         if self.unresumable is None:

@@ -18,7 +18,7 @@ the cores. A local cluster also sets ``NUMBA_NUM_THREADS``, ``OMP_NUM_THREADS``,
 Progress: the tasks report frames done as Dask events (topic ``lanegraph-progress-<job>``), at most
 twice a second each, to one progress bar in the client.
 
-Only :class:`lanegraph.run.runners.DaskRunner` imports this module, and only with a scheduler: a
+Only :class:`lanegraph.batches.runners.DaskRunner` imports this module, and only with a scheduler: a
 run without one never imports Dask.
 """
 
@@ -33,8 +33,8 @@ from typing import Any
 
 from ..errors import UsageError
 from ..plugins import get_plugin_manager
+from ..run.task import RunTask, TaskOutcome, execute_task
 from .batch import Progress, SchedulerSpec
-from .task import RunTask, TaskOutcome, execute_task
 
 try:
     from distributed import WorkerPlugin as _WorkerPlugin
@@ -328,7 +328,7 @@ class _Cluster:
 
 def connect(spec: SchedulerSpec, echo: Callable[[str], None]) -> _Cluster:
     """A client on the cluster of ``spec`` (a local one started, or a scheduler reached), its
-    workers checked; ``close()`` it when done (:class:`lanegraph.run.runners.DaskRunner`)."""
+    workers checked; ``close()`` it when done (:class:`lanegraph.batches.runners.DaskRunner`)."""
     return _Cluster(spec, echo)
 
 

@@ -10,7 +10,7 @@ compare that with the command about to run:
 
 - an empty folder, or one holding no record of lanegraph's: a new folder; the run goes on, its
   files beside the user's, or is refused when one of the names it writes is taken by a path that
-  is not lanegraph's (:mod:`lanegraph.run.owned`: lanegraph replaces or removes only what its
+  is not lanegraph's (:mod:`lanegraph.records.owned`: lanegraph replaces or removes only what its
   genuine ownership record lists, for the very file);
 - the same run (same graph and params, input and frames), finished: it is run again into the folder;
 - the same run, unfinished (interrupted, killed, stopped): refused unless ``--resume`` continues it;
@@ -18,7 +18,7 @@ compare that with the command about to run:
   refused, saying what differs;
 
 each refusal with the hint: ``--resume``, ``--overwrite`` or a new folder, exit 2. ``--overwrite``
-removes what the ownership record lists (:func:`lanegraph.run.owned.clear`: all or nothing), nothing
+removes what the ownership record lists (:func:`lanegraph.records.owned.clear`: all or nothing), nothing
 else; then the run starts in a folder as good as new.
 """
 
@@ -85,12 +85,6 @@ def read_state(folder: Path) -> tuple[dict[str, Any] | None, dict[str, Any] | No
     folder = Path(folder)
     record = _read_json(folder / RECORD) or _read_json(folder / COMMAND_RECORD)
     return record, _read_json(folder / CHECKPOINT)
-
-
-def _describe_identity(ident: dict[str, Any]) -> str:
-    if ident.get("kind") == "run":
-        return f"input {ident.get('input') or '(the synthetic scene)'}, frames {ident.get('frames') or 'all'}"
-    return f"{len(ident.get('variants') or [])} variant(s) {', '.join(ident.get('variants') or [])} on {', '.join(ident.get('inputs') or {}) or '?'}, frames {ident.get('frames') or 'all'}"
 
 
 def difference(
@@ -166,7 +160,7 @@ def check(
     """Refuse (:class:`UsageError`, exit 2) a folder that may not take the run of ``identity`` (see
     the module's doc); reads only, writes nothing. With ``overwrite`` a folder of another run may.
     ``locked``: the caller holds the folder's lock (else a run writing there now is said first).
-    ``writes``: the paths the command writes (:func:`lanegraph.run.owned.taken`); one of them there
+    ``writes``: the paths the command writes (:func:`lanegraph.records.owned.taken`); one of them there
     and not lanegraph's is refused, with or without ``overwrite``."""
     folder = Path(folder)
     if not locked:
@@ -224,8 +218,8 @@ def claim(
     writes: Mapping[str, str] | None = None,
 ) -> list[Path]:
     """:func:`check` (the caller holding the folder's lock), then with ``overwrite``
-    :func:`lanegraph.run.owned.clear`; notes what ``writes`` hold before the command writes
-    (:func:`lanegraph.run.owned.begin`, for :func:`seal`). Returns what was removed."""
+    :func:`lanegraph.records.owned.clear`; notes what ``writes`` hold before the command writes
+    (:func:`lanegraph.records.owned.begin`, for :func:`seal`). Returns what was removed."""
     check(folder, identity, resume=resume, overwrite=overwrite, resolved=resolved, option=option,
           locked=True, writes=writes)  # fmt: skip
     removed = owned.clear(folder, "--overwrite") if overwrite else []
@@ -234,7 +228,7 @@ def claim(
 
 
 def seal(folder: Path, *, final: bool = True) -> None:
-    """Record what the command wrote in ``folder`` (:func:`lanegraph.run.owned.seal`): what a later
+    """Record what the command wrote in ``folder`` (:func:`lanegraph.records.owned.seal`): what a later
     ``--overwrite`` may remove. ``final=False`` early in a run, so that a killed run's files are known."""
     owned.seal(folder, final=final)
 

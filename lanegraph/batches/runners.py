@@ -14,7 +14,7 @@ registered through the same hook by :data:`BUILTIN_RUNNERS`:
 ``InProcessRunner`` (``inprocess``; no ``--scheduler``)
     the tasks one after another in this process.
 ``DaskRunner`` (``local``, ``local:N``, a scheduler address)
-    the tasks on a Dask cluster (:mod:`lanegraph.run.distributed`, the only module that imports
+    the tasks on a Dask cluster (:mod:`lanegraph.batches.distributed`, the only module that imports
     Dask). It takes every text no other runner claims (an address has no fixed form).
 """
 
@@ -27,8 +27,8 @@ from typing import Any, Protocol, runtime_checkable
 from ..errors import UsageError
 from ..hookspecs import hookimpl
 from ..plugins import call_hook
+from ..run.task import RunTask, TaskOutcome, execute_task
 from .batch import Progress, SchedulerSpec, parse_scheduler
-from .task import RunTask, TaskOutcome, execute_task
 
 
 @runtime_checkable

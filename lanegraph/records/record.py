@@ -63,7 +63,7 @@ class RunRecord(BaseModel):
 
     ``status``: ``ok``, ``failed frames`` (some frames failed and the run went on) or ``stopped``
     (``stopped`` and ``error`` say why); ``results``: the sinks' result files by kind, relative to
-    the folder (:mod:`lanegraph.run.results`); ``timings``: a copy of ``timings.json`` (what
+    the folder (:mod:`lanegraph.records.results`); ``timings``: a copy of ``timings.json`` (what
     ``ablate`` tabulates when it reuses a run); ``before_any_frame``: the run stopped before its
     first frame (an unusable input)."""
 
@@ -83,7 +83,7 @@ class RunRecord(BaseModel):
     before_any_frame: bool = False
     #: how it was made (issue 30): the command line, the ``--set`` overrides, the frames selected,
     #: the versions of what computed it, the git commit of the graph's checkout, what makes it
-    #: this run (:mod:`lanegraph.run.folder`), and what lanegraph wrote in the folder
+    #: this run (:mod:`lanegraph.records.folder`), and what lanegraph wrote in the folder
     command: list[str] = Field(default_factory=list)
     overrides: list[str] = Field(default_factory=list)
     selection: Selection | None = None
@@ -232,7 +232,7 @@ class TuneEntry(BaseModel):
 class CommandRecord(BaseModel):
     """The content of ``command.json``: an ablation or a dataset run as a whole -- its ``kind``, how
     it was made (the fields of :class:`Provenance`), its variants (an ablation's), its ``identity``
-    (:mod:`lanegraph.run.folder`) and what it wrote in its folder."""
+    (:mod:`lanegraph.records.folder`) and what it wrote in its folder."""
 
     model_config = ConfigDict(extra="forbid")
 
