@@ -30,7 +30,7 @@ A bundle is used only where it fits, else the kernels are compiled as before:
 - ``LANEGRAPH_KERNEL_BUNDLE=0`` turns it off.
 
 A bundle is read only from the folder of the plugin package that names it (never from a path a user
-or a graph names; :func:`register` takes the lists :func:`lanegraph.kernels.first_run.kernel_sets`
+or a graph names; :func:`register` takes the lists :func:`kernel_sets`
 found, called by the commands before the first frame, or at the first kernel a process loads once
 its plugin manager exists): its entries are pickles, as numba's cache files are. It is made by
 ``benchmarks/record_kernels.py`` (:func:`write_bundle` in a process with an empty kernel folder,
@@ -47,8 +47,10 @@ import platform
 import re
 import sys
 import zlib
+from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
+from typing import Any
 
 from .compat import internals_tested
 
@@ -223,14 +225,56 @@ def _registered(package: str) -> Path | None:
         pm = getattr(plugins, "_default", None)
         if pm is not None:
             _AUTO["done"] = True
-            from .first_run import kernel_sets
-
             register(kernel_sets(pm))
     return _REGISTERED.get(package)
 
 
+@dataclass(frozen=True)
+class KernelSet:
+    """A plugin's kernel list: the top-level package its entries may name, the list file, and its
+    entries (those of other packages left out)."""
+
+    package: str
+    list_path: Path
+    entries: tuple[dict, ...]
+
+    @property
+    def bundle_path(self) -> Path:
+        """The machine code of the list's kernels, beside it."""
+        return self.list_path.with_suffix(".bundle")
+
+
+def kernel_sets(pm: Any = None) -> list[KernelSet]:
+    """The kernel lists the plugins of ``pm`` (the process's plugin manager by default) name through
+    ``lanegraph_kernels``, each read from inside its plugin's package folder only; a plugin whose
+    hook raises or names a file elsewhere is passed over (its kernels compile when called)."""
+    if pm is None:
+        from ..plugins import get_plugin_manager
+
+        pm = get_plugin_manager()
+    hook = getattr(pm.hook, "lanegraph_kernels", None)
+    sets = []
+    for impl in reversed(hook.get_hookimpls() if hook is not None else []):
+        name = getattr(impl.plugin, "__name__", None) or type(impl.plugin).__module__
+        package = str(name).split(".")[0]
+        module = sys.modules.get(package)
+        home = getattr(module, "__file__", None)
+        try:
+            named = impl.function()
+        except Exception:  # noqa: BLE001 - a hint only: the plugin's kernels compile when called
+            continue
+        if named is None or home is None:
+            continue
+        path = Path(named).resolve()
+        if Path(home).resolve().parent not in path.parents:
+            continue  # beside the plugin's code only
+        entries = tuple(e for e in read_list(path) if str(e.get("module", "")).split(".")[0] == package)
+        sets.append(KernelSet(package, path, entries))
+    return sets
+
+
 def register(sets) -> None:
-    """Use these kernel lists' bundles (:class:`lanegraph.kernels.first_run.KernelSet`: a package and
+    """Use these kernel lists' bundles (:class:`KernelSet`: a package and
     its list, read from inside the plugin's folder) for their packages' kernels from now on."""
     for s in sets:
         if s.entries:

@@ -46,12 +46,11 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from . import bundle
-from .bundle import decode_type, encode_type, install, read_list
+from .bundle import KernelSet, decode_type, encode_type, install, kernel_sets
 from .compat import internals_tested, kept_call_types
 from .folder import kernel_folder, write_private
 
@@ -68,50 +67,6 @@ _STATE: dict = {
 
 #: the folder that holds the ``lanegraph`` package (site-packages, or a checkout's root)
 _PACKAGE_ROOT = Path(__file__).resolve().parent.parent.parent
-
-
-@dataclass(frozen=True)
-class KernelSet:
-    """A plugin's kernel list: the top-level package its entries may name, the list file, and its
-    entries (those of other packages left out)."""
-
-    package: str
-    list_path: Path
-    entries: tuple[dict, ...]
-
-    @property
-    def bundle_path(self) -> Path:
-        """The machine code of the list's kernels, beside it."""
-        return self.list_path.with_suffix(".bundle")
-
-
-def kernel_sets(pm: Any = None) -> list[KernelSet]:
-    """The kernel lists the plugins of ``pm`` (the process's plugin manager by default) name through
-    ``lanegraph_kernels``, each read from inside its plugin's package folder only; a plugin whose
-    hook raises or names a file elsewhere is passed over (its kernels compile when called)."""
-    if pm is None:
-        from ..plugins import get_plugin_manager
-
-        pm = get_plugin_manager()
-    hook = getattr(pm.hook, "lanegraph_kernels", None)
-    sets = []
-    for impl in reversed(hook.get_hookimpls() if hook is not None else []):
-        name = getattr(impl.plugin, "__name__", None) or type(impl.plugin).__module__
-        package = str(name).split(".")[0]
-        module = sys.modules.get(package)
-        home = getattr(module, "__file__", None)
-        try:
-            named = impl.function()
-        except Exception:  # noqa: BLE001 - a hint only: the plugin's kernels compile when called
-            continue
-        if named is None or home is None:
-            continue
-        path = Path(named).resolve()
-        if Path(home).resolve().parent not in path.parents:
-            continue  # beside the plugin's code only
-        entries = tuple(e for e in read_list(path) if str(e.get("module", "")).split(".")[0] == package)
-        sets.append(KernelSet(package, path, entries))
-    return sets
 
 
 def _held(s: KernelSet) -> set[str]:
