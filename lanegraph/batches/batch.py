@@ -366,8 +366,11 @@ def clean_leftovers(run_dir: Path, in_place: bool = False) -> None:
     parent = run_dir.parent
     if not parent.is_dir():
         return
-    for pattern in (f".{run_dir.name}.tmp-*", f".{run_dir.name}.old-*", f".{run_dir.name}.chunks"):
-        for p in parent.glob(pattern):
+    ours = re.compile(
+        rf"\.{re.escape(run_dir.name)}\.(tmp-\d+-[0-9a-f]{{8}}|old-[0-9a-f]{{8}}|chunks)"
+    )  # exactly the names tmp_dir, place_dir and chunks_dir give: a user's ".NAME.tmp-notes" is not ours
+    for p in parent.iterdir():
+        if ours.fullmatch(p.name) and p.is_dir() and not p.is_symlink():
             shutil.rmtree(p, ignore_errors=True)
 
 

@@ -67,10 +67,10 @@ def test_place_dir_replaces_a_folder_whole_and_leftovers_go(tmp_path):
     (new / "lanes.jsonl").write_text("{}\n")
     place_dir(new, dest)
     assert sorted(p.name for p in dest.iterdir()) == ["lanes.jsonl"] and not new.exists()
-    for left in (".seq.tmp-99-dead", ".seq.old-1", ".seq.chunks", ".other.tmp-1-x"):
+    for left in (".seq.tmp-99-deadbeef", ".seq.old-00000001", ".seq.chunks", ".other.tmp-1-abcdef01"):
         (tmp_path / "runs" / left).mkdir()
     clean_leftovers(dest)
-    assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == [".other.tmp-1-x", "seq"]
+    assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == [".other.tmp-1-abcdef01", "seq"]
 
 
 def test_run_dataset_writes_each_sequence_like_a_single_run(tmp_path, synthetic_dataset):
@@ -370,3 +370,24 @@ def test_a_dataset_run_on_a_pipe_says_it_has_started(tmp_path, synthetic_dataset
     assert r.exit_code == 0, r.output
     assert "frames: 0/12 frames" in r.output.splitlines()
     assert "\r" not in r.output
+
+
+def test_clean_leftovers_removes_only_the_names_lanegraph_gives(tmp_path):
+    """A killed task's temporary folder, a replaced run and the chunk folder go; a user's folders
+    whose names merely start the same way, and a link, stay (the ownership rule: never by pattern)."""
+    from lanegraph.run.task import chunks_dir, tmp_dir
+
+    run = tmp_path / "seq"
+    ours = [tmp_dir(run), tmp_path / ".seq.old-0123abcd", chunks_dir(run)]
+    users = [tmp_path / ".seq.tmp-notes", tmp_path / ".seq.old-backup", tmp_path / ".seq.chunks.bak"]
+    for p in ours + users:
+        p.mkdir()
+        (p / "f.txt").write_text("x")
+    target = tmp_path / "elsewhere"
+    target.mkdir()
+    (target / "keep.txt").write_text("x")
+    (tmp_path / ".seq.old-89abcdef").symlink_to(target)
+    clean_leftovers(run)
+    assert [p for p in ours if p.exists()] == []
+    assert all((p / "f.txt").read_text() == "x" for p in users)
+    assert (target / "keep.txt").exists() and (tmp_path / ".seq.old-89abcdef").is_symlink()
