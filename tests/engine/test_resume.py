@@ -104,7 +104,15 @@ def interrupted_run(out: Path, spec: str | None, *extra: str) -> subprocess.Comp
         *SMALL,
         *extra,
     ]
-    return subprocess.run(args, capture_output=True, text=True, env=env, timeout=300)
+    # the run's own handlers: a test started under nohup would hand SIGHUP down ignored, and lanegraph
+    # rightly keeps a signal the user asked to ignore (lanegraph.interrupts)
+    return subprocess.run(
+        args, capture_output=True, text=True, env=env, timeout=300, preexec_fn=_default_sighup
+    )
+
+
+def _default_sighup() -> None:
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)
 
 
 @pytest.fixture(scope="module")
