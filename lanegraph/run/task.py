@@ -32,7 +32,7 @@ from ..graph.model import Graph
 from ..nodes import RunContext
 from ..plugins import PluginManager, get_plugin_manager
 from ..records.checkpointing import Checkpointer, checkpoint_for, resumed_frame_ids
-from ..records.folder import seal
+from ..records.owned import seal
 from ..records.provenance import versions, write_resolved_graph
 from ..records.record import Provenance, RunRecord, Stopped, write_run_files
 from ..records.resume import Checkpoint
@@ -210,7 +210,7 @@ class Logging(Subscriber):
 
 class Sealing(Subscriber):
     """A run in place: what it wrote is recorded as lanegraph's once it has started (a killed run's
-    files are known as lanegraph's: :func:`lanegraph.records.folder.seal`)."""
+    files are known as lanegraph's: :func:`lanegraph.records.owned.seal`)."""
 
     def started(self, task, ex, folder):
         seal(folder, final=False)
