@@ -6,7 +6,8 @@ log (``run.log``, :mod:`lanegraph.runlog`) and its experiment tracking (:mod:`la
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -14,11 +15,13 @@ from ..errors import UsageError
 from ..evaluation.metrics import evaluate, read_ground_truth, read_predictions
 from ..frames import selection_text
 from ..paths import output_fields, safe_name
-from ..records.folder import ABLATION_NAMES, COMMAND_NAMES, RUN_NAMES, command_identity, run_identity
+from ..records.folder import ABLATION_NAMES, COMMAND_NAMES, RUN_NAMES, claim, command_identity, run_identity
+from ..records.owned import seal
 from ..records.provenance import command_line, git_commit, versions
 from ..records.results import LANES, find_result
 from ..records.resume import graph_identity, resolved_input
-from ..tracking import TrackedRun, flatten_params, tracked_row
+from ..runlog import RunLog, get_logger
+from ..tracking import CommandRecord, TrackedRun, flatten_params, tracked_row
 
 #: the ground truth a run's input folder may hold (scored when a single run is tracked)
 GT_NAME = "lanes_gt.jsonl"
@@ -48,6 +51,50 @@ def dataset_identity(
     """The identity of an ablation or a dataset run: its variants, its sequences' inputs, its frames."""
     inputs = {s.name: resolved_input(s.input) for s in dataset}
     return command_identity(kind, list(variants), inputs, selection_text(frames))
+
+
+@contextmanager
+def command_kept(
+    session: Any,
+    out_dir: Path,
+    identity: dict[str, Any],
+    writes: Mapping[str, str],
+    tracked: CommandRecord,
+    keep: Callable[[bool], None],
+    said: str | None = None,
+    append: bool = False,
+) -> Iterator[None]:
+    """What a batch command (``run --dataset``, ``ablate``, ``tune``) keeps beside its results once
+    OUT is locked: the folder claimed (``--overwrite`` clears lanegraph's files only), the tracker's
+    command run (started first: one that cannot start leaves no record to block a retry; ended
+    ``interrupted`` if the block raises), ``command.json`` (``keep(final)``, before and after the
+    block) and ``run.log`` (opening with the line ``said``); the folder sealed as lanegraph's."""
+    claim(out_dir, identity, overwrite=session.overwrite, writes=writes)
+    session.tracking.start(tracked)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    keep(False)
+    seal(out_dir, final=False)  # a killed command's files are known as lanegraph's
+    try:
+        with RunLog(out_dir, verbose=session.verbose > 0, append=append):
+            if said is not None:
+                get_logger("run").info(said, extra={"file_only": True})
+            yield
+    except BaseException:
+        session.tracking.end("interrupted")
+        seal(out_dir)
+        raise
+    keep(True)
+    seal(out_dir)
+
+
+def result_cache(cache_dir: Path | None, cache_max_gb: float, no_cache: bool) -> Any:
+    """The result cache of ``--cache-dir`` and ``--cache-max-gb`` (None with ``--no-cache``)."""
+    from ..run.cache import ResultCache
+
+    try:
+        return None if no_cache else ResultCache(cache_dir, int(cache_max_gb * 1024**3))
+    except OSError as exc:
+        raise UsageError(f"--cache-dir: cannot use the result cache: {exc.strerror or exc}") from None
 
 
 def run_writes(
@@ -154,3 +201,13 @@ def tracked_ablation_runs(
         tags = {"lanegraph.graph": str(row.get("graph") or ""), "lanegraph.sets": str(row.get("sets") or "")}
         out.append(tracked_row(row, params, run_dir, results, tags))
     return out
+
+
+def debug_frames_option(text: str | None) -> tuple[str, ...] | None:
+    """``--debug-frames``: frame ids or indices, comma-separated (None: every frame)."""
+    if text is None:
+        return None
+    chosen = tuple(dict.fromkeys(item.strip() for item in text.split(",") if item.strip()))
+    if not chosen:
+        raise UsageError(f"--debug-frames {text!r}: expected frame ids or indices, comma-separated")
+    return chosen
