@@ -382,6 +382,16 @@ def new_temp_dir(folder: Path, prefix: str = ".") -> Path:
     raise FileExistsError(errno.EEXIST, "no unused temporary folder name", str(folder))
 
 
+def relative_inside(path: Path | None, folder: Path) -> str | None:
+    """``path`` relative to ``folder`` (both resolved) when it lies inside it, else None."""
+    if path is None:
+        return None
+    try:
+        return str(Path(path).resolve().relative_to(Path(folder).resolve()))
+    except (ValueError, OSError):
+        return None
+
+
 def write_bytes_atomic(path: Path, data: bytes, mode: int = _FILE_MODE) -> None:
     """Write ``data`` to ``path`` through a new temporary file in the same folder and a rename: never
     half a file, and never through a symbolic or hard link planted at ``path`` (the rename replaces
@@ -428,6 +438,7 @@ __all__ = [
     "output_fields",
     "output_problems",
     "prepare_dir",
+    "relative_inside",
     "relative_output",
     "safe_name",
     "create_new",
