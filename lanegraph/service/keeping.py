@@ -14,10 +14,9 @@ from typing import Any
 from ..errors import UsageError
 from ..evaluation.metrics import evaluate, read_ground_truth, read_predictions
 from ..frames import selection_text
-from ..paths import output_fields, safe_name
+from ..paths import output_fields, relative_inside, safe_name
 from ..records.folder import ABLATION_NAMES, COMMAND_NAMES, RUN_NAMES, claim, command_identity, run_identity
 from ..records.owned import seal
-from ..records.provenance import command_line, git_commit, versions
 from ..records.results import LANES, find_result
 from ..records.resume import graph_identity, resolved_input
 from ..runlog import RunLog, get_logger
@@ -27,15 +26,6 @@ from ..tracking import CommandRecord, TrackedRun, flatten_params, tracked_row
 GT_NAME = "lanes_gt.jsonl"
 #: the files of an ablation folder (besides runs/ and the report) its tracking keeps
 ABLATION_FILES = ("results.csv", "results.md", "accuracy.png", "accuracy_vs_ms.png", "command.json")
-
-
-def provenance(pm: Any, graph_file: str | Path | None, sets: Sequence[str] = ()) -> dict[str, Any]:
-    """The fields of a record that say how it was made: ``command``, ``overrides``, ``versions``
-    and ``git`` (the commit of the graph file's checkout, when it lies in one)."""
-    out = {"command": command_line(), "overrides": list(sets), "versions": versions(pm)}
-    if graph_file:
-        out["git"] = git_commit(Path(graph_file))
-    return out
 
 
 def single_identity(
@@ -144,16 +134,6 @@ def ablation_writes(variant_folders: Sequence[str], dataset: Any, make_report: b
     if make_report:
         writes.update(REPORT_WRITES)
     return writes
-
-
-def relative_inside(path: Path | None, folder: Path) -> str | None:
-    """``path`` relative to ``folder`` when it lies inside it (what ``--overwrite`` may remove)."""
-    if path is None:
-        return None
-    try:
-        return str(Path(path).resolve().relative_to(Path(folder).resolve()))
-    except (ValueError, OSError):
-        return None
 
 
 def tracked_run(

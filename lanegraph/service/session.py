@@ -33,12 +33,12 @@ from ..plugins import PluginManager, get_plugin_manager
 from ..records.folder import check as check_folder
 from ..records.folder import claim as claim_folder
 from ..records.owned import seal as seal_folder
-from ..records.provenance import command_line
+from ..records.provenance import command_line, git_commit, versions
 from ..records.record import CommandRecord, Provenance, VariantEntry, write_command_record
 from ..runlog import RunLog
 from ..tracking import CommandRecord as TrackedCommand
 from ..tracking import Tracking
-from .keeping import GT_NAME, debug_frames_option, provenance, run_writes, single_identity, tracked_run
+from .keeping import GT_NAME, debug_frames_option, run_writes, single_identity, tracked_run
 
 if TYPE_CHECKING:  # the batch modules load only for a run: `lanegraph run --help` keeps its start-up
     from ..batches.batch import Batch, BatchRun, Planned
@@ -123,8 +123,10 @@ class Session:
         return select_runner(scheduler, self.pm, cache)
 
     def provenance(self, graph_file: str | Path | None, sets: Sequence[str] = ()) -> Provenance:
-        """How the runs of this command are made (:func:`lanegraph.service.keeping.provenance`)."""
-        return Provenance(**provenance(self.pm, graph_file, sets))
+        """How the runs of this command are made: the command line, the ``--set`` overrides, the
+        versions and the commit of the graph file's checkout (when it lies in one)."""
+        git = git_commit(Path(graph_file)) if graph_file else None
+        return Provenance(command=command_line(), overrides=list(sets), versions=versions(self.pm), git=git)
 
     def keep_command(
         self,
