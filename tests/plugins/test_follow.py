@@ -14,6 +14,7 @@ from lanegraph_lanes._follow import (
     MergeParams,
     _follow_kernel,
     _seeds,
+    _window_box,
     _window_sums,
     follow,
     merge,
@@ -316,6 +317,32 @@ def test_follow_kernel_matches_numpy_twin_on_random_slanted_strokes(seed):
         psi0 = math.pi / 2 - ang[k] + rng.uniform(-0.3, 0.3)
         for psi in (psi0, psi0 + math.pi):  # up, then down (the way up's features its own)
             _, owner, _ = kernel_and_twin(feats, rows, cols, (float(ts[k]), float(cs[k]), psi), owner, steep)
+
+
+def test_the_window_box_holds_every_point_of_its_window():
+    """``_window_box``, where the kernel looks for a window's features: every point of the window
+    (``u`` in [0, step], ``v`` in [v_lo, v_hi], corners included) lies in its columns, and every BEV
+    row such a point lies on or between; the box reaches a pixel beyond the corners, no further;
+    no rows where the window lies wholly above or below the BEV."""
+    rng = np.random.default_rng(4)
+    n_rows = 200
+    for _ in range(300):
+        x, y = rng.uniform(-60.0, 260.0, 2)
+        psi = rng.uniform(0.0, 2 * math.pi)
+        cp, sp = math.cos(psi), math.sin(psi)
+        step, v_lo = rng.uniform(5.0, 40.0), rng.uniform(-30.0, 5.0)
+        v_hi = v_lo + rng.uniform(0.0, 30.0)
+        x_lo, x_hi, r_lo, r_hi = _window_box(x, y, cp, sp, step, v_lo, v_hi, n_rows)
+        u = np.concatenate([[0.0, 0.0, step, step], rng.uniform(0.0, step, 400)])
+        v = np.concatenate([[v_lo, v_hi, v_lo, v_hi], rng.uniform(v_lo, v_hi, 400)])
+        px, py = x + u * cp - v * sp, y + u * sp + v * cp
+        assert (px > x_lo).all() and (px < x_hi).all()
+        assert np.isclose(px[:4].min() - 1.0, x_lo) and np.isclose(px[:4].max() + 1.0, x_hi)
+        rows = n_rows - 1 - py  # the BEV rows the points lie on or between
+        on = (rows > -1) & (rows < n_rows)
+        assert (np.floor(rows[on]).clip(0, n_rows - 1) >= r_lo).all()
+        assert (np.ceil(rows[on]).clip(0, n_rows - 1) <= r_hi).all()
+        assert (r_lo > r_hi) == (py[:4].min() - 1.0 >= n_rows or py[:4].max() + 1.0 <= -1.0)
 
 
 def test_a_guide_window_whose_curvature_reached_the_clamp_guides_no_line():
