@@ -110,11 +110,29 @@ def _guide_at(x, y, psi, gx, gy, gpsi, gk, n_guide, guide_max, step, cos_max, ma
 
 
 @jit
+def _window_box(x, y, cp, sp, step, v_lo, v_hi, n_rows):
+    """Where the features of a window's part ``u`` in [0, step], ``v`` in [v_lo, v_hi] can lie (``u``
+    along the heading ``(cp, sp)`` from ``(x, y)``, ``v`` across it to the left, pixels): columns
+    ``x_lo``..``x_hi`` and BEV rows ``r_lo``..``r_hi`` of its bounding box padded by a pixel, the
+    rows clamped to -1..n_rows (none when ``r_lo > r_hi``). Only where the kernel looks: the tests
+    on ``u`` and ``v`` decide which features are in."""
+    x_lo = x + min(0.0, step * cp) - max(v_lo * sp, v_hi * sp) - 1.0
+    x_hi = x + max(0.0, step * cp) - min(v_lo * sp, v_hi * sp) + 1.0
+    y_lo = y + min(0.0, step * sp) + min(v_lo * cp, v_hi * cp) - 1.0
+    y_hi = y + max(0.0, step * sp) + max(v_lo * cp, v_hi * cp) + 1.0
+    # BEV rows: row = n_rows - 1 - t
+    r_lo = min(max(int(math.floor(n_rows - 1 - y_hi)), 0), n_rows)
+    r_hi = max(min(int(math.ceil(n_rows - 1 - y_lo)), n_rows - 1), -1)
+    return x_lo, x_hi, r_lo, r_hi
+
+
+@jit
 def _follow_kernel(
     t,
     c,
     theta,
     row_start,
+    n_cols,
     t0,
     c0,
     psi0,
@@ -147,8 +165,13 @@ def _follow_kernel(
 
     ``t``, ``c``, ``theta``: the features' t (descending: row-major order of the BEV), column and
     orientation (radians in [0, pi), -1 unknown); ``row_start``: index of the first feature of each
-    BEV row (length rows + 1). Features taken by the track get ``owner[i] = track`` where ``owner``
-    was -1; features of other tracks (``owner[i]`` >= 0, not ``track``) are not looked at.
+    BEV row (length rows + 1); ``n_cols``: the BEV's columns. A window fits a straight line across
+    its features (``u`` in [0, step] along the heading, within ``half_w`` (widened after a gap)
+    across the predicted arc, the orientation test passed); the features within ``half_w`` across
+    that line (``u`` in [0, step], the orientation test passed) are taken: they get
+    ``owner[i] = track`` where ``owner`` was -1; features of other tracks (``owner[i]`` >= 0, not
+    ``track``) are not looked at. A window that lies wholly beside the BEV (the line left it
+    through its side) or above or below it ends the track.
 
     ``steep``: per BEV row, 1 where the BEV repeats one image row over several BEV rows (a slanted
     line turns into a staircase there and its features read steeper than the line); once the track
@@ -168,7 +191,6 @@ def _follow_kernel(
     Returns ``(windows with features, features taken, lowest and highest t taken, t where the
     heading first turns further from straight ahead than ``asin(sin_turn)``, window centres written)``."""
     n_rows = row_start.shape[0] - 1
-    ncols_hi = 1e9
     x = c0
     y = t0
     psi = psi0
@@ -195,23 +217,15 @@ def _follow_kernel(
         o_psi = psi - math.pi * math.floor(psi / math.pi)
         o_lo = min(o_psi, 0.5 * math.pi)
         o_hi = max(o_psi, 0.5 * math.pi)
-        # window: along u in [0, step] from (x, y), across v within hw of the predicted arc; after
-        # a gap the prediction is less sure: the window widens with the gap's length
+        # window: along u in [0, step] from (x, y), across v within hw of the predicted arc (its
+        # bow 0.5 kappa u^2 included); after a gap the prediction is less sure: the window widens
+        # with the gap's length
         hw = half_w + widen * gap
-        xe = x + step * cp
-        ye = y + step * sp
-        y_lo = min(y, ye) - hw
-        y_hi = max(y, ye) + hw
-        x_lo = min(x, xe) - hw
-        x_hi = max(x, xe) + hw
-        # BEV rows: row = n_rows - 1 - t
-        r_lo = int(math.floor(n_rows - 1 - y_hi))
-        r_hi = int(math.ceil(n_rows - 1 - y_lo))
-        if r_lo < 0:
-            r_lo = 0
-        if r_hi > n_rows - 1:
-            r_hi = n_rows - 1
-        if r_lo > r_hi or x_hi < 0 or x_lo > ncols_hi:
+        bow = 0.5 * kappa * step * step
+        x_lo, x_hi, r_lo, r_hi = _window_box(
+            x, y, cp, sp, step, min(bow, 0.0) - hw, max(bow, 0.0) + hw, n_rows
+        )
+        if r_lo > r_hi or x_hi < 0.0 or x_lo > n_cols - 1:
             break
         sw = 0.0
         su = 0.0
@@ -300,7 +314,12 @@ def _follow_kernel(
             out_psi[last] = new_psi - kappa * (step - mu)
             # a curvature at the clamp (beyond the tightest bend followed) guides no other line
             out_k[last] = kappa if abs(kappa) < max_kappa else math.nan
-            # mark the features taken (a second pass over the window)
+            # mark the features taken, within half_w of the fitted line: a second pass, over the box
+            # of that band (the line slants across the window: the band can reach beyond its box)
+            b_end = a + b * step
+            x_lo, x_hi, r_lo, r_hi = _window_box(
+                x, y, cp, sp, step, min(a, b_end) - half_w, max(a, b_end) + half_w, n_rows
+            )
             for i in range(row_start[r_lo], row_start[r_hi + 1]):
                 ci = c[i]
                 if ci < x_lo or ci > x_hi:
@@ -416,11 +435,11 @@ def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None):
             p.guide_m / res,
         )
         w_up, n_up, lo_up, hi_up, turn_up, h_up = _follow_kernel(
-            t, cf, th, row_start, t0, c0, psi0, *args, *out
+            t, cf, th, row_start, cols, t0, c0, psi0, *args, *out
         )
         centres = out[:, :h_up].copy()
         w_dn, n_dn, lo_dn, hi_dn, _, h_dn = _follow_kernel(
-            t, cf, th, row_start, t0, c0, psi0 + math.pi, *args, *out
+            t, cf, th, row_start, cols, t0, c0, psi0 + math.pi, *args, *out
         )
         track = {
             "id": k,
