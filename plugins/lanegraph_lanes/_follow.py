@@ -362,13 +362,16 @@ def _follow_kernel(
     inputs={"features": "features", "geometry": Port("bev_geometry")},
     outputs={
         "lanes": "lanes",
-        "straddled": Port("lanes", "lines the car straddles, nearer than min_offset_m (see _straddle)"),
+        "straddled": Port(
+            "lanes",
+            "lines the car straddles, nearer than min_offset_m: a narrow street's centre line between the wheels",
+        ),
     },
 )
 def follow(params: FollowParams, features: FeatureMap, geometry: BevGeometry) -> dict:
     """Lane lines followed through windows along their own heading and curvature from seeds in the
     BEV's near part; hatching bars dropped; a parabola on each line's seen part; the nearest line
-    each side, and on ``straddled`` a line the car drives over. Needs no previous frame."""
+    each side, and on the straddled port a line the car drives over. Needs no previous frame."""
     rows, cols = features.shape
     r, c = features.points()
     straddled: list[Lane] = []

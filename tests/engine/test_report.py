@@ -145,6 +145,7 @@ def test_run_report_files(scene, run_out):
         "follow",
         "masked",
         "verify_followed",
+        "verify_straddled",
         "orientation",
         "hough",
         "fit",
