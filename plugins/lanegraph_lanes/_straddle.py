@@ -7,7 +7,7 @@ wheels, 0.3-0.6 m from the camera's column, nearer than a lane boundary beside t
 such a line on a port of its own, ``straddled``, one a side at most, when its features show a
 marking along the road: the inliers of one parabola (as every followed lane's) over more road than
 an arrow or a patch covers (``straddle_min_extent_m``; an arrow's shaft and head are 5 m).
-It gets a paint check of its own (in ``paper.yaml`` a second ``lanes.verify``, ``verify_straddled``,
+It gets a paint check of its own (in ``paper.yaml`` a ``lanes.verify`` node, ``verify_straddled``,
 whose width floor is not the kerb's: no kerb's lit edge lies between a car's wheels), and
 ``lanes.merge`` adds it only to a side that has no lane, a lane's width from the lanes it keeps.
 
