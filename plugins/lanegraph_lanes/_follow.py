@@ -42,7 +42,9 @@ locks onto the bars. ``lanes.follow`` finds each line from where it is seen and 
    the part of the track within ``max_heading_deg`` of straight ahead (where ``x(z)`` can describe
    it); its offset at the BEV's bottom row gives its side, and on each side the nearest track
    ``min_offset_m``..``max_offset_m`` from the vehicle with ``min_inliers`` features over
-   ``min_extent_m`` is reported.
+   ``min_extent_m`` is reported. A line nearer than ``min_offset_m`` that the car straddles (a
+   narrow street's centre line) goes to the ``straddled`` port, its track counting the free
+   features along its parabola (``collect_along``): see :mod:`._straddle`.
 
 Nothing here needs a previous frame: the first frame of a sequence and a single stereo pair are
 handled like every other frame.
@@ -61,6 +63,7 @@ from ._fit import irls_fit
 from ._follow_params import FollowParams
 from ._merge import MergeParams, merge, merge_node  # noqa: F401  (lanes.merge, beside lanes.follow)
 from ._seeds import _seeds, _steep_rows, _window_sums  # noqa: F401  (_window_sums: the tests')
+from ._straddle import collect_along, nearest_each_side
 
 #: the most windows one call of the follow kernel takes: the length (+ 1) of its centres' buffers,
 #: its own and the caller's (``out_x`` ...)
@@ -376,19 +379,31 @@ def _follow_kernel(
 @node_type(
     "lanes.follow",
     inputs={"features": "features", "geometry": Port("bev_geometry")},
-    outputs={"lanes": "lanes"},
+    outputs={
+        "lanes": "lanes",
+        "straddled": Port(
+            "lanes",
+            "lines the car straddles, nearer than min_offset_m: a narrow street's centre line between the wheels",
+        ),
+    },
 )
 def follow(params: FollowParams, features: FeatureMap, geometry: BevGeometry) -> dict:
     """Lane lines followed through windows along their own heading and curvature from seeds in the
     BEV's near part; hatching bars dropped; a parabola on each line's seen part; the nearest line
-    each side. Needs no previous frame."""
+    each side, and on the straddled port a line the car drives over. Needs no previous frame."""
     rows, cols = features.shape
     r, c = features.points()
-    return {"lanes": follow_lanes(r, c, features.point_orientations(), rows, cols, geometry, params)}
+    straddled: list[Lane] = []
+    lanes = follow_lanes(
+        r, c, features.point_orientations(), rows, cols, geometry, params, straddled=straddled
+    )
+    return {"lanes": lanes, "straddled": straddled}
 
 
-def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None):
-    """The lanes of ``lanes.follow`` from the feature points ``(r, c)`` and orientations."""
+def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None, straddled=None):
+    """The lanes of ``lanes.follow`` from the feature points ``(r, c)`` and orientations; the lines
+    the car straddles (``straddle_offset_m``..``min_offset_m`` from it) appended to ``straddled``
+    when given."""
     res = geometry.resolution
     if theta is None:
         theta = np.full(r.shape, -1.0)
@@ -500,12 +515,27 @@ def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None):
         tr["bar"] = parallel >= 2 or across
     lanes = []
     tan_max = math.tan(math.radians(p.max_heading_deg))
+    near = []  # (distance, lane) of the lines nearer than min_offset_m: straddled
+
+    def under_car(c0: float) -> bool:
+        return p.straddle_offset_m <= abs(geometry.lateral_m(c0)) < p.min_offset_m
+
     for tr in tracks:
-        if tr["bar"] or tr["n"] < p.min_inliers:
+        if tr["bar"]:
             continue
         # the track's features, in the points' row-major order: t does not increase along them, so
         # the near part, the inliers' ends and the farthest feature on the parabola are ends of runs
         sel = np.flatnonzero(owner == tr["id"])
+        if (
+            straddled is not None
+            and p.collect_along
+            and p.straddle_offset_m is not None
+            and sel.size < p.min_inliers
+        ):
+            # a line under the car whose windows missed a dash: see _straddle
+            sel = collect_along(sel, tr, t, cf, th, owner, p.extend_px, cos_max, where=under_car)
+        if sel.size < p.min_inliers:
+            continue
         tt, cc = t[sel], cf[sel]
         if tr["t_turn"] < 1e8:
             keep = tt <= tr["t_turn"]
@@ -545,9 +575,15 @@ def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None):
         if abs(coef[1] + 2 * coef[2] * t_top) > tan_max and abs(coef[1]) > tan_max:
             continue
         lateral = geometry.lateral_m(float(coef[0]))
-        if not p.min_offset_m <= abs(lateral) <= p.max_offset_m:
+        straddle = (
+            straddled is not None
+            and p.straddle_offset_m is not None
+            and under_car(float(coef[0]))
+            and extent >= p.straddle_min_extent_m  # more than an arrow: a marking along the road
+        )
+        if not (p.min_offset_m <= abs(lateral) <= p.max_offset_m or straddle):
             continue
-        lanes.append(
+        (near if straddle else lanes).append(
             (
                 abs(lateral),
                 Lane(
@@ -555,14 +591,11 @@ def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None):
                     bev_rows=(rows - 1 - int(t_top), rows - 1),
                     side="left" if lateral < 0 else "right",
                     score=float(min(1.0, n_inl / max(1.0, (t_top + 1) * 2.0))),
-                    extra={"support": n_inl, "extent_m": round(float(extent), 2), "followed": True},
+                    extra={"support": n_inl, "extent_m": round(float(extent), 2), "followed": True}
+                    | ({"straddled": True} if straddle else {}),
                 ),
             )
         )
-    out = []
-    for side in ("left", "right"):
-        cand = [ln for d, ln in sorted(lanes, key=lambda x: x[0]) if ln.side == side]
-        if cand:
-            out.append(cand[0])
-    out.sort(key=lambda ln: ln.coeffs[0])
-    return out
+    if straddled is not None:
+        straddled.extend(nearest_each_side(near))
+    return nearest_each_side(lanes)
