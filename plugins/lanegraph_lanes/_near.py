@@ -71,7 +71,7 @@ class NearPaintParams(NodeParams):
     )
     band_m: float = Field(0.35, gt=0.0, le=3.0, description="the side bands end this far from it, metres")
     min_row_contrast: float = Field(
-        0.25,
+        0.35,
         ge=0.0,
         le=10.0,
         description="a row is painted where its local maximum is this much brighter than the brighter side band's "
@@ -103,7 +103,7 @@ class NearPaintParams(NodeParams):
         "crossing the line is no dash of it) (unitless)",
     )
     min_paint_contrast: float = Field(
-        0.5, ge=0.0, le=10.0, description="the painted rows' median contrast (relative)"
+        0.7, ge=0.0, le=10.0, description="the painted rows' median contrast (relative)"
     )
     min_width_m: float = Field(
         0.095,
@@ -163,19 +163,22 @@ def fine_grid(geometry: BevGeometry, params: NearPaintParams, sides=("left", "ri
 
 
 def warp_fine(image: np.ndarray, fine: BevGeometry) -> np.ndarray:
-    """The grey image on the fine grid (float32; 0 outside the image)."""
+    """The grey image on the fine grid (float32; 0 outside the image). A uint8 image is warped as
+    it is (the grid is far smaller than the image) and converted after."""
     img = np.asarray(image)
     if img.ndim == 3:
         img = cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_BGR2GRAY)
-    img = np.ascontiguousarray(img, dtype=np.float32)
-    return cv2.warpPerspective(
-        img,
+    if img.dtype not in (np.uint8, np.uint16, np.float32):
+        img = img.astype(np.float32)
+    bev = cv2.warpPerspective(
+        np.ascontiguousarray(img),
         fine.H_img_from_bev,
         (fine.cols, fine.rows),
         flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
         borderMode=cv2.BORDER_CONSTANT,
-        borderValue=0.0,
+        borderValue=0,
     )
+    return bev.astype(np.float32, copy=False)
 
 
 def side_levels(bev: np.ndarray, gap_px: int, band_px: int) -> np.ndarray:
@@ -329,7 +332,8 @@ def line_measures(
             continue
         # straight along the line: its own slope (columns per row, rows run against z) within
         # max_dash_slope_diff of the line's
-        ds = -np.polyfit(rr.astype(np.float64), cc.astype(np.float64), 1)[0]
+        rf = rr - rr.mean()
+        ds = -float((rf * (cc - cc.mean())).sum() / (rf * rf).sum())
         if abs(ds - slope) > params.max_dash_slope_diff:
             continue
         dashes.append((rr, cc))
@@ -337,25 +341,34 @@ def line_measures(
         return None
     r = np.concatenate([q[0] for q in dashes])
     c = np.concatenate([q[1] for q in dashes])
-    strips = bev[r[:, None], c[:, None] + np.arange(-band, band + 1)]
-    widths = row_widths(strips, band, gap, 0.5)
-    feet = row_widths(strips, band, gap, 0.25)
+    lengths = [int(q[0][-1] - q[0][0] + 1) for q in dashes]
     xr, zr = fine.bev_to_metric(c, r)
-    s_fit, x_fit = np.polyfit(zr - fine.z_min, xr, 1) if np.ptp(zr) > 0.5 else (slope, x0)
-    return {
-        "painted_m": float(sum(q[0][-1] - q[0][0] + 1 for q in dashes) * res),
-        "run_m": float(max(q[0][-1] - q[0][0] + 1 for q in dashes) * res),
+    m = {
+        "painted_m": sum(lengths) * res,
+        "run_m": max(lengths) * res,
         "dashes": len(dashes),
         "contrast": float(np.median(bev[r, c] / level[r, c])) - 1.0,
-        "width_m": float(np.median(widths)) * res,
-        "foot_width_m": float(np.median(feet)) * res,
+        "width_m": math.nan,
+        "foot_width_m": math.nan,
         "z_near": float(zr.min()),
         "z_far": float(zr.max()),
-        "x0": float(x_fit),
-        "slope": float(s_fit),
+        "x0": x0,
+        "slope": slope,
         "rows": r,
         "cols": c,
     }
+    if (
+        m["painted_m"] < params.min_painted_m
+        or m["run_m"] < params.min_run_m
+        or m["contrast"] < params.min_paint_contrast
+    ):
+        return m  # not paint whatever its width: the profiles are not measured
+    strips = bev[r[:, None], c[:, None] + np.arange(-band, band + 1)]
+    m["width_m"] = float(np.median(row_widths(strips, band, gap, 0.5))) * res
+    m["foot_width_m"] = float(np.median(row_widths(strips, band, gap, 0.25))) * res
+    if np.ptp(zr) > 0.5:
+        m["slope"], m["x0"] = (float(v) for v in np.polyfit(zr - fine.z_min, xr, 1))
+    return m
 
 
 def _is_paint(m: dict, p: NearPaintParams) -> bool:
