@@ -8,18 +8,21 @@ features for the Hough vote, the fit or the follower. Near the car the image hol
 (``resolution``, 2 cm) over the near ``near_m`` metres and ``max_offset_m`` to each side, and looks
 there, on each side without a lane, for a straight stripe of paint:
 
-- per BEV row, a *painted* pixel is a local brightness maximum (within ``gap_m``) that stands
-  ``min_row_contrast`` above the mean of the brighter of its two side bands (``gap_m .. band_m``
-  away; relative, so exposure and shadow change nothing);
+- per row of the fine grid, a *painted* pixel is a local brightness maximum (within ``gap_m``)
+  that stands ``min_row_contrast`` above the mean of the brighter of its two side bands
+  (``gap_m .. band_m`` away; relative, so exposure and shadow change nothing);
 - the painted pixels vote for straight lines within ``max_slope`` of straight ahead (a Hough
   transform over offset and slope, one vote a row), offsets ``min_offset_m .. max_offset_m`` from
   the camera's axis;
-- a line is paint when its painted rows (a painted pixel within ``tolerance_m``) cover
-  ``min_painted_m`` of road, one run of them (a dash) ``min_run_m``, their median contrast is
-  ``min_paint_contrast``, their median profile is ``min_width_m .. max_width_m`` wide at half
-  height and at most ``max_foot_width_m`` at a quarter (sharp-edged paint; the fine grid measures
-  a 12 cm line as 11-12 cm), and, with the disparity wired, the line lies on the road plane (its
-  median height within ``max_line_height_m``).
+- a line's *dashes* are its runs of rows with a painted pixel within ``tolerance_m`` (gaps of two
+  rows bridged) at least ``min_dash_m`` long whose own direction is the line's (within
+  ``max_dash_slope_diff``: a sun streak or a car's edge crossing the line is no dash of it);
+- a line is paint when its dashes cover ``min_painted_m`` of road, one of them ``min_run_m``, their
+  median contrast is ``min_paint_contrast``, their rows' median widths are ``min_width_m ..
+  max_width_m`` at half height and at most ``max_foot_width_m`` at a quarter (each row measured
+  on its own, against its own side level: the fine grid measures a 12 cm line as 10-12 cm), and,
+  with the disparity wired, its dashes lie on the road plane (their median height above it within
+  ``max_line_height_m``: a kerb's lit top stands 7-10 cm above it).
 
 The nearest such line on a side becomes a lane over the rows it is painted on, in the coarse BEV's
 coordinates (``geometry``). Sides that already have a lane are not looked at: the node only adds.
@@ -405,23 +408,26 @@ def hough_lines(pr, pc, fine: BevGeometry, params: NearPaintParams, side: str, m
     k = 2 * int(round(params.tolerance_m / res)) + 1
     acc = cv2.blur(acc, (k, 1), borderType=cv2.BORDER_CONSTANT) * k
     peaks = []
-    work = acc.copy()
+    work = acc
     # peaks apart by 30 cm halfway up the grid (where the lines are seen), whatever their slopes
     sep = 0.3
     z_mid = 0.5 * (fine.z_max - fine.z_min)
+    bins = np.arange(nb, dtype=np.float64)[None, :]
+    slopes = slopes[:, None]
     for _ in range(6):
         i = int(np.argmax(work))
         si, bi = divmod(i, nb)
         v = work[si, bi]
         if v < min_votes:
             break
-        x0p, sp = lo + bi * res, float(slopes[si])
+        x0p, sp = lo + bi * res, float(slopes[si, 0])
         peaks.append((float(v), x0p, sp))
+        # the bins of every slope whose line passes within sep of this one halfway up
         mid = x0p + sp * z_mid
-        for sj in range(slopes.size):  # the bins of each slope whose line passes within sep there
-            a = int(math.floor((mid - sep - slopes[sj] * z_mid - lo) / res))
-            b = int(math.ceil((mid + sep - slopes[sj] * z_mid - lo) / res))
-            work[sj, max(a, 0) : max(b + 1, 0)] = 0.0
+        work[
+            (bins >= (mid - sep - slopes * z_mid - lo) / res - 1.0)
+            & (bins <= (mid + sep - slopes * z_mid - lo) / res + 1.0)
+        ] = 0.0
     return peaks
 
 
