@@ -399,11 +399,13 @@ def hough_lines(pr, pc, fine: BevGeometry, params: NearPaintParams, side: str, m
     lo = -params.max_offset_m - params.max_slope * (fine.z_max - fine.z_min) if side == "left" else 0.0
     hi = 0.0 if side == "left" else params.max_offset_m + params.max_slope * (fine.z_max - fine.z_min)
     nb = int(math.ceil((hi - lo) / res)) + 1
-    x0 = x[None, :] - slopes[:, None] * z[None, :]
-    b = np.rint((x0 - lo) / res).astype(np.int64)
+    # the bin of each pixel's line at each slope (float32: bins of 2 cm over a few metres)
+    xb = ((x - lo) / res).astype(np.float32)
+    zb = (z / res).astype(np.float32)
+    b = np.rint(xb[None, :] - slopes.astype(np.float32)[:, None] * zb[None, :]).astype(np.int32)
     ok = (b >= 0) & (b < nb)
-    idx = (np.arange(slopes.size)[:, None] * nb + b)[ok]
-    acc = np.bincount(idx, minlength=slopes.size * nb).reshape(slopes.size, nb).astype(np.float64)
+    b += (np.arange(slopes.size, dtype=np.int32) * nb)[:, None]  # one row of bins a slope
+    acc = np.bincount(b[ok], minlength=slopes.size * nb).reshape(slopes.size, nb).astype(np.float32)
     # a line's painted pixels spread over the bins within its tolerance
     k = 2 * int(round(params.tolerance_m / res)) + 1
     acc = cv2.blur(acc, (k, 1), borderType=cv2.BORDER_CONSTANT) * k
