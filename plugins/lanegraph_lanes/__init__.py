@@ -12,6 +12,7 @@ from ._fit import fit_irls, fit_ransac, irls_fit, ransac_fit
 from ._follow import follow
 from ._hough import line1d, line2d, orientation
 from ._merge import merge_node
+from ._near import near_paint
 from ._temporal import temporal_mask, to_image
 from ._verify import verify
 from ._verify_learned import verify_learned
@@ -32,6 +33,7 @@ def lanegraph_node_types():
         fit_ransac,
         follow,
         merge_node,
+        near_paint,
         temporal_mask,
         verify,
         verify_learned,
