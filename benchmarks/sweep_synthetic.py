@@ -166,6 +166,13 @@ KIND_SCENES: dict[str, tuple[str, str, dict]] = {
         "residential",
         dict(side_road_radius=6.0, side_road_width=5.0, curvature=1 / 300, seed=162),
     ),
+    # a side road joining on the left, its corner's kerb curving away through the image's left edge
+    # near the car (where a road-guided disparity's bands have their borders)
+    "residential_side_road_left": (
+        "sideroad",
+        "residential",
+        dict(side_roads=(), side_roads_left=(9.0, 100.0), side_road_radius=8.0, seed=164),
+    ),
     # the same street with solid edge lines 0.3 m inside both kerbs: they must still be found
     "residential_side_road_edge_lines": (
         "sideroad",
@@ -202,7 +209,9 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=30)
     ap.add_argument("--scenes", default="", help="comma-separated subset of: " + ", ".join(SCENES))
     ap.add_argument(
-        "--kinds", default="", help="comma-separated kinds: bends, gore, shade, worn, parked, single (issue 28), sideroad (issue 44)"
+        "--kinds",
+        default="",
+        help="comma-separated kinds: bends, gore, shade, worn, parked, single (issue 28), sideroad (issue 44)",
     )
     ap.add_argument(
         "--set", action="append", default=[], metavar="NODE.PARAM=VALUE", help="passed to lanegraph run"

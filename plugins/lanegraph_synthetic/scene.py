@@ -322,10 +322,10 @@ class SceneRenderer:
         """True where the road hits (``lat`` across, ``Z`` ahead, metres) are paved: between the
         road's edges or on a side road."""
         paved = (lat >= self.edges[0]) & (lat <= self.edges[1])
-        if self.spec.side_roads:
+        if self.spec.side_roads or self.spec.side_roads_left:
             L = self.spec.tile_length
             s_tile = np.mod(Z + np.float32(math.fmod(st.s, L)), np.float32(L))
-            paved |= side_road_paved(self.spec, lat, s_tile, self.edges[1])
+            paved |= side_road_paved(self.spec, lat, s_tile, self.edges)
         return paved
 
     def _shade_road(self, view: _View, st: _State) -> np.ndarray:

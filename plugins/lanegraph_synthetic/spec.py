@@ -89,6 +89,7 @@ class SceneSpec:
     # quarter circle of side_road_radius metres, the side road side_road_width metres wide between
     # its corners
     side_roads: tuple[float, ...] = ()
+    side_roads_left: tuple[float, ...] = ()  # the same on the left
     side_road_width: float = 6.0
     side_road_radius: float = 12.0
     arrows: float = 0.0
@@ -147,16 +148,17 @@ class SceneSpec:
                 )
         if self.gore_width < 0 or self.gore_step <= 0 or self.repair_strips < 0:
             raise ValueError("SceneSpec: gore_width and repair_strips must be >= 0, gore_step > 0")
-        if self.side_roads:
+        if self.side_roads or self.side_roads_left:
             span = 2 * self.side_road_radius + self.side_road_width
             if self.kerb_height <= 0 or self.side_road_radius <= 0 or self.side_road_width <= 0:
                 raise ValueError(
                     "SceneSpec.side_roads: expected kerb_height, side_road_radius and side_road_width > 0"
                 )
-            if any(not 0 <= s <= self.tile_length - span for s in self.side_roads):
+            if any(not 0 <= s <= self.tile_length - span for s in self.side_roads + self.side_roads_left):
                 raise ValueError(
                     f"SceneSpec.side_roads: expected positions in [0, {self.tile_length - span:g}] m "
-                    f"(a side road spans {span:g} m of a {self.tile_length:g} m tile), got {self.side_roads}"
+                    f"(a side road spans {span:g} m of a {self.tile_length:g} m tile), got "
+                    f"{self.side_roads} (right), {self.side_roads_left} (left)"
                 )
         if self.calib.width <= 0 or self.calib.height <= 0:
             raise ValueError("SceneSpec.calib: width and height (pixels) must be set")

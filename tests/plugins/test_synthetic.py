@@ -304,6 +304,27 @@ def test_residential_side_road_kerb_curves_away_from_the_right_edge():
         replace(spec, side_roads=(290.0,))  # beyond the tile
 
 
+def test_a_side_road_on_the_left_mirrors_the_right_one():
+    spec = preset(
+        "residential", calib=HALF, side_roads=(), side_roads_left=(10.0,), side_road_radius=8.0,
+        shadows=0.0, trees=0.0, parked_cars=0.0, seed=6,
+    )  # fmt: skip
+    r = SceneRenderer(spec)
+    fr = r.render(0)
+    a, R, E, h = spec.side_roads_left[0], spec.side_road_radius, r.edges[0], spec.kerb_height
+    for deg in (15, 35, 55):
+        th = math.radians(deg)
+        s, lat = a + (R - 0.1) * math.sin(th), E - R + (R - 0.1) * math.cos(th)
+        u, v, _ = _pixel(r, lat, h, s)
+        assert fr.object_mask[v, u], f"no kerb at {deg} deg of the left corner"
+    u, v, _ = _pixel(r, E - 0.1, h, a + R)  # the left edge's kerb is cut across the mouth
+    assert not fr.object_mask[v, u] and fr.paved_mask[v, u]
+    u, v, _ = _pixel(r, r.edges[1] + 0.1, h, a + R)  # the right one is not
+    assert fr.object_mask[v, u]
+    u, v, _ = _pixel(r, E - R - 2.0, 0.0, a + R + spec.side_road_width / 2)
+    assert fr.road_mask[v, u] and fr.paved_mask[v, u]
+
+
 # --------------------------------------------------------------------------- lane ground truth
 
 
