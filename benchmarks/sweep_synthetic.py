@@ -7,8 +7,9 @@ The scenes of issue 28 come in kinds (``--kinds``; the table ends with each kind
 ``bends`` (radius 30-250 m, entering a bend, S-bends), ``gore`` (a ramp beside a chevron- or
 stripe-hatched gore area between two solid lines), ``shade`` (dappled tree shade; a shaded road
 with saturated sun patches), ``worn`` (low contrast, gaps, repair strips), ``parked`` (a dashed line
-partly hidden by parked cars) and ``single`` (a folder of unrelated single pairs: nothing before
-the first frame).
+partly hidden by parked cars), ``single`` (a folder of unrelated single pairs: nothing before
+the first frame) and ``sideroad`` (issue 44: a residential street without paint where side roads
+join on the right, their raised kerbs curving away; and the same street with edge lines).
 
 Renders each scene (``lanegraph_synthetic``, exact lane ground truth) into ``--work`` (a temporary
 folder by default), runs ``lanegraph run GRAPH`` on it and prints the lane metric of the data
@@ -157,6 +158,27 @@ KIND_SCENES: dict[str, tuple[str, str, dict]] = {
         "straight",
         dict(n_lanes=2, outer_kind="dashed", shoulder=2.3, parked_cars=14.0, speed=8.0, seed=141),
     ),
+    # a residential street without paint, side roads joining on the right, their raised kerbs
+    # curving away from the edge (12 m ahead at the first frame): any lane is a false one
+    "residential_side_road": ("sideroad", "residential", dict(seed=161)),
+    "residential_side_road_tight": (
+        "sideroad",
+        "residential",
+        dict(side_road_radius=6.0, side_road_width=5.0, curvature=1 / 300, seed=162),
+    ),
+    # a side road joining on the left, its corner's kerb curving away through the image's left edge
+    # near the car (where a road-guided disparity's bands have their borders)
+    "residential_side_road_left": (
+        "sideroad",
+        "residential",
+        dict(side_roads=(), side_roads_left=(9.0, 100.0), side_road_radius=8.0, seed=164),
+    ),
+    # the same street with solid edge lines 0.3 m inside both kerbs: they must still be found
+    "residential_side_road_edge_lines": (
+        "sideroad",
+        "residential",
+        dict(markings=[Marking(-4.9, "solid", 0.12), Marking(1.7, "solid", 0.12)], seed=163),
+    ),
 }
 
 #: single pairs (kind ``single``): frame 0 of each, one folder
@@ -187,7 +209,9 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=30)
     ap.add_argument("--scenes", default="", help="comma-separated subset of: " + ", ".join(SCENES))
     ap.add_argument(
-        "--kinds", default="", help="comma-separated issue-28 kinds: bends, gore, shade, worn, parked, single"
+        "--kinds",
+        default="",
+        help="comma-separated kinds: bends, gore, shade, worn, parked, single (issue 28), sideroad (issue 44)",
     )
     ap.add_argument(
         "--set", action="append", default=[], metavar="NODE.PARAM=VALUE", help="passed to lanegraph run"

@@ -29,7 +29,10 @@ below), cut back to the band's own rows and columns. The bands run on as many th
 process has CPUs (:func:`lanegraph._runtime.available_cpus`: affinity mask and cgroup quota) or
 ``threads``; the map is the same whatever their number. OpenCV's speckle filter runs once on the
 stitched map, so a speckle is judged whole across band borders. A match at a band's lowest
-disparity (above ``min_disparity``) is left invalid: it is the range's edge, not a minimum.
+disparity (above ``min_disparity``) is left invalid: it is the range's edge, not a minimum. The
+columns left of the widest band's highest disparity are left invalid on every row
+(:func:`left_border`), as one search of the full range leaves them: the road mask reads a pixel
+without a disparity below a road pixel as road.
 
 Without a usable prediction -- the first frame, a profile judged invalid, or one whose road
 disparity does not grow down the rows or does not lie in ``(0, min_disparity + num_disparities]``
@@ -258,6 +261,19 @@ def band_plan(
     return plan
 
 
+def left_border(plan: list[Band]) -> int:
+    """The columns ``0 .. left_border - 1`` (computing resolution) that the road-guided map leaves
+    without a disparity on every row: those left of the widest band's highest disparity.
+
+    OpenCV's SGBM matches a column only where its whole range lies inside the image, so a band
+    with a narrow range (the far rows) reaches further left than one with a wide range (the near
+    rows). Column by column, the road mask would then see disparities on the far rows above none
+    on the near rows, and its free-space scan reads a pixel without a disparity below a road pixel
+    as road (smooth asphalt): a kerb or a verge at the image's left edge would become road, which
+    one search of the full range (one border, every row) does not do."""
+    return max((b.low + b.num for b in plan), default=0)
+
+
 def _band(
     params: RoadSgbmParams, gl: np.ndarray, gr: np.ndarray, band: Band, d_min: int, out: np.ndarray
 ) -> None:
@@ -359,6 +375,9 @@ def road_sgbm(
         jobs.append(("coarse", plan[0].a))
     raw = np.full((h, w), _INVALID_RAW, np.int16)
     results = _run_jobs(params, gl, gr, jobs, d_min, raw)
+    if ranges is not None and plan:
+        # one left border for every band, the widest band's: a column there is matched on no row
+        raw[:, : left_border(plan)] = _INVALID_RAW
     if plan and params.speckle_window_size > 0:
         # on the rows the bands cover only: the rows above are all invalid, and OpenCV's speckle
         # filter neither starts from nor joins an invalid pixel, so it is the same map

@@ -46,8 +46,7 @@ locks onto the bars. ``lanes.follow`` finds each line from where it is seen and 
    narrow street's centre line) goes to the ``straddled`` port, its track counting the free
    features along its parabola (``collect_along``): see :mod:`._straddle`.
 
-Nothing here needs a previous frame: the first frame of a sequence and a single stereo pair are
-handled like every other frame.
+Nothing here needs a previous frame: a sequence's first frame and a single pair are like any other.
 """
 
 from __future__ import annotations

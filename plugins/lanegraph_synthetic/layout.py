@@ -21,6 +21,7 @@ LATERAL_HALF = 20.0
 PAINT_RES = 0.05  # metres per paint-map pixel
 SHADOW_RES = 0.10  # metres per shadow-map pixel
 WEAR_RES = 0.05  # metres per sample of a marking's worn-through gaps
+SIDE_ROAD_LENGTH = 14.0  # how far a side road is paved (and kerbed) beyond its corners, metres
 
 CAR_COLOURS = [(60, 60, 170), (170, 90, 40), (200, 200, 205), (40, 40, 45), (60, 130, 60), (30, 160, 200)]
 
@@ -104,6 +105,65 @@ def _gore(
     np.maximum(block, (on * 255).astype(np.uint8), out=block)
 
 
+def side_road_spans(spec, side: int = 1) -> list[tuple[float, float]]:
+    """(start, end) metres along a tile of the mouth of each side road joining on the right
+    (``side`` 1: ``spec.side_roads``) or the left (-1: ``spec.side_roads_left``): from where its
+    near corner's kerb leaves the edge to where its far corner's kerb rejoins it."""
+    span = 2 * spec.side_road_radius + spec.side_road_width
+    return [(float(s), float(s) + span) for s in (spec.side_roads if side > 0 else spec.side_roads_left)]
+
+
+def side_road_paved(spec, lat: np.ndarray, s: np.ndarray, edges: tuple[float, float]) -> np.ndarray:
+    """True where the road point (``lat`` metres across, ``s`` metres along a tile) lies on a side
+    road: beyond the main road's edge (``edges``: left, right), outside the two corners' quarter
+    circles (radius ``side_road_radius``, centred ``radius`` metres beyond the edge at each end of
+    the mouth), and between the corners' straight kerbs for ``SIDE_ROAD_LENGTH`` metres beyond."""
+    R = np.float32(spec.side_road_radius)
+    out = np.zeros(np.shape(lat), bool)
+    for side, edge in ((1, edges[1]), (-1, edges[0])):
+        beyond = (lat - np.float32(edge)) * np.float32(side)  # metres beyond the edge, outwards
+        dl = beyond - R
+        for a, b in side_road_spans(spec, side):
+            d1, d2 = s - np.float32(a), s - np.float32(b)
+            outside = (d1 * d1 + dl * dl >= R * R) & (d2 * d2 + dl * dl >= R * R)
+            corner = (s >= a) & (s <= b) & (dl <= 0) & outside
+            straight = (d1 >= R) & (d2 <= -R) & (dl >= 0) & (dl <= SIDE_ROAD_LENGTH)
+            out |= (beyond > 0) & (corner | straight)
+    return out
+
+
+def _kerbed(length: float, mouths: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """The stretches of [0, ``length``] metres outside the side roads' ``mouths`` (sorted)."""
+    runs, start = [], 0.0
+    for a, b in sorted(mouths):
+        if a > start:
+            runs.append((start, a))
+        start = max(start, b)
+    return runs + ([(start, length)] if start < length else [])
+
+
+def _side_road_kerbs(spec, edges: tuple[float, float]) -> list[Box]:
+    """Kerb segments (``kerb_height``, 0.2 m wide, bright concrete) of each side road: two quarter
+    circles leaving the edge (chords of about 0.8 m, turned with the circle) and the straight
+    kerbs along the side road beyond them."""
+    R, h, col = spec.side_road_radius, spec.kerb_height, (185.0, 190.0, 195.0)
+    n = max(4, int(math.ceil(0.5 * math.pi * R / 0.8)))
+    chord = 2 * (R - 0.1) * math.sin(0.25 * math.pi / n) + 0.02
+    boxes = []
+    for side, edge in ((1, edges[1]), (-1, edges[0])):
+        for a, b in side_road_spans(spec, side):
+            for i in range(n):
+                th = (i + 0.5) * 0.5 * math.pi / n  # 0 at the edge, pi/2 along the side road
+                ds, dl = (R - 0.1) * math.sin(th), R - (R - 0.1) * math.cos(th)  # 0.1 m into the corner
+                boxes.append(Box(a + ds, edge + side * dl, chord, 0.2, h, 0.0, col, yaw=side * th))
+                boxes.append(Box(b - ds, edge + side * dl, chord, 0.2, h, 0.0, col, yaw=-side * th))
+            for lat in np.arange(1.0, SIDE_ROAD_LENGTH, 2.0):
+                for s in (a + R - 0.1, b - R + 0.1):
+                    lat_c = edge + side * (R + float(lat))
+                    boxes.append(Box(s, lat_c, 1.98, 0.2, h, 0.0, col, yaw=0.5 * math.pi))
+    return boxes
+
+
 def build_tile(
     spec, offsets: list[float], lane_centres: list[float], edges: tuple[float, float], rng
 ) -> Tile:
@@ -144,7 +204,8 @@ def build_tile(
     side_gap = 0.7 if (on_shoulder or not n_parked) else 2.6  # poles beside the parked cars
     if n_parked:
         slots = np.arange(0.0, L - 6.0, 6.5)
-        slots = [s for s in slots if not any(a - 4 < s < b + 4 for a, b in hatched)]
+        blocked = hatched + side_road_spans(spec)  # parked on the right
+        slots = [s for s in slots if not any(a - 4 < s < b + 4 for a, b in blocked)]
         pick = rng.choice(len(slots), size=min(n_parked, len(slots)), replace=False) if slots else []
         lat = right_edge - 1.1 if on_shoulder else right_edge + 1.1
         for i in sorted(pick):
@@ -214,10 +275,18 @@ def build_tile(
 
     # ---- kerbs: low concrete steps along both road edges (5 m segments, so they follow a curve);
     # a bright, straight, parallel-bordered ridge that passes SLT like paint
+    # (none across a side road's mouth: its own kerbs curve away there)
     if spec.kerb_height > 0:
-        for lat in (left_edge - 0.1, right_edge + 0.1):
-            for s in np.arange(2.5, L, 5.0):
-                objects.append(Box(float(s), lat, 4.98, 0.2, spec.kerb_height, 0.0, (185.0, 190.0, 195.0)))
+        for lat, runs in (
+            (left_edge - 0.1, _kerbed(L, side_road_spans(spec, -1))),
+            (right_edge + 0.1, _kerbed(L, side_road_spans(spec))),
+        ):
+            for a, b in runs:
+                n = max(1, int(math.ceil((b - a) / 5.0)))
+                for i in range(n):
+                    s, ln = a + (i + 0.5) * (b - a) / n, (b - a) / n - 0.02
+                    objects.append(Box(float(s), lat, ln, 0.2, spec.kerb_height, 0.0, (185.0, 190.0, 195.0)))
+        objects += _side_road_kerbs(spec, edges)
 
     # ---- a ramp's gore area: hatched between the two leftmost markings (the gore's far border
     # and the ego lane's left line)

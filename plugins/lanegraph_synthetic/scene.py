@@ -37,7 +37,7 @@ import numpy as np
 
 from lanegraph.types import Calibration
 
-from .layout import LATERAL_HALF, PAINT_RES, SHADOW_RES, WEAR_RES, build_tile
+from .layout import LATERAL_HALF, PAINT_RES, SHADOW_RES, WEAR_RES, build_tile, side_road_paved
 from .objects import Box, Placed, Pole, intersect, place
 
 #: the KITTI colour pair's calibration (1242 x 375), the default rig
@@ -318,6 +318,16 @@ class SceneRenderer:
         Z = view.Z
         return view.X - (np.float32(st.c / 2) * Z * Z + np.float32(st.r / 6) * Z * Z * Z) + np.float32(st.e)
 
+    def _paved(self, lat: np.ndarray, Z: np.ndarray, st: _State) -> np.ndarray:
+        """True where the road hits (``lat`` across, ``Z`` ahead, metres) are paved: between the
+        road's edges or on a side road."""
+        paved = (lat >= self.edges[0]) & (lat <= self.edges[1])
+        if self.spec.side_roads or self.spec.side_roads_left:
+            L = self.spec.tile_length
+            s_tile = np.mod(Z + np.float32(math.fmod(st.s, L)), np.float32(L))
+            paved |= side_road_paved(self.spec, lat, s_tile, self.edges)
+        return paved
+
     def _shade_road(self, view: _View, st: _State) -> np.ndarray:
         """BGR float32 of the road plane for rows ``v0:`` (paint, texture, shadows)."""
         s = self.spec
@@ -331,7 +341,7 @@ class SceneRenderer:
         tu = np.mod(lat, per_c) * np.float32(1 / COARSE_TEXEL)
         tv = np.mod(Z + np.float32(math.fmod(st.s, per_c)), per_c) * np.float32(1 / COARSE_TEXEL)
         coarse = cv2.remap(self.tex_coarse, tu, tv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
-        verge = (lat < self.edges[0]) | (lat > self.edges[1])
+        verge = ~self._paved(lat, Z, st)
         base = np.where(verge, np.float32(VERGE), np.float32(ASPHALT))
         tc = np.where(verge, np.float32(s.texture_contrast * s.verge_texture), np.float32(s.texture_contrast))
         lum = base + tc * (fine + np.float32(0.7) * coarse)
@@ -438,7 +448,7 @@ class SceneRenderer:
         label = casts[0][1]
         lat = self._lateral(self.views[0], st)
         paved = np.zeros_like(label, dtype=bool)
-        paved[self.views[0].v0 :] = (lat >= self.edges[0]) & (lat <= self.edges[1])
+        paved[self.views[0].v0 :] = self._paved(lat, self.views[0].Z, st)
         return Frame(
             index=k,
             frame=f"{k:010d}",

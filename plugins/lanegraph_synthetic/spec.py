@@ -84,6 +84,14 @@ class SceneSpec:
     traffic: int = 0  # moving cars ahead (a number, not a density)
     walls: bool = False
     kerb_height: float = 0.0  # > 0: a concrete kerb this high (metres) along both road edges
+    # side roads joining on the right, unpainted: where each one's near corner starts (metres along
+    # a tile); its kerbs (kerb_height, which must be > 0) leave the main road's right edge in a
+    # quarter circle of side_road_radius metres, the side road side_road_width metres wide between
+    # its corners
+    side_roads: tuple[float, ...] = ()
+    side_roads_left: tuple[float, ...] = ()  # the same on the left
+    side_road_width: float = 6.0
+    side_road_radius: float = 12.0
     arrows: float = 0.0
     hatching: float = 0.0
     # a ramp's gore area: > 0 paints a second solid line this far left of the leftmost marking and
@@ -140,6 +148,18 @@ class SceneSpec:
                 )
         if self.gore_width < 0 or self.gore_step <= 0 or self.repair_strips < 0:
             raise ValueError("SceneSpec: gore_width and repair_strips must be >= 0, gore_step > 0")
+        if self.side_roads or self.side_roads_left:
+            span = 2 * self.side_road_radius + self.side_road_width
+            if self.kerb_height <= 0 or self.side_road_radius <= 0 or self.side_road_width <= 0:
+                raise ValueError(
+                    "SceneSpec.side_roads: expected kerb_height, side_road_radius and side_road_width > 0"
+                )
+            if any(not 0 <= s <= self.tile_length - span for s in self.side_roads + self.side_roads_left):
+                raise ValueError(
+                    f"SceneSpec.side_roads: expected positions in [0, {self.tile_length - span:g}] m "
+                    f"(a side road spans {span:g} m of a {self.tile_length:g} m tile), got "
+                    f"{self.side_roads} (right), {self.side_roads_left} (left)"
+                )
         if self.calib.width <= 0 or self.calib.height <= 0:
             raise ValueError("SceneSpec.calib: width and height (pixels) must be set")
 
@@ -204,6 +224,20 @@ PRESETS: dict[str, dict] = {
         "parked_cars": 6.0,
         "poles": 3.0,
         "curvature": 1.0 / 500.0,
+    },
+    # a residential street without paint: kerbs on both sides, side roads joining on the right, their
+    # kerbs curving away from the road's edge (what a lane finder must not take for a line)
+    "residential": {
+        "n_lanes": 2,
+        "lane_width": 3.2,
+        "shoulder": 0.4,
+        "markings": [],
+        "kerb_height": 0.12,
+        "side_roads": (12.0, 90.0, 190.0),
+        "shadows": 4.0,
+        "trees": 3.0,
+        "parked_cars": 2.0,
+        "speed": 6.0,
     },
 }
 

@@ -784,3 +784,37 @@ def test_an_even_window_names_its_field_and_the_odd_sizes_beside_it(make, field)
     with pytest.raises(ValidationError) as err:
         make(8)
     assert f"{field}: expected an odd number of pixels, got 8 (hint: use 7 or 9)" in str(err.value)
+
+
+def test_road_sgbm_keeps_one_left_border_and_the_road_masks_precision():
+    """Issue 44: on a residential street (kerbs at road level, verge behind them), the road-guided
+    map's far bands used to reach further left than its near ones; the road mask's free-space scan
+    then read the near rows without a disparity, and the kerb among them, as road below the far
+    rows' verge. The guided map leaves one border on every row, and its road mask takes no more
+    beyond the paved road than that of one full-range search."""
+    synthetic = pytest.importorskip("lanegraph_synthetic")
+    from lanegraph.testing import run_node
+
+    spec = synthetic.preset(
+        "residential", side_road_radius=6.0, side_road_width=5.0, parked_cars=0.0, seed=162
+    )
+    renderer = synthetic.SceneRenderer(spec)
+    prev, fr = renderer.render(4), renderer.render(5)
+    full_prev = ld.sgbm(ld.SgbmParams(**PAPER_SGBM, strips=2), prev.left, prev.right)["disparity"]
+    model = run_node("road.profile", {"disparity": full_prev, "calib": prev.calib})["road"]
+    assert model.valid
+    guided = ld.road_sgbm(ld.RoadSgbmParams(**PAPER_SGBM), fr.left, fr.right, road=model, calib=fr.calib)[
+        "disparity"
+    ]
+    full = ld.sgbm(ld.SgbmParams(**PAPER_SGBM, strips=2), fr.left, fr.right)["disparity"]
+    rows = [v for v in range(guided.shape[0]) if (guided[v] > 0).any()]
+    first = np.array([int(np.argmax(guided[v] > 0)) for v in rows])
+    near = first[-20:].min()  # the bottom rows: the widest band's border
+    assert first.min() >= near - 8, (first.min(), near)  # no far row reaches further left
+    masks = {}
+    for name, disp in (("guided", guided), ("full", full)):
+        road = run_node("road.profile", {"disparity": disp, "calib": fr.calib})["road"]
+        masks[name] = run_node("road.mask", {"disparity": disp, "road": road, "calib": fr.calib})["mask"]
+    off_road = {k: int((m & ~fr.paved_mask).sum()) for k, m in masks.items()}
+    assert masks["guided"].sum() > 50000
+    assert off_road["guided"] <= off_road["full"] + 200, off_road

@@ -258,6 +258,73 @@ def test_kerbs_preset_raises_a_step_along_both_edges():
     assert ys.size > 100
 
 
+def _pixel(r: SceneRenderer, X: float, up: float, Z: float) -> tuple[int, int, float]:
+    """Left-image pixel (u, v) and camera depth of the world point ``up`` metres above the road at
+    (``X``, ``Z``) (frame 0 of a straight road: world X is the lateral position, Z the distance)."""
+    q = r.R.T @ np.array([X, r.spec.height - up, Z])
+    c = r.calib
+    return int(round(c.f * q[0] / q[2] + c.cx)), int(round(c.f_y * q[1] / q[2] + c.cy)), float(q[2])
+
+
+def test_residential_side_road_kerb_curves_away_from_the_right_edge():
+    spec = preset("residential", calib=HALF, shadows=0.0, trees=0.0, parked_cars=0.0, seed=5)
+    r = SceneRenderer(spec)
+    fr = r.render(0)
+    a, R, E, h = spec.side_roads[0], spec.side_road_radius, r.edges[1], spec.kerb_height
+    fb = spec.calib.f * spec.calib.baseline
+    assert fr.lanes_gt["markings"] == [] and fr.lanes_gt["ego"] == {"left": None, "right": None}
+    # the near corner's kerb: its top stands kerb_height above the road along the quarter circle
+    # that leaves the right edge at s = a (centred R metres beyond the edge)
+    for deg in (10, 25, 40, 60):
+        th = math.radians(deg)
+        s, lat = a + (R - 0.1) * math.sin(th), E + R - (R - 0.1) * math.cos(th)
+        u, v, z = _pixel(r, lat, h, s)
+        assert fr.object_mask[v, u], f"no kerb at {deg} deg of the corner ({s:.1f} m, {lat:.1f} m)"
+        assert fr.disparity[v, u] == pytest.approx(fb / z, rel=0.03)
+        c, pitch = spec.calib, spec.pitch  # the road plane seen in that pixel lies farther away
+        d_road = (c.baseline / spec.height) * (c.f * math.sin(pitch) + (v - c.cy) * math.cos(pitch))
+        assert fr.disparity[v, u] > d_road * 1.02
+    # no kerb along the main road's edge across the mouth; the edge's kerb before it
+    u, v, _ = _pixel(r, E + 0.1, h, a + R)
+    assert not fr.object_mask[v, u] and fr.paved_mask[v, u]
+    u, v, _ = _pixel(r, E + 0.1, h, a - 3.0)
+    assert fr.object_mask[v, u]
+    # the side road is paved beyond the corners; the corner block inside the quarter circle is not
+    u, v, _ = _pixel(r, E + R + 2.0, 0.0, a + R + spec.side_road_width / 2)
+    assert fr.road_mask[v, u] and fr.paved_mask[v, u]
+    u, v, _ = _pixel(r, E + 4.0, 0.0, a + 2.0)
+    assert fr.road_mask[v, u] and not fr.paved_mask[v, u]
+    # and the asphalt there is the road's grey, the corner block the verge's green
+    g = fr.left.astype(float)
+    u, v, _ = _pixel(r, E + 1.0, 0.0, a + R)
+    assert g[v, u, 1] < g[v, u, 0] + 15  # asphalt: not green
+    with pytest.raises(ValueError, match="side_roads"):
+        SceneSpec(side_roads=(10.0,))  # no kerb height
+    with pytest.raises(ValueError, match="side_roads"):
+        replace(spec, side_roads=(290.0,))  # beyond the tile
+
+
+def test_a_side_road_on_the_left_mirrors_the_right_one():
+    spec = preset(
+        "residential", calib=HALF, side_roads=(), side_roads_left=(10.0,), side_road_radius=8.0,
+        shadows=0.0, trees=0.0, parked_cars=0.0, seed=6,
+    )  # fmt: skip
+    r = SceneRenderer(spec)
+    fr = r.render(0)
+    a, R, E, h = spec.side_roads_left[0], spec.side_road_radius, r.edges[0], spec.kerb_height
+    for deg in (15, 35, 55):
+        th = math.radians(deg)
+        s, lat = a + (R - 0.1) * math.sin(th), E - R + (R - 0.1) * math.cos(th)
+        u, v, _ = _pixel(r, lat, h, s)
+        assert fr.object_mask[v, u], f"no kerb at {deg} deg of the left corner"
+    u, v, _ = _pixel(r, E - 0.1, h, a + R)  # the left edge's kerb is cut across the mouth
+    assert not fr.object_mask[v, u] and fr.paved_mask[v, u]
+    u, v, _ = _pixel(r, r.edges[1] + 0.1, h, a + R)  # the right one is not
+    assert fr.object_mask[v, u]
+    u, v, _ = _pixel(r, E - R - 2.0, 0.0, a + R + spec.side_road_width / 2)
+    assert fr.road_mask[v, u] and fr.paved_mask[v, u]
+
+
 # --------------------------------------------------------------------------- lane ground truth
 
 
