@@ -169,6 +169,7 @@ class Recorder:
                     "kept": int(tuple(np.round(ln.coeffs, 9)) in kept_keys),
                     "kept_no_step": int(tuple(np.round(ln.coeffs, 9)) in flat_keys),
                     **{k: f[k] for k in self.paint.FEATURES},
+                    "step_beyond_m": f.get("step_beyond_m", math.nan),
                 }
             )
 

@@ -106,7 +106,7 @@ class VerifyParams(NodeParams):
         gt=0.0,
         le=5.0,
         description="with max_step_m: the higher side of a step across a lane, 0.8-1.2 m out, standing more than this "
-        "above the lower side is an obstacle beside the line (a parked car: 30 cm and more), not a kerb's top and the "
+        "above the lower side is an obstacle beside the line (a parked car: 34-38 cm), not a kerb's top and the "
         "pavement behind it (a kerb is at most 20 cm): the lane is kept, metres",
     )
     step_side_ratio: float = Field(

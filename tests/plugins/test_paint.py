@@ -177,12 +177,12 @@ def row_widths_list(strips, band):
 def test_paint_features_tell_paint_a_dashed_line_and_a_gutter():
     img, lane, g = _paint_scene("paint")
     f = _paint.paint_features(img, lane, g)
-    assert set(f) == set(_paint.FEATURES)
+    assert set(f) == {*_paint.FEATURES, "step_beyond_m"}  # the model's inputs, and the step's far side
     assert 0.1 <= f["width_m"] <= 0.2 and f["foot_width_m"] <= 0.25
     assert f["width_spread"] < 0.4 and f["painted_fraction"] > 0.9
     assert f["contrast"] > 0.8 and f["side_ratio"] > 0.9
     assert f["dash_runs"] == 1 and f["longest_run_m"] == pytest.approx(20.0, abs=0.5)
-    assert math.isnan(f["height_step_m"])  # no disparity given
+    assert math.isnan(f["height_step_m"]) and math.isnan(f["step_beyond_m"])  # no disparity given
     assert f["parallel_spread_m"] == _paint.UNPARALLEL_M  # no other lane
     dashed = _paint.paint_features(*_paint_scene("dashed"))
     # 3 m dashes every 9 m on BEV rows 0-59, 180-239, 360-419, 540-599; the near 25 m are rows 199-599
