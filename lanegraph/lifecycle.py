@@ -16,48 +16,14 @@ close
     context manager that guarantees it (``with Executor(...) as ex: ex.run()``).
 
 What a class implements beyond ``__init__`` / ``__call__`` / ``__iter__`` it declares, by name, in
-``@node_type(..., implements=(...))`` or by subclassing the classes below, which declare theirs
-(:data:`CAPABILITIES`: each capability and the members it requires):
-
-``close``
-    ``close()``: release what ``__init__`` opened (:class:`Closeable`; :class:`StatefulNode` and its
-    subclasses declare it with an empty default).
-``resume``
-    ``state() -> JSON-able`` after every frame, ``restore(state)`` after open when a run resumes
-    (``lanegraph run --resume``; :mod:`lanegraph.records.resume`) (:class:`Resumable`).
-``constants`` (a source)
-    ``constants()``: its outputs that do not change per frame (:class:`Source`, :class:`SourceNode`).
-``len`` (a source)
-    ``len(obj)``: the number of frames it will deliver (a progress bar's total,
-    ``--chunk-frames``) (:class:`Sized`).
-``identity`` (a source)
-    ``identity() -> str``: what a resumed run and the result cache compare its input by
-    (:class:`Identified`).
-``skip`` (a source)
-    the attribute ``skipped``: how many frames of a resumed run (``context.skip``) it left out
-    itself (:class:`SkipsFrames`); a source that does not declare it gets ``context.skip == 0`` and
-    the executor drops those frames itself.
-``frame_key`` (a source)
-    ``frame_key(frame) -> str | None``: a frame's content key for the result cache
-    (:class:`KeyedFrames`).
-``outputs`` (a sink)
-    the attribute ``outputs``: the files it wrote, printed at the end of ``lanegraph run``
-    (:class:`Sink`, :class:`SinkNode`).
-``verify``
-    ``verify()`` after the last frame: raises when its output on disk is no longer the one it wrote
-    (:class:`Verified`).
-``select_source`` (a source; a static method, called before anything is instantiated)
-    ``select_source(params, input_path, detect) -> str``: a source that stands for others
-    (:mod:`lanegraph.nodes`).
-``result_files`` (a sink; a static method)
-    ``result_files(params) -> {kind: path}``: the files other commands read back.
-
-Registration (:class:`lanegraph.plugins.PluginManager`) checks that a class defines every member of
-what it declares (:func:`contract_problems`: a misspelt ``restor`` is a plugin error naming the
-plugin, not a sink that silently cannot resume); the engine then reads the declaration
-(:attr:`lanegraph.nodes.NodeType.capabilities`) and never asks ``isinstance`` or ``getattr`` of a
-node. A class that defines a capability's methods without declaring it still has them used, with a
-``DeprecationWarning`` at registration (:func:`undeclared_capabilities`).
+``@node_type(..., implements=(...))`` or by subclassing the classes below, one a capability
+(:data:`CAPABILITIES`: each capability and the members it requires; the table of what each is for
+is in docs/writing-plugins.md). Registration (:class:`lanegraph.plugins.PluginManager`) checks that
+a class defines every member of what it declares (:func:`contract_problems`: a misspelt ``restor``
+is a plugin error naming the plugin, not a sink that silently cannot resume); the engine then reads
+the declaration (:attr:`lanegraph.nodes.NodeType.capabilities`) and never asks ``isinstance`` or
+``getattr`` of a node. A class that defines a capability's methods without declaring it still has
+them used, with a ``DeprecationWarning`` at registration (:func:`undeclared_capabilities`).
 """
 
 from __future__ import annotations

@@ -16,33 +16,12 @@ A node type is a plain function plus a pydantic params model::
 or :func:`node_type_of`); plugins return such functions (or classes) from the
 ``lanegraph_node_types`` hook.
 
-A *stateless* node function is called as ``func(params, **inputs)`` and returns a
-dict mapping output port names to values. A *stateful* node (``stateful=True``)
-is a class: ``cls(params, context)`` once per run, then ``obj(**inputs)`` per frame
-and ``obj.close()`` (if defined) at the end. A *source* is stateful and produces
-frames: ``obj.constants()`` returns its constant outputs (e.g. calibration),
-``iter(obj)`` yields one dict of per-frame outputs per frame.
-
-A stateless node whose work releases the GIL for most of its time (stereo matching in OpenCV or in
-a ``nogil`` kernel) may declare ``ahead=True``: the executor may then compute it for the next frame,
-on a thread, while the current frame's later nodes run (:mod:`lanegraph.run.executor`). Its
-function must not keep anything between calls (no buffer it hands out and reuses: two frames'
-outputs are alive at once) and must be safe to call from another thread.
-
-What a node class implements beyond ``__init__`` / ``__call__`` / ``__iter__`` it declares:
-``@node_type(..., implements=("close", "resume"))``, or by subclassing the classes of
-:mod:`lanegraph.lifecycle` (which lists every capability). Registration checks that the class
-defines what it declares; the engine reads :attr:`NodeType.capabilities` and never looks for a
-method itself. Two capabilities are static methods, called before anything is instantiated:
-
-``select_source(params, input_path, detect) -> str``
-    a source that stands for others (``io.auto``): the name of the source node type that reads
-    ``input_path`` (``detect(path)`` asks every plugin's ``lanegraph_detect_source``); the executor
-    runs that type, with its default params, in its place. Raise ``ValueError`` saying why when no
-    source fits.
-``result_files(params) -> dict[str, str]``
-    a sink: the files it writes that other commands read back, by kind, relative to the output
-    folder (``{"lanes": ...}``: the lanes the metrics read, see :mod:`lanegraph.records.results`).
+A *stateless* node function is called as ``func(params, **inputs)`` and returns a dict mapping
+output port names to values; a *stateful* one (``stateful=True``) is a class with the life cycle of
+:mod:`lanegraph.lifecycle`, where what a class implements is declared (``implements=``). A
+stateless node whose work releases the GIL (stereo matching) may declare ``ahead=True``: the
+executor may compute it for the next frame on a thread (:mod:`lanegraph.run.ahead`), so it must keep
+nothing between calls and be thread-safe. The contract in full: docs/writing-plugins.md.
 """
 
 from __future__ import annotations

@@ -351,17 +351,19 @@ _FILE_MODE, _DIR_MODE = 0o666, 0o777
 _NEW_FILE = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
 
 
-def new_temp_file(folder: Path, prefix: str = ".", suffix: str = ".tmp") -> tuple[int, Path]:
+def new_temp_file(
+    folder: Path, prefix: str = ".", suffix: str = ".tmp", mode: int = _FILE_MODE
+) -> tuple[int, Path]:
     """A new file of a name no other has in ``folder``, opened for writing: ``(descriptor, path)``.
 
     Unlike :func:`tempfile.mkstemp` (always ``0600``) it is created with the mode a plain ``open()``
     gives under the process's umask, so a file written here and renamed into place is as readable as
-    any other file the command writes (``0644`` under umask 022, ``0600`` under 077). Never through a
-    link (``O_EXCL``, ``O_NOFOLLOW``)."""
+    any other file the command writes (``0644`` under umask 022, ``0600`` under 077), or ``mode``
+    under the umask. Never through a link (``O_EXCL``, ``O_NOFOLLOW``)."""
     for _ in range(100):
         path = Path(folder) / f"{prefix}{secrets.token_hex(6)}{suffix}"
         try:
-            return os.open(path, _NEW_FILE, _FILE_MODE), path
+            return os.open(path, _NEW_FILE, mode), path
         except FileExistsError:
             continue
     raise FileExistsError(errno.EEXIST, "no unused temporary file name", str(folder))
@@ -380,11 +382,23 @@ def new_temp_dir(folder: Path, prefix: str = ".") -> Path:
     raise FileExistsError(errno.EEXIST, "no unused temporary folder name", str(folder))
 
 
-def write_bytes_atomic(path: Path, data: bytes) -> None:
+def relative_inside(path: Path | None, folder: Path) -> str | None:
+    """``path`` relative to ``folder`` (both resolved) when it lies inside it, else None."""
+    if path is None:
+        return None
+    try:
+        return str(Path(path).resolve().relative_to(Path(folder).resolve()))
+    except (ValueError, OSError):
+        return None
+
+
+def write_bytes_atomic(path: Path, data: bytes, mode: int = _FILE_MODE) -> None:
     """Write ``data`` to ``path`` through a new temporary file in the same folder and a rename: never
     half a file, and never through a symbolic or hard link planted at ``path`` (the rename replaces
-    the link itself). The file ends with the mode a plain ``open()`` would give it (the umask's)."""
-    fd, tmp = new_temp_file(path.parent, prefix=f".{path.name[:100]}.", suffix=".tmp")
+    the link itself). The file ends with the mode a plain ``open()`` would give it (the umask's), or
+    ``mode`` under the umask (``0o600``: a file only its owner may read). OSError when it cannot be
+    written."""
+    fd, tmp = new_temp_file(path.parent, prefix=f".{path.name[:100]}.", suffix=".tmp", mode=mode)
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
@@ -424,6 +438,7 @@ __all__ = [
     "output_fields",
     "output_problems",
     "prepare_dir",
+    "relative_inside",
     "relative_output",
     "safe_name",
     "create_new",

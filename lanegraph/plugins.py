@@ -220,26 +220,29 @@ class PluginManager(pluggy.PluginManager):
         self._node_types = dict(sorted(nodes.items()))
 
     @staticmethod
-    def _provided(impl: Any) -> list[Any]:
-        """What a registration hookimpl returns, as a list (it raises what the hookimpl raises)."""
-        provided = impl.function()
-        if provided is None:
-            return []
-        if isinstance(provided, (str, bytes)) or not hasattr(provided, "__iter__"):
-            raise TypeError(f"expected a list, got {type(provided).__name__}")
-        return list(provided)
+    def _provided(impl: Any, hook: str, bad: dict[Any, tuple[str, tuple[str, ...]]]) -> list[Any] | None:
+        """What a registration hookimpl returns, as a list; None when it raised or returned no list
+        (a plugin's bug, sys.exit included: noted in ``bad``, the host goes on)."""
+        try:
+            provided = impl.function()
+            if provided is None:
+                return []
+            if isinstance(provided, (str, bytes)) or not hasattr(provided, "__iter__"):
+                raise TypeError(f"expected a list, got {type(provided).__name__}")
+            return list(provided)
+        except BaseException as exc:
+            if interrupts.is_interruption(exc):
+                raise
+            bad[impl.plugin] = (f"its {hook} hook raised {_describe(exc)}", ())
+            return None
 
     def _collect_port_types(self) -> tuple[dict[str, PortType], dict[Any, tuple[str, tuple[str, ...]]]]:
         ports: dict[str, PortType] = {}
         owner: dict[str, Any] = {}  # port type name -> the plugin that registered it
         bad: dict[Any, tuple[str, tuple[str, ...]]] = {}
         for impl in self.hook.lanegraph_port_types.get_hookimpls():
-            try:
-                provided = self._provided(impl)
-            except BaseException as exc:  # a plugin's bug (sys.exit included): reported, the host goes on
-                if interrupts.is_interruption(exc):
-                    raise
-                bad[impl.plugin] = (f"its lanegraph_port_types hook raised {_describe(exc)}", ())
+            provided = self._provided(impl, "lanegraph_port_types", bad)
+            if provided is None:
                 continue
             for pt in provided:
                 if not isinstance(pt, PortType) or not (
@@ -285,12 +288,8 @@ class PluginManager(pluggy.PluginManager):
             if impl.plugin in skip:
                 continue
             pname = self.get_name(impl.plugin) or "?"
-            try:
-                provided = self._provided(impl)
-            except BaseException as exc:  # a plugin's bug (sys.exit included): reported, the host goes on
-                if interrupts.is_interruption(exc):
-                    raise
-                bad[impl.plugin] = (f"its lanegraph_node_types hook raised {_describe(exc)}", ())
+            provided = self._provided(impl, "lanegraph_node_types", bad)
+            if provided is None:
                 continue
             records = [node_type_of(item) for item in provided]
             wrong = next((item for item, nt in zip(provided, records) if nt is None), None)

@@ -47,9 +47,8 @@ ROW_METRICS = (
     "ms_per_frame",
     "wall_s",
 )
-#: the files of a run folder a tracker receives (those that exist), and of a command's folder
+#: the files of a run folder a tracker receives (those that exist)
 RUN_FILES = ("graph.yaml", "run.json", "timings.json", "run.log")
-COMMAND_FILES = ("results.csv", "results.md", "accuracy.png", "accuracy_vs_ms.png", "graph.yaml", "run.json")
 #: a param value longer than this is cut (MLflow keeps at most 6000 characters)
 MAX_PARAM_CHARS = 6000
 

@@ -25,6 +25,8 @@ class FolderPath(click.Path):
 
 #: the type of ``--out`` and ``--debug-dir``
 FOLDER = FolderPath()
+#: the type of a file or folder option
+PATH = click.Path(path_type=Path)
 
 
 def session(
@@ -51,10 +53,21 @@ def session(
     return s
 
 
+def stacked(*options):
+    """One decorator applying click ``options`` in the order given (the first is listed first)."""
+
+    def decorate(command):
+        for option in reversed(options):
+            command = option(command)
+        return command
+
+    return decorate
+
+
 def keeping_options(command):
     """The options of the commands that write a result folder (``run``, ``ablate``): ``-v`` /
     ``-q``, ``--overwrite`` and ``--track``."""
-    options = [
+    return stacked(
         click.option("-v", "--verbose", count=True, help="say more (details on stderr and in OUT/run.log)"),
         click.option(
             "-q",
@@ -74,17 +87,14 @@ def keeping_options(command):
             help="send the runs to an experiment tracker: mlflow (a local store), mlflow:http://HOST:PORT, "
             'mlflow:file:///DIR (pip install "lanegraph[mlflow]"; docs/tracking.md)',
         ),
-    ]
-    for option in reversed(options):
-        command = option(command)
-    return command
+    )(command)
 
 
 def dataset_cache_options(command):
     """The options of the commands that run a graph over a dataset's sequences and share the
     result cache (``ablate``, ``tune``): ``--frames`` (for every sequence that does not choose its
     own), ``--no-cache``, ``--cache-dir`` and ``--cache-max-gb``."""
-    options = [
+    return stacked(
         click.option(
             "--frames", help="frame selection A:B or A:B:S (for every sequence that does not choose its own)"
         ),
@@ -94,9 +104,7 @@ def dataset_cache_options(command):
             help="recompute everything (no shared results, no reuse of unchanged runs)",
         ),
         click.option(
-            "--cache-dir",
-            type=click.Path(path_type=Path),
-            help="result cache folder (default: ~/.cache/lanegraph/results)",
+            "--cache-dir", type=PATH, help="result cache folder (default: ~/.cache/lanegraph/results)"
         ),
         click.option(
             "--cache-max-gb",
@@ -105,10 +113,7 @@ def dataset_cache_options(command):
             show_default=True,
             help="size bound of the result cache, GiB",
         ),
-    ]
-    for option in reversed(options):
-        command = option(command)
-    return command
+    )(command)
 
 
 def parse_frames(text: str | None) -> slice | None:
@@ -125,7 +130,7 @@ def parse_frames(text: str | None) -> slice | None:
 def scale_out_options(scope: str = ""):
     """The options ``run`` and ``ablate`` share: resuming, debug pictures, a Dask scheduler, chunks
     and their warm-up, the report at the end (``scope``: what they need, said before each help text)."""
-    options = [
+    return stacked(
         click.option(
             "--resume",
             is_flag=True,
@@ -167,14 +172,7 @@ def scale_out_options(scope: str = ""):
             is_flag=True,
             help="write OUT/report/index.html at the end (see `lanegraph report`)",
         ),
-    ]
-
-    def decorate(command):
-        for option in reversed(options):
-            command = option(command)
-        return command
-
-    return decorate
+    )
 
 
 def dataset_file(path: Path):

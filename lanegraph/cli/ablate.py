@@ -9,6 +9,7 @@ import click
 from ..kernels import compile_share, first_run_notice
 from ._common import (
     FOLDER,
+    PATH,
     dataset_cache_options,
     dataset_option,
     keeping_options,
@@ -20,21 +21,14 @@ from ._errors import handled
 
 
 @click.command()
-@click.argument("base", type=click.Path(path_type=Path))
-@click.argument("variants", nargs=-1, type=click.Path(path_type=Path))
-@click.option(
-    "--input",
-    "input_path",
-    type=click.Path(path_type=Path),
-    help="input folder; default: the built-in synthetic scene",
-)
-@click.option(
-    "--gt", "gt_path", type=click.Path(path_type=Path), help="ground truth lanes_gt.jsonl to evaluate against"
-)
+@click.argument("base", type=PATH)
+@click.argument("variants", nargs=-1, type=PATH)
+@click.option("--input", "input_path", type=PATH, help="input folder; default: the built-in synthetic scene")
+@click.option("--gt", "gt_path", type=PATH, help="ground truth lanes_gt.jsonl to evaluate against")
 @click.option(
     "--dataset",
     "dataset_path",
-    type=click.Path(path_type=Path),
+    type=PATH,
     help="a dataset file (YAML list of sequences, each an input and a ground truth) in place of --input/--gt",
 )
 @click.option(

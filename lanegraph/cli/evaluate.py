@@ -11,7 +11,7 @@ import click
 from ..errors import InputError, LanegraphError, UsageError
 from ..frames import selection_text
 from ..plugins import get_plugin_manager
-from ._common import parse_frames, session
+from ._common import PATH, parse_frames, session
 from ._errors import handled
 
 
@@ -42,12 +42,12 @@ def _is_number(v: object) -> bool:
 
 
 @click.command(name="eval")
-@click.argument("pred", type=click.Path(path_type=Path))
-@click.argument("gt", type=click.Path(path_type=Path), required=False)
+@click.argument("pred", type=PATH)
+@click.argument("gt", type=PATH, required=False)
 @click.option(
     "--dataset",
     "dataset_path",
-    type=click.Path(path_type=Path),
+    type=PATH,
     help="a dataset file: PRED is then a folder with a run folder PRED/<sequence>/ per sequence (as `run --dataset` writes)",
 )
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
@@ -58,13 +58,11 @@ def _is_number(v: object) -> bool:
     help="readme, culane, tusimple, lateral (comma-separated)",
 )
 @click.option(
-    "--scene",
-    type=click.Path(path_type=Path),
-    help="scene.json of a synthetic sequence (pitch, height) for the lateral error",
+    "--scene", type=PATH, help="scene.json of a synthetic sequence (pitch, height) for the lateral error"
 )
 @click.option(
     "--calib",
-    type=click.Path(path_type=Path),
+    type=PATH,
     help="the calibration for the lateral error: a calibration file, or an input folder (default: the folder of --scene)",
 )
 @click.option(

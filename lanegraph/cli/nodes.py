@@ -89,16 +89,7 @@ def nodes_markdown(types: dict[str, NodeType], title: str = "Node reference") ->
     for fam, names in families.items():
         out.append(f"- **{fam}**: " + ", ".join(f"[`{n}`](#{n.replace('.', '')})" for n in names))
     for name, nt in types.items():
-        flags = [
-            f
-            for f, on in (
-                ("source", nt.source),
-                ("sink", nt.sink),
-                ("stateful", nt.stateful and not nt.source),
-                ("runs ahead", nt.ahead),
-            )
-            if on
-        ]
+        flags = _flags(nt)
         out += [
             "",
             f"## {name}",
@@ -196,16 +187,7 @@ def nodes(as_json: bool, as_markdown: bool, builtin: bool) -> None:
         )
         return
     for name, nt in types.items():
-        flags = ",".join(
-            f
-            for f, on in (
-                ("source", nt.source),
-                ("sink", nt.sink),
-                ("stateful", nt.stateful and not nt.source),
-                ("runs ahead", nt.ahead),
-            )
-            if on
-        )
+        flags = ",".join(_flags(nt))
         click.echo(f"{name}  [{nt.plugin}]{' (' + flags + ')' if flags else ''}")
         summary = first_sentence(nt.doc)
         if summary:
@@ -293,3 +275,9 @@ def _mermaid_text(text: str) -> str:
         .replace(">", "#gt;")
         .replace("\n", " ")
     )
+
+
+def _flags(nt: NodeType) -> list[str]:
+    """What a node type is besides a function of its inputs: source, sink, stateful, runs ahead."""
+    kinds = (("source", nt.source), ("sink", nt.sink), ("stateful", nt.stateful and not nt.source))
+    return [f for f, on in (*kinds, ("runs ahead", nt.ahead)) if on]

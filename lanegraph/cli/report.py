@@ -2,32 +2,30 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import click
 
-from ._common import FOLDER, parse_frames, session
+from ._common import FOLDER, PATH, parse_frames, session
 from ._errors import handled
 
 
 @click.command()
-@click.argument("run_dir", type=click.Path(path_type=Path))
+@click.argument("run_dir", type=PATH)
 @click.option(
     "--gt",
     "gt_path",
-    type=click.Path(path_type=Path),
+    type=PATH,
     help="ground truth lanes_gt.jsonl (default: lanes_gt.jsonl in the input folder, when there is one)",
 )
 @click.option(
     "--dataset",
     "dataset_path",
-    type=click.Path(path_type=Path),
+    type=PATH,
     help="a dataset file: each sequence's input and ground truth (RUN_DIR/<sequence>/ run folders, or an ablation's runs)",
 )
 @click.option(
     "--input",
     "input_path",
-    type=click.Path(path_type=Path),
+    type=PATH,
     help="the input folder, where run.json names none or it moved (an ablation over one --input)",
 )
 @click.option(
@@ -40,11 +38,7 @@ from ._errors import handled
     metavar="NODE.PARAM=VALUE",
     help="the --set overrides the run was made with (its source node reads the left images)",
 )
-@click.option(
-    "--debug-dir",
-    type=FOLDER,
-    help="the run's --debug-dir (default: one found inside RUN_DIR)",
-)
+@click.option("--debug-dir", type=FOLDER, help="the run's --debug-dir (default: one found inside RUN_DIR)")
 @click.option("--out", "out_dir", type=FOLDER, help="report folder  [default: RUN_DIR/report]")
 @click.option("--open", "open_browser", is_flag=True, help="open the report in the web browser")
 @click.option("--quiet", is_flag=True, help="no progress messages")

@@ -9,7 +9,7 @@ import click
 
 from ..errors import UsageError
 from ..kernels import compile_share, first_run_notice
-from ._common import FOLDER, dataset_file, keeping_options, parse_frames, scale_out_options, session
+from ._common import FOLDER, PATH, dataset_file, keeping_options, parse_frames, scale_out_options, session
 from ._errors import handled
 
 
@@ -18,7 +18,7 @@ from ._errors import handled
 @click.option(
     "--input",
     "input_path",
-    type=click.Path(path_type=Path),
+    type=PATH,
     help="input: a KITTI raw drive or odometry sequence, a folder of pairs, a ROS bag, a stereo video (docs/inputs.md); default: the built-in synthetic scene",
 )
 @click.option(
@@ -43,7 +43,7 @@ from ._errors import handled
 @click.option(
     "--dataset",
     "dataset_path",
-    type=click.Path(path_type=Path),
+    type=PATH,
     help="a dataset file (YAML list of sequences) in place of --input: writes each sequence's run into OUT/<sequence>/",
 )
 @scale_out_options()

@@ -12,7 +12,7 @@ import click
 
 from ..builtin import describe, graph_names, graphs_dir
 from ..errors import LanegraphError
-from ._common import FOLDER
+from ._common import FOLDER, PATH
 
 
 @click.command(name="graphs")
@@ -41,14 +41,8 @@ def data_cmd() -> None:
 
 
 @data_cmd.command(name="kitti")
-@click.argument("sources", nargs=-1, required=True, type=click.Path(path_type=Path))
-@click.option(
-    "--out",
-    "out_dir",
-    type=FOLDER,
-    required=True,
-    help="the folder to lay the data out in",
-)
+@click.argument("sources", nargs=-1, required=True, type=PATH)
+@click.option("--out", "out_dir", type=FOLDER, required=True, help="the folder to lay the data out in")
 @click.option("--quiet", is_flag=True, help="no progress messages")
 def kitti_cmd(sources: tuple[Path, ...], out_dir: Path, quiet: bool) -> None:
     """Lay out KITTI downloads as lanegraph's sources read them, in OUT.

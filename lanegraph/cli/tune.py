@@ -7,23 +7,23 @@ from pathlib import Path
 import click
 
 from ..kernels import compile_share, first_run_notice
-from ._common import FOLDER, dataset_cache_options, keeping_options, parse_frames, session
+from ._common import FOLDER, PATH, dataset_cache_options, keeping_options, parse_frames, session
 from ._errors import handled
 
 
 @click.command()
-@click.argument("graph", type=click.Path(path_type=Path))
+@click.argument("graph", type=PATH)
 @click.option(
     "--dataset",
     "dataset_path",
-    type=click.Path(path_type=Path),
+    type=PATH,
     required=True,
     help="a dataset file (sequences with ground truth; a sequence's `group` is left out as a whole)",
 )
 @click.option(
     "--space",
     "space_path",
-    type=click.Path(path_type=Path),
+    type=PATH,
     required=True,
     help="a space file: node_id.param -> {low, high[, log, step, type]} or {choices: [...]} (docs/tune.md)",
 )

@@ -66,7 +66,7 @@ class _SequenceModel(BaseModel):
     @field_validator("frames")
     @classmethod
     def _selection(cls, v: str | None) -> str | None:
-        parse_selection(v)
+        parse_frames(v)
         return v
 
     @field_validator("name")
@@ -115,13 +115,6 @@ class Dataset:
     @property
     def has_gt(self) -> bool:
         return any(s.gt is not None for s in self.sequences)
-
-
-def parse_selection(text: str | None) -> slice | None:
-    """A frame selection ``A:B`` or ``A:B:S`` (Python slice semantics over the frame list) or a single
-    index ``A``; ``None`` or empty: every frame. Raises ``ValueError`` saying what was expected
-    (:func:`lanegraph.frames.parse_frames`)."""
-    return parse_frames(text)
 
 
 def single_sequence(input_path: Path | None, gt: Path | None = None, frames: slice | None = None) -> Dataset:
@@ -202,7 +195,7 @@ def _load_dataset(path: str | Path, check_paths: bool) -> Dataset:
                 raise InputError(f"sequence {s.name!r}: input: {inp}: no such folder", path=str(path))
             if gt is not None and not gt.is_file():
                 raise InputError(f"sequence {s.name!r}: gt: {gt}: no such file", path=str(path))
-        seqs.append(SequenceSpec(s.name, inp, gt, parse_selection(s.frames), s.group))
+        seqs.append(SequenceSpec(s.name, inp, gt, parse_frames(s.frames), s.group))
     return Dataset(model.name or path.stem, path, tuple(seqs))
 
 

@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 
 from ..types import Calibration
-from .metrics import evaluate_frame, match_score, polyline_x_at
+from .metrics import match_frame, polyline_x_at
 
 
 def _lane_mask(points: Sequence[Sequence[float]], size: tuple[int, int], width: int) -> np.ndarray:
@@ -169,23 +169,9 @@ def lateral_error_cm(
     for g in gt_records:
         lanes = preds.get(str(g.get("frame")), [])
         markings = list(g.get("markings") or [])
-        res = evaluate_frame(lanes, g)
-        if not res.matched:
-            continue
-        # recover the matched pairs (same greedy rule as the README metric)
-        pairs = []
-        for i, ln in enumerate(lanes):
-            for j, m in enumerate(markings):
-                s = match_score(ln.get("points") or [], m.get("points") or [])
-                if s is not None:
-                    pairs.append((s, i, j))
-        pairs.sort()
-        used_p, used_g = set(), set()
-        for _, i, j in pairs:
-            if i in used_p or j in used_g:
-                continue
-            used_p.add(i)
-            used_g.add(j)
+        m = match_frame(lanes, g)
+        # the matched pairs in the order the README metric took them (greedy by mean |dx|)
+        for _, i, j in sorted((m.lane_dx[i], i, j) for i, j in enumerate(m.lane_marking) if j is not None):
             for z, y in rows.items():
                 xp = polyline_x_at(lanes[i].get("points") or [], np.array([y]))[0]
                 xg = polyline_x_at(markings[j].get("points") or [], np.array([y]))[0]

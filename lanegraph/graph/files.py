@@ -25,11 +25,9 @@ from .validation import validate_raw
 REPO_GRAPHS = graphs_dir()  # the built-in graphs: lanegraph/graphs when installed, graphs/ in a checkout
 
 
-def resolve_graph_path(name: str) -> Path:
-    """A graph argument is a file path, or the name of a graph under ``graphs/`` (``paper``,
-    ``ablations/slt``), looked up in the current folder and then among the built-in graphs; an
-    unknown name is a :class:`GraphError` with the closest built-in name."""
-    return find_graph(name)
+#: a graph argument as a file: a path, or a name under ``graphs/`` (``paper``, ``ablations/slt``)
+#: in the current folder, then among the built-in graphs (:func:`lanegraph.builtin.find_graph`)
+resolve_graph_path = find_graph
 
 
 def allowed_roots(graph_path: Path) -> list[Path]:

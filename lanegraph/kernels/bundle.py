@@ -48,11 +48,10 @@ import re
 import sys
 import zlib
 from dataclasses import dataclass
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-from .compat import internals_tested
+from .compat import dist_version, internals_tested
 
 #: the layout of a bundle file (header line, then the compressed entries; 2: object code)
 FORMAT = 2
@@ -99,20 +98,13 @@ def enabled() -> bool:
     ) in ("", "0")
 
 
-def _version(dist: str) -> str:
-    try:
-        return metadata.version(dist)
-    except metadata.PackageNotFoundError:  # pragma: no cover - numba and llvmlite are dependencies
-        return "?"
-
-
 def environment() -> dict:
     """What a bundle must have been made with to be used here (without importing numba)."""
     return {
         "format": FORMAT,
         "python": f"{sys.version_info[0]}.{sys.version_info[1]}",
-        "numba": _version("numba"),
-        "llvmlite": _version("llvmlite"),
+        "numba": dist_version("numba"),
+        "llvmlite": dist_version("llvmlite"),
         "machine": platform.machine(),
         "system": platform.system(),
         "cpu": CPU,

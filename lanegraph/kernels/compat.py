@@ -49,12 +49,13 @@ def internals_tested() -> bool:
 
 def untested_text() -> str:
     """What is installed against what was tested, for a warning."""
-    have = ", ".join(f"{d} {_version(d)}" for d in TESTED)
+    have = ", ".join(f"{d} {dist_version(d)}" for d in TESTED)
     want = ", ".join(f"{d} {lo[0]}.{lo[1]}" for d, (lo, _) in TESTED.items())
     return f"{have} (lanegraph's kernel cache was tested with {want})"
 
 
-def _version(dist: str) -> str:
+def dist_version(dist: str) -> str:
+    """The installed version of the distribution ``dist``, ``?`` when it is not installed."""
     try:
         return metadata.version(dist)
     except metadata.PackageNotFoundError:

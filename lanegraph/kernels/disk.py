@@ -37,9 +37,10 @@ from pathlib import Path
 
 from numba.core import caching as _caching
 
+from ..paths import write_bytes_atomic
 from . import bundle
 from .bundle import package_digest
-from .folder import KernelCacheWarning, kernel_folder, write_private
+from .folder import KernelCacheWarning, kernel_folder
 
 MAGIC = b"lanegraph-kernel-cache 1\n"
 _MAC = hashlib.sha256().digest_size
@@ -172,7 +173,7 @@ class _CheckedFile(_caching.IndexDataCacheFile):
         return payload
 
     def _write(self, path: str, payload: bytes) -> None:
-        write_private(Path(path), MAGIC + self._mac(path, payload) + payload)
+        write_bytes_atomic(Path(path), MAGIC + self._mac(path, payload) + payload, mode=0o600)
 
     def _load_index(self):
         payload = self._read(self._index_path)
@@ -263,25 +264,24 @@ class CheckedCache(_caching.FunctionCache):
             self._impl.locator.ensure_cache_path()
             self._cache_file.save(self._index_key(sig, codegen), payload)
         except OSError as exc:
-            _STATE["off"] = True
-            warn_once(
-                "off",
-                f"kernel cache {self._cache_path}: cannot be written ({exc.strerror or exc}): "
-                "running without a kernel cache (the kernels compile again in the next run)",
-            )
+            self._go_without(exc)
 
     def save_overload(self, sig, data):
         if _STATE["off"]:
             return
         try:
             super().save_overload(sig, data)
-        except OSError as exc:  # a full disk, a folder made read-only: go on without a cache
-            _STATE["off"] = True
-            warn_once(
-                "off",
-                f"kernel cache {self._cache_path}: cannot be written ({exc.strerror or exc}): "
-                "running without a kernel cache (the kernels compile again in the next run)",
-            )
+        except OSError as exc:
+            self._go_without(exc)
+
+    def _go_without(self, exc: OSError) -> None:
+        """A full disk, a folder made read-only: the run goes on without a kernel cache, saying so."""
+        _STATE["off"] = True
+        warn_once(
+            "off",
+            f"kernel cache {self._cache_path}: cannot be written ({exc.strerror or exc}): "
+            "running without a kernel cache (the kernels compile again in the next run)",
+        )
 
 
 def attach(dispatcher) -> bool:

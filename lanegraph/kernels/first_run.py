@@ -49,10 +49,11 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ..paths import write_bytes_atomic
 from . import bundle
 from .bundle import KernelSet, decode_type, encode_type, install, kernel_sets
 from .compat import internals_tested, kept_call_types
-from .folder import kernel_folder, write_private
+from .folder import kernel_folder
 
 _STATE: dict = {
     "said": False,
@@ -212,7 +213,7 @@ def _listen(where: Path) -> None:
 
 def _write_stamp(stamp: Path) -> None:
     try:
-        write_private(stamp, f"{_install_key()} {_PACKAGE_ROOT}\n".encode())
+        write_bytes_atomic(stamp, f"{_install_key()} {_PACKAGE_ROOT}\n".encode(), mode=0o600)
     except OSError:
         pass
 

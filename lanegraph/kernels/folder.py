@@ -8,8 +8,8 @@ by this user that no one else can write to (lanegraph takes the group's and othe
 a folder of the user's own); else, and with ``HOME`` empty or ``/`` and no ``XDG_CACHE_HOME``, the
 kernels are compiled in every process, with a warning (:func:`kernel_folder` returns None).
 
-This module imports no numba; :func:`write_private` writes a file in such a folder without
-following a link (a temporary file replaced into place).
+This module imports no numba; a file in such a folder is written by
+:func:`lanegraph.paths.write_bytes_atomic` with mode ``0o600``, never through a link.
 """
 
 from __future__ import annotations
@@ -103,28 +103,10 @@ def _refuse(folder: Path | None, why: str, warn: bool) -> None:
     return None
 
 
-def write_private(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` as a new file (mode 0600) replaced into place: a link at ``path``
-    is replaced, never followed. OSError when it cannot be written."""
-    tmp = path.with_name(f".{path.name}.tmp.{os.getpid()}")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o600)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-
-
 __all__ = [
     "KernelCacheWarning",
     "cache_root",
     "kernel_folder",
     "private_folder_problem",
     "user_cache_home",
-    "write_private",
 ]

@@ -24,10 +24,6 @@ from .render import mosaic, to_bgr
 
 
 # --------------------------------------------------------------------------- the recorder plugin
-def _safe(name: str) -> str:
-    return safe_name(name)
-
-
 class DebugRecorder:
     """A plugin that saves every node output of the chosen frames as pictures, and a mosaic.
 

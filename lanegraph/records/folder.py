@@ -46,7 +46,6 @@ RUN_NAMES = ("run.json", "timings.json", "checkpoint.json", "graph.yaml", "run.l
 COMMAND_NAMES = ("command.json", "run.log")
 #: an ablation's tables and plots
 ABLATION_NAMES = ("results.csv", "results.md", "accuracy.png", "accuracy_vs_ms.png")
-LOCK = ".lanegraph.lock"
 HINT = "continue it with --resume, replace it with --overwrite (removes only what lanegraph wrote there), or choose another output folder"
 _HINT_OTHER = (
     "replace it with --overwrite (removes only what lanegraph wrote there) or choose another output folder"
@@ -211,26 +210,18 @@ def claim(
     folder: Path,
     identity: dict[str, Any],
     *,
-    resume: bool = False,
     overwrite: bool = False,
-    resolved: dict[str, Any] | None = None,
-    option: str = "--out",
     writes: Mapping[str, str] | None = None,
+    **options: Any,
 ) -> list[Path]:
-    """:func:`check` (the caller holding the folder's lock), then with ``overwrite``
-    :func:`lanegraph.records.owned.clear`; notes what ``writes`` hold before the command writes
-    (:func:`lanegraph.records.owned.begin`, for :func:`seal`). Returns what was removed."""
-    check(folder, identity, resume=resume, overwrite=overwrite, resolved=resolved, option=option,
-          locked=True, writes=writes)  # fmt: skip
+    """:func:`check` (the caller holding the folder's lock; ``options``: its ``resume``, ``resolved``,
+    ``option``), then with ``overwrite`` :func:`lanegraph.records.owned.clear`; notes what ``writes``
+    hold before the command writes (:func:`lanegraph.records.owned.begin`, for :func:`seal`, what
+    the command wrote: what a later ``--overwrite`` may remove). Returns what was removed."""
+    check(folder, identity, overwrite=overwrite, locked=True, writes=writes, **options)
     removed = owned.clear(folder, "--overwrite") if overwrite else []
     owned.begin(folder, writes or {})
     return removed
-
-
-def seal(folder: Path, *, final: bool = True) -> None:
-    """Record what the command wrote in ``folder`` (:func:`lanegraph.records.owned.seal`): what a later
-    ``--overwrite`` may remove. ``final=False`` early in a run, so that a killed run's files are known."""
-    owned.seal(folder, final=final)
 
 
 def _unfinished(record: dict[str, Any] | None, ckpt: dict[str, Any] | None) -> str | None:

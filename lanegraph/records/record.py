@@ -48,7 +48,7 @@ class Selection(BaseModel):
 class Provenance(BaseModel):
     """How a result was made (issue 30), as a run's and a command's record say it: the command
     line, the ``--set`` overrides, the versions of what computed it and the git commit of the
-    graph's checkout (:func:`lanegraph.service.keeping.provenance` fills it)."""
+    graph's checkout (:meth:`lanegraph.service.Session.provenance` fills it)."""
 
     model_config = ConfigDict(extra="forbid")
 

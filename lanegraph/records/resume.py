@@ -37,9 +37,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from ..errors import UsageError
 from ..paths import write_bytes_atomic
 from ..port_types import PORT_TYPES
-from ..storage import StorageError, digest
-from ..storage import decode_value as _decode
-from ..storage import encode_value as _encode
+from ..storage import StorageError, decode_value, digest, encode_value
 from ..types import PortType
 
 CHECKPOINT_NAME = "checkpoint.json"
@@ -52,20 +50,6 @@ MAX_CHECKPOINT_BYTES = 1 << 30
 _HINT = "; cannot resume (start over with --overwrite in place of --resume: it removes only what lanegraph wrote there; or choose another output folder)"
 
 CheckpointValueError = StorageError  #: a value a checkpoint cannot hold, or a malformed stored one
-
-
-# --------------------------------------------------------------------------- values
-def encode_value(value: Any, where: str = "value", port_types: Mapping[str, PortType] | None = None) -> Any:
-    """A port value as JSON data (:func:`lanegraph.storage.encode_value`); a value of a class a
-    port type of ``port_types`` stores (default: lanegraph's own) by that port type's ``encode``.
-    Raises :class:`CheckpointValueError` for anything else."""
-    return _encode(value, where, PORT_TYPES if port_types is None else port_types)
-
-
-def decode_value(data: Any, where: str = "value", port_types: Mapping[str, PortType] | None = None) -> Any:
-    """The inverse of :func:`encode_value`; anything it would not have written raises
-    :class:`CheckpointValueError` naming ``where``."""
-    return _decode(data, where, PORT_TYPES if port_types is None else port_types)
 
 
 # --------------------------------------------------------------------------- the file
@@ -234,12 +218,10 @@ def decode_feedback(
 ) -> tuple[dict[tuple[str, str], Any], dict[tuple[str, str], str | None]]:
     """The feedback values and their cache keys of a checkpoint, decoded by the registered
     ``port_types`` (default: lanegraph's own; errors name the entry)."""
-    values, keys = {}, {}
+    values, keys, types = {}, {}, PORT_TYPES if port_types is None else port_types
     for i, fb in enumerate(ckpt.feedback):
         try:
-            values[(fb.node, fb.port)] = decode_value(
-                fb.value, f"feedback[{i}] ({fb.node}.{fb.port})", port_types
-            )
+            values[(fb.node, fb.port)] = decode_value(fb.value, f"feedback[{i}] ({fb.node}.{fb.port})", types)
         except CheckpointValueError as exc:
             raise UsageError(f"{path}: {exc}{_HINT}") from None
         except RecursionError:
@@ -361,11 +343,12 @@ def feedback_entries(
 ) -> list[dict[str, Any]]:
     """The ``feedback`` list of a checkpoint, encoded by the registered ``port_types`` (raises
     :class:`CheckpointValueError` for a value it cannot hold)."""
+    types = PORT_TYPES if port_types is None else port_types
     return [
         {
             "node": n,
             "port": p,
-            "value": encode_value(values[(n, p)], f"{n}.{p}", port_types),
+            "value": encode_value(values[(n, p)], f"{n}.{p}", types),
             "key": keys.get((n, p)),
         }
         for (n, p) in sorted(values)

@@ -30,9 +30,10 @@ from ..errors import HookError, InputError, LanegraphError, UsageError
 from ..graph.files import ResolvedGraph
 from ..graph.model import Graph
 from ..nodes import RunContext
+from ..paths import relative_inside
 from ..plugins import PluginManager, get_plugin_manager
 from ..records.checkpointing import Checkpointer, checkpoint_for, resumed_frame_ids
-from ..records.folder import seal
+from ..records.owned import seal
 from ..records.provenance import versions, write_resolved_graph
 from ..records.record import Provenance, RunRecord, Stopped, write_run_files
 from ..records.resume import Checkpoint
@@ -163,13 +164,6 @@ def chunks_dir(run_dir: Path, in_place: bool = False) -> Path:
     return run_dir / ".lanegraph-chunks" if in_place else run_dir.parent / f".{run_dir.name}.chunks"
 
 
-def _inside(path: Path, folder: Path) -> str | None:
-    try:
-        return str(Path(path).resolve().relative_to(Path(folder).resolve()))
-    except (ValueError, OSError):
-        return None
-
-
 # --------------------------------------------------------------------------- run events
 class Checkpointing(Subscriber):
     """The checkpoint of a run written in place: the one it resumes (checked against the graph,
@@ -210,7 +204,7 @@ class Logging(Subscriber):
 
 class Sealing(Subscriber):
     """A run in place: what it wrote is recorded as lanegraph's once it has started (a killed run's
-    files are known as lanegraph's: :func:`lanegraph.records.folder.seal`)."""
+    files are known as lanegraph's: :func:`lanegraph.records.owned.seal`)."""
 
     def started(self, task, ex, folder):
         seal(folder, final=False)
@@ -272,7 +266,11 @@ def task_record(
     made = task.provenance if task is not None else None
     if made is not None and made.versions:  # at the end: the libraries the run loaded (ONNX Runtime ...)
         made = made.model_copy(update={"versions": versions(pm or get_plugin_manager())})
-    debug = _inside(Path(task.debug_dir), Path(task.run_dir)) if task is not None and task.debug_dir else None
+    debug = (
+        relative_inside(Path(task.debug_dir), Path(task.run_dir))
+        if task is not None and task.debug_dir
+        else None
+    )
     return RunRecord.of(
         result,
         graph=graph_file,
@@ -418,7 +416,7 @@ def execute_task(
     out.outputs = [str(p) for p in outputs]
     started = ex is not None and ex.result is not None
     if task.chunk is None and (started or not task.in_place):  # the user's folder: only a run that started
-        written = sorted({w for p in outputs if (w := _inside(Path(p), folder)) is not None})
+        written = sorted({w for p in outputs if (w := relative_inside(Path(p), folder)) is not None})
         ids = [*ckpt.resumed_ids, *result.frame_ids] if ckpt is not None and ckpt.resumed_ids else None
         out.record, out.unwritten = keep_record(folder, task, result, out.error, graph_file, written, ids, pm)
     if dest is not None and interrupted is not None:

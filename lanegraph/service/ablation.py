@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -18,14 +16,19 @@ from ..evaluation.dataset import read_gt
 from ..graph.files import resolve_graph_path
 from ..paths import inside, safe_name
 from ..records.folder import check as check_folder
-from ..records.folder import claim as claim_folder
-from ..records.folder import seal as seal_folder
+from ..records.owned import seal as seal_folder
 from ..records.provenance import git_commit, versions
-from ..run.cache import ResultCache
-from ..runlog import RunLog, get_logger
 from ..tracking import CommandRecord as TrackedCommand
 from ..tracking import existing
-from .keeping import ABLATION_FILES, ablation_writes, dataset_identity, tracked_ablation_runs
+from .keeping import (
+    ABLATION_FILES,
+    ablation_writes,
+    command_kept,
+    dataset_identity,
+    debug_frames_option,
+    result_cache,
+    tracked_ablation_runs,
+)
 
 
 def ablation_variants(base: Path, variants: tuple[Path, ...], sweeps: tuple[str, ...]) -> list[Variant]:
@@ -44,33 +47,29 @@ def ablation_variants(base: Path, variants: tuple[Path, ...], sweeps: tuple[str,
     return runs
 
 
-def _cache(cache_dir: Path | None, cache_max_gb: float, no_cache: bool) -> ResultCache | None:
-    try:
-        return None if no_cache else ResultCache(cache_dir, int(cache_max_gb * 1024**3))
-    except OSError as exc:
-        raise UsageError(f"--cache-dir: cannot use the result cache: {exc.strerror or exc}") from None
-
-
 def ablate(
     session: Any,
     variants: list[Variant],
     dataset: Any,
     out_dir: Path,
     *,
-    frames: slice | None,
-    cache_dir: Path | None,
-    cache_max_gb: float,
-    no_cache: bool,
-    scheduler: str | None,
-    runner: Runner | None,
-    chunk_frames: int | None,
-    warmup: int,
-    make_report: bool,
-    resume: bool,
-    debug_dir: Path | None,
-    debug_frames: tuple[str, ...] | None,
+    frames: slice | None = None,
+    cache_dir: Path | None = None,
+    cache_max_gb: float = 2.0,
+    no_cache: bool = False,
+    scheduler: str | None = None,
+    runner: Runner | None = None,
+    chunk_frames: int | None = None,
+    warmup: int = 0,
+    make_report: bool = False,
+    resume: bool = False,
+    debug_dir: Path | None = None,
+    debug_frames: str | None = None,
 ) -> int:
-    """See :meth:`lanegraph.service.Session.ablate`."""
+    """See :meth:`lanegraph.service.Session.ablate`. ``runner`` (default: the one of ``scheduler``)
+    executes the runs; ``resume``: the runs an earlier ablation finished in OUT are reused even with
+    ``no_cache``; ``debug_frames``: ``--debug-frames`` as given."""
+    chosen = debug_frames_option(debug_frames)
     runner = runner if runner is not None else session.runner(scheduler)
     opened = [(r, session.open_graph(r.graph, tuple(r.sets))) for r in variants]
     for _, graph in opened:
@@ -98,7 +97,7 @@ def ablate(
         session.locked(out_dir, "ablate", cache_folder, (debug_dir, "--debug-dir")),
         ablation_kept(session, out_dir, identity, variants, writes),
     ):
-        cache = _cache(cache_dir, cache_max_gb, no_cache)
+        cache = result_cache(cache_dir, cache_max_gb, no_cache)
         if isinstance(runner, InProcessRunner):
             runner.cache = cache
         made = session.provenance(None, [])
@@ -114,7 +113,7 @@ def ablate(
         ]  # fmt: skip
         try:
             batch = session.run_tasks(runs, runner, cache=cache, chunk_frames=chunk_frames, warmup=warmup,
-                                      reuse=cache is not None or resume, debug_frames=debug_frames)  # fmt: skip
+                                      reuse=cache is not None or resume, debug_frames=chosen)  # fmt: skip
         except (InputError, UsageError) as exc:  # unusable before any run: like `run`, exit 2
             raise NotStarted(exc) from exc
         except OSError as exc:
@@ -156,41 +155,29 @@ def ablate(
     return status if session.tracking.ok else max(status, 1)
 
 
-@contextmanager
 def ablation_kept(
-    session: Any,
-    out_dir: Path,
-    identity: dict[str, Any],
-    variants: list[Variant],
-    writes: dict[str, str] | None = None,
-) -> Iterator[None]:
-    """What an ablation keeps beside its results, once OUT is locked: the folder claimed (with
-    ``--overwrite``, cleared of lanegraph's files), ``command.json`` (its identity, command line,
-    versions), ``run.log`` and the tracker's command run (ended ``interrupted`` if the block raises)."""
-    claim_folder(out_dir, identity, overwrite=session.overwrite, writes=writes)
+    session: Any, out_dir: Path, identity: dict[str, Any], variants: list[Variant], writes: dict[str, str]
+) -> Any:
+    """What an ablation keeps beside its results (:func:`lanegraph.service.keeping.command_kept`),
+    ``command.json`` naming its variants (at the end with the libraries the runs loaded)."""
     made = session.provenance(variants[0].graph, [])
     written = ["results.csv", "results.md", "accuracy.png", "accuracy_vs_ms.png", "runs"]
-    # the tracker first: one that cannot start (MLflow missing) leaves no record to block a retry
-    session.tracking.start(
-        TrackedCommand("ablate", f"ablate -> {out_dir}", out_dir, list(made.command),
-                       {"variants": " ".join(r.name for r in variants), "frames": identity["frames"] or "all"})
-    )  # fmt: skip
-    out_dir.mkdir(parents=True, exist_ok=True)
-    session.keep_command(out_dir, "ablation", made, identity, written, variants)
-    seal_folder(out_dir, final=False)  # a killed ablation's files are known as lanegraph's
-    try:
-        with RunLog(out_dir, verbose=session.verbose > 0):
-            get_logger("run").info(
-                "ablation into %s: %s", out_dir, " ".join(made.command), extra={"file_only": True}
-            )
-            yield
-    except BaseException:
-        session.tracking.end("interrupted")
-        seal_folder(out_dir)
-        raise
-    made = made.model_copy(update={"versions": versions(session.pm)})  # the libraries the runs loaded
-    session.keep_command(out_dir, "ablation", made, identity, written, variants)
-    seal_folder(out_dir)
+
+    def keep(final: bool) -> None:
+        m = made.model_copy(update={"versions": versions(session.pm)}) if final else made
+        session.keep_command(out_dir, "ablation", m, identity, written, variants)
+
+    tracked = TrackedCommand("ablate", f"ablate -> {out_dir}", out_dir, list(made.command),
+                             {"variants": " ".join(r.name for r in variants), "frames": identity["frames"] or "all"})  # fmt: skip
+    return command_kept(
+        session,
+        out_dir,
+        identity,
+        writes,
+        tracked,
+        keep,
+        f"ablation into {out_dir}: {' '.join(made.command)}",
+    )
 
 
 def _end(session: Any, rows: list[dict[str, Any]], out_dir: Path, cache: Any, seconds: float) -> int:

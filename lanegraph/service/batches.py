@@ -11,11 +11,8 @@ from ..batches.batch import BatchRun
 from ..errors import LanegraphError, NotStarted
 from ..graph.files import ResolvedGraph
 from ..records.folder import check as check_folder
-from ..records.folder import claim as claim_folder
-from ..records.folder import seal as seal_folder
-from ..runlog import RunLog
 from ..tracking import CommandRecord as TrackedCommand
-from .keeping import dataset_identity, dataset_writes, tracked_run
+from .keeping import command_kept, dataset_identity, dataset_writes, debug_frames_option, tracked_run
 
 
 def run_dataset(
@@ -24,15 +21,17 @@ def run_dataset(
     dataset: Any,
     out_dir: Path,
     *,
-    frames: slice | None,
-    runner: Any,
-    chunk_frames: int | None,
-    warmup: int,
-    resume: bool,
-    debug_dir: Path | None,
-    debug_frames: tuple[str, ...] | None,
+    frames: slice | None = None,
+    runner: Any = None,
+    chunk_frames: int | None = None,
+    warmup: int = 0,
+    resume: bool = False,
+    debug_dir: Path | None = None,
+    debug_frames: str | None = None,
 ) -> int:
-    """See :meth:`lanegraph.service.Session.run_dataset`."""
+    """See :meth:`lanegraph.service.Session.run_dataset`. ``resume``: a sequence whose folder holds
+    its finished run already is not run again; ``debug_frames``: ``--debug-frames`` as given."""
+    chosen = debug_frames_option(debug_frames)
     g = graph.validate(session.pm)  # a GraphError before anything runs
     identity = dataset_identity("dataset", [g.name], dataset, frames)
     writes = dataset_writes(dataset)
@@ -45,22 +44,16 @@ def run_dataset(
     ]  # fmt: skip
     try:
         with interrupts.handling(), session.locked(out_dir, "run", (debug_dir, "--debug-dir")):
-            claim_folder(out_dir, identity, overwrite=session.overwrite, writes=writes)
-            session.tracking.start(
-                TrackedCommand("run", f"run {g.name} --dataset -> {out_dir}", out_dir, list(made.command),
-                               {"graph": str(g.file), "frames": identity["frames"] or "all"})
-            )  # fmt: skip
-            session.keep_command(out_dir, "dataset", made, identity, [s.name for s in dataset])
-            seal_folder(out_dir, final=False)  # a killed run's files are known as lanegraph's
-            try:
-                with RunLog(out_dir, verbose=session.verbose > 0):
-                    batch = session.run_tasks(runs, runner, chunk_frames=chunk_frames, warmup=warmup,
-                                              reuse=resume, debug_frames=debug_frames)  # fmt: skip
-            except BaseException:
-                session.tracking.end("interrupted")
-                raise
-            finally:
-                seal_folder(out_dir)  # what it wrote, once run.log is closed
+            tracked = TrackedCommand("run", f"run {g.name} --dataset -> {out_dir}", out_dir, list(made.command),
+                                     {"graph": str(g.file), "frames": identity["frames"] or "all"})  # fmt: skip
+
+            def keep(final: bool) -> None:  # command.json, written once
+                if not final:
+                    session.keep_command(out_dir, "dataset", made, identity, [s.name for s in dataset])
+
+            with command_kept(session, out_dir, identity, writes, tracked, keep):
+                batch = session.run_tasks(runs, runner, chunk_frames=chunk_frames, warmup=warmup,
+                                          reuse=resume, debug_frames=chosen)  # fmt: skip
     except LanegraphError as exc:  # a usage error, an unusable input found before any frame ran
         if exc.exit_code == 2:
             raise

@@ -6,33 +6,26 @@ log (``run.log``, :mod:`lanegraph.runlog`) and its experiment tracking (:mod:`la
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 from ..errors import UsageError
 from ..evaluation.metrics import evaluate, read_ground_truth, read_predictions
 from ..frames import selection_text
-from ..paths import output_fields, safe_name
-from ..records.folder import ABLATION_NAMES, COMMAND_NAMES, RUN_NAMES, command_identity, run_identity
-from ..records.provenance import command_line, git_commit, versions
+from ..paths import output_fields, relative_inside, safe_name
+from ..records.folder import ABLATION_NAMES, COMMAND_NAMES, RUN_NAMES, claim, command_identity, run_identity
+from ..records.owned import seal
 from ..records.results import LANES, find_result
 from ..records.resume import graph_identity, resolved_input
-from ..tracking import TrackedRun, flatten_params, tracked_row
+from ..runlog import RunLog, get_logger
+from ..tracking import CommandRecord, TrackedRun, flatten_params, tracked_row
 
 #: the ground truth a run's input folder may hold (scored when a single run is tracked)
 GT_NAME = "lanes_gt.jsonl"
 #: the files of an ablation folder (besides runs/ and the report) its tracking keeps
 ABLATION_FILES = ("results.csv", "results.md", "accuracy.png", "accuracy_vs_ms.png", "command.json")
-
-
-def provenance(pm: Any, graph_file: str | Path | None, sets: Sequence[str] = ()) -> dict[str, Any]:
-    """The fields of a record that say how it was made: ``command``, ``overrides``, ``versions``
-    and ``git`` (the commit of the graph file's checkout, when it lies in one)."""
-    out = {"command": command_line(), "overrides": list(sets), "versions": versions(pm)}
-    if graph_file:
-        out["git"] = git_commit(Path(graph_file))
-    return out
 
 
 def single_identity(
@@ -48,6 +41,50 @@ def dataset_identity(
     """The identity of an ablation or a dataset run: its variants, its sequences' inputs, its frames."""
     inputs = {s.name: resolved_input(s.input) for s in dataset}
     return command_identity(kind, list(variants), inputs, selection_text(frames))
+
+
+@contextmanager
+def command_kept(
+    session: Any,
+    out_dir: Path,
+    identity: dict[str, Any],
+    writes: Mapping[str, str],
+    tracked: CommandRecord,
+    keep: Callable[[bool], None],
+    said: str | None = None,
+    append: bool = False,
+) -> Iterator[None]:
+    """What a batch command (``run --dataset``, ``ablate``, ``tune``) keeps beside its results once
+    OUT is locked: the folder claimed (``--overwrite`` clears lanegraph's files only), the tracker's
+    command run (started first: one that cannot start leaves no record to block a retry; ended
+    ``interrupted`` if the block raises), ``command.json`` (``keep(final)``, before and after the
+    block) and ``run.log`` (opening with the line ``said``); the folder sealed as lanegraph's."""
+    claim(out_dir, identity, overwrite=session.overwrite, writes=writes)
+    session.tracking.start(tracked)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    keep(False)
+    seal(out_dir, final=False)  # a killed command's files are known as lanegraph's
+    try:
+        with RunLog(out_dir, verbose=session.verbose > 0, append=append):
+            if said is not None:
+                get_logger("run").info(said, extra={"file_only": True})
+            yield
+    except BaseException:
+        session.tracking.end("interrupted")
+        seal(out_dir)
+        raise
+    keep(True)
+    seal(out_dir)
+
+
+def result_cache(cache_dir: Path | None, cache_max_gb: float, no_cache: bool) -> Any:
+    """The result cache of ``--cache-dir`` and ``--cache-max-gb`` (None with ``--no-cache``)."""
+    from ..run.cache import ResultCache
+
+    try:
+        return None if no_cache else ResultCache(cache_dir, int(cache_max_gb * 1024**3))
+    except OSError as exc:
+        raise UsageError(f"--cache-dir: cannot use the result cache: {exc.strerror or exc}") from None
 
 
 def run_writes(
@@ -99,16 +136,6 @@ def ablation_writes(variant_folders: Sequence[str], dataset: Any, make_report: b
     return writes
 
 
-def relative_inside(path: Path | None, folder: Path) -> str | None:
-    """``path`` relative to ``folder`` when it lies inside it (what ``--overwrite`` may remove)."""
-    if path is None:
-        return None
-    try:
-        return str(Path(path).resolve().relative_to(Path(folder).resolve()))
-    except (ValueError, OSError):
-        return None
-
-
 def tracked_run(
     g: Any, run_dir: Path, sequence: str, gt: Path | None, sets: Sequence[str], record: Any
 ) -> TrackedRun:
@@ -154,3 +181,13 @@ def tracked_ablation_runs(
         tags = {"lanegraph.graph": str(row.get("graph") or ""), "lanegraph.sets": str(row.get("sets") or "")}
         out.append(tracked_row(row, params, run_dir, results, tags))
     return out
+
+
+def debug_frames_option(text: str | None) -> tuple[str, ...] | None:
+    """``--debug-frames``: frame ids or indices, comma-separated (None: every frame)."""
+    if text is None:
+        return None
+    chosen = tuple(dict.fromkeys(item.strip() for item in text.split(",") if item.strip()))
+    if not chosen:
+        raise UsageError(f"--debug-frames {text!r}: expected frame ids or indices, comma-separated")
+    return chosen

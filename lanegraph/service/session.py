@@ -32,13 +32,13 @@ from ..paths import OutputLock, prepare_dir
 from ..plugins import PluginManager, get_plugin_manager
 from ..records.folder import check as check_folder
 from ..records.folder import claim as claim_folder
-from ..records.folder import seal as seal_folder
-from ..records.provenance import command_line
+from ..records.owned import seal as seal_folder
+from ..records.provenance import command_line, git_commit, versions
 from ..records.record import CommandRecord, Provenance, VariantEntry, write_command_record
 from ..runlog import RunLog
 from ..tracking import CommandRecord as TrackedCommand
 from ..tracking import Tracking
-from .keeping import GT_NAME, provenance, run_writes, single_identity, tracked_run
+from .keeping import GT_NAME, debug_frames_option, run_writes, single_identity, tracked_run
 
 if TYPE_CHECKING:  # the batch modules load only for a run: `lanegraph run --help` keeps its start-up
     from ..batches.batch import Batch, BatchRun, Planned
@@ -123,8 +123,10 @@ class Session:
         return select_runner(scheduler, self.pm, cache)
 
     def provenance(self, graph_file: str | Path | None, sets: Sequence[str] = ()) -> Provenance:
-        """How the runs of this command are made (:func:`lanegraph.service.keeping.provenance`)."""
-        return Provenance(**provenance(self.pm, graph_file, sets))
+        """How the runs of this command are made: the command line, the ``--set`` overrides, the
+        versions and the commit of the graph file's checkout (when it lies in one)."""
+        git = git_commit(Path(graph_file)) if graph_file else None
+        return Provenance(command=command_line(), overrides=list(sets), versions=versions(self.pm), git=git)
 
     def keep_command(
         self,
@@ -225,7 +227,7 @@ class Session:
             raise UsageError(f"--input {input_path}: no such file or folder")
         if resume and chunk_frames is not None:
             refuse("--resume", "chunks")
-        chosen = _debug_frames(debug_frames)
+        chosen = debug_frames_option(debug_frames)
         runner = runner if runner is not None else InProcessRunner()
         resolved = g.resolved_dict()
         identity = single_identity(resolved, input_path, frames)
@@ -342,60 +344,23 @@ class Session:
         return status
 
     # -- lanegraph run --dataset -----------------------------------------------------
-    def run_dataset(
-        self,
-        graph: ResolvedGraph,
-        dataset: Any,
-        out_dir: Path,
-        *,
-        frames: slice | None = None,
-        runner: Runner | None = None,
-        chunk_frames: int | None = None,
-        warmup: int = 0,
-        resume: bool = False,
-        debug_dir: Path | None = None,
-        debug_frames: str | None = None,
-    ) -> int:
+    def run_dataset(self, graph: ResolvedGraph, dataset: Any, out_dir: Path, **options: Any) -> int:
         """``lanegraph run GRAPH --dataset FILE``: the graph on every sequence, into
         ``OUT/<sequence>/``; 0, 1 when a frame failed or a sequence stopped, 2 when no sequence
-        could start. Errors found before anything runs are raised (exit 2). ``resume``: a sequence
-        whose folder holds its finished run already is not run again."""
+        could start. Errors found before anything runs are raised (exit 2). ``options``: those of
+        :func:`lanegraph.service.batches.run_dataset` (``frames``, ``runner``, ``resume``, ...)."""
         from .batches import run_dataset
 
-        return run_dataset(self, graph, dataset, out_dir, frames=frames, runner=runner,
-                           chunk_frames=chunk_frames, warmup=warmup, resume=resume,
-                           debug_dir=debug_dir, debug_frames=_debug_frames(debug_frames))  # fmt: skip
+        return run_dataset(self, graph, dataset, out_dir, **options)
 
     # -- lanegraph ablate ------------------------------------------------------------
-    def ablate(
-        self,
-        variants: list[Any],
-        dataset: Any,
-        out_dir: Path,
-        *,
-        frames: slice | None = None,
-        cache_dir: Path | None = None,
-        cache_max_gb: float = 2.0,
-        no_cache: bool = False,
-        scheduler: str | None = None,
-        runner: Runner | None = None,
-        chunk_frames: int | None = None,
-        warmup: int = 0,
-        make_report: bool = False,
-        resume: bool = False,
-        debug_dir: Path | None = None,
-        debug_frames: str | None = None,
-    ) -> int:
+    def ablate(self, variants: list[Any], dataset: Any, out_dir: Path, **options: Any) -> int:
         """``lanegraph ablate``: every variant on every sequence, evaluated and tabulated; 0, 1 when
-        runs or frames failed, 2 when no run could start. ``runner`` (default: the one of
-        ``scheduler``) executes the runs; ``resume``: the runs an earlier ablation finished in OUT
-        are reused even with ``no_cache``."""
+        runs or frames failed, 2 when no run could start. ``options``: those of
+        :func:`lanegraph.service.ablation.ablate` (``frames``, the cache's, ``runner``, ...)."""
         from .ablation import ablate
 
-        return ablate(self, variants, dataset, out_dir, frames=frames, cache_dir=cache_dir,
-                      cache_max_gb=cache_max_gb, no_cache=no_cache, scheduler=scheduler, runner=runner,
-                      chunk_frames=chunk_frames, warmup=warmup, make_report=make_report, resume=resume,
-                      debug_dir=debug_dir, debug_frames=_debug_frames(debug_frames))  # fmt: skip
+        return ablate(self, variants, dataset, out_dir, **options)
 
     # -- lanegraph report -------------------------------------------------------------
     def report(
@@ -430,16 +395,6 @@ def _debug_pictures(folder: Path | None, frames: tuple[str, ...] | None) -> tupl
     from ..presentation.debug import DebugPictures
 
     return (DebugPictures(folder, frames),)
-
-
-def _debug_frames(text: str | None) -> tuple[str, ...] | None:
-    """``--debug-frames``: frame ids or indices, comma-separated (None: every frame)."""
-    if text is None:
-        return None
-    chosen = tuple(dict.fromkeys(item.strip() for item in text.split(",") if item.strip()))
-    if not chosen:
-        raise UsageError(f"--debug-frames {text!r}: expected frame ids or indices, comma-separated")
-    return chosen
 
 
 __all__ = ["Session", "refuse"]

@@ -10,8 +10,6 @@ import math
 import re
 import shlex
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -27,14 +25,11 @@ from ..graph.files import resolve_graph_path
 from ..paths import write_text_atomic
 from ..presentation.tune_report import write_tune_report
 from ..records.folder import check as check_folder
-from ..records.folder import claim as claim_folder
-from ..records.folder import seal as seal_folder
 from ..records.provenance import write_resolved_graph
 from ..records.record import TuneEntry
-from ..run.cache import ResultCache
-from ..runlog import RunLog, get_logger
+from ..runlog import get_logger
 from ..tracking import CommandRecord, TrackedRun, existing
-from .keeping import dataset_identity
+from .keeping import command_kept, dataset_identity, result_cache
 
 #: what a tune writes into OUT (what --overwrite may remove, with runs/ and the report)
 WRITTEN = [*TUNE_FILES, JOURNAL, f"{JOURNAL}.lock", "runs", "report", "command.json", "run.log"]
@@ -153,10 +148,7 @@ def tune(
         session.locked(out_dir, "tune", cache_folder),
         tune_kept(session, out_dir, identity, graph_path, space_file, o),
     ):
-        try:
-            cache = None if o.no_cache else ResultCache(o.cache_dir, int(o.cache_max_gb * 1024**3))
-        except OSError as exc:
-            raise UsageError(f"--cache-dir: cannot use the result cache: {exc.strerror or exc}") from None
+        cache = result_cache(o.cache_dir, o.cache_max_gb, o.no_cache)
         if isinstance(runner, InProcessRunner):
             runner.cache = cache
         setup.cache = cache
@@ -275,37 +267,21 @@ def _metrics(c: Counts) -> dict[str, float]:
     return out
 
 
-@contextmanager
 def tune_kept(
     session: Any, out_dir: Path, identity: dict[str, Any], graph_path: Path, space_file: Path, o: TuneOptions
-) -> Iterator[None]:
-    """What a tune keeps beside its results once OUT is locked, as an ablation does: the folder
-    claimed (``--overwrite`` clears lanegraph's files only), ``command.json``, ``run.log`` and the
-    tracker's command run."""
-    claim_folder(out_dir, identity, overwrite=session.overwrite, writes=WRITES)
+) -> Any:
+    """What a tune keeps beside its results, as an ablation does
+    (:func:`lanegraph.service.keeping.command_kept`): ``command.json`` with the search."""
     made = session.provenance(graph_path)
     search = TuneEntry(
         graph=str(graph_path), space=str(space_file),
         options={"trials": o.trials, "sampler": o.sampler, "pruner": o.pruner, "seed": o.seed},
     )  # fmt: skip
-    # the tracker first: one that cannot start (MLflow missing) leaves no record to block a retry
-    session.tracking.start(
-        CommandRecord("tune", f"tune -> {out_dir}", out_dir, list(made.command),
-                      {"graph": str(graph_path), "space": str(space_file), "sampler": o.sampler,
-                       "trials": str(o.trials)})
+    tracked = CommandRecord("tune", f"tune -> {out_dir}", out_dir, list(made.command),
+                            {"graph": str(graph_path), "space": str(space_file), "sampler": o.sampler,
+                             "trials": str(o.trials)})  # fmt: skip
+    return command_kept(
+        session, out_dir, identity, WRITES, tracked,
+        lambda final: session.keep_command(out_dir, "tune", made, identity, WRITTEN, search=search),
+        f"tune into {out_dir}: {' '.join(made.command)}", append=True,
     )  # fmt: skip
-    out_dir.mkdir(parents=True, exist_ok=True)
-    session.keep_command(out_dir, "tune", made, identity, WRITTEN, search=search)
-    seal_folder(out_dir, final=False)  # a killed tune's files are known as lanegraph's
-    try:
-        with RunLog(out_dir, verbose=session.verbose > 0, append=True):
-            get_logger("run").info(
-                "tune into %s: %s", out_dir, " ".join(made.command), extra={"file_only": True}
-            )
-            yield
-    except BaseException:
-        session.tracking.end("interrupted")
-        seal_folder(out_dir)
-        raise
-    session.keep_command(out_dir, "tune", made, identity, WRITTEN, search=search)
-    seal_folder(out_dir)

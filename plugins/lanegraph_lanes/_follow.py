@@ -42,10 +42,11 @@ locks onto the bars. ``lanes.follow`` finds each line from where it is seen and 
    the part of the track within ``max_heading_deg`` of straight ahead (where ``x(z)`` can describe
    it); its offset at the BEV's bottom row gives its side, and on each side the nearest track
    ``min_offset_m``..``max_offset_m`` from the vehicle with ``min_inliers`` features over
-   ``min_extent_m`` is reported.
+   ``min_extent_m`` is reported. A line nearer than ``min_offset_m`` that the car straddles (a
+   narrow street's centre line) goes to the ``straddled`` port, its track counting the free
+   features along its parabola (``collect_along``): see :mod:`._straddle`.
 
-Nothing here needs a previous frame: the first frame of a sequence and a single stereo pair are
-handled like every other frame.
+Nothing here needs a previous frame: a sequence's first frame and a single pair are like any other.
 """
 
 from __future__ import annotations
@@ -61,6 +62,7 @@ from ._fit import irls_fit
 from ._follow_params import FollowParams
 from ._merge import MergeParams, merge, merge_node  # noqa: F401  (lanes.merge, beside lanes.follow)
 from ._seeds import _seeds, _steep_rows, _window_sums  # noqa: F401  (_window_sums: the tests')
+from ._straddle import collect_along, nearest_each_side
 
 #: the most windows one call of the follow kernel takes: the length (+ 1) of its centres' buffers,
 #: its own and the caller's (``out_x`` ...)
@@ -110,11 +112,29 @@ def _guide_at(x, y, psi, gx, gy, gpsi, gk, n_guide, guide_max, step, cos_max, ma
 
 
 @jit
+def _window_box(x, y, cp, sp, step, v_lo, v_hi, n_rows):
+    """Where the features of a window's part ``u`` in [0, step], ``v`` in [v_lo, v_hi] can lie (``u``
+    along the heading ``(cp, sp)`` from ``(x, y)``, ``v`` across it to the left, pixels): columns
+    ``x_lo``..``x_hi`` and BEV rows ``r_lo``..``r_hi`` of its bounding box padded by a pixel, the
+    rows clamped to -1..n_rows (none when ``r_lo > r_hi``). Only where the kernel looks: the tests
+    on ``u`` and ``v`` decide which features are in."""
+    x_lo = x + min(0.0, step * cp) - max(v_lo * sp, v_hi * sp) - 1.0
+    x_hi = x + max(0.0, step * cp) - min(v_lo * sp, v_hi * sp) + 1.0
+    y_lo = y + min(0.0, step * sp) + min(v_lo * cp, v_hi * cp) - 1.0
+    y_hi = y + max(0.0, step * sp) + max(v_lo * cp, v_hi * cp) + 1.0
+    # BEV rows: row = n_rows - 1 - t
+    r_lo = min(max(int(math.floor(n_rows - 1 - y_hi)), 0), n_rows)
+    r_hi = max(min(int(math.ceil(n_rows - 1 - y_lo)), n_rows - 1), -1)
+    return x_lo, x_hi, r_lo, r_hi
+
+
+@jit
 def _follow_kernel(
     t,
     c,
     theta,
     row_start,
+    n_cols,
     t0,
     c0,
     psi0,
@@ -147,8 +167,13 @@ def _follow_kernel(
 
     ``t``, ``c``, ``theta``: the features' t (descending: row-major order of the BEV), column and
     orientation (radians in [0, pi), -1 unknown); ``row_start``: index of the first feature of each
-    BEV row (length rows + 1). Features taken by the track get ``owner[i] = track`` where ``owner``
-    was -1; features of other tracks (``owner[i]`` >= 0, not ``track``) are not looked at.
+    BEV row (length rows + 1); ``n_cols``: the BEV's columns. A window fits a straight line across
+    its features (``u`` in [0, step] along the heading, within ``half_w`` (widened after a gap)
+    across the predicted arc, the orientation test passed); the features within ``half_w`` across
+    that line (``u`` in [0, step], the orientation test passed) are taken: they get
+    ``owner[i] = track`` where ``owner`` was -1; features of other tracks (``owner[i]`` >= 0, not
+    ``track``) are not looked at. A window that lies wholly beside the BEV (the line left it
+    through its side) or above or below it ends the track.
 
     ``steep``: per BEV row, 1 where the BEV repeats one image row over several BEV rows (a slanted
     line turns into a staircase there and its features read steeper than the line); once the track
@@ -168,7 +193,6 @@ def _follow_kernel(
     Returns ``(windows with features, features taken, lowest and highest t taken, t where the
     heading first turns further from straight ahead than ``asin(sin_turn)``, window centres written)``."""
     n_rows = row_start.shape[0] - 1
-    ncols_hi = 1e9
     x = c0
     y = t0
     psi = psi0
@@ -195,23 +219,15 @@ def _follow_kernel(
         o_psi = psi - math.pi * math.floor(psi / math.pi)
         o_lo = min(o_psi, 0.5 * math.pi)
         o_hi = max(o_psi, 0.5 * math.pi)
-        # window: along u in [0, step] from (x, y), across v within hw of the predicted arc; after
-        # a gap the prediction is less sure: the window widens with the gap's length
+        # window: along u in [0, step] from (x, y), across v within hw of the predicted arc (its
+        # bow 0.5 kappa u^2 included); after a gap the prediction is less sure: the window widens
+        # with the gap's length
         hw = half_w + widen * gap
-        xe = x + step * cp
-        ye = y + step * sp
-        y_lo = min(y, ye) - hw
-        y_hi = max(y, ye) + hw
-        x_lo = min(x, xe) - hw
-        x_hi = max(x, xe) + hw
-        # BEV rows: row = n_rows - 1 - t
-        r_lo = int(math.floor(n_rows - 1 - y_hi))
-        r_hi = int(math.ceil(n_rows - 1 - y_lo))
-        if r_lo < 0:
-            r_lo = 0
-        if r_hi > n_rows - 1:
-            r_hi = n_rows - 1
-        if r_lo > r_hi or x_hi < 0 or x_lo > ncols_hi:
+        bow = 0.5 * kappa * step * step
+        x_lo, x_hi, r_lo, r_hi = _window_box(
+            x, y, cp, sp, step, min(bow, 0.0) - hw, max(bow, 0.0) + hw, n_rows
+        )
+        if r_lo > r_hi or x_hi < 0.0 or x_lo > n_cols - 1:
             break
         sw = 0.0
         su = 0.0
@@ -300,7 +316,12 @@ def _follow_kernel(
             out_psi[last] = new_psi - kappa * (step - mu)
             # a curvature at the clamp (beyond the tightest bend followed) guides no other line
             out_k[last] = kappa if abs(kappa) < max_kappa else math.nan
-            # mark the features taken (a second pass over the window)
+            # mark the features taken, within half_w of the fitted line: a second pass, over the box
+            # of that band (the line slants across the window: the band can reach beyond its box)
+            b_end = a + b * step
+            x_lo, x_hi, r_lo, r_hi = _window_box(
+                x, y, cp, sp, step, min(a, b_end) - half_w, max(a, b_end) + half_w, n_rows
+            )
             for i in range(row_start[r_lo], row_start[r_hi + 1]):
                 ci = c[i]
                 if ci < x_lo or ci > x_hi:
@@ -357,19 +378,31 @@ def _follow_kernel(
 @node_type(
     "lanes.follow",
     inputs={"features": "features", "geometry": Port("bev_geometry")},
-    outputs={"lanes": "lanes"},
+    outputs={
+        "lanes": "lanes",
+        "straddled": Port(
+            "lanes",
+            "lines the car straddles, nearer than min_offset_m: a narrow street's centre line between the wheels",
+        ),
+    },
 )
 def follow(params: FollowParams, features: FeatureMap, geometry: BevGeometry) -> dict:
     """Lane lines followed through windows along their own heading and curvature from seeds in the
     BEV's near part; hatching bars dropped; a parabola on each line's seen part; the nearest line
-    each side. Needs no previous frame."""
+    each side, and on the straddled port a line the car drives over. Needs no previous frame."""
     rows, cols = features.shape
     r, c = features.points()
-    return {"lanes": follow_lanes(r, c, features.point_orientations(), rows, cols, geometry, params)}
+    straddled: list[Lane] = []
+    lanes = follow_lanes(
+        r, c, features.point_orientations(), rows, cols, geometry, params, straddled=straddled
+    )
+    return {"lanes": lanes, "straddled": straddled}
 
 
-def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None):
-    """The lanes of ``lanes.follow`` from the feature points ``(r, c)`` and orientations."""
+def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None, straddled=None):
+    """The lanes of ``lanes.follow`` from the feature points ``(r, c)`` and orientations; the lines
+    the car straddles (``straddle_offset_m``..``min_offset_m`` from it) appended to ``straddled``
+    when given."""
     res = geometry.resolution
     if theta is None:
         theta = np.full(r.shape, -1.0)
@@ -416,11 +449,11 @@ def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None):
             p.guide_m / res,
         )
         w_up, n_up, lo_up, hi_up, turn_up, h_up = _follow_kernel(
-            t, cf, th, row_start, t0, c0, psi0, *args, *out
+            t, cf, th, row_start, cols, t0, c0, psi0, *args, *out
         )
         centres = out[:, :h_up].copy()
         w_dn, n_dn, lo_dn, hi_dn, _, h_dn = _follow_kernel(
-            t, cf, th, row_start, t0, c0, psi0 + math.pi, *args, *out
+            t, cf, th, row_start, cols, t0, c0, psi0 + math.pi, *args, *out
         )
         track = {
             "id": k,
@@ -481,12 +514,27 @@ def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None):
         tr["bar"] = parallel >= 2 or across
     lanes = []
     tan_max = math.tan(math.radians(p.max_heading_deg))
+    near = []  # (distance, lane) of the lines nearer than min_offset_m: straddled
+
+    def under_car(c0: float) -> bool:
+        return p.straddle_offset_m <= abs(geometry.lateral_m(c0)) < p.min_offset_m
+
     for tr in tracks:
-        if tr["bar"] or tr["n"] < p.min_inliers:
+        if tr["bar"]:
             continue
         # the track's features, in the points' row-major order: t does not increase along them, so
         # the near part, the inliers' ends and the farthest feature on the parabola are ends of runs
         sel = np.flatnonzero(owner == tr["id"])
+        if (
+            straddled is not None
+            and p.collect_along
+            and p.straddle_offset_m is not None
+            and sel.size < p.min_inliers
+        ):
+            # a line under the car whose windows missed a dash: see _straddle
+            sel = collect_along(sel, tr, t, cf, th, owner, p.extend_px, cos_max, where=under_car)
+        if sel.size < p.min_inliers:
+            continue
         tt, cc = t[sel], cf[sel]
         if tr["t_turn"] < 1e8:
             keep = tt <= tr["t_turn"]
@@ -526,9 +574,15 @@ def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None):
         if abs(coef[1] + 2 * coef[2] * t_top) > tan_max and abs(coef[1]) > tan_max:
             continue
         lateral = geometry.lateral_m(float(coef[0]))
-        if not p.min_offset_m <= abs(lateral) <= p.max_offset_m:
+        straddle = (
+            straddled is not None
+            and p.straddle_offset_m is not None
+            and under_car(float(coef[0]))
+            and extent >= p.straddle_min_extent_m  # more than an arrow: a marking along the road
+        )
+        if not (p.min_offset_m <= abs(lateral) <= p.max_offset_m or straddle):
             continue
-        lanes.append(
+        (near if straddle else lanes).append(
             (
                 abs(lateral),
                 Lane(
@@ -536,14 +590,11 @@ def follow_lanes(r, c, theta, rows, cols, geometry, p, debug=None):
                     bev_rows=(rows - 1 - int(t_top), rows - 1),
                     side="left" if lateral < 0 else "right",
                     score=float(min(1.0, n_inl / max(1.0, (t_top + 1) * 2.0))),
-                    extra={"support": n_inl, "extent_m": round(float(extent), 2), "followed": True},
+                    extra={"support": n_inl, "extent_m": round(float(extent), 2), "followed": True}
+                    | ({"straddled": True} if straddle else {}),
                 ),
             )
         )
-    out = []
-    for side in ("left", "right"):
-        cand = [ln for d, ln in sorted(lanes, key=lambda x: x[0]) if ln.side == side]
-        if cand:
-            out.append(cand[0])
-    out.sort(key=lambda ln: ln.coeffs[0])
-    return out
+    if straddled is not None:
+        straddled.extend(nearest_each_side(near))
+    return nearest_each_side(lanes)

@@ -118,6 +118,26 @@ class FollowParams(NodeParams):
     min_offset_m: float = Field(
         0.6, ge=0.0, le=20.0, description="closest plausible lateral distance of a lane boundary, metres"
     )
+    collect_along: bool = Field(
+        True,
+        description="a track under the car (straddle_offset_m..min_offset_m) whose windows took fewer than "
+        "min_inliers features counts the free features within extend_px of its parabola over its span (a dash its "
+        "windows missed after a gap)",
+    )
+    straddle_offset_m: float | None = Field(
+        0.3,
+        ge=0.0,
+        le=20.0,
+        description="a line this far or farther from the vehicle but nearer than min_offset_m is one the car straddles "
+        "(a narrow street's centre line), reported on the straddled port when its features show a marking; "
+        "null: none, metres",
+    )
+    straddle_min_extent_m: float = Field(
+        8.0,
+        ge=0.0,
+        le=500.0,
+        description="a straddled line's inliers must span this much road: more than an arrow (5 m) or a patch, metres",
+    )
     max_offset_m: float = Field(
         5.0, gt=0.0, le=50.0, description="farthest plausible lateral distance of a lane boundary, metres"
     )

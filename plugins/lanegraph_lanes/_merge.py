@@ -58,17 +58,48 @@ class MergeParams(NodeParams):
     inputs={
         "lanes": Port("lanes", "lanes of one method (the Hough lines' fit, verified)"),
         "followed": Port("lanes", "lanes of another (lanes.follow's, verified)"),
+        "straddled": Port(
+            "lanes",
+            "lines the car straddles (lanes.follow's straddled, verified): a side without a lane",
+            optional=True,
+        ),
         "features": Port("features", "the features both were found on: which lane they support"),
         "geometry": Port("bev_geometry"),
     },
     outputs={"lanes": "lanes"},
 )
 def merge_node(
-    params: MergeParams, lanes: list[Lane], followed: list[Lane], features: FeatureMap, geometry: BevGeometry
+    params: MergeParams,
+    lanes: list[Lane],
+    followed: list[Lane],
+    features: FeatureMap,
+    geometry: BevGeometry,
+    straddled: list[Lane] | None = None,
 ) -> dict:
     """At most one lane each side from two lists: a side without a lane takes the followed one; a
-    lane that the features support less than the followed line on its side is replaced by it."""
-    return {"lanes": merge(list(lanes or []), list(followed or []), geometry, params, features)}
+    lane that the features support less than the followed line on its side is replaced by it; a
+    side still without a lane takes a line the car straddles."""
+    out = merge(list(lanes or []), list(followed or []), geometry, params, features)
+    return {"lanes": add_straddled(out, list(straddled or []), geometry, params)}
+
+
+def add_straddled(
+    lanes: list[Lane], straddled: list[Lane], geometry: BevGeometry, p: MergeParams
+) -> list[Lane]:
+    """``lanes`` with each line the car straddles whose side has no lane, when it lies a lane's width
+    (``min_lane_width_m``) from every lane on every BEV row both cover: an arrow or a seam in a
+    lane's middle lies half a lane's width from its boundaries."""
+    out = list(lanes)
+    for ln in straddled:
+        if any(o.side == ln.side for o in out) or any(
+            min(abs(ln.coeffs[0] - o.coeffs[0]), _gaps_px(o, ln, geometry.rows)[1]) * geometry.resolution
+            < p.min_lane_width_m
+            for o in out
+        ):
+            continue
+        out.append(ln)
+    out.sort(key=lambda ln: ln.coeffs[0])
+    return out
 
 
 def _gaps_px(a: Lane, b: Lane, rows: int) -> tuple[float, float, float]:

@@ -55,7 +55,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lanegraph import Port, jit, node_type
+from lanegraph import jit, node_type
 from lanegraph.types import BevGeometry, Calibration, Lane, RoadModel
 
 from ._heights import dark_side_stepped, kerb_across
@@ -72,7 +72,7 @@ from ._texture import (  # noqa: F401  (re-exported: the texture check's functio
     road_level,
     side_texture,
 )
-from ._verify_params import VerifyParams
+from ._verify_params import VerifyParams, verify_inputs
 
 
 @jit
@@ -465,21 +465,10 @@ def crossing_pattern(offsets: np.ndarray, tolerance: float = 0.25) -> bool:
 
 @node_type(
     "lanes.verify",
-    inputs={
-        "lanes": "lanes",
-        "image": Port("bev_image", "the BEV image the lanes were found in"),
-        "geometry": Port("bev_geometry", "the BEV grid: its resolution and distances"),
-        "mask": Port(
-            "bev_mask",
-            "the BEV road mask: its pixels set the road level (brightness 'relative'; default: the BEV inside the image)",
-            optional=True,
-        ),
-        "disparity": Port(
-            "disparity", "the left disparity map: is a much darker side level with the road", optional=True
-        ),
-        "road": Port("road_model", "the road profile and pose (road.profile)", optional=True),
-        "calib": Port("calibration", "stereo calibration", optional=True, rate="constant"),
-    },
+    inputs=verify_inputs(
+        "its pixels set the road level (brightness 'relative'; default: the BEV inside the image)",
+        "is a much darker side level with the road",
+    ),
     outputs={"lanes": "lanes"},
 )
 def verify(

@@ -14,11 +14,12 @@ from __future__ import annotations
 import numpy as np
 from pydantic import Field
 
-from lanegraph import NodeParams, Port, node_type
+from lanegraph import NodeParams, node_type
 from lanegraph.types import BevGeometry, Calibration, Lane, RoadModel
 
 from ._paint import PaintModel, paint_features
 from ._verify import VerifyParams, _grey_bev, crossing_pattern, neighbour_bars, road_level
+from ._verify_params import verify_inputs
 
 
 class VerifyLearnedParams(NodeParams):
@@ -46,17 +47,7 @@ class VerifyLearnedParams(NodeParams):
 
 @node_type(
     "lanes.verify_learned",
-    inputs={
-        "lanes": "lanes",
-        "image": Port("bev_image", "the BEV image the lanes were found in"),
-        "geometry": Port("bev_geometry", "the BEV grid: its resolution and distances"),
-        "mask": Port("bev_mask", "the BEV road mask: its pixels set the road level", optional=True),
-        "disparity": Port(
-            "disparity", "the left disparity map: the road's height beside a lane", optional=True
-        ),
-        "road": Port("road_model", "the road profile and pose (road.profile)", optional=True),
-        "calib": Port("calibration", "stereo calibration", optional=True, rate="constant"),
-    },
+    inputs=verify_inputs("its pixels set the road level", "the road's height beside a lane"),
     outputs={"lanes": "lanes"},
 )
 def verify_learned(

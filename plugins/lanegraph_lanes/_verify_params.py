@@ -1,5 +1,6 @@
 """The params of ``lanes.verify`` (the paint check, the side check, the crossing check and the
-optional texture check: see :mod:`._verify`)."""
+optional texture check: see :mod:`._verify`), and the input ports it shares with
+``lanes.verify_learned``."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from typing import Literal
 
 from pydantic import Field, model_validator
 
-from lanegraph import NodeParams
+from lanegraph import NodeParams, Port
 
 
 class VerifyParams(NodeParams):
@@ -210,3 +211,18 @@ class VerifyParams(NodeParams):
                 f"crossing_band_px ({self.crossing_band_px}) must exceed crossing_min_offset_px ({self.crossing_min_offset_px}): no offset would be searched"
             )
         return self
+
+
+def verify_inputs(mask_doc: str, disparity_doc: str) -> dict[str, str | Port]:
+    """The input ports of ``lanes.verify`` and ``lanes.verify_learned``: the lanes, the BEV they were
+    found in and what a check may read beside it; ``mask_doc``, ``disparity_doc``: what the node
+    reads from the road mask and the disparity map (the end of their ports' descriptions)."""
+    return {
+        "lanes": "lanes",
+        "image": Port("bev_image", "the BEV image the lanes were found in"),
+        "geometry": Port("bev_geometry", "the BEV grid: its resolution and distances"),
+        "mask": Port("bev_mask", f"the BEV road mask: {mask_doc}", optional=True),
+        "disparity": Port("disparity", f"the left disparity map: {disparity_doc}", optional=True),
+        "road": Port("road_model", "the road profile and pose (road.profile)", optional=True),
+        "calib": Port("calibration", "stereo calibration", optional=True, rate="constant"),
+    }

@@ -15,10 +15,10 @@ from lanegraph.evaluation.dataset import (
     POOLED,
     evaluate_sequences,
     load_dataset,
-    parse_selection,
     single_sequence,
 )
 from lanegraph.evaluation.metrics import evaluate
+from lanegraph.frames import parse_frames
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -88,12 +88,12 @@ def test_a_broken_dataset_file_is_located(tmp_path, text, message):
 
 
 def test_selection_rules():
-    assert parse_selection("3") == slice(3, 4) and parse_selection("-1") == slice(-1, None)  # the last frame
-    assert [0, 1, 2][parse_selection("-1")] == [2] and [0, 1, 2][parse_selection("-2")] == [1]
-    assert parse_selection(":5") == slice(None, 5) and parse_selection(None) is None
+    assert parse_frames("3") == slice(3, 4) and parse_frames("-1") == slice(-1, None)  # the last frame
+    assert [0, 1, 2][parse_frames("-1")] == [2] and [0, 1, 2][parse_frames("-2")] == [1]
+    assert parse_frames(":5") == slice(None, 5) and parse_frames(None) is None
     for bad in ("1:2:0", "1:2:3:4", "x"):
         with pytest.raises(ValueError):
-            parse_selection(bad)
+            parse_frames(bad)
 
 
 def test_single_sequence_is_named_after_its_folder(tmp_path):

@@ -56,6 +56,23 @@ def test_the_shipped_bundles_are_made_from_these_sources(installed_pm):
         assert bundle.keys(s.bundle_path) == set(entries)
 
 
+#: a subprocess's lines that list in ``compiled`` the functions numba compiles from here on (by
+#: qualified name; not numba's own implementations)
+_COUNT_COMPILES = """
+from numba.core import event
+
+compiled = []
+class _Count(event.Listener):
+    def on_start(self, ev):
+        func = ev.data["dispatcher"].py_func
+        if not func.__module__.startswith("numba"):
+            compiled.append(func.__qualname__)
+    def on_end(self, ev):
+        pass
+event.register("numba:compile", _Count())
+"""
+
+
 _MAKE = """
 import json, sys
 from pathlib import Path
@@ -63,22 +80,18 @@ from lanegraph.kernels.bundle import write_bundle
 print(write_bundle([json.loads(sys.argv[1])], Path(sys.argv[2])))
 """
 
-_USE = """
+_USE = (
+    """
 import json, sys
 from pathlib import Path
 import numpy as np
-from numba.core import event
 from lanegraph.kernels import bundle
 from lanegraph.kernels.bundle import decode_type
 import lanegraph_lanes._select as sel
 
-compiled = []
-class _Count(event.Listener):
-    def on_start(self, ev):
-        compiled.append(ev.data["dispatcher"].py_func.__qualname__)
-    def on_end(self, ev):
-        pass
-event.register("numba:compile", _Count())
+"""
+    + _COUNT_COMPILES
+    + """
 entry = json.loads(sys.argv[1])
 sig = tuple(decode_type(a) for a in entry["args"])
 installed = bundle.install(sel.kth_smallest, sig, entry, Path(sys.argv[2]))
@@ -88,6 +101,7 @@ hits = sel.kth_smallest.stats.cache_hits.get(sel.kth_smallest.signatures[0], 0)
 print(json.dumps({"installed": installed, "compiled": compiled, "got": got,
                   "want": [float(np.sort(a)[k]) for k in (0, 17, 500, 1000)], "hits": hits}))
 """
+)
 
 
 def _make(tmp_path: Path, entry: dict, out: Path, **env: str) -> subprocess.CompletedProcess:
@@ -126,24 +140,18 @@ def test_a_kernel_from_the_bundle_is_not_compiled_and_computes_the_same(tmp_path
     assert again["got"] == first["want"]
 
 
-_LAZY = """
+_LAZY = (
+    """
 import json, sys
 from pathlib import Path
 import numpy as np
-from numba.core import event
 from lanegraph.kernels import bundle
 from lanegraph.kernels.first_run import KernelSet
 import lanegraph_lanes._select as sel
 
-compiled = []
-class _Count(event.Listener):
-    def on_start(self, ev):
-        func = ev.data["dispatcher"].py_func
-        if func.__module__.startswith("lanegraph"):  # not numba's own implementations
-            compiled.append(func.__qualname__)
-    def on_end(self, ev):
-        pass
-event.register("numba:compile", _Count())
+"""
+    + _COUNT_COMPILES
+    + """
 entry = json.loads(sys.argv[1])
 bundle.register([KernelSet("lanegraph_lanes", Path(sys.argv[2]).with_suffix(".json"), (entry,))])
 a = np.random.default_rng(7).normal(size=1001)
@@ -153,6 +161,7 @@ hits = {str(s): sel.kth_smallest.stats.cache_hits.get(s, 0) for s in sel.kth_sma
 print(json.dumps({"compiled": compiled, "got": got, "want": [float(np.sort(a)[k]) for k in (0, 17, 500)],
                   "got32": float(got32), "want32": float(np.sort(a.astype(np.float32))[3]), "hits": hits}))
 """
+)
 
 
 def test_a_kernel_is_loaded_from_its_bundle_when_first_called(tmp_path):
@@ -172,19 +181,15 @@ def test_a_kernel_is_loaded_from_its_bundle_when_first_called(tmp_path):
     assert again["compiled"] == ["kth_smallest", "kth_smallest"] and again["got"] == got["want"]
 
 
-_WORKER = """
+_WORKER = (
+    """
 import importlib, json
-from numba.core import event
 from lanegraph.kernels import bundle
 from lanegraph.plugins import get_plugin_manager
 
-compiled = []
-class _Count(event.Listener):
-    def on_start(self, ev):
-        compiled.append(ev.data["dispatcher"].py_func.__qualname__)
-    def on_end(self, ev):
-        pass
-event.register("numba:compile", _Count())
+"""
+    + _COUNT_COMPILES
+    + """
 get_plugin_manager()  # a runner's worker: plugins loaded, no command's compile_share
 from lanegraph.kernels.first_run import kernel_sets
 (lanes,) = [s for s in kernel_sets() if s.package == "lanegraph_lanes"]
@@ -194,6 +199,7 @@ sig = tuple(bundle.decode_type(a) for a in entry["args"])
 kernel.compile(sig)
 print(json.dumps({"compiled": compiled, "hits": kernel.stats.cache_hits.get(sig, 0)}))
 """
+)
 
 
 def test_a_process_with_plugins_loads_kernels_from_their_bundles(tmp_path, installed_pm):
@@ -344,10 +350,10 @@ _TOY_ENTRY = {
     "args": ["array(float64, 1, C)", "float64"],
 }
 
-_TOY_FIRST_RUN = """
+_TOY_FIRST_RUN = (
+    """
 import json, sys
 import numpy as np
-from numba.core import event
 import lg_toy_kernels
 import lanegraph._runtime
 from lanegraph import kernels
@@ -355,13 +361,9 @@ from lanegraph.plugins import PluginManager
 
 lanegraph._runtime.available_cpus = lambda: 1  # no helper: this process makes the list itself
 
-compiled = []
-class _Count(event.Listener):
-    def on_start(self, ev):
-        compiled.append(ev.data["dispatcher"].py_func.__qualname__)
-    def on_end(self, ev):
-        pass
-event.register("numba:compile", _Count())
+"""
+    + _COUNT_COMPILES
+    + """
 pm = PluginManager()
 pm.register(lg_toy_kernels, "lg_toy_kernels")
 kernels.first_run_notice()
@@ -370,6 +372,7 @@ from lg_toy_kernels.k import _scaled_sum
 value = _scaled_sum(np.arange(4.0), 0.5)
 print(json.dumps({"made": made, "compiled": compiled, "value": value}))
 """
+)
 
 
 def test_a_third_party_plugin_ships_its_kernels_through_the_hook(tmp_path):

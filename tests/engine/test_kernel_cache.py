@@ -594,10 +594,10 @@ def test_a_full_disk_runs_without_a_kernel_cache(monkeypatch, tmp_path):
     if disk.folder_and_key()[0] is None:
         pytest.skip("this process has no kernel folder")
 
-    def full(path, data):
+    def full(path, data, mode=0o666):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(disk, "write_private", full)
+    monkeypatch.setattr(disk, "write_bytes_atomic", full)
     monkeypatch.setitem(disk._STATE, "off", False)
     monkeypatch.setitem(disk._STATE, "warned", set())
 

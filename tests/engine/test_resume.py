@@ -296,7 +296,8 @@ def test_a_restored_feedback_value_passes_its_registered_port_types_check(tmp_pa
     from lanegraph import NodeParams, Port, PortType, hookimpl, node_type
     from lanegraph.errors import UsageError
     from lanegraph.nodes import RunContext
-    from lanegraph.records.resume import encode_value, load_checkpoint
+    from lanegraph.records.resume import load_checkpoint
+    from lanegraph.storage import encode_value
 
     def cloud_check(v):
         ok = isinstance(v, np.ndarray) and v.ndim == 2 and v.shape[1] == 3 and v.dtype == np.float64

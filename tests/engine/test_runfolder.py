@@ -10,7 +10,8 @@ import pytest
 import yaml
 
 from lanegraph.errors import UsageError
-from lanegraph.records.folder import claim, command_identity, run_identity, seal
+from lanegraph.records.folder import claim, command_identity, run_identity
+from lanegraph.records.owned import seal
 
 RESOLVED = {"name": "g", "nodes": {"fit": {"type": "fit.irls", "params": {"roi_width": 40}}}}
 ME = run_identity("a" * 64, "/data/drive", "0:20")

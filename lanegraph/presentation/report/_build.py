@@ -17,7 +17,7 @@ from ...errors import InputError, LanegraphError, UsageError
 from ...evaluation.dataset import POOLED, Dataset, evaluate_sequences
 from ...evaluation.metrics import evaluate
 from ...graph.model import Graph
-from ...paths import new_temp_dir, new_temp_file, prepare_dir
+from ...paths import new_temp_dir, new_temp_file, prepare_dir, safe_name
 from ...plugins import PluginManager, get_plugin_manager
 from ...records import owned
 from . import _page
@@ -472,7 +472,6 @@ def _node_pictures(
         debug_dir = recorded_debug_dir(data.run_dir)  # only the run's own pictures
     if debug_dir is None:
         return 0
-    from ..debug import _safe
 
     g = data.graph
     order = list(g.order) if g is not None else []
@@ -480,7 +479,7 @@ def _node_pictures(
     writer = JpegWriter()
     count = 0
     for k, (fid, e) in enumerate(entries.items()):
-        folder = debug_dir / _safe(fid)
+        folder = debug_dir / safe_name(fid)
         if not folder.is_dir():
             continue
         pics = debug_pictures(folder, order, ports)
