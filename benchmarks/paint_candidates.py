@@ -68,6 +68,11 @@ VERGES = ["heavy_shadows", "rough_verge_0.5m", "very_rough_verge_0.3m", "kerbs_c
 #: lanes.verify's step_side_ratio (the graph's): the flatness rule asks a side darker than this
 VERIFY_SIDE_RATIO = 0.45
 
+#: lanes.verify's max_step_m and obstacle_height_m (the graph's): every lane's sides level to within
+#: a kerb's height, unless the higher side rises beyond the obstacle height 0.8-1.2 m out
+VERIFY_MAX_STEP = 0.10
+VERIFY_OBSTACLE = 0.20
+
 #: the grid of ``lanes.verify``'s ``max_dark_side_step_m`` chosen leave one group out (None: off)
 STEP_GRID = [0.02, 0.03, 0.04, 0.05, 0.06, 0.08, 0.1, 0.12, 0.15, None]
 
@@ -125,7 +130,8 @@ class Recorder:
         level = self.road_level(np.asarray(image), mask, self.vp.level_quantile)
         gain = self.vp.reference_level / level if level else 1.0
         kept_keys = {tuple(np.round(k.coeffs, 9)) for k in kept}
-        # the same check without the side's flatness rule: the rule's threshold is chosen below
+        # the same check without the side's flatness rule: the rule's threshold is chosen below (no
+        # disparity: nor the every-lane flatness rule, which is applied from the features)
         vp = self.params.get(node_id) or self.vp
         flat = self.verify(
             vp.model_copy(update={"max_dark_side_step_m": None}),
@@ -163,6 +169,7 @@ class Recorder:
                     "kept": int(tuple(np.round(ln.coeffs, 9)) in kept_keys),
                     "kept_no_step": int(tuple(np.round(ln.coeffs, 9)) in flat_keys),
                     **{k: f[k] for k in self.paint.FEATURES},
+                    "step_beyond_m": f.get("step_beyond_m", math.nan),
                 }
             )
 
@@ -293,6 +300,7 @@ FILL = {
     "width_spread": 1.0,
     "height_step_m": 0.0,
     "line_height_m": 0.0,
+    "step_beyond_m": 0.0,
 }
 
 
@@ -338,6 +346,15 @@ def main(argv: list[str] | None = None) -> int:
     side = matrix(rows, ("side_ratio",))[:, 0]
     no_step = np.array([int(r.get("kept_no_step", r["kept"])) == 1 for r in rows])
     dark = np.nan_to_num(side, nan=1.0) < VERIFY_SIDE_RATIO
+
+    # every lane's flatness (max_step_m): a kerb's height across it, no obstacle beyond
+    beyond = (
+        matrix(rows, ("step_beyond_m",))[:, 0] if "step_beyond_m" in rows[0] else np.full(len(rows), np.nan)
+    )
+    kerb = (np.nan_to_num(step, nan=0.0) > VERIFY_MAX_STEP) & ~(
+        np.nan_to_num(beyond, nan=0.0) > VERIFY_OBSTACLE
+    )
+    no_step = no_step & ~kerb
 
     def decide(v):
         return no_step if v is None else no_step & ~(dark & (np.nan_to_num(step, nan=0.0) > v))

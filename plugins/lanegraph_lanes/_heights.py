@@ -65,3 +65,73 @@ def lane_heights(
         d_road = road.disparity_at(vr)
         out.append(float(np.median(road.height * (d - d_road) / d)))
     return out[0], out[1], out[2]
+
+
+def _measurable(disparity, road, calib) -> bool:
+    return disparity is not None and road is not None and calib is not None
+
+
+def dark_side_stepped(
+    p,
+    lane: Lane,
+    geometry: BevGeometry,
+    disparity: np.ndarray | None,
+    road: RoadModel | None,
+    calib: Calibration | None,
+) -> bool:
+    """``lanes.verify``'s flatness rule for a much darker side (``p``: its params): whether the road's
+    height above the fitted plane steps across ``lane`` by more than ``max_dark_side_step_m`` (and,
+    with ``max_kerb_step_m``, by no more than a kerb: an obstacle's side beside a line is no step of
+    the road) (:func:`lane_heights`, both sides measured; False without a disparity, a road and a
+    calibration, or when a side has no disparity)."""
+    if p.max_dark_side_step_m is None or not _measurable(disparity, road, calib):
+        return False
+    left, _, right = lane_heights(lane, geometry, np.asarray(disparity), road, calib, p.max_distance_m)
+    step = abs(left - right)
+    if p.max_kerb_step_m is not None and step > p.max_kerb_step_m:
+        return False  # higher than a kerb: an obstacle's side beside the line (a parked car), not a kerb
+    return step > p.max_dark_side_step_m  # NaN: False
+
+
+def step_across(
+    lane: Lane,
+    geometry: BevGeometry,
+    disparity: np.ndarray,
+    road: RoadModel,
+    calib: Calibration,
+    max_distance_m: float,
+) -> tuple[float, float]:
+    """``(step, beyond)``: how much the road's median height above the fitted plane differs 0.3-0.8 m
+    left and right of ``lane`` (:func:`lane_heights`), and how high the higher side stands 0.8-1.2 m
+    out above the lower side's 0.3-0.8 m (a kerb's top, a pavement, stays at the kerb's height; a
+    parked car's body or a wall rises higher); metres, NaN where a side has no disparity."""
+    disparity = np.asarray(disparity)
+    left, _, right = lane_heights(lane, geometry, disparity, road, calib, max_distance_m)
+    step = abs(left - right)
+    if not step >= 0.0:  # NaN
+        return math.nan, math.nan
+    far_left, _, far_right = lane_heights(
+        lane, geometry, disparity, road, calib, max_distance_m, near_m=0.8, far_m=1.2
+    )
+    beyond = far_right if right > left else far_left
+    return step, beyond - min(left, right)
+
+
+def kerb_across(
+    p,
+    lane: Lane,
+    geometry: BevGeometry,
+    disparity: np.ndarray | None,
+    road: RoadModel | None,
+    calib: Calibration | None,
+) -> bool:
+    """``lanes.verify``'s flatness rule for every lane (``p``: its params): whether the road steps
+    across ``lane`` by more than ``max_step_m`` (paint lies on the road plane; a kerb is a step of
+    10-15 cm) while the higher side stays no higher than ``obstacle_height_m`` 0.8-1.2 m out (a kerb's
+    top and the pavement behind it; a parked car or a wall beside a line rises higher, and the line
+    is kept) (:func:`step_across`; False with ``max_step_m`` None, without a disparity, a road and a
+    calibration, or when a side has no disparity)."""
+    if p.max_step_m is None or not _measurable(disparity, road, calib):
+        return False
+    step, beyond = step_across(lane, geometry, disparity, road, calib, p.max_distance_m)
+    return step > p.max_step_m and not beyond > p.obstacle_height_m  # a NaN step: False

@@ -21,6 +21,9 @@ rows nearer than ``max_distance_m`` (where the BEV resolves paint):
 - ``height_step_m``, ``line_height_m``: from the disparity, the difference of the road's height
   above the fitted road plane 0.3-0.8 m left and right of the lane, and the lane's own height
   there (a kerb is a step of 10-15 cm; paint lies flat on the road plane); 0 without a disparity;
+- ``step_beyond_m`` (measured beside :data:`FEATURES`, not a model input): how high the higher of
+  those sides stands 0.8-1.2 m out above the lower one (a kerb's pavement stays at the kerb's
+  height, a parked car's body rises higher);
 - ``parallel_spread_m``: how much the lane's distance to the most parallel other candidate (1 m
   away or more) changes over the rows both cover (markings are parallel); ``unparallel_m`` when
   there is none;
@@ -46,7 +49,7 @@ import numpy as np
 from lanegraph import InputError
 from lanegraph.types import BevGeometry, Calibration, Lane, RoadModel
 
-from ._heights import lane_heights
+from ._heights import lane_heights, step_across
 from ._verify import (
     _column_medians,
     _crossing_width,
@@ -146,7 +149,7 @@ def paint_features(
         img, lane, geometry, max_distance_m, band_m, gap_m, align_m, min_row_contrast
     )
     painted = row.size
-    f = dict.fromkeys(FEATURES, math.nan)
+    f = dict.fromkeys((*FEATURES, "step_beyond_m"), math.nan)
     f["painted_fraction"] = painted / inside if inside else 0.0
     f["saturated_fraction"] = saturated / painted if painted else 0.0
     runs = runs_of(np.sort(row), int(round(0.5 / res)), int(round(0.5 / res)))
@@ -173,6 +176,7 @@ def paint_features(
         left, line, right = lane_heights(lane, geometry, np.asarray(disparity), road, calib, max_distance_m)
         f["height_step_m"] = abs(left - right)
         f["line_height_m"] = line
+        f["step_beyond_m"] = step_across(lane, geometry, disparity, road, calib, max_distance_m)[1]
     f["parallel_spread_m"] = parallel_spread(lane, [o for o in others if o is not lane], geometry)
     return f
 

@@ -58,7 +58,7 @@ import numpy as np
 from lanegraph import jit, node_type
 from lanegraph.types import BevGeometry, Calibration, Lane, RoadModel
 
-from ._heights import lane_heights
+from ._heights import dark_side_stepped, kerb_across
 from ._select import kth_smallest, percentile_inplace
 from ._texture import (  # noqa: F401  (re-exported: the texture check's functions)
     _MEASURES,
@@ -507,6 +507,7 @@ def verify(
             )
             if not _is_paint(cues, params):
                 continue
+            levels = (ln, geometry, disparity, road, calib)
             if cues.side_ratio < params.min_side_ratio:  # a much darker side: a shadow, or gravel?
                 rough = (
                     max(
@@ -518,10 +519,10 @@ def verify(
                 )
                 if rough > params.max_dark_side_texture:
                     continue
-                if cues.side_ratio < params.step_side_ratio and _stepped(
-                    params, ln, geometry, disparity, road, calib
-                ):
+                if cues.side_ratio < params.step_side_ratio and dark_side_stepped(params, *levels):
                     continue  # smooth, but not level with the other side: a kerb and its gutter
+            if kerb_across(params, *levels):
+                continue  # a kerb's height across the lane, a level top beyond it: a kerb, not paint
             extra["paint"] = {
                 "contrast": round(cues.contrast, 3),
                 "side_ratio": round(cues.side_ratio, 3),
@@ -551,27 +552,6 @@ def verify(
             continue
         kept.append(Lane(ln.coeffs, ln.bev_rows, ln.side, ln.score, ln.points, extra))
     return {"lanes": kept}
-
-
-def _stepped(
-    p: VerifyParams,
-    lane: Lane,
-    geometry: BevGeometry,
-    disparity: np.ndarray | None,
-    road: RoadModel | None,
-    calib: Calibration | None,
-) -> bool:
-    """Whether the road's height above the fitted plane steps across ``lane`` by more than
-    ``max_dark_side_step_m`` (and, with ``max_kerb_step_m``, by no more than a kerb: an obstacle's
-    side beside a line is no step of the road) (:func:`._heights.lane_heights`, both sides measured; False without a
-    disparity, a road and a calibration, or when a side has no disparity)."""
-    if p.max_dark_side_step_m is None or disparity is None or road is None or calib is None:
-        return False
-    left, _, right = lane_heights(lane, geometry, np.asarray(disparity), road, calib, p.max_distance_m)
-    step = abs(left - right)
-    if p.max_kerb_step_m is not None and step > p.max_kerb_step_m:
-        return False  # higher than a kerb: an obstacle's side beside the line (a parked car), not a kerb
-    return step > p.max_dark_side_step_m  # NaN: False
 
 
 def _is_paint(cues: PaintCues, p: VerifyParams) -> bool:

@@ -92,6 +92,24 @@ class VerifyParams(NodeParams):
         "20) but an obstacle's side standing beside the line (a parked car beside a parking strip's line, a wall): the "
         "step check keeps the lane, metres; None: every step above max_dark_side_step_m drops it",
     )
+    max_step_m: float | None = Field(
+        None,
+        gt=0.0,
+        le=2.0,
+        description="paint check, with the disparity, the road and the calibration wired, on every lane: the road's "
+        "median height above the fitted road plane 0.3-0.8 m left and right of the lane may differ by at most this "
+        "(paint lies on the road plane; a kerb is a step of 10-15 cm, a kerb's lit top passes the paint check like "
+        "paint), unless the higher side stands more than obstacle_height_m above the lower one 0.8-1.2 m out (a "
+        "parked car or a wall beside a line, not a pavement), metres; null: not checked",
+    )
+    obstacle_height_m: float = Field(
+        0.2,
+        gt=0.0,
+        le=5.0,
+        description="with max_step_m: the higher side of a step across a lane, 0.8-1.2 m out, standing more than this "
+        "above the lower side is an obstacle beside the line (a parked car: 34-38 cm), not a kerb's top and the "
+        "pavement behind it (a kerb is at most 20 cm): the lane is kept, metres",
+    )
     step_side_ratio: float = Field(
         0.45,
         ge=0.0,

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 from lanegraph_lanes import _paint
-from lanegraph_lanes._heights import lane_heights
+from lanegraph_lanes._heights import lane_heights, step_across
 from lanegraph_lanes._verify import VerifyParams, verify
 from lanegraph_lanes._verify_learned import VerifyLearnedParams, verify_learned
 
@@ -90,6 +90,72 @@ def test_verify_drops_a_darker_side_that_is_not_level_with_the_road():
     assert len(kept) == 1
 
 
+def _heights_disparity(rows: int, cols: int, heights: dict[tuple[int, int], float]) -> np.ndarray:
+    """The road plane's disparity with the columns ``a .. b - 1`` of each ``(a, b)`` of ``heights``
+    that many metres above it (a kerb's top, a pavement, a car's body)."""
+    d_road = ROAD.disparity_at(np.arange(rows, dtype=np.float64))[:, None] * np.ones((1, cols))
+    d = d_road.copy()
+    for (a, b), h in heights.items():
+        d[:, a:b] = d_road[:, a:b] / (1.0 - h / ROAD.height)
+    return d.astype(np.float32)
+
+
+#: a lane at column 100 of the 5 cm BEV: its right side 0.3-0.8 m out is columns 106-116, 0.8-1.2 m
+#: out columns 116-124
+SIDES = {
+    # a kerb's lit top at the lane, the pavement behind it level, 14 cm up (the known hole: 14.6 cm)
+    "kerb top": ({(102, 200): 0.14}, False),
+    # a low cobbled strip behind a flush edge, 5 cm up: not a kerb's height
+    "low strip": ({(102, 200): 0.05}, True),
+    # paint on the road, a raised verge from 0.4 m out (seq2's edge line: up to 8.4 cm)
+    "verge": ({(108, 200): 0.08}, True),
+    # paint beside a parked car: its sill 12 cm up from 0.4 m, its body 40 cm up from 0.7 m
+    "parked car": ({(108, 114): 0.12, (114, 200): 0.4}, True),
+    # paint on a flat road
+    "flat": ({}, True),
+}
+
+
+@pytest.mark.parametrize("kind", list(SIDES))
+def test_every_lane_must_be_level_to_within_a_kerbs_height(kind):
+    """A bright stripe of paint's width and contrast, its sides of like brightness (the paint check
+    passes it), on a kerb's top: the road steps 14 cm across it and the pavement behind stays level,
+    so it is dropped (max_step_m); paint beside a raised verge (8 cm), beside a parked car (the
+    step's higher side rises beyond a kerb's height further out: an obstacle) or on a low strip
+    (5 cm) is kept. Without the disparity, or with the rule off, every one is kept."""
+    heights, keep = SIDES[kind]
+    img, lane, g = _paint_scene("paint")
+    cal = _calib(*img.shape)
+    disp = _heights_disparity(*img.shape, heights)
+    p = VerifyParams(max_step_m=0.1)
+    kept = verify(p, lanes=[lane], image=img, geometry=g, disparity=disp, road=ROAD, calib=cal)["lanes"]
+    assert len(kept) == int(keep), step_across(lane, g, disp, ROAD, cal, p.max_distance_m)
+    assert len(verify(p, lanes=[lane], image=img, geometry=g)["lanes"]) == 1
+    off = VerifyParams(max_step_m=None)
+    assert (
+        len(verify(off, lanes=[lane], image=img, geometry=g, disparity=disp, road=ROAD, calib=cal)["lanes"])
+        == 1
+    )
+
+
+def test_step_across_measures_the_step_and_what_stands_beyond():
+    """The step between the two sides 0.3-0.8 m out, and the higher side's height 0.8-1.2 m out over
+    the lower side: a kerb's pavement stays at the kerb's height, a car's body rises beyond it; on the
+    left as on the right; NaN without a disparity."""
+    img, lane, g = _paint_scene("paint")
+    cal = _calib(*img.shape)
+    step, beyond = step_across(lane, g, _heights_disparity(*img.shape, {(102, 200): 0.14}), ROAD, cal, 25.0)
+    assert step == pytest.approx(0.14, abs=2e-3) and beyond == pytest.approx(0.14, abs=2e-3)
+    car = {(0, 84): 0.4, (84, 92): 0.12}  # mirrored: the car on the left
+    step, beyond = step_across(lane, g, _heights_disparity(*img.shape, car), ROAD, cal, 25.0)
+    assert step == pytest.approx(0.12, abs=2e-3) and beyond == pytest.approx(0.4, abs=5e-3)
+    assert step_across(lane, g, _heights_disparity(*img.shape, {}), ROAD, cal, 25.0) == pytest.approx(
+        (0, 0), abs=1e-4
+    )
+    none = np.zeros(img.shape, np.float32)
+    assert all(math.isnan(v) for v in step_across(lane, g, none, ROAD, cal, 25.0))
+
+
 def test_row_widths_and_runs():
     band = 5
     strips = np.ones((3, 2 * band + 1))
@@ -111,12 +177,12 @@ def row_widths_list(strips, band):
 def test_paint_features_tell_paint_a_dashed_line_and_a_gutter():
     img, lane, g = _paint_scene("paint")
     f = _paint.paint_features(img, lane, g)
-    assert set(f) == set(_paint.FEATURES)
+    assert set(f) == {*_paint.FEATURES, "step_beyond_m"}  # the model's inputs, and the step's far side
     assert 0.1 <= f["width_m"] <= 0.2 and f["foot_width_m"] <= 0.25
     assert f["width_spread"] < 0.4 and f["painted_fraction"] > 0.9
     assert f["contrast"] > 0.8 and f["side_ratio"] > 0.9
     assert f["dash_runs"] == 1 and f["longest_run_m"] == pytest.approx(20.0, abs=0.5)
-    assert math.isnan(f["height_step_m"])  # no disparity given
+    assert math.isnan(f["height_step_m"]) and math.isnan(f["step_beyond_m"])  # no disparity given
     assert f["parallel_spread_m"] == _paint.UNPARALLEL_M  # no other lane
     dashed = _paint.paint_features(*_paint_scene("dashed"))
     # 3 m dashes every 9 m on BEV rows 0-59, 180-239, 360-419, 540-599; the near 25 m are rows 199-599
