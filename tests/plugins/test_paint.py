@@ -138,6 +138,25 @@ def test_every_lane_must_be_level_to_within_a_kerbs_height(kind):
     )
 
 
+@pytest.mark.parametrize("node", ["verify", "verify_followed", "verify_straddled"])
+def test_the_paper_graph_keeps_an_edge_line_inside_a_kerb(node):
+    """An edge line 0.3 m inside a 12 cm kerb, the pavement behind it level (a residential street's
+    edge line: the synthetic ``residential_side_road_edge_lines``): its side steps by a kerb's height
+    0.3-0.8 m out, so ``max_step_m`` = 10 cm drops it (that scene went from 100 % to 0 % with the rule
+    on) -- which is why the paper graph's paint checks leave the rule off and keep the line."""
+    from lanegraph.graph.files import load_graph_named
+
+    heights = {(106, 200): 0.12}  # the kerb's face 6 BEV columns (0.3 m) right of the lane
+    img, lane, g = _paint_scene("paint")
+    cal = _calib(*img.shape)
+    disp = _heights_disparity(*img.shape, heights)
+    ins = dict(lanes=[lane], image=img, geometry=g, disparity=disp, road=ROAD, calib=cal)
+    assert verify(VerifyParams(max_step_m=0.1), **ins)["lanes"] == []
+    params = load_graph_named("paper").nodes[node].params
+    assert params.max_step_m is None
+    assert len(verify(params, **ins)["lanes"]) == 1
+
+
 def test_step_across_measures_the_step_and_what_stands_beyond():
     """The step between the two sides 0.3-0.8 m out, and the higher side's height 0.8-1.2 m out over
     the lower side: a kerb's pavement stays at the kerb's height, a car's body rises beyond it; on the
