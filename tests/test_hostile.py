@@ -224,8 +224,17 @@ def test_torn_and_changed_lanes_files(cli, tmp_path, installed_pm):
 
 
 def test_checkpoint_values_round_trip_exactly():
-    from lanegraph.records.resume import CheckpointValueError, decode_value, encode_value
+    from lanegraph.port_types import PORT_TYPES
+    from lanegraph.records.resume import CheckpointValueError
+    from lanegraph.storage import decode_value as _decode
+    from lanegraph.storage import encode_value as _encode
     from lanegraph.types import BevGeometry, FeatureMap, Lane, Line, RoadModel
+
+    def encode_value(v, where="value"):  # what a checkpoint stores: lanegraph's port types registered
+        return _encode(v, where, PORT_TYPES)
+
+    def decode_value(d, where="value"):
+        return _decode(d, where, PORT_TYPES)
 
     lane = Lane(
         (np.float64(1.5), 2.0, -3e-7),

@@ -151,6 +151,7 @@ def test_run_report_files(scene, run_out):
         "fit",
         "verify",
         "merge",
+        "near",
         "project",
     ]
     ranks = [order.index(c.split(".")[0]) for c in caps]
@@ -632,7 +633,7 @@ def test_run_report_in_chromium(browser, scene, run_out, moved_report, tmp_path)
     p.wait_for_function(f"document.querySelectorAll('#node-pictures img').length === {n} && "
                         "[...document.querySelectorAll('#node-pictures img')].every(i => i.complete)")  # fmt: skip
     assert p.images_loaded("#node-pictures img") == n
-    assert p.locator("#graph svg g.node").count() == 19  # paper.yaml's nodes
+    assert p.locator("#graph svg g.node").count() == 20  # paper.yaml's nodes
     p.click("#tab-metrics")
     assert p.locator("#metrics-table tbody tr").count() == 1 and p.locator("#node-times svg").count() == 1
     p.check_clean()

@@ -21,7 +21,7 @@ ROOT = Path(__file__).resolve().parents[2]
 #: `min_painted_rows` set where no lane passes: only a small value finds the lanes
 TOY = """name: toy
 extends: {paper}
-remove: [follow, verify_followed, verify_straddled, merge]
+remove: [follow, verify_followed, verify_straddled, merge, near]
 nodes:
   verify: {{params: {{min_painted_rows: 50000}}}}
   project: {{inputs: {{lanes: verify.lanes}}}}
