@@ -29,10 +29,10 @@ below), cut back to the band's own rows and columns. The bands run on as many th
 process has CPUs (:func:`lanegraph._runtime.available_cpus`: affinity mask and cgroup quota) or
 ``threads``; the map is the same whatever their number. OpenCV's speckle filter runs once on the
 stitched map, so a speckle is judged whole across band borders. A match at a band's lowest
-disparity (above ``min_disparity``) is left invalid: it is the range's edge, not a minimum. The
-columns left of the widest band's highest disparity are left invalid on every row
-(:func:`left_border`), as one search of the full range leaves them: the road mask reads a pixel
-without a disparity below a road pixel as road.
+disparity (above ``min_disparity``) is left invalid: it is the range's edge, not a minimum. With
+``one_left_border`` the columns left of the widest band's highest disparity are left invalid on
+every row (:func:`left_border`), as one search of the full range leaves them: the road mask reads a
+pixel without a disparity below a road pixel as road.
 
 Without a usable prediction -- the first frame, a profile judged invalid, or one whose road
 disparity does not grow down the rows or does not lie in ``(0, min_disparity + num_disparities]``
@@ -98,6 +98,14 @@ class RoadSgbmParams(SgbmParams):
         le=100.0,
         description="the band reaches the disparity of what stands this high on the road, metres (a "
         "kerb), besides the margin: at full resolution, where the road mask tells a kerb from the road",
+    )
+    one_left_border: bool = Field(
+        False,
+        description="leave the columns left of the widest band's highest disparity without a disparity "
+        "on every row, as one full-range search does (the far bands otherwise reach further left, and "
+        "the road mask's free-space scan reads the near rows without a disparity below them as road); "
+        "off by default: on the synthetic S-bend it costs a frame and adds a false lane, and no scene "
+        "measured gains a lane",
     )
     near_m: float = Field(
         5.0,
@@ -375,7 +383,7 @@ def road_sgbm(
         jobs.append(("coarse", plan[0].a))
     raw = np.full((h, w), _INVALID_RAW, np.int16)
     results = _run_jobs(params, gl, gr, jobs, d_min, raw)
-    if ranges is not None and plan:
+    if params.one_left_border and ranges is not None and plan:
         # one left border for every band, the widest band's: a column there is matched on no row
         raw[:, : left_border(plan)] = _INVALID_RAW
     if plan and params.speckle_window_size > 0:

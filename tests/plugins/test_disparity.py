@@ -790,8 +790,9 @@ def test_road_sgbm_keeps_one_left_border_and_the_road_masks_precision():
     """Issue 44: on a residential street (kerbs at road level, verge behind them), the road-guided
     map's far bands used to reach further left than its near ones; the road mask's free-space scan
     then read the near rows without a disparity, and the kerb among them, as road below the far
-    rows' verge. The guided map leaves one border on every row, and its road mask takes no more
-    beyond the paved road than that of one full-range search."""
+    rows' verge. With ``one_left_border`` the guided map leaves one border on every row, and its
+    road mask takes no more beyond the paved road than that of one full-range search; without it
+    (the default) the far rows reach further left."""
     synthetic = pytest.importorskip("lanegraph_synthetic")
     from lanegraph.testing import run_node
 
@@ -803,12 +804,20 @@ def test_road_sgbm_keeps_one_left_border_and_the_road_masks_precision():
     full_prev = ld.sgbm(ld.SgbmParams(**PAPER_SGBM, strips=2), prev.left, prev.right)["disparity"]
     model = run_node("road.profile", {"disparity": full_prev, "calib": prev.calib})["road"]
     assert model.valid
-    guided = ld.road_sgbm(ld.RoadSgbmParams(**PAPER_SGBM), fr.left, fr.right, road=model, calib=fr.calib)[
-        "disparity"
-    ]
+
+    def guided_map(**extra):
+        p = ld.RoadSgbmParams(**PAPER_SGBM, **extra)
+        return ld.road_sgbm(p, fr.left, fr.right, road=model, calib=fr.calib)["disparity"]
+
+    def first_columns(disp):
+        rows = [v for v in range(disp.shape[0]) if (disp[v] > 0).any()]
+        return np.array([int(np.argmax(disp[v] > 0)) for v in rows])
+
+    first = first_columns(guided_map())
+    assert first.min() < first[-20:].min() - 8  # by default a far row reaches further left
+    guided = guided_map(one_left_border=True)
     full = ld.sgbm(ld.SgbmParams(**PAPER_SGBM, strips=2), fr.left, fr.right)["disparity"]
-    rows = [v for v in range(guided.shape[0]) if (guided[v] > 0).any()]
-    first = np.array([int(np.argmax(guided[v] > 0)) for v in rows])
+    first = first_columns(guided)
     near = first[-20:].min()  # the bottom rows: the widest band's border
     assert first.min() >= near - 8, (first.min(), near)  # no far row reaches further left
     masks = {}
