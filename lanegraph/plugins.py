@@ -43,6 +43,16 @@ HOOK_NAMES = sorted(n for n in dir(hookspecs) if n.startswith("lanegraph_"))
 _PORT_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 
 
+def allowed(name: str, dist: str) -> bool:
+    """Whether the environment lets a third party's plugin (entry point ``name`` of distribution
+    ``dist``) load: not when ``LANEGRAPH_DISABLE_PLUGIN_AUTOLOAD`` is set, nor when
+    ``LANEGRAPH_PLUGINS`` (a comma-separated allowlist) names neither."""
+    if os.environ.get("LANEGRAPH_DISABLE_PLUGIN_AUTOLOAD", "") not in ("", "0"):
+        return False
+    allow = {s.strip() for s in os.environ.get("LANEGRAPH_PLUGINS", "").split(",") if s.strip()}
+    return not allow or name in allow or dist in allow
+
+
 @dataclass(frozen=True)
 class PluginError:
     """A plugin the host runs without: it failed to import, implements a hook that has no spec,
@@ -151,8 +161,6 @@ class PluginManager(pluggy.PluginManager):
         first, then the others by name (so a third-party plugin never displaces a built-in node
         type). A plugin that fails to import or cannot be used is recorded in :attr:`plugin_errors`.
         """
-        no_autoload = os.environ.get("LANEGRAPH_DISABLE_PLUGIN_AUTOLOAD", "") not in ("", "0")
-        allow = {s.strip() for s in os.environ.get("LANEGRAPH_PLUGINS", "").split(",") if s.strip()}
 
         def dist_of(ep: Any) -> str:
             return ep.dist.name if ep.dist is not None else "?"
@@ -164,7 +172,7 @@ class PluginManager(pluggy.PluginManager):
             for ep in sorted(eps, key=lambda e: (dist_of(e) != BUILTIN_DISTRIBUTION, e.name)):
                 dist = dist_of(ep)
                 builtin = dist == BUILTIN_DISTRIBUTION
-                if not builtin and (no_autoload or (allow and ep.name not in allow and dist not in allow)):
+                if not builtin and not allowed(ep.name, dist):
                     continue
                 if self.get_plugin(ep.name) is not None or self.is_blocked(ep.name):
                     continue

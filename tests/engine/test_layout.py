@@ -117,11 +117,14 @@ def test_no_module_is_over_600_lines():
 
 def test_nothing_below_the_command_line_imports_it():
     graph = import_graph()
+    assert (
+        "lanegraph.cli._errors" in graph["lanegraph.api"]
+    )  # an add-on's commands handle errors the same way
     users = {
         m
         for m, edges in graph.items()
         if not m.startswith("lanegraph.cli")
-        and m != "lanegraph.__main__"
+        and m not in ("lanegraph.__main__", "lanegraph.api")
         and any(e.startswith("lanegraph.cli") for e in edges)
     }
     assert users == set()
@@ -130,7 +133,8 @@ def test_nothing_below_the_command_line_imports_it():
 #: the layers of lanegraph/, lowest first (docs/architecture.md): a module imports only from its own
 #: layer and the ones below it; ``data`` and ``presentation`` stand side by side (neither imports the
 #: other), and so do the two front ends, ``cli`` (with ``python -m lanegraph``) and ``testing`` (the
-#: pytest plugin and conformance check, which runs a node in a graph)
+#: pytest plugin and conformance check, which runs a node in a graph); ``api`` (:mod:`lanegraph.api`,
+#: what an add-on imports) stands above them all
 LAYERS = {
     "core": 0,
     "graph": 1,
@@ -143,11 +147,12 @@ LAYERS = {
     "service": 7,
     "cli": 8,
     "testing": 8,
+    "api": 9,
 }
 #: the imports that cross the layers upwards on purpose, each with its reason (a new one fails the test)
 UPWARD_ON_PURPOSE: dict[tuple[str, str], str] = {}
 #: the top-level modules that are a layer of their own
-_FRONT_ENDS = {"lanegraph.__main__": "cli", "lanegraph.testing": "testing"}
+_FRONT_ENDS = {"lanegraph.__main__": "cli", "lanegraph.testing": "testing", "lanegraph.api": "api"}
 
 
 #: sub-packages of the core layer (the plugin author's contract): ``lanegraph.jit`` and its kernel cache
@@ -224,11 +229,12 @@ def plugin_modules() -> dict[str, Path]:
 def is_public(module: str) -> bool:
     """Whether a plugin may import ``module``: ``lanegraph`` itself, a core module whose name does
     not start with ``_`` (nodes, lifecycle, types, errors, paths, frames, storage, threads ...),
-    ``lanegraph.testing`` (a plugin's tests), or one of :data:`PUBLIC_BEYOND_CORE`."""
+    ``lanegraph.testing`` (a plugin's tests), ``lanegraph.api`` (an add-on: a command, a runner), or
+    one of :data:`PUBLIC_BEYOND_CORE`."""
     parts = module.split(".")
     if module == "lanegraph" or module in PUBLIC_BEYOND_CORE:
         return True
-    return len(parts) == 2 and layer_of(module) in ("core", "testing") and not parts[1].startswith("_")
+    return len(parts) == 2 and layer_of(module) in ("core", "testing", "api") and not parts[1].startswith("_")
 
 
 def engine_imports(path: Path) -> set[str]:
@@ -251,6 +257,7 @@ def engine_imports(path: Path) -> set[str]:
 def test_the_public_surface_check_tells_private_from_public():
     assert is_public("lanegraph") and is_public("lanegraph.types") and is_public("lanegraph.storage")
     assert is_public("lanegraph.threads") and is_public("lanegraph.presentation.render")
+    assert is_public("lanegraph.api") and not is_public("lanegraph.cli._common")
     for private in ("lanegraph._runtime", "lanegraph._numba", "lanegraph.run.cache", "lanegraph.graph.model"):
         assert not is_public(private), private
 

@@ -1,0 +1,39 @@
+"""lanegraph's application API: what an add-on (a command plugin, a runner) and a notebook may use
+beyond the plugin author's core modules.
+
+The command line's own add-ons are plugins (``lanegraph_tune``, ``lanegraph_report``,
+``lanegraph_dask`` in ``plugins/``) and import lanegraph only from here and from the core's public
+modules, as a third party's would (``tests/engine/test_layout.py`` checks it); everything else in
+lanegraph may change between releases. This module is a front end: it stands above every layer.
+
+- the run service: :class:`Session`, whose methods run, batch, ablate and report;
+- for a command (``lanegraph.commands`` entry points, :mod:`lanegraph.cli`): :func:`handled` (the one
+  place errors become exit codes), :func:`session` (the service a command calls), the option sets
+  and types the core's commands use.
+"""
+
+from __future__ import annotations
+
+from .cli._common import (
+    FOLDER,
+    PATH,
+    dataset_cache_options,
+    keeping_options,
+    parse_frames,
+    scale_out_options,
+    session,
+)
+from .cli._errors import handled
+from .service import Session
+
+__all__ = [
+    "FOLDER",
+    "PATH",
+    "Session",
+    "dataset_cache_options",
+    "handled",
+    "keeping_options",
+    "parse_frames",
+    "scale_out_options",
+    "session",
+]
