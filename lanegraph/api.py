@@ -24,6 +24,8 @@ from .cli._common import (
     session,
 )
 from .cli._errors import handled
+from .evaluation.metrics import read_ground_truth  # lanegraph_io (data kitti)
+from .records import owned  # lanegraph_io (data kitti)
 from .service import Session
 
 __all__ = [
@@ -33,7 +35,9 @@ __all__ = [
     "dataset_cache_options",
     "handled",
     "keeping_options",
+    "owned",
     "parse_frames",
+    "read_ground_truth",
     "scale_out_options",
     "session",
 ]

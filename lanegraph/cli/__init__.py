@@ -8,7 +8,7 @@ Commands are an open set too: a distribution adds one through the ``lanegraph.co
 group (``name = "module:click_command"``), loaded only when that command runs or ``--help`` lists
 them, honouring the allowlist of :mod:`lanegraph.plugins` (``LANEGRAPH_PLUGINS``,
 ``LANEGRAPH_DISABLE_PLUGIN_AUTOLOAD``). lanegraph's own add-ons (``tune``, ``report``) come the same
-way, from their plugin packages. A command plugin imports :mod:`lanegraph.api`.
+way, from their plugin packages, and ``data kitti`` from the I/O plugin. A command plugin imports :mod:`lanegraph.api`.
 
 Exit codes: 0 ok, 1 failure while running (or frames that failed), 2 invalid graph or usage, or an
 input that is unusable before any frame runs (no images, no calibration, an empty frame selection).
@@ -27,7 +27,7 @@ from .cache import cache_cmd
 from .evaluate import eval_cmd
 from .nodes import builtin_node_types, nodes, nodes_markdown, schema, show, validate
 from .run import run
-from .start import data_cmd, graphs_cmd
+from .start import graphs_cmd
 
 __all__ = [
     "COMMAND_GROUP",
@@ -133,7 +133,6 @@ for _command in (
     ablate,
     eval_cmd,
     graphs_cmd,
-    data_cmd,
     cache_cmd,
 ):
     main.add_command(_command)

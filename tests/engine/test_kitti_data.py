@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from lanegraph.cli import main
-from lanegraph.data.kitti import GROUND_TRUTH, ground_truth_file
+from lanegraph_io.kitti_layout import GROUND_TRUTH, ground_truth_file
 from lanegraph.evaluation.dataset import load_dataset
 
 from ..conftest import SHARED

@@ -47,8 +47,8 @@ from typing import IO
 
 import yaml
 
-from ..errors import UsageError
-from ..paths import inside, prepare_dir
+from lanegraph.errors import UsageError
+from lanegraph.paths import inside, new_temp_dir, prepare_dir, write_text_atomic
 
 _PNG = b"\x89PNG\r\n\x1a\n"
 #: the largest calibration, timestamps or times file (the limit ``run`` reads a calibration with)
@@ -394,7 +394,7 @@ def _existing(p: Path) -> Path:
 
 def _check_taken(out: Path, rels: list[str]) -> None:
     """Refuse a name OUT holds that lanegraph did not write there (its ownership record)."""
-    from ..records import owned
+    from lanegraph.api import owned
 
     bad = owned.taken(out, dict.fromkeys(rels, "file"))
     if bad:
@@ -407,8 +407,7 @@ def _check_taken(out: Path, rels: list[str]) -> None:
 
 def prepare_kitti(sources: list[Path], out: Path, progress: Progress = None) -> list[str]:
     """Check and lay out ``sources`` in ``out`` (see the module's text); returns the summary lines."""
-    from ..paths import new_temp_dir
-    from ..records import owned
+    from lanegraph.api import owned
 
     if str(out) == "":
         raise UsageError("--out '': an empty folder name (it would be the current folder; give . for that)")
@@ -474,8 +473,7 @@ def prepare_kitti(sources: list[Path], out: Path, progress: Progress = None) -> 
 
 def _write_gt(out: Path, base: str, frames: list[str], gt_name: str, entry: dict[str, str]) -> str:
     """``lanes_gt.jsonl`` beside the frames, when they hold the ground truth's frames and image size."""
-    from ..evaluation.metrics import read_ground_truth
-    from ..paths import write_text_atomic
+    from lanegraph.api import read_ground_truth
 
     gt_path = ground_truth_file(gt_name)
     records = read_ground_truth(gt_path)
@@ -497,8 +495,7 @@ def _write_gt(out: Path, base: str, frames: list[str], gt_name: str, entry: dict
 
 
 def _write_dataset(path: Path, entries: list[dict[str, str]]) -> None:
-    from ..builtin import graphs_dir
-    from ..paths import write_text_atomic
+    from lanegraph.builtin import graphs_dir
 
     template = graphs_dir() / DATASET_TEMPLATE
     description = (
