@@ -131,8 +131,9 @@ def test_nothing_below_the_command_line_imports_it():
 
 
 #: the layers of lanegraph/, lowest first (docs/architecture.md): a module imports only from its own
-#: layer and the ones below it; the two front ends stand side by side (neither imports the other), ``cli`` (with ``python -m lanegraph``) and ``testing`` (the
-#: pytest plugin and conformance check, which runs a node in a graph); ``api`` (:mod:`lanegraph.api`,
+#: layer and the ones below it; the two front ends stand side by side (neither imports the other):
+#: ``cli`` (with ``python -m lanegraph``) and ``testing`` (the pytest plugin and conformance check,
+#: which runs a node in a graph); ``api`` (:mod:`lanegraph.api`,
 #: what an add-on imports) stands above them all
 LAYERS = {
     "core": 0,
