@@ -63,3 +63,97 @@ def test_third_party_distribution_on_path(tmp_path, monkeypatch):
     Executor(load_graph(p, pm=pm), RunContext(), pm).run()
     assert [x for _, x in toyplugin.Collect.out] == [1.0, 0.0, -1.0]
     sys.modules.pop("lg_thirdparty", None)
+
+
+COMMAND = textwrap.dedent(
+    '''
+    import click
+    from lanegraph.api import handled
+    from lanegraph.errors import UsageError
+
+    @click.command(name="hello")
+    @click.argument("who")
+    @handled()
+    def hello(who):
+        """Greet WHO."""
+        if who == "nobody":
+            raise UsageError("nobody to greet")
+        click.echo(f"hello {who}")
+        return 0
+
+    not_a_command = 42
+    '''
+)
+
+
+def _command_dist(tmp_path, monkeypatch, entries: str):
+    """A distribution ``lg-hello`` on ``sys.path`` whose ``lanegraph.commands`` are ``entries``."""
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "lg_hello.py").write_text(COMMAND)
+    dist = site / "lg_hello-0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: lg-hello\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text("[lanegraph.commands]\n" + entries)
+    monkeypatch.syspath_prepend(str(site))
+    monkeypatch.delenv("LANEGRAPH_PLUGINS", raising=False)
+    monkeypatch.delenv("LANEGRAPH_DISABLE_PLUGIN_AUTOLOAD", raising=False)
+    monkeypatch.delitem(sys.modules, "lg_hello", raising=False)
+
+
+def test_a_third_party_command_runs_as_lanegraph_s_own(tmp_path, monkeypatch):
+    from click.testing import CliRunner
+
+    from lanegraph.cli import main
+
+    _command_dist(tmp_path, monkeypatch, "hello = lg_hello:hello\n")
+    runner = CliRunner()
+    listing = runner.invoke(main, ["--help"])
+    assert listing.exit_code == 0 and "hello" in listing.output and "Greet WHO." in listing.output
+    done = runner.invoke(main, ["hello", "world"])
+    assert (done.exit_code, done.output) == (0, "hello world\n")
+    refused = runner.invoke(main, ["hello", "nobody"])  # its typed error: one line, its exit code
+    assert refused.exit_code == 2 and "error: nobody to greet" in refused.output
+    # the environment's allowlist holds for commands as for node plugins
+    monkeypatch.setenv("LANEGRAPH_PLUGINS", "somebody-else")
+    assert "hello" not in runner.invoke(main, ["--help"]).output
+    assert runner.invoke(main, ["hello", "world"]).exit_code == 2  # no such command
+    monkeypatch.setenv("LANEGRAPH_PLUGINS", "lg-hello")
+    assert runner.invoke(main, ["hello", "world"]).exit_code == 0
+    monkeypatch.delenv("LANEGRAPH_PLUGINS")
+    monkeypatch.setenv("LANEGRAPH_DISABLE_PLUGIN_AUTOLOAD", "1")
+    assert "hello" not in runner.invoke(main, ["--help"]).output
+    assert "tune" in runner.invoke(main, ["--help"]).output  # lanegraph's own add-ons stay
+
+
+def test_a_broken_third_party_command_is_named_and_the_others_still_run(tmp_path, monkeypatch):
+    from click.testing import CliRunner
+
+    from lanegraph.cli import main
+
+    _command_dist(
+        tmp_path,
+        monkeypatch,
+        "gone = lg_hello:missing\nnumber = lg_hello:not_a_command\nrun = lg_hello:hello\n",
+    )
+    runner = CliRunner()
+    listing = runner.invoke(main, ["--help"])
+    assert listing.exit_code == 0 and "gone" in listing.output and "failed to load" in listing.output
+    gone = runner.invoke(main, ["gone", "--whatever"])
+    assert gone.exit_code == 2
+    assert (
+        "'gone' of lg-hello (entry point 'lg_hello:missing' in lanegraph.commands) failed to load"
+        in gone.output
+    )
+    number = runner.invoke(main, ["number"])
+    assert number.exit_code == 2 and "is a int, expected a click command" in number.output
+    # a plugin cannot displace a command of lanegraph's own: `run` is still lanegraph's
+    assert "Run GRAPH" in runner.invoke(main, ["run", "--help"]).output
+
+
+def test_lanegraph_s_add_on_commands_come_through_the_entry_point_group():
+    from lanegraph.cli import command_entry_points
+
+    found = command_entry_points()
+    assert {"tune", "report", "data"} <= set(found)
+    assert {found[n].dist.name for n in ("tune", "report", "data")} == {"lanegraph"}
