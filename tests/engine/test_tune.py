@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import csv
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -518,3 +520,26 @@ def test_the_qmc_sampler_spreads_distinct_trials_over_a_range(toy, tmp_path, mon
     points = {tuple(sorted(t.params.items())) for t in result.trials}
     assert len(points) == 8
     assert all(0.1 <= t.params["verify.min_paint_contrast"] <= 0.6 for t in result.trials)
+
+
+_LISTED = """
+import sys
+from lanegraph.cli import command_entry_points, main
+print(command_entry_points()["tune"].value)
+try:
+    main(["--help"])
+except SystemExit:
+    pass
+print("LOADED", sorted(m for m in sys.modules if m.split(".")[0] in ("optuna", "lanegraph_tune")))
+"""
+
+
+def test_the_command_comes_from_its_plugin_and_optuna_loads_only_when_a_tune_runs():
+    """``lanegraph tune`` is the plugin package lanegraph_tune's, through the ``lanegraph.commands``
+    entry point; ``lanegraph --help`` loads its command module only: neither Optuna nor the search."""
+    p = subprocess.run([sys.executable, "-c", _LISTED], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    lines = p.stdout.splitlines()
+    assert lines[0] == "lanegraph_tune.cli:tune"
+    assert any(line.split()[:1] == ["tune"] for line in lines)  # listed with its help
+    assert lines[-1] == "LOADED ['lanegraph_tune', 'lanegraph_tune.cli']"
