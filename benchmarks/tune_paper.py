@@ -83,8 +83,7 @@ def paper_text(tuned: Path, bad: list[str]) -> str:
     false lanes to, paper_base.yaml's own values of the searched params in its place, and why), its
     description led by :data:`LEAD`."""
     import yaml
-
-    from lanegraph.evaluation.tune_output import dump_graph
+    from lanegraph_tune.output import dump_graph
 
     doc = yaml.safe_load(tuned.read_text(encoding="utf-8"))
     if bad:
@@ -96,7 +95,8 @@ def paper_text(tuned: Path, bad: list[str]) -> str:
 def kept(doc: dict, bad: list[str]) -> dict:
     """The tuned graph ``doc`` with paper_base.yaml's own values of the searched params in place of
     the tune's choice, and a description that says they were kept, why, and what the search was."""
-    from lanegraph.evaluation.tune_space import load_space
+    from lanegraph_tune.space import load_space
+
     from lanegraph.graph.files import load_graph_named
 
     base = load_graph_named(ROOT / "graphs" / "paper_base.yaml")

@@ -28,6 +28,19 @@ from .evaluation.metrics import read_ground_truth  # lanegraph_io (data kitti)
 from .records import owned  # lanegraph_io (data kitti)
 from .service import Session
 
+# isort: split
+# lanegraph_tune
+from .batches.batch import BatchRun
+from .evaluation.dataset import POOLED, load_dataset, read_gt
+from .evaluation.metrics import evaluate, read_predictions
+from .records.folder import check as check_folder
+from .records.provenance import write_resolved_graph
+from .records.record import TuneEntry
+from .records.results import LANES, find_result
+from .run.cache import digest
+from .run.task import describe_error
+from .service.keeping import command_kept, dataset_identity, result_cache
+
 __all__ = [
     "FOLDER",
     "PATH",
@@ -40,4 +53,21 @@ __all__ = [
     "read_ground_truth",
     "scale_out_options",
     "session",
+    # lanegraph_tune
+    "BatchRun",
+    "LANES",
+    "POOLED",
+    "TuneEntry",
+    "check_folder",
+    "command_kept",
+    "dataset_identity",
+    "describe_error",
+    "digest",
+    "evaluate",
+    "find_result",
+    "load_dataset",
+    "read_gt",
+    "read_predictions",
+    "result_cache",
+    "write_resolved_graph",
 ]

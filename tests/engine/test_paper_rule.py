@@ -10,9 +10,9 @@ import re
 from pathlib import Path
 
 import yaml
+from lanegraph_tune.space import load_space
 
 from lanegraph.builtin import find_graph, graph_names, graphs_dir
-from lanegraph.evaluation.tune_space import load_space
 from lanegraph.graph.files import load_graph_named
 
 ROOT = Path(__file__).resolve().parents[2]

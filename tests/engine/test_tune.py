@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import csv
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -192,7 +194,7 @@ class _FakeRuns:
         self.interrupt_at = interrupt_at
 
     def __call__(self, tuner, batch):
-        from lanegraph.evaluation.tune import Counts
+        from lanegraph_tune.search import Counts
 
         out = []
         for params, seqs in batch:
@@ -207,9 +209,10 @@ class _FakeRuns:
 
 
 def _tuner(toy: Path, out: Path, sampler: str, trials: int, space: str):
-    from lanegraph.evaluation.dataset import load_dataset
-    from lanegraph.evaluation.tune import Tuner, TuneSetup
-    from lanegraph.evaluation.tune_space import load_space
+    from lanegraph_tune.search import Tuner, TuneSetup
+    from lanegraph_tune.space import load_space
+
+    from lanegraph.api import load_dataset
     from lanegraph.graph.files import load_graph_named
 
     g = load_graph_named(str(toy / "toy.yaml"))
@@ -222,7 +225,7 @@ def _tuner(toy: Path, out: Path, sampler: str, trials: int, space: str):
 
 @pytest.mark.parametrize("sampler", ["grid", "tpe"])
 def test_a_fold_never_scores_on_a_sequence_it_chose_on(toy, tmp_path, monkeypatch, sampler):
-    from lanegraph.evaluation.tune import Tuner
+    from lanegraph_tune.search import Tuner
 
     # 1 is right on a and b, 2 on c alone, 3 nowhere: the fold that leaves c out must choose 1 and
     # score 25 % on c; choosing on c too would have given 2
@@ -259,7 +262,7 @@ def test_a_fold_never_scores_on_a_sequence_it_chose_on(toy, tmp_path, monkeypatc
 
 
 def test_an_interrupted_study_resumes_with_the_same_params(toy, tmp_path, monkeypatch):
-    from lanegraph.evaluation.tune import Tuner
+    from lanegraph_tune.search import Tuner
 
     space = "params:\n  verify.min_painted_rows: {low: 1, high: 40}\n"
     out = tmp_path / "study"
@@ -281,7 +284,7 @@ def test_an_interrupted_study_resumes_with_the_same_params(toy, tmp_path, monkey
 
 
 def test_an_interrupted_tune_on_the_command_line_resumes(toy, tmp_path, monkeypatch):
-    from lanegraph.evaluation import tune as tune_module
+    from lanegraph_tune import search as tune_module
 
     calls = []
     real = tune_module.run_variants
@@ -371,8 +374,9 @@ def test_a_bad_space_file_is_a_located_error_before_any_frame(tmp_path, mutate, 
 
 
 def test_the_good_space_is_accepted_and_not_yaml_is_refused(tmp_path):
+    from lanegraph_tune.space import load_space
+
     from lanegraph.errors import UsageError
-    from lanegraph.evaluation.tune_space import load_space
     from lanegraph.graph.files import load_graph_named
 
     g = load_graph_named("paper")
@@ -389,8 +393,9 @@ def test_the_good_space_is_accepted_and_not_yaml_is_refused(tmp_path):
 
 
 def test_a_dataset_group_is_read_and_folds_leave_a_group_out(tmp_path):
-    from lanegraph.evaluation.dataset import load_dataset
-    from lanegraph.evaluation.tune import LeaveOneGroupOut
+    from lanegraph_tune.search import LeaveOneGroupOut
+
+    from lanegraph.api import load_dataset
 
     for n in "xyz":
         (tmp_path / n).mkdir()
@@ -455,8 +460,7 @@ def test_every_trial_and_fold_is_tracked_on_a_real_mlflow_server(toy, tmp_path, 
 
 def test_tpe_with_the_median_pruner_stops_bad_trials_between_training_sequences(toy, tmp_path, monkeypatch):
     import optuna
-
-    from lanegraph.evaluation.tune import Tuner
+    from lanegraph_tune.search import Tuner
 
     fake = _FakeRuns({"a": 5, "b": 5, "c": 5})
     monkeypatch.setattr(Tuner, "_run", lambda self, batch, f=fake: f(self, batch))
@@ -478,7 +482,7 @@ def test_tpe_with_the_median_pruner_stops_bad_trials_between_training_sequences(
     )
     assert pruned >= 1
     # the final choice: the best finished trial of the study over all sequences (pruned ones left out)
-    from lanegraph.evaluation.tune import pooled
+    from lanegraph_tune.search import pooled
 
     ratios = [pooled(t.counts, ["a", "b", "c"]).detection_ratio for t in result.trials if t.study == "all"]
     assert result.final.study == "all" and pooled(
@@ -505,7 +509,7 @@ def test_a_dataset_tune_cannot_fold_is_refused_before_anything(toy, tmp_path, se
 
 
 def test_the_qmc_sampler_spreads_distinct_trials_over_a_range(toy, tmp_path, monkeypatch):
-    from lanegraph.evaluation.tune import Tuner
+    from lanegraph_tune.search import Tuner
 
     fake = _FakeRuns(dict.fromkeys("abc", 7))
     monkeypatch.setattr(Tuner, "_run", lambda self, batch, f=fake: f(self, batch))
@@ -516,3 +520,26 @@ def test_the_qmc_sampler_spreads_distinct_trials_over_a_range(toy, tmp_path, mon
     points = {tuple(sorted(t.params.items())) for t in result.trials}
     assert len(points) == 8
     assert all(0.1 <= t.params["verify.min_paint_contrast"] <= 0.6 for t in result.trials)
+
+
+_LISTED = """
+import sys
+from lanegraph.cli import command_entry_points, main
+print(command_entry_points()["tune"].value)
+try:
+    main(["--help"])
+except SystemExit:
+    pass
+print("LOADED", sorted(m for m in sys.modules if m.split(".")[0] in ("optuna", "lanegraph_tune")))
+"""
+
+
+def test_the_command_comes_from_its_plugin_and_optuna_loads_only_when_a_tune_runs():
+    """``lanegraph tune`` is the plugin package lanegraph_tune's, through the ``lanegraph.commands``
+    entry point; ``lanegraph --help`` loads its command module only: neither Optuna nor the search."""
+    p = subprocess.run([sys.executable, "-c", _LISTED], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    lines = p.stdout.splitlines()
+    assert lines[0] == "lanegraph_tune.cli:tune"
+    assert any(line.split()[:1] == ["tune"] for line in lines)  # listed with its help
+    assert lines[-1] == "LOADED ['lanegraph_tune', 'lanegraph_tune.cli']"

@@ -28,8 +28,8 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from ..builtin import graph_names, graphs_dir
-from ..errors import UsageError, did_you_mean
+from lanegraph.builtin import graph_names, graphs_dir
+from lanegraph.errors import UsageError, did_you_mean
 
 
 class ParamSpace(BaseModel):
@@ -210,7 +210,7 @@ def _check_value(params_model: type, current: dict[str, Any], name: str, value: 
 
 
 def check_space(model: SpaceModel, path: Path, graph: Any) -> Space:
-    """``model`` checked against the validated ``graph`` (:class:`lanegraph.graph.model.Graph`):
+    """``model`` checked against the validated ``graph`` (:meth:`lanegraph.api.Session.load_graph`):
     every problem at once in one :class:`UsageError`, each ``FILE: params.KEY: ...``."""
     problems: list[str] = []
     out: list[SearchParam] = []

@@ -9,7 +9,7 @@ a sequence it chose on (:func:`choose` sees only the training sequences' counts)
 **The score** of a set of params on some sequences pools their frames (:class:`Counts`):
 
 - detection ratio = correct frames / frames, a frame being correct when every reported lane matches
-  a marking and every painted ego boundary is matched (:mod:`lanegraph.evaluation.metrics`): a false
+  a marking and every painted ego boundary is matched (:func:`lanegraph.api.evaluate`): a false
   lane makes a frame wrong exactly as a missed boundary does;
 - ties are broken by precision first (fewer false lanes per frame), then more ego boundaries
   matched, then a smaller mean |dx|, then the earlier trial (:func:`selection_key`);
@@ -38,12 +38,10 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..batches.runners import Runner
-from ..errors import UsageError
-from ..run.cache import ResultCache, digest
-from .dataset import Dataset, SequenceSpec, read_gt
-from .metrics import evaluate, read_predictions
-from .tune_runs import (
+from lanegraph.api import digest, evaluate, read_gt, read_predictions
+from lanegraph.errors import UsageError
+
+from .runs import (
     INDEPENDENT_SAMPLERS,
     RunRequest,
     make_pruner,
@@ -52,7 +50,7 @@ from .tune_runs import (
     run_variants,
     trial_states,
 )
-from .tune_space import Space, sets_of
+from .space import Space, sets_of
 
 
 # --------------------------------------------------------------------------- scores
@@ -110,7 +108,7 @@ class Counts:
 
 
 def counts_of(pred: list[dict[str, Any]], gt: list[dict[str, Any]]) -> Counts:
-    """The counts of one run's lanes against its ground truth (:func:`metrics.evaluate`)."""
+    """The counts of one run's lanes against its ground truth (:func:`lanegraph.api.evaluate`)."""
     ev = evaluate(pred, gt)
     c = Counts()
     for r in ev["per_frame"]:
@@ -215,7 +213,7 @@ class TuneResult:
     trials: list[TrialResult]
     folds: list[Fold]
     final: TrialResult | None
-    sequences: list[SequenceSpec]
+    sequences: list[Any]  # the dataset's sequences (lanegraph.api.load_dataset)
     groups: dict[str, str]
 
 
@@ -230,18 +228,18 @@ class TuneSetup:
     seed: int = 0
     frames: slice | None = None
     grid_points: int = 5
-    cache: ResultCache | None = None
-    runner: Runner | None = None
+    cache: Any = None  # the result cache shared by the runs (None: none)
+    runner: Any = None  # the runner of --scheduler (None: in this process)
     progress: bool = True
     echo: Callable[[str], None] = print
-    provenance: Any = None  # how the runs are made (lanegraph.records.record.Provenance), in each run.json
+    provenance: Any = None  # how the runs are made (lanegraph.api.Session.provenance), in each run.json
     on_trial: Callable[[TrialResult], None] | None = None
 
 
 class Tuner:
-    """Runs the search of :mod:`lanegraph.evaluation.tune` (see the module's doc)."""
+    """Runs the search of :mod:`lanegraph_tune.search` (see the module's doc)."""
 
-    def __init__(self, graph_path: Path, graph: Any, space: Space, dataset: Dataset, setup: TuneSetup):
+    def __init__(self, graph_path: Path, graph: Any, space: Space, dataset: Any, setup: TuneSetup):
         self.graph_path = Path(graph_path)
         self.graph = graph
         self.space = space

@@ -1,9 +1,9 @@
 """What ``lanegraph tune`` needs from elsewhere: its runs and its Optuna study.
 
 - :func:`run_variants` is the **one** place tune runs graphs: a list of (graph variant, sequence)
-  requests made into the batch machinery's units of work (:mod:`lanegraph.batches.batch`) and run by a
-  runner (in this process or on Dask, :mod:`lanegraph.batches.runners`), the result cache shared; it
-  returns each run's folder, lanes file or error. A run whose resolved graph, input and frames are
+  requests made into a batch of the run service (:meth:`lanegraph.api.Session.run_tasks`) and run by
+  a runner (in this process or on Dask, ``--scheduler``), the result cache shared; it returns each
+  run's folder, lanes file or error. A run whose resolved graph, input and frames are
   unchanged since an earlier tune into the same folder is reused, as ``ablate`` does.
 - :func:`open_study` / :func:`make_sampler`: Optuna's study on a journal file in the output folder
   (``study.journal``), so an interrupted tune resumes. Optuna is an extra (``pip install
@@ -18,17 +18,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..batches.batch import Planned, Planner, run_planned
-from ..batches.runners import InProcessRunner, Runner
-from ..errors import GraphError, UsageError
-from ..graph.files import ResolvedGraph
-from ..paths import inside, safe_name
-from ..plugins import get_plugin_manager
-from ..records.record import Provenance
-from ..records.results import LANES, find_result
-from ..run.cache import ResultCache
-from ..run.task import describe_error
-from .dataset import SequenceSpec
+from lanegraph.api import LANES, BatchRun, Session, describe_error, find_result
+from lanegraph.errors import GraphError, UsageError
+from lanegraph.paths import inside, safe_name
 
 #: the samplers whose proposals do not depend on the scores: one shared set of trials serves every fold
 INDEPENDENT_SAMPLERS = ("random", "grid", "qmc")
@@ -44,7 +36,7 @@ class RunRequest:
     variant: str
     graph: Path
     sets: list[str]
-    sequence: SequenceSpec
+    sequence: Any  # a sequence of the dataset (lanegraph.api.load_dataset)
     frames: slice | None = None
 
 
@@ -64,48 +56,41 @@ def run_variants(
     requests: Sequence[RunRequest],
     out_dir: Path,
     *,
-    cache: ResultCache | None,
-    runner: Runner | None,
+    cache: Any,
+    runner: Any,
     progress: bool,
     echo: Callable[[str], None] | None,
-    provenance: Provenance | None = None,
+    provenance: Any = None,
 ) -> dict[tuple[str, str], RunDone]:
-    """Run every request (its folder ``OUT/runs/<variant>/<sequence>/``) through the batch
-    machinery; ``{(variant, sequence): RunDone}``. A variant whose params the graph refuses is a
-    failed run (its error said), not a stopped tune. Ctrl-C ends the finished runs' folders whole
-    and is raised again."""
-    pm = get_plugin_manager()
-    # a run whose folder holds its result for the same graph, input, frames and code is not run again
-    planner = Planner(pm, None, 0, cache, reuse=cache is not None)
-    plans: list[tuple[RunRequest, Planned | None]] = []
+    """Run every request (its folder ``OUT/runs/<variant>/<sequence>/``) as one batch of the run
+    service (``runner``: that of ``--scheduler``, None: in this process sharing ``cache``;
+    ``provenance``: how the runs are made, in each run.json); ``{(variant, sequence): RunDone}``. A
+    variant whose params the graph refuses is a failed run (its error said), not a stopped tune.
+    Ctrl-C ends the finished runs' folders whole and is raised again."""
+    service = Session(err=echo, progress=progress)
+    runs: list[tuple[RunRequest, BatchRun]] = []
     done: dict[tuple[str, str], RunDone] = {}
     for req in requests:
         run_dir = inside(out_dir, f"runs/{req.variant}/{safe_name(req.sequence.name)}", "tune --out")
         try:
-            graph = ResolvedGraph.load(req.graph, req.sets)
-            graph.validate(pm)
+            graph = service.open_graph(req.graph, req.sets)
+            graph.validate(service.pm)
         except GraphError as exc:
             done[(req.variant, req.sequence.name)] = RunDone(run_dir, error=str(exc))
-            plans.append((req, None))
             continue
-        plan = planner.add(
-            req.variant,
-            req.sequence.name,
-            graph,
-            req.sequence.input,
-            req.frames,
-            run_dir,
-            provenance=provenance,
+        runs.append(
+            (
+                req,
+                BatchRun(
+                    req.variant, req.sequence.name, graph, req.sequence.input, req.frames, run_dir, provenance
+                ),
+            )
         )
-        plans.append((req, plan))
-    every = [p for _, p in plans if p is not None]
-    runner = runner if runner is not None else InProcessRunner(cache)
-    batch = run_planned(every, planner.tasks, runner, progress=progress, echo=echo)
+    # a run whose folder holds its result for the same graph, input, frames and code is not run again
+    batch = service.run_tasks([r for _, r in runs], runner, cache=cache, reuse=cache is not None)
     if batch.interrupted is not None:
         raise batch.interrupted
-    for req, plan in plans:
-        if plan is None:
-            continue
+    for (req, _), plan in zip(runs, batch.plans):
         record = plan.record
         error = None
         if plan.outcome is not None and plan.outcome.error is not None:

@@ -8,9 +8,10 @@ import html
 from pathlib import Path
 from typing import Any
 
-from ..evaluation.dataset import POOLED
-from ..evaluation.tune import TuneResult, pooled
-from ..paths import write_text_atomic
+from lanegraph.api import POOLED
+from lanegraph.paths import write_text_atomic
+
+from .search import TuneResult, pooled
 
 _STYLE = """
 body{font-family:system-ui,sans-serif;margin:2em;max-width:70em;color:#222}

@@ -1,6 +1,7 @@
-"""The tune path of the run service (``lanegraph tune``): the graph and space checked, the output
-folder checked and claimed as ``ablate`` does (:mod:`lanegraph.records.folder`), the search
-(:mod:`lanegraph.evaluation.tune`), its tables, tuned graph and report written, the trials tracked."""
+"""``lanegraph tune`` on the run service (:class:`lanegraph.api.Session`): the graph and space
+checked, the output folder checked and claimed as ``ablate`` does (:func:`lanegraph.api.check_folder`,
+:func:`lanegraph.api.command_kept`), the search (:mod:`lanegraph_tune.search`), its tables, tuned
+graph and report written, the trials tracked."""
 
 from __future__ import annotations
 
@@ -14,26 +15,30 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .. import interrupts
-from ..batches.runners import InProcessRunner
-from ..errors import GraphError, InputError, LanegraphError, NotStarted, RunStopped, UsageError
-from ..evaluation.tune import Counts, TrialResult, Tuner, TuneSetup, pooled
-from ..evaluation.tune_output import TUNE_FILES, tuned_description, tuned_graph, write_tables
-from ..evaluation.tune_runs import JOURNAL, PRUNERS, SAMPLERS, make_sampler
-from ..evaluation.tune_space import load_space
-from ..graph.files import resolve_graph_path
-from ..paths import write_text_atomic
-from ..presentation.tune_report import write_tune_report
-from ..records.folder import check as check_folder
-from ..records.provenance import write_resolved_graph
-from ..records.record import TuneEntry
-from ..runlog import get_logger
-from ..tracking import CommandRecord, TrackedRun, existing
-from .keeping import command_kept, dataset_identity, result_cache
+from lanegraph import interrupts
+from lanegraph.api import (
+    TuneEntry,
+    check_folder,
+    command_kept,
+    dataset_identity,
+    result_cache,
+    write_resolved_graph,
+)
+from lanegraph.builtin import find_graph
+from lanegraph.errors import GraphError, InputError, LanegraphError, NotStarted, RunStopped, UsageError
+from lanegraph.paths import write_text_atomic
+from lanegraph.runlog import get_logger
+from lanegraph.tracking import CommandRecord, TrackedRun, existing
+
+from .output import TUNE_FILES, tuned_description, tuned_graph, write_tables
+from .report import write_tune_report
+from .runs import JOURNAL, PRUNERS, SAMPLERS, make_sampler
+from .search import Counts, TrialResult, Tuner, TuneSetup, pooled
+from .space import load_space
 
 #: what a tune writes into OUT (what --overwrite may remove, with runs/ and the report)
 WRITTEN = [*TUNE_FILES, JOURNAL, f"{JOURNAL}.lock", "runs", "report", "command.json", "run.log"]
-#: the names a tune writes, by kind (lanegraph.records.owned.taken): a name held by the user is refused
+#: the names a tune writes, by kind (as lanegraph.api.check_folder takes them): a name held by the user is refused
 WRITES = {
     **dict.fromkeys([*TUNE_FILES, JOURNAL, f"{JOURNAL}.lock", "command.json", "run.log"], "file"),
     "runs": "tree",
@@ -119,7 +124,7 @@ def tune(
     """``lanegraph tune``; 0, or 1 when runs failed or tracking failed. Everything that can be
     checked before a frame runs (graph, space, options, folder, Optuna) is: exit 2."""
     _check_options(o)
-    graph_path = resolve_graph_path(str(graph_name))
+    graph_path = find_graph(str(graph_name))
     g = session.load_graph(graph_path)
     space = load_space(space_file, g)
     make_sampler(o.sampler, o.seed)  # Optuna missing: said before anything is written
@@ -149,7 +154,7 @@ def tune(
         tune_kept(session, out_dir, identity, graph_path, space_file, o),
     ):
         cache = result_cache(o.cache_dir, o.cache_max_gb, o.no_cache)
-        if isinstance(runner, InProcessRunner):
+        if runner.name == "inprocess":  # the runs in this process share the cache (workers open their own)
             runner.cache = cache
         setup.cache = cache
         try:
@@ -271,7 +276,7 @@ def tune_kept(
     session: Any, out_dir: Path, identity: dict[str, Any], graph_path: Path, space_file: Path, o: TuneOptions
 ) -> Any:
     """What a tune keeps beside its results, as an ablation does
-    (:func:`lanegraph.service.keeping.command_kept`): ``command.json`` with the search."""
+    (:func:`lanegraph.api.command_kept`): ``command.json`` with the search."""
     made = session.provenance(graph_path)
     search = TuneEntry(
         graph=str(graph_path), space=str(space_file),

@@ -14,10 +14,11 @@ from typing import Any
 
 import yaml
 
-from ..graph.files import REPO_GRAPHS
-from ..paths import write_text_atomic
-from .dataset import POOLED
-from .tune import Counts, TuneResult, pooled
+from lanegraph.api import POOLED
+from lanegraph.builtin import graphs_dir
+from lanegraph.paths import write_text_atomic
+
+from .search import Counts, TuneResult, pooled
 
 #: the files tune writes into its folder, besides runs/, the report, command.json and run.log
 TUNE_FILES = ("folds.json", "trials.csv", "results.csv", "results.md", "tuned.yaml", "graph.yaml")
@@ -193,7 +194,7 @@ def extends_path(graph_file: Path, out_dir: Path) -> str:
     the command checks that it loads, else it extends ``graph.yaml``, the input graph resolved)."""
     graph_file = Path(graph_file).resolve()
     try:
-        return graph_file.relative_to(REPO_GRAPHS.resolve()).as_posix()
+        return graph_file.relative_to(graphs_dir().resolve()).as_posix()
     except ValueError:
         return Path(os.path.relpath(graph_file, Path(out_dir).resolve())).as_posix()
 

@@ -1,4 +1,5 @@
-"""``lanegraph tune``: cross-validated parameter search over a dataset's sequences."""
+"""``lanegraph tune``: cross-validated parameter search over a dataset's sequences (the entry point
+``tune = "lanegraph_tune.cli:tune"`` of the ``lanegraph.commands`` group)."""
 
 from __future__ import annotations
 
@@ -6,9 +7,8 @@ from pathlib import Path
 
 import click
 
-from ..kernels import compile_share, first_run_notice
-from ._common import FOLDER, PATH, dataset_cache_options, keeping_options, parse_frames, session
-from ._errors import handled
+from lanegraph.api import FOLDER, PATH, dataset_cache_options, handled, keeping_options, parse_frames, session
+from lanegraph.kernels import compile_share, first_run_notice
 
 
 @click.command()
@@ -76,9 +76,10 @@ def tune(
     GRAPH (tuned.yaml, named by --name; its description names the search and its left-out figure)
     and a report (report/index.html). The same command resumes an interrupted search (the study is
     kept in OUT/study.journal)."""
-    from ..evaluation.dataset import load_dataset
-    from ..service.tuning import TuneOptions
-    from ..service.tuning import tune as run_tune
+    from lanegraph.api import load_dataset
+
+    from .command import TuneOptions
+    from .command import tune as run_tune
 
     first_run_notice(bool(quiet))
     s = session(quiet, verbose, overwrite, track)
