@@ -41,6 +41,14 @@ from .run.cache import digest
 from .run.task import describe_error
 from .service.keeping import command_kept, dataset_identity, result_cache
 
+# isort: split
+# lanegraph_report (eval)
+from .evaluation.dataset import evaluate_sequences
+from .evaluation.metrics import select_frames
+from .evaluation.metrics_extra import culane_metrics, lateral_error_cm, tusimple_metrics
+from .evaluation.scoring import pct, run_ground_truth, run_lanes, run_selection, score, some_frames
+from .run.sources import read_calibration
+
 __all__ = [
     "FOLDER",
     "PATH",
@@ -70,4 +78,17 @@ __all__ = [
     "read_predictions",
     "result_cache",
     "write_resolved_graph",
+    # lanegraph_report (eval)
+    "culane_metrics",
+    "evaluate_sequences",
+    "lateral_error_cm",
+    "pct",
+    "read_calibration",
+    "run_ground_truth",
+    "run_lanes",
+    "run_selection",
+    "score",
+    "select_frames",
+    "some_frames",
+    "tusimple_metrics",
 ]

@@ -8,7 +8,8 @@ Commands are an open set too: a distribution adds one through the ``lanegraph.co
 group (``name = "module:click_command"``), loaded only when that command runs or ``--help`` lists
 them, honouring the allowlist of :mod:`lanegraph.plugins` (``LANEGRAPH_PLUGINS``,
 ``LANEGRAPH_DISABLE_PLUGIN_AUTOLOAD``). lanegraph's own add-ons (``tune``, ``report``) come the same
-way, from their plugin packages, and ``data kitti`` from the I/O plugin. A command plugin imports :mod:`lanegraph.api`.
+way, from their plugin packages (``eval`` and ``report`` from ``lanegraph_report``), and ``data kitti``
+from the I/O plugin. A command plugin imports :mod:`lanegraph.api`.
 
 Exit codes: 0 ok, 1 failure while running (or frames that failed), 2 invalid graph or usage, or an
 input that is unusable before any frame runs (no images, no calibration, an empty frame selection).
@@ -24,7 +25,6 @@ from .._version import __version__
 from ..graph.files import allowed_roots, resolve_graph_path
 from .ablate import ablate
 from .cache import cache_cmd
-from .evaluate import eval_cmd
 from .nodes import builtin_node_types, nodes, nodes_markdown, schema, show, validate
 from .run import run
 from .start import graphs_cmd
@@ -131,7 +131,6 @@ for _command in (
     schema,
     show,
     ablate,
-    eval_cmd,
     graphs_cmd,
     cache_cmd,
 ):

@@ -96,7 +96,7 @@ def run(
     compile_share()  # the first run on a machine: its part of the kernels, beside the helper's
     status = s.run(graph_, input_path=input_path, out_dir=out_dir, make_report=make_report, **options)
     if not quiet:  # the result a person reads: the score against the ground truth, a picture to look at
-        from .evaluate import score_line
+        from ..evaluation.scoring import score_line
 
         line = score_line(out_dir)
         if line:
