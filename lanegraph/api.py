@@ -28,6 +28,12 @@ from .evaluation.metrics import read_ground_truth  # lanegraph_io (data kitti)
 from .records import owned  # lanegraph_io (data kitti)
 from .service import Session
 
+# isort: split
+# lanegraph_dask: a runner's life cycle, the tasks it runs (``task.execute()``) and their outcomes
+from .batches.batch import Progress
+from .batches.runners import BaseRunner
+from .run.task import RunTask, TaskOutcome
+
 __all__ = [
     "FOLDER",
     "PATH",
@@ -40,4 +46,9 @@ __all__ = [
     "read_ground_truth",
     "scale_out_options",
     "session",
+    # lanegraph_dask
+    "BaseRunner",
+    "Progress",
+    "RunTask",
+    "TaskOutcome",
 ]
