@@ -49,6 +49,12 @@ from .evaluation.metrics_extra import culane_metrics, lateral_error_cm, tusimple
 from .evaluation.scoring import pct, run_ground_truth, run_lanes, run_selection, score, some_frames
 from .run.sources import read_calibration
 
+# isort: split
+# lanegraph_dask: a runner's life cycle, the tasks it runs (``task.execute()``) and their outcomes
+from .batches.batch import Progress
+from .batches.runners import BaseRunner
+from .run.task import RunTask, TaskOutcome
+
 __all__ = [
     "FOLDER",
     "PATH",
@@ -91,4 +97,9 @@ __all__ = [
     "select_frames",
     "some_frames",
     "tusimple_metrics",
+    # lanegraph_dask
+    "BaseRunner",
+    "Progress",
+    "RunTask",
+    "TaskOutcome",
 ]

@@ -32,8 +32,10 @@ def lanegraph_port_types() -> list[Any]:
 def lanegraph_runners() -> list[Any]:
     """Return the runner types this plugin adds (:mod:`lanegraph.batches.runners`): classes with a
     ``name`` and a class method ``from_spec(text)`` that returns a runner -- an object with
-    ``run(tasks, progress, echo, done)`` -- for a ``--scheduler`` text it understands, or None.
-    ``run --dataset`` and ``ablate`` run their units of work on it."""
+    ``run(tasks, progress, echo, done)``, such as a :class:`lanegraph.api.BaseRunner` -- for a
+    ``--scheduler`` text it understands, or None; one with ``fallback = True`` is asked last (the
+    Dask runner, which takes any address). ``run --dataset`` and ``ablate`` run their units of work
+    on it."""
 
 
 @hookspec

@@ -185,11 +185,12 @@ def test_a_scheduler_that_cannot_work_is_refused_at_once(monkeypatch):
     """Issue 31, item 7: ``local:1000`` on a 2-core machine was still starting workers after 120 s;
     ``ftp://x`` waited 30 s before it was refused."""
     pytest.importorskip("distributed", reason='Dask is not installed: pip install -e ".[distributed]"')
-    from lanegraph.batches import distributed
-    from lanegraph.batches.batch import parse_scheduler
+    from lanegraph_dask import cluster
+    from lanegraph_dask.runner import parse_scheduler
+
     from lanegraph.errors import UsageError
 
-    monkeypatch.setattr(distributed, "_cores", lambda: 2)
+    monkeypatch.setattr(cluster, "_cores", lambda: 2)
     for text, words in [
         (
             "local:1000",
@@ -200,11 +201,11 @@ def test_a_scheduler_that_cannot_work_is_refused_at_once(monkeypatch):
         ("FILE:///tmp/s.json", "unknown scheme 'file'"),
     ]:
         with pytest.raises(UsageError, match=words.replace("(", r"\(").replace(")", r"\)")):
-            distributed.check_spec(parse_scheduler(text))
+            cluster.check_spec(parse_scheduler(text))
         with pytest.raises(UsageError, match=words.replace("(", r"\(").replace(")", r"\)")):
-            distributed.connect(parse_scheduler(text), lambda s: None)  # where a cluster starts
+            cluster.connect(parse_scheduler(text), lambda s: None)  # where a cluster starts
     for text in ("local", "local:2", "tcp://127.0.0.1:8786", "127.0.0.1:8786", "tls://h:1", "sched.json"):
-        distributed.check_spec(parse_scheduler(text))
+        cluster.check_spec(parse_scheduler(text))
 
 
 @pytest.mark.parametrize(

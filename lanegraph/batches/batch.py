@@ -1,6 +1,7 @@
 """Batches: runs planned as tasks (:mod:`lanegraph.run.task`), run one after another in this process or
-in parallel on a Dask cluster (:mod:`lanegraph.batches.distributed`), with the same outputs byte for
-byte, and finished (chunks merged, folders of runs that could not start written, leftovers removed).
+in parallel by another runner (:mod:`lanegraph.batches.runners`: on a Dask cluster, say), with the
+same outputs byte for byte, and finished (chunks merged, folders of runs that could not start
+written, leftovers removed).
 
 A unit of work (:class:`~lanegraph.run.task.RunTask`) is one graph on one sequence: the executor sees every frame of the
 sequence in order, so feedback edges (``@prev``) and stateful nodes behave as in ``lanegraph run``.
@@ -44,47 +45,6 @@ from ..run.task import (
     tmp_dir,
 )
 from ..runlog import progress_bar
-
-_SCHEDULER = re.compile(r"^local(?::(?P<n>[^:]*))?$")
-
-
-@dataclass(frozen=True)
-class SchedulerSpec:
-    """Where a batch runs: ``None`` in this process, ``local`` (``workers`` processes on this
-    machine, ``None``: one per core) or ``address`` (an existing Dask scheduler)."""
-
-    text: str
-    workers: int | None = None
-    address: str | None = None
-
-    @property
-    def local(self) -> bool:
-        return self.address is None
-
-
-def parse_scheduler(text: str | None) -> SchedulerSpec | None:
-    """``--scheduler``: absent -> ``None`` (in this process); ``local`` or ``local:N``; anything else
-    is a scheduler address for ``distributed.Client`` (``tcp://HOST:PORT``, ``tls://...``, a
-    scheduler file ``*.json``). Raises :class:`~lanegraph.errors.UsageError` saying what was
-    expected."""
-    if text is None:
-        return None
-    text = text.strip()
-    if not text:
-        raise UsageError(
-            "--scheduler: expected local, local:N or a scheduler address such as tcp://HOST:8786, got ''"
-        )
-    m = _SCHEDULER.match(text)
-    if m:
-        n = m.group("n")
-        if n is None:
-            return SchedulerSpec(text)
-        if not n.isdigit() or int(n) < 1:
-            raise UsageError(
-                f"--scheduler {text}: expected local:N with N a number of worker processes >= 1, got {n!r}"
-            )
-        return SchedulerSpec(text, workers=int(n))
-    return SchedulerSpec(text, address=text)
 
 
 # --------------------------------------------------------------------------- planning

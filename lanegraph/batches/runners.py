@@ -1,21 +1,22 @@
 """Runners: where the tasks of a run or a batch (:class:`~lanegraph.run.task.RunTask`) are executed.
 
-A runner only schedules tasks: it runs each with :func:`lanegraph.run.task.execute_task`, wherever
-that is, so the outputs are the same byte for byte on every runner. Its single entry point is
-``run(tasks, progress=..., echo=..., done=...)`` (Kedro's ``AbstractRunner.run``), returning the
-:class:`~lanegraph.run.task.TaskOutcome` of every task (:class:`Runner`); :class:`BaseRunner`
-gives it the life cycle of Hamilton's ``TaskExecutor``: ``init`` (start or reach what runs the
-tasks), ``execute`` (the tasks), ``finalize`` (let it go, however the run ended). Every run goes
-through a runner: ``lanegraph run`` on one input too. Runners are an open set: a plugin adds one through the ``lanegraph_runners`` hook, returning
-runner *types* -- classes with a ``name`` and a ``from_spec(text)`` class method that returns a
-runner for a ``--scheduler`` text it understands (``None`` otherwise). lanegraph's own two are
-registered through the same hook by :data:`BUILTIN_RUNNERS`:
+A runner only schedules tasks: it runs each with ``task.execute()``
+(:func:`lanegraph.run.task.execute_task`), wherever that is, so the outputs are the same byte for
+byte on every runner. Its single entry point is ``run(tasks, progress=..., echo=..., done=...)``
+(Kedro's ``AbstractRunner.run``), returning the :class:`~lanegraph.run.task.TaskOutcome` of every
+task (:class:`Runner`); :class:`BaseRunner` gives it the life cycle of Hamilton's
+``TaskExecutor``: ``init`` (start or reach what runs the tasks), ``execute`` (the tasks),
+``finalize`` (let it go, however the run ended). Every run goes through a runner: ``lanegraph
+run`` on one input too.
 
-``InProcessRunner`` (``inprocess``; no ``--scheduler``)
-    the tasks one after another in this process.
-``DaskRunner`` (``local``, ``local:N``, a scheduler address)
-    the tasks on a Dask cluster (:mod:`lanegraph.batches.distributed`, the only module that imports
-    Dask). It takes every text no other runner claims (an address has no fixed form).
+Runners are an open set: a plugin adds one through the ``lanegraph_runners`` hook, returning
+runner *types* -- classes with a ``name`` and a ``from_spec(text)`` class method that returns a
+runner for a ``--scheduler`` text it understands (``None`` otherwise); a type with ``fallback =
+True`` is asked last (it takes the texts no other runner claims). lanegraph's own,
+:class:`InProcessRunner` (``inprocess``; no ``--scheduler``: the tasks one after another in this
+process), is registered through the same hook by :data:`BUILTIN_RUNNERS`; the Dask runner
+(``local``, ``local:N``, a scheduler address) is a plugin of the ``lanegraph.plugins`` entry-point
+group, registered like a third party's.
 """
 
 from __future__ import annotations
@@ -27,8 +28,8 @@ from typing import Any, Protocol, runtime_checkable
 from ..errors import UsageError
 from ..hookspecs import hookimpl
 from ..plugins import call_hook
-from ..run.task import RunTask, TaskOutcome, execute_task
-from .batch import Progress, SchedulerSpec, parse_scheduler
+from ..run.task import RunTask, TaskOutcome
+from .batch import Progress
 
 
 @runtime_checkable
@@ -97,61 +98,26 @@ class InProcessRunner(BaseRunner):
     def execute(self, tasks, bar, outcomes):  # noqa: D102 - BaseRunner.execute
         for task in tasks:
             bar.bar.set_description_str(task.label, refresh=False)
-            out = execute_task(task, cache=self.cache, progress=lambda n, i=task.index: bar.update(i, "", n))
+            out = task.execute(cache=self.cache, progress=lambda n, i=task.index: bar.update(i, "", n))
             bar.finish(task.index, out.result.frames)
             outcomes[task.index] = out
 
 
-class DaskRunner(BaseRunner):
-    """The tasks on a Dask cluster: ``local``, ``local:N`` or an existing scheduler's address."""
-
-    name = "dask"
-    fallback = True  # takes the texts no other runner claims
-
-    def __init__(self, spec: SchedulerSpec):
-        self.spec = spec
-        self._cluster: Any = None
-
-    @classmethod
-    def from_spec(cls, text: str) -> DaskRunner | None:
-        spec = parse_scheduler(text)
-        if spec is None:
-            return None
-        from .distributed import check_spec
-
-        check_spec(spec)  # local:N beyond the CPUs, an unknown scheme: refused before anything runs
-        return cls(spec)
-
-    def init(self, echo):  # noqa: D102 - BaseRunner.init
-        from .distributed import connect
-
-        self._cluster = connect(self.spec, echo)
-
-    def execute(self, tasks, bar, outcomes):  # noqa: D102 - BaseRunner.execute
-        from .distributed import submit_all
-
-        submit_all(self._cluster.client, tasks, bar, outcomes)
-
-    def finalize(self):  # noqa: D102 - BaseRunner.finalize
-        if self._cluster is not None:
-            self._cluster.close()
-            self._cluster = None
-
-
 class _BuiltinRunners:
-    """lanegraph's own runners, registered through the public hook like a third party's."""
+    """lanegraph's own runner, registered through the public hook like a third party's."""
 
     @hookimpl
     def lanegraph_runners(self) -> list[type]:
-        return [InProcessRunner, DaskRunner]
+        return [InProcessRunner]
 
 
 BUILTIN_RUNNERS = _BuiltinRunners()
 
 
 def runner_types(pm: Any) -> list[type]:
-    """Every registered runner type; the fallback ones (Dask) last. lanegraph's own are registered
-    on ``pm`` on first use (a plugin manager made by hand has them too)."""
+    """Every registered runner type; the fallback ones (Dask's) last. lanegraph's own (in process) is
+    registered on ``pm`` on first use (a plugin manager made by hand has it too; the others come with
+    the plugins it loads)."""
     if not pm.is_registered(BUILTIN_RUNNERS):
         pm.register(BUILTIN_RUNNERS, name="lanegraph.runners")
     found: list[type] = []

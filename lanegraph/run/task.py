@@ -4,7 +4,7 @@
 
 A task is one graph on one input: ``lanegraph run`` on one input (written in place into OUT,
 checkpointed), a sequence of ``run --dataset``, a variant on a sequence of ``ablate``, or a chunk
-of any of them. Runners (:mod:`lanegraph.batches.runners`) only decide where it runs. What a run keeps
+of any of them. Runners (:mod:`lanegraph.batches.runners`) only decide where it runs (``task.execute()``). What a run keeps
 beside its frames subscribes to its events (:class:`Subscriber`, as Hamilton's lifecycle adapters):
 the checkpoint, the debug pictures, ``run.log``; its record is kept when it ends (:func:`keep_record`).
 
@@ -92,6 +92,20 @@ class RunTask:
     def label(self) -> str:
         where = f"{self.variant} / {self.sequence}" if self.variant is not None else self.sequence
         return where if self.chunk is None else f"{where} (chunk {self.chunk})"
+
+    def execute(
+        self, cache: ResultCache | None = None, progress: Callable[[int], None] | None = None
+    ) -> TaskOutcome:
+        """Run this task here: :func:`execute_task`, what a runner calls in this process or in a worker."""
+        return execute_task(self, cache=cache, progress=progress)
+
+    def failed(self, message: str) -> TaskOutcome:
+        """The outcome of this task when its runner could not run it (its workers kept dying, it could
+        not be sent): ``message`` says why; exit code 1, not the input's fault."""
+        return TaskOutcome(self.index, error={
+            "variant": self.variant, "sequence": self.sequence, "frame": None, "node": None,
+            "message": message, "input": False, "before_any_frame": False, "stage": "run", "exit_code": 1,
+        })  # fmt: skip
 
 
 @dataclass

@@ -291,12 +291,12 @@ def test_a_local_cluster_equals_the_in_process_run(tmp_path, reference, syntheti
 def test_an_unreachable_scheduler_is_a_usage_error(tmp_path, synthetic_dataset, monkeypatch):
     import socket
 
-    from lanegraph.batches import distributed as lg_distributed
+    from lanegraph_dask import cluster
 
     with socket.socket() as s:  # a port nobody listens on
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    monkeypatch.setattr(lg_distributed, "CONNECT_TIMEOUT_S", 2.0)
+    monkeypatch.setattr(cluster, "CONNECT_TIMEOUT_S", 2.0)
     out = tmp_path / "out"
     r = CliRunner().invoke(
         main,
@@ -320,13 +320,12 @@ def test_an_unreachable_scheduler_is_a_usage_error(tmp_path, synthetic_dataset, 
 
 
 def test_workers_on_one_host_share_its_cores(dask_cluster):
-    from lanegraph.batches import distributed as d
-    from lanegraph.batches.batch import parse_scheduler
+    from lanegraph_dask import cluster as d
+    from lanegraph_dask.runner import parse_scheduler
 
     def _thread_share():  # a local function: sent by value (the workers cannot import tests/)
         import cv2
-
-        from lanegraph.batches import distributed as d
+        from lanegraph_dask import cluster as d
 
         d._limit_threads()
         return d._THREADS, cv2.getNumThreads()
@@ -340,7 +339,7 @@ def test_workers_on_one_host_share_its_cores(dask_cluster):
 
 
 def test_thread_shares_divide_a_hosts_cores_among_the_tasks_that_share_them():
-    from lanegraph.batches.distributed import thread_shares
+    from lanegraph_dask.cluster import thread_shares
 
     w = lambda host, port, n=1: (f"tcp://{host}:{port}", {"nthreads": n})  # noqa: E731
     # two workers of one task each on a 2-core host, as the tests' cluster: one thread each

@@ -99,7 +99,30 @@ def test_the_walk_sees_imports_inside_functions():
     graph = import_graph()
     # the run service imports the debug recorder only when a run records pictures
     assert "lanegraph.presentation.debug" in graph["lanegraph.service.session"]
-    assert "lanegraph.batches.distributed" in graph["lanegraph.batches.runners"]
+
+
+def foreign_imports(path: Path) -> set[str]:
+    """The top-level packages other than lanegraph that a file imports, anywhere in it."""
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            out.update(a.name.split(".")[0] for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+            out.add(node.module.split(".")[0])
+    return out - {"lanegraph"}
+
+
+def test_the_engine_imports_no_add_on():
+    """Dask is a plugin's (``lanegraph_dask``, the ``distributed`` extra): no module of lanegraph/
+    imports Dask or a built-in plugin, anywhere in it (a function's import counts)."""
+    assert "dask" in foreign_imports(PLUGINS / "lanegraph_dask" / "cluster.py")  # the check sees it
+    found = {
+        (name, pkg)
+        for name, path in _modules().items()
+        for pkg in foreign_imports(path)
+        if pkg in ("dask", "distributed") or pkg.startswith("lanegraph_")
+    }
+    assert found == set()
 
 
 def test_lanegraph_has_no_import_circle():

@@ -8,13 +8,14 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
+from lanegraph_dask.runner import DaskRunner
 
 from lanegraph import hookimpl
-from lanegraph.batches.runners import DaskRunner, InProcessRunner, Runner, runner_types, select_runner
+from lanegraph.batches.runners import InProcessRunner, Runner, runner_types, select_runner
 from lanegraph.cli import main
 from lanegraph.errors import UsageError
 from lanegraph.plugins import PluginManager, get_plugin_manager
-from lanegraph.run.task import execute_task
+from lanegraph.run.task import RunTask, describe_error, execute_task
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = str(ROOT / "graphs" / "paper.yaml")
@@ -72,8 +73,26 @@ def test_runner_selection(third_party):
         select_runner("local:0", third_party)
 
 
+def test_a_task_its_runner_could_not_run_fails_with_the_runners_reason():
+    task = RunTask(3, "slt", "curve", None, None, None, "out/runs/slt/curve")
+    out = task.failed("the task failed on the cluster: KilledWorker: gone")
+    assert out.index == 3 and out.result.frames == 0 and out.record is None
+    assert out.error == {
+        "variant": "slt", "sequence": "curve", "frame": None, "node": None,
+        "message": "the task failed on the cluster: KilledWorker: gone", "input": False,
+        "before_any_frame": False, "stage": "run", "exit_code": 1,
+    }  # fmt: skip
+    assert describe_error(out.error) == "slt / curve: the task failed on the cluster: KilledWorker: gone"
+
+
 def test_a_fresh_plugin_manager_has_the_builtin_runners():
+    # lanegraph's own runner is there without any plugin; Dask's comes with its plugin's entry point
+    assert {rt.name for rt in runner_types(PluginManager())} == {"inprocess"}
+    with pytest.raises(UsageError, match=r"--scheduler local:2: no runner takes it \(runners: inprocess\)"):
+        select_runner("local:2", PluginManager())
     pm = PluginManager()
+    pm.load_entrypoints()
+    assert pm.get_plugin("lanegraph_dask") is not None, pm.plugin_errors
     assert {rt.name for rt in runner_types(pm)} == {"inprocess", "dask"}
 
 

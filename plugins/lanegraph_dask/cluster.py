@@ -1,8 +1,8 @@
 """Batch runs on a Dask cluster (``pip install "lanegraph[distributed]"``): ``--scheduler local``,
 ``local:N`` or the address of an existing ``dask scheduler``.
 
-The tasks of :mod:`lanegraph.run.task` are submitted as they are, one Dask task each, and run by
-:func:`lanegraph.run.task.execute_task` in the workers: outputs equal the in-process run's byte for
+The tasks (:class:`lanegraph.api.RunTask`) are submitted as they are, one Dask task each, and run
+by ``task.execute()`` in the workers: outputs equal the in-process run's byte for
 byte. Dask runs a task again on another worker when its worker dies (up to
 ``distributed.scheduler.allowed-failures`` times); a task's folder is put in place only when the
 task ends, so a re-run never duplicates frames. A task that fails because of its input returns its
@@ -18,7 +18,7 @@ the cores. A local cluster also sets ``NUMBA_NUM_THREADS``, ``OMP_NUM_THREADS``,
 Progress: the tasks report frames done as Dask events (topic ``lanegraph-progress-<job>``), at most
 twice a second each, to one progress bar in the client.
 
-Only :class:`lanegraph.batches.runners.DaskRunner` imports this module, and only with a scheduler: a
+Only :class:`lanegraph_dask.runner.DaskRunner` imports this module, and only with a scheduler: a
 run without one never imports Dask.
 """
 
@@ -29,12 +29,16 @@ import os
 import time
 import uuid
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from ..errors import UsageError
-from ..plugins import get_plugin_manager
-from ..run.task import RunTask, TaskOutcome, execute_task
-from .batch import Progress, SchedulerSpec
+import lanegraph
+from lanegraph.errors import UsageError
+from lanegraph.plugins import get_plugin_manager
+
+if TYPE_CHECKING:  # a worker imports this module: only what it runs
+    from lanegraph.api import Progress, RunTask, TaskOutcome
+
+    from .runner import SchedulerSpec
 
 try:
     from distributed import WorkerPlugin as _WorkerPlugin
@@ -99,15 +103,13 @@ def _run_on_worker(task: RunTask, topic: str) -> TaskOutcome:
             last = now
             worker.log_event(topic, [task.index, attempt, done])
 
-    out = execute_task(task, progress=progress)
+    out = task.execute(progress=progress)
     out.worker = worker.address
     return out
 
 
 def _probe() -> dict[str, Any]:
     """What a worker has: lanegraph's version, its plugins, its cores."""
-    import lanegraph
-
     pm = get_plugin_manager()
     try:
         cpus = sorted(os.sched_getaffinity(0))
@@ -328,7 +330,7 @@ class _Cluster:
 
 def connect(spec: SchedulerSpec, echo: Callable[[str], None]) -> _Cluster:
     """A client on the cluster of ``spec`` (a local one started, or a scheduler reached), its
-    workers checked; ``close()`` it when done (:class:`lanegraph.batches.runners.DaskRunner`)."""
+    workers checked; ``close()`` it when done (:class:`lanegraph_dask.runner.DaskRunner`)."""
     return _Cluster(spec, echo)
 
 
@@ -354,11 +356,7 @@ def submit_all(client: Any, tasks: list[RunTask], bar: Progress, outcomes: dict[
             try:
                 out = fut.result()
             except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker: reported, the others go on
-                out = TaskOutcome(task.index, error={
-                    "variant": task.variant, "sequence": task.sequence, "frame": None, "node": None,
-                    "message": f"the task failed on the cluster: {type(exc).__name__}: {exc}", "input": False,
-                    "before_any_frame": False, "stage": "run", "exit_code": 1,
-                })  # fmt: skip
+                out = task.failed(f"the task failed on the cluster: {type(exc).__name__}: {exc}")
             outcomes[task.index] = out
             bar.finish(task.index, out.result.frames)
     finally:
