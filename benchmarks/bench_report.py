@@ -4,7 +4,7 @@
 
 Without RUN_DIR, first runs ``graphs/paper.yaml`` on KITTI raw drive 0001 (54 frames, from
 ``../shared/data``) with node pictures of frames 0 and 20 (``--debug-dir``) into a temporary
-folder, then times ``lanegraph.presentation.report.write_report`` of it with the drive's ground truth (the
+folder, then times ``lanegraph_report.write_report`` of it with the drive's ground truth (the
 median of ``--repeat`` reports) and prints the report's size and the size per frame, projected to
 a 1,000-frame run. Target: <= 10 s for the 54-frame drive; a 1,000-frame report under 100 MB.
 """
@@ -35,7 +35,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3, help="reports to write; the median time is printed")
     args = ap.parse_args()
 
-    from lanegraph.presentation.report import write_report
+    from lanegraph_report import write_report
 
     tmp = None
     run_dir = args.run_dir

@@ -55,6 +55,16 @@ from .batches.batch import Progress
 from .batches.runners import BaseRunner
 from .run.task import RunTask, TaskOutcome
 
+# isort: split
+# lanegraph_report (the report; with POOLED, LANES, evaluate, evaluate_sequences, find_result, read_gt,
+# select_frames above)
+from .evaluation.dataset import single_sequence
+from .evaluation.metrics import read_jsonl
+from .evaluation.plots import nearest_on_box, place_labels, text_width
+from .records.record import read_record
+from .records.results import describe
+from .run.sources import detect_source, open_source, select_source
+
 __all__ = [
     "FOLDER",
     "PATH",
@@ -102,4 +112,15 @@ __all__ = [
     "Progress",
     "RunTask",
     "TaskOutcome",
+    # lanegraph_report (the report)
+    "describe",
+    "detect_source",
+    "nearest_on_box",
+    "open_source",
+    "place_labels",
+    "read_jsonl",
+    "read_record",
+    "select_source",
+    "single_sequence",
+    "text_width",
 ]

@@ -109,3 +109,31 @@ def lanegraph_kernels() -> Any:
     machine and the installed sources; the first run of an installation compiles ahead the default
     run's kernels no bundle holds (:mod:`lanegraph.kernels`). Entries naming a module outside the plugin's
     package, and a list outside its folder, are ignored."""
+
+
+@hookspec(firstresult=True)
+def lanegraph_write_report(
+    run_dir: Any,
+    out_dir: Any,
+    dataset: Any,
+    gt: Any,
+    input_path: Any,
+    frames: slice | None,
+    sets: tuple[str, ...],
+    debug_dir: Any,
+    graph: Any,
+    pm: Any,
+    progress: bool,
+) -> Any:
+    """Write the report of ``run_dir`` (the output folder of ``lanegraph run`` or ``lanegraph
+    ablate``) into ``out_dir`` (None: the plugin's default) and return its summary, an object with
+    ``index`` (the page's path) and ``line()`` (the line the command says); or None to decline.
+    What ``lanegraph report``, ``run --report`` and ``ablate --report`` call (``Session.report``);
+    the built-in plugin ``lanegraph_report`` implements it.
+
+    ``dataset`` (a dataset, or None), ``gt``, ``input_path``, ``frames``, ``sets``, ``debug_dir``:
+    what the run was made with, as the command was given it; ``graph``: the validated graph that
+    ran, or None; ``pm``: the plugin manager (the sources that read the images); ``progress``: say
+    what it does on stderr. A :class:`~lanegraph.errors.LanegraphError` it raises (a
+    :class:`~lanegraph.errors.UsageError`: the folder or the options do not fit) or an ``OSError``
+    reaches the user as it is."""

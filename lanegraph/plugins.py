@@ -414,6 +414,10 @@ HOOK_RESULTS: dict[str, tuple[Any, str]] = {
         lambda v: isinstance(v, (list, tuple)) and all(isinstance(t, type) for t in v),
         "a list of runner classes",
     ),
+    "lanegraph_write_report": (
+        lambda v: callable(getattr(v, "line", None)) and hasattr(v, "index"),
+        "a report's summary (with index and line()) or None",
+    ),
 }
 
 

@@ -4,7 +4,6 @@ data kitti`` is the I/O plugin's (:mod:`lanegraph_io.cli`). ``lanegraph.cli`` re
 from __future__ import annotations
 
 import textwrap
-from pathlib import Path
 
 import click
 
@@ -29,23 +28,6 @@ def graphs_cmd(paths: bool) -> None:
             lead = f"  {name:<{width}}  "
             text = textwrap.fill(describe(file), 108, initial_indent=lead, subsequent_indent=" " * len(lead))
             click.echo(text.rstrip() or lead.rstrip())
-
-
-def open_in_browser(page: Path) -> bool:
-    """Open ``page`` in the web browser (``report --open``); where this machine has none (a server,
-    a container, no DISPLAY), say so and where the page is, instead of doing nothing."""
-    import webbrowser
-
-    try:
-        opened = webbrowser.open(page.resolve().as_uri())
-    except webbrowser.Error:
-        opened = False
-    if not opened:
-        click.echo(
-            f"report: no web browser found to open it (set BROWSER to one); open {page} in a browser",
-            err=True,
-        )
-    return opened
 
 
 __all__ = ["graphs_cmd"]

@@ -70,6 +70,8 @@ def ablate(
     executes the runs; ``resume``: the runs an earlier ablation finished in OUT are reused even with
     ``no_cache``; ``debug_frames``: ``--debug-frames`` as given."""
     chosen = debug_frames_option(debug_frames)
+    if make_report:
+        session.check_reports()
     runner = runner if runner is not None else session.runner(scheduler)
     opened = [(r, session.open_graph(r.graph, tuple(r.sets))) for r in variants]
     for _, graph in opened:

@@ -24,12 +24,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 from .. import interrupts
-from ..errors import InputError, LanegraphError, NotStarted, RunStopped, UsageError
+from ..errors import HookError, InputError, LanegraphError, NotStarted, RunStopped, UsageError
 from ..frames import selection_text
 from ..graph.files import ResolvedGraph, load_graph_named, open_graph
 from ..graph.model import Graph
 from ..paths import OutputLock, prepare_dir
-from ..plugins import PluginManager, get_plugin_manager
+from ..plugins import PluginManager, call_hook, get_plugin_manager
 from ..records.folder import check as check_folder
 from ..records.folder import claim as claim_folder
 from ..records.owned import seal as seal_folder
@@ -227,6 +227,8 @@ class Session:
             raise UsageError(f"--input {input_path}: no such file or folder")
         if resume and chunk_frames is not None:
             refuse("--resume", "chunks")
+        if make_report:
+            self.check_reports()
         chosen = debug_frames_option(debug_frames)
         runner = runner if runner is not None else InProcessRunner()
         resolved = g.resolved_dict()
@@ -370,22 +372,52 @@ class Session:
         dataset: Any = None,
         dataset_path: Path | None = None,
         gt_path: Path | None = None,
-        **kwargs: Any,
+        out_dir: Path | None = None,
+        input_path: Path | None = None,
+        frames: slice | None = None,
+        sets: Sequence[str] = (),
+        debug_dir: Path | None = None,
+        graph: Graph | None = None,
     ) -> Any:
-        """Write the report of a run or ablation folder (:func:`lanegraph.presentation.report.write_report`)
-        and say its summary line; returns the :class:`~lanegraph.presentation.report.ReportSummary`."""
+        """Write the report of a run or ablation folder and say its summary line; returns the
+        summary (``index``: the page; ``line()``). The plugin that writes reports does it (the
+        ``lanegraph_write_report`` hook; the built-in plugin ``lanegraph_report``): without one, a
+        :class:`UsageError`. What it raises reaches the caller as it is."""
         from ..evaluation.dataset import load_dataset
-        from ..presentation.report import write_report
 
+        self.check_reports()
         if dataset_path is not None:
             dataset = load_dataset(dataset_path)
         if gt_path is not None and not gt_path.is_file():
             raise UsageError(f"--gt {gt_path}: no such file")
-        summary = write_report(
-            run_dir, dataset=dataset, gt=gt_path, progress=self.progress, pm=self.pm, **kwargs
-        )
+        try:
+            summary = call_hook(
+                self.pm, "lanegraph_write_report", run_dir=Path(run_dir), out_dir=out_dir, dataset=dataset,
+                gt=gt_path, input_path=input_path, frames=frames, sets=tuple(sets), debug_dir=debug_dir,
+                graph=graph, pm=self.pm, progress=self.progress,
+            )  # fmt: skip
+        except HookError as exc:  # the report's own errors (a folder that does not fit ...) as they are
+            if isinstance(exc.cause, (LanegraphError, OSError)):
+                raise exc.cause from None
+            raise
+        if summary is None:
+            raise UsageError(f"{run_dir}: {_NO_REPORTS} (those installed declined this folder)")
         self.out(summary.line())
         return summary
+
+    def check_reports(self) -> None:
+        """Raise the :class:`UsageError` that says no installed plugin writes reports, where none
+        does (``run --report`` and ``ablate --report`` ask before anything runs)."""
+        if self.pm.hook.lanegraph_write_report.get_hookimpls():
+            return
+        why = next((str(e) for e in self.pm.plugin_errors if e.plugin == _REPORTS_PLUGIN), None)
+        raise UsageError(f"{_NO_REPORTS}: {why or _REPORTS_PLUGIN_MISSING}")
+
+
+#: the built-in plugin that writes reports: its load error is said when no plugin writes them
+_REPORTS_PLUGIN = "lanegraph_report"
+_NO_REPORTS = "no installed plugin writes reports (the lanegraph_write_report hook)"
+_REPORTS_PLUGIN_MISSING = f"lanegraph's plugin {_REPORTS_PLUGIN} is not installed"
 
 
 def _debug_pictures(folder: Path | None, frames: tuple[str, ...] | None) -> tuple[Any, ...]:

@@ -77,24 +77,6 @@ def test_user_graph_extends_builtin_from_another_folder(tmp_path, monkeypatch):
         load_raw(up / "g.yaml", roots=[up])
 
 
-def test_open_without_a_browser_says_so(tmp_path, monkeypatch, capsys):
-    import webbrowser
-
-    from lanegraph.cli.start import open_in_browser
-
-    page = tmp_path / "report" / "index.html"
-    monkeypatch.setattr(webbrowser, "open", lambda url: False)  # what it returns with no browser
-    assert open_in_browser(page) is False
-    err = capsys.readouterr().err
-    assert "no web browser found" in err and str(page) in err
-
-    def broken(url):
-        raise webbrowser.Error("could not locate runnable browser")
-
-    monkeypatch.setattr(webbrowser, "open", broken)
-    assert open_in_browser(page) is False and "no web browser found" in capsys.readouterr().err
-
-
 def test_checkout_paths_and_dataset_names_are_found_from_any_folder(tmp_path, monkeypatch):
     """``graphs/paper.yaml`` (as a checkout's docs write it) is the built-in graph where the
     current folder has none; ``datasets/kitti_lanes`` is found like every built-in name; a

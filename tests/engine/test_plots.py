@@ -10,9 +10,9 @@ import random
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from lanegraph_report import _svg
 
 from lanegraph.evaluation.plots import accuracy_vs_ms_figure, place_labels, text_width
-from lanegraph.presentation.report import _svg
 
 #: thirteen variants, as an ablation of the paper graph gives them: all between 100 and 140 ms,
 #: ten of them at a detection ratio of 100 %

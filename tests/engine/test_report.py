@@ -334,7 +334,7 @@ def test_nothing_planted_in_the_report_folder_is_followed(run_out, tmp_path):
 
 
 def test_a_report_that_fails_leaves_the_earlier_one_whole(run_out, tmp_path, monkeypatch):
-    from lanegraph.presentation.report import _page
+    from lanegraph_report import _page
 
     out, _ = run_out
     target = tmp_path / "r"
@@ -516,8 +516,26 @@ def test_open_shows_the_report_in_the_browser(run_out, tmp_path, monkeypatch):
     assert opened == [(tmp_path / "r" / "index.html").resolve().as_uri()]
 
 
+def test_open_without_a_browser_says_so(tmp_path, monkeypatch, capsys):
+    import webbrowser
+
+    from lanegraph_report.cli import open_in_browser
+
+    page = tmp_path / "report" / "index.html"
+    monkeypatch.setattr(webbrowser, "open", lambda url: False)  # what it returns with no browser
+    assert open_in_browser(page) is False
+    err = capsys.readouterr().err
+    assert "no web browser found" in err and str(page) in err
+
+    def broken(url):
+        raise webbrowser.Error("could not locate runnable browser")
+
+    monkeypatch.setattr(webbrowser, "open", broken)
+    assert open_in_browser(page) is False and "no web browser found" in capsys.readouterr().err
+
+
 def test_data_cannot_close_the_script_element():
-    from lanegraph.presentation.report._build import dumps_for_html
+    from lanegraph_report._page import dumps_for_html
 
     text = dumps_for_html({"frame": "</script><script>alert(1)</script>&"})
     assert "<" not in text and ">" not in text and "&" not in text
@@ -694,7 +712,7 @@ def test_ablation_report_in_chromium(browser, ablation_out, tmp_path):
 
 
 def test_svg_drawings_escape_their_text_and_draw_every_node_and_edge():
-    from lanegraph.presentation.report import _svg
+    from lanegraph_report import _svg
 
     edges = [
         ("a", "x", "b", "in", False),

@@ -257,7 +257,7 @@ def scatter_svg(points: Sequence[tuple[str, float | None, float | None]], x_labe
     Each point has its own colour, a legend entry beside the plot, and a label placed where it
     overlaps no other label and no point (:func:`lanegraph.evaluation.plots.place_labels`; joined to its point
     by a thin line when moved away, left out when there is no room: the legend names the point)."""
-    from ...evaluation.plots import nearest_on_box, place_labels, text_width
+    from lanegraph.api import nearest_on_box, place_labels, text_width
 
     pts = [(n, float(xv), float(yv)) for n, xv, yv in points if xv is not None and yv is not None]
     if not pts:

@@ -13,17 +13,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ...errors import InputError, LanegraphError, UsageError
-from ...evaluation.dataset import POOLED, Dataset, evaluate_sequences
-from ...evaluation.metrics import evaluate
-from ...graph.model import Graph
-from ...paths import new_temp_dir, new_temp_file, prepare_dir, safe_name
-from ...plugins import PluginManager, get_plugin_manager
-from ...records import owned
+from lanegraph.api import POOLED, evaluate, evaluate_sequences, owned
+from lanegraph.errors import InputError, LanegraphError, UsageError
+from lanegraph.paths import new_temp_dir, new_temp_file, prepare_dir, safe_name
+from lanegraph.plugins import PluginManager, get_plugin_manager
+
 from . import _page
 from ._collect import Collected, collect
 from ._images import JpegWriter, choose_source, debug_pictures, read_left_images, recorded_debug_dir
-from ._page import dumps_for_html  # noqa: F401 - where the page's data is made safe
 
 #: widest left image in the report, pixels (KITTI's 1242 px: ~40 KiB per frame as JPEG)
 IMAGE_WIDTH = 800
@@ -62,12 +59,12 @@ def write_report(
     out_dir: str | Path | None = None,
     *,
     gt: str | Path | None = None,
-    dataset: Dataset | None = None,
+    dataset: Any = None,
     input_path: str | Path | None = None,
     frames: slice | None = None,
     sets: list[str] | tuple[str, ...] = (),
     debug_dir: str | Path | None = None,
-    graph: Graph | None = None,
+    graph: Any = None,
     pm: PluginManager | None = None,
     image_width: int = IMAGE_WIDTH,
     progress: bool = True,
@@ -429,7 +426,7 @@ def _sequence_images(
 ) -> list[str] | None:
     """The left images of one sequence's frames in ``entries`` as JPEG files (their paths and
     sizes set in the entries); returns the source's frame order (None when it could not be read)."""
-    from ...runlog import progress_bar
+    from lanegraph.runlog import progress_bar
 
     folder = assets / "frames" / f"s{si}"
     folder.mkdir(parents=True, exist_ok=True)

@@ -1,11 +1,13 @@
-"""``lanegraph report``: the HTML report of a run or an ablation."""
+"""``lanegraph report``: the HTML report of a run or an ablation. A command of the
+``lanegraph.commands`` entry-point group, like a third party's."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
-from ._common import FOLDER, PATH, parse_frames, session
-from ._errors import handled
+from lanegraph.api import FOLDER, PATH, handled, parse_frames, session
 
 
 @click.command()
@@ -53,6 +55,21 @@ def report(run_dir, gt_path, dataset_path, input_path, frames, sets, debug_dir, 
         frames=parse_frames(frames), sets=sets, debug_dir=debug_dir,
     )  # fmt: skip
     if open_browser:
-        from .start import open_in_browser
-
         open_in_browser(summary.index)
+
+
+def open_in_browser(page: Path) -> bool:
+    """Open ``page`` in the web browser (``report --open``); where this machine has none (a server,
+    a container, no DISPLAY), say so and where the page is, instead of doing nothing."""
+    import webbrowser
+
+    try:
+        opened = webbrowser.open(page.resolve().as_uri())
+    except webbrowser.Error:
+        opened = False
+    if not opened:
+        click.echo(
+            f"report: no web browser found to open it (set BROWSER to one); open {page} in a browser",
+            err=True,
+        )
+    return opened

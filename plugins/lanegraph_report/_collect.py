@@ -12,14 +12,21 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ...errors import GraphError, InputError, UsageError
-from ...evaluation.dataset import Dataset, read_gt, single_sequence
-from ...evaluation.metrics import read_jsonl, select_frames
-from ...frames import parse_frames
-from ...graph.model import Graph
-from ...plugins import PluginManager
-from ...records.record import RunRecord, read_record
-from ...records.results import LANES, describe, find_result
+from lanegraph.api import (
+    LANES,
+    Session,
+    describe,
+    find_result,
+    read_gt,
+    read_jsonl,
+    read_record,
+    select_frames,
+    single_sequence,
+)
+from lanegraph.builtin import find_graph
+from lanegraph.errors import GraphError, InputError, UsageError
+from lanegraph.frames import parse_frames
+from lanegraph.plugins import PluginManager
 
 #: the ground truth looked for in an input folder when none is given
 GT_NAME = "lanes_gt.jsonl"
@@ -59,7 +66,7 @@ class Collected:
     variants: list[str]
     sequences: list[Sequence]
     runs: dict[tuple[int, int], RunFiles]  # (variant index, sequence index) -> its files
-    graph: Graph | None = None
+    graph: Any = None  # the graph (lanegraph's Graph) drawn with its times, when known
     results: list[dict[str, str]] = field(default_factory=list)  # an ablation's results.csv rows
     notes: list[str] = field(default_factory=list)
 
@@ -97,7 +104,7 @@ def _gt_records(path: Path | None, frames: slice | None) -> list[dict[str, Any]]
     return gt[frames] if frames is not None else gt
 
 
-def _from_dataset(ds: Dataset, frames: slice | None) -> list[Sequence]:
+def _from_dataset(ds: Any, frames: slice | None) -> list[Sequence]:
     out = []
     for s in ds:
         sel = s.frames if s.frames is not None else frames
@@ -129,24 +136,21 @@ def _resolve_recorded(path_text: str | None, run_dir: Path) -> Path | None:
 
 
 def load_recorded_graph(
-    run_json: RunRecord, run_dir: Path, sets: list[str], pm: PluginManager, notes: list[str]
-) -> Graph | None:
+    run_json: Any, run_dir: Path, sets: list[str], pm: PluginManager, notes: list[str]
+) -> Any:
     """The graph run.json names, with ``sets`` applied; None (and a note) when it cannot be loaded."""
-    from ...graph.files import allowed_roots, resolve_graph_path
-    from ...graph.validation import load_graph
-
     text = run_json.graph
     if not text:
         return None
     try:
-        path = _resolve_recorded(str(text), run_dir) or resolve_graph_path(Path(str(text)).stem)
+        path = _resolve_recorded(str(text), run_dir) or find_graph(Path(str(text)).stem)
     except GraphError:
         path = Path(str(text))
     if not path.is_file():
         notes.append(f"the graph {text} that run.json names was not found: no graph drawing")
         return None
     try:
-        return load_graph(path, list(sets), pm, roots=allowed_roots(path))
+        return Session.open_graph(path, sets).validate(pm)  # `extends` only into the allowed folders
     except GraphError as exc:
         notes.append(f"the graph {path} that run.json names does not load: {exc}")
         return None
@@ -156,11 +160,11 @@ def collect(
     run_dir: Path,
     *,
     gt: Path | None,
-    dataset: Dataset | None,
+    dataset: Any,
     input_path: Path | None,
     frames: slice | None,
     sets: list[str],
-    graph: Graph | None,
+    graph: Any,
     pm: PluginManager,
 ) -> Collected:
     """Read ``run_dir`` (a run or an ablation output folder) and the ground truth.

@@ -15,11 +15,11 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ...errors import GraphError, LanegraphError, NodeError
-from ...lifecycle import close
-from ...plugins import PluginManager
-from ...run.sources import detect_source, open_source, select_source
-from ..render import to_bgr
+from lanegraph.api import detect_source, open_source, read_record, select_source
+from lanegraph.errors import GraphError, LanegraphError, NodeError
+from lanegraph.lifecycle import close
+from lanegraph.plugins import PluginManager
+from lanegraph.presentation.render import to_bgr
 
 #: the ``--debug-dir`` picture of one node output: ``<node id>.<port>.png`` (node ids have no dot)
 _PICTURE = re.compile(r"^(?P<node>[^.]+)\.(?P<port>.+)\.png$")
@@ -188,8 +188,6 @@ def debug_pictures(
 def recorded_debug_dir(run_dir: Path) -> Path | None:
     """The ``--debug-dir`` folder the run in ``run_dir`` wrote, as its ``run.json`` records it (a
     folder inside the run folder), or None: pictures in any other folder may be another run's."""
-    from ...records.record import read_record
-
     record = read_record(run_dir)
     rel = record.debug_dir if record is not None else None
     if not rel or Path(rel).is_absolute() or ".." in Path(rel).parts:

@@ -11,8 +11,9 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from ..._version import __version__
-from ...evaluation.dataset import POOLED
+from lanegraph import __version__
+from lanegraph.api import POOLED
+
 from . import _svg
 from ._collect import Collected
 
@@ -26,7 +27,7 @@ def _path(p: Any) -> str:
 
 
 def _asset(name: str) -> str:
-    return resources.files("lanegraph.presentation.report").joinpath(name).read_text(encoding="utf-8")
+    return resources.files("lanegraph_report").joinpath(name).read_text(encoding="utf-8")
 
 
 def _pct(x: Any) -> str:
