@@ -410,14 +410,14 @@ class Session:
         does (``run --report`` and ``ablate --report`` ask before anything runs)."""
         if self.pm.hook.lanegraph_write_report.get_hookimpls():
             return
-        why = next((str(e) for e in self.pm.plugin_errors if e.plugin == _REPORTS_PLUGIN), None)
-        raise UsageError(f"{_NO_REPORTS}: {why or _REPORTS_PLUGIN_MISSING}")
+        broken = "; ".join(str(e) for e in self.pm.plugin_errors)  # the one that would, perhaps
+        raise UsageError(f"{_NO_REPORTS}" + (f"; of the plugins installed, {broken}" if broken else ""))
 
 
-#: the built-in plugin that writes reports: its load error is said when no plugin writes them
-_REPORTS_PLUGIN = "lanegraph_report"
-_NO_REPORTS = "no installed plugin writes reports (the lanegraph_write_report hook)"
-_REPORTS_PLUGIN_MISSING = f"lanegraph's plugin {_REPORTS_PLUGIN} is not installed"
+_NO_REPORTS = (
+    "no installed plugin writes reports (the lanegraph_write_report hook; lanegraph's own is the plugin "
+    "lanegraph_report)"
+)
 
 
 def _debug_pictures(folder: Path | None, frames: tuple[str, ...] | None) -> tuple[Any, ...]:

@@ -85,8 +85,8 @@ def test_without_a_report_plugin_report_says_so(tmp_path):
     said: list[str] = []
     with pytest.raises(
         UsageError,
-        match=r"^no installed plugin writes reports \(the lanegraph_write_report hook\): "
-        "lanegraph's plugin lanegraph_report is not installed$",
+        match=r"^no installed plugin writes reports \(the lanegraph_write_report hook; lanegraph's own is "
+        r"the plugin lanegraph_report\)$",
     ):
         _session(_without_reports(), said).report(tmp_path / "run")
     assert said == [] and not (tmp_path / "run").exists()
@@ -183,7 +183,8 @@ def test_report_option_without_a_report_plugin_is_refused_before_anything_runs(
     )
     assert r.exit_code == 2, r.output
     assert (
-        "error: no installed plugin writes reports (the lanegraph_write_report hook): plugin 'lanegraph_report' "
-        "from distribution 'lanegraph' failed to load: ImportError: No module named 'cv2'" in r.output
+        "error: no installed plugin writes reports (the lanegraph_write_report hook; lanegraph's own is the "
+        "plugin lanegraph_report); of the plugins installed, plugin 'lanegraph_report' from distribution "
+        "'lanegraph' failed to load: ImportError: No module named 'cv2'" in r.output
     )
     assert not out.exists()  # nothing ran, nothing was written
