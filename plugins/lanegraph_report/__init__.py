@@ -1,10 +1,11 @@
 """lanegraph_report: a self-contained browser report of a run or an ablation (``lanegraph report``,
-``run --report``, ``ablate --report``).
+``run --report``, ``ablate --report``), and ``lanegraph eval``.
 
 A plugin like any third party's: it writes reports through the ``lanegraph_write_report`` hook
-(what the run service's ``Session.report`` calls) and adds the command ``lanegraph report``
-(:mod:`lanegraph_report.cli`, a ``lanegraph.commands`` entry point). It imports its modules, and
-OpenCV, only when a report is written: loading the plugin costs nothing.
+(what the run service's ``Session.report`` calls) and adds the commands ``lanegraph report``
+(:mod:`lanegraph_report.cli`) and ``lanegraph eval`` (:mod:`lanegraph_report.evaluate`), entry
+points of ``lanegraph.commands``. It imports its modules, and OpenCV, only when a report is
+written: loading the plugin costs nothing.
 
 :func:`write_report` reads a ``lanegraph run`` output folder (its lanes, ``timings.json``,
 ``run.json``; with a dataset file, a run folder ``<sequence>/`` per sequence) or a ``lanegraph
