@@ -122,14 +122,20 @@ def read_calibration(pm: PluginManager, path: Path) -> Any:
     """The :class:`~lanegraph.types.Calibration` of ``path``: of an input folder, the constant
     ``calibration`` output of the source that reads it; of a file, what a plugin's
     ``lanegraph_read_calibration`` reads. Raises an :class:`~lanegraph.errors.InputError` naming
-    the path when nothing installed reads it."""
-    from ..errors import InputError
+    the path when nothing installed reads it, or the one a plugin raised for a malformed file of its
+    format (a plugin's other errors are :class:`~lanegraph.errors.HookError` naming it)."""
+    from ..errors import HookError, InputError
 
     path = Path(path)
     if not path.is_dir():
         if not path.is_file():
             raise InputError("calibration file not found", path=str(path))
-        calib = call_hook(pm, "lanegraph_read_calibration", path=path)
+        try:
+            calib = call_hook(pm, "lanegraph_read_calibration", path=path)
+        except HookError as exc:  # a file of the plugin's format that is malformed: its InputError as it is
+            if isinstance(exc.cause, InputError):
+                raise exc.cause from None
+            raise
         if calib is None:
             raise InputError(
                 "no installed plugin reads this calibration file (by its format)", path=str(path)

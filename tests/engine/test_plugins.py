@@ -319,3 +319,35 @@ def test_a_graph_using_a_type_of_a_broken_plugin_says_so(broken_eps, tmp_path):
         "node 'c': type: unknown node type 'no.such'" in r.output
         and "could not be loaded (see the warnings): one may provide it" in r.output
     )
+
+
+def test_a_calibration_plugin_s_input_error_reaches_the_user_as_it_is(tmp_path):
+    """The hook's contract: a malformed file of the plugin's format is an InputError naming it;
+    read_calibration passes it on unchanged, while any other exception of the plugin is
+    a HookError naming the plugin and the hook."""
+    from lanegraph.errors import HookError, InputError
+    from lanegraph.run.sources import read_calibration
+
+    class Reader:
+        @hookimpl
+        def lanegraph_read_calibration(self, path):
+            if path.suffix != ".mine":
+                return None
+            if path.read_text() == "bug":
+                raise ValueError("a bug")
+            raise InputError("line 2: expected 12 numbers", path=str(path))
+
+    pm = PluginManager()
+    pm.register(Reader(), name="mine")
+    bad = tmp_path / "c.mine"
+    bad.write_text("1 2 3")
+    with pytest.raises(InputError) as caught:
+        read_calibration(pm, bad)
+    assert type(caught.value) is InputError and "line 2: expected 12 numbers" in str(caught.value)
+    bad.write_text("bug")
+    with pytest.raises(HookError, match="mine.*lanegraph_read_calibration.*a bug"):
+        read_calibration(pm, bad)
+    other = tmp_path / "c.txt"
+    other.write_text("x")
+    with pytest.raises(InputError, match="no installed plugin reads this calibration file"):
+        read_calibration(pm, other)
