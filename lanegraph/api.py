@@ -1,15 +1,17 @@
 """lanegraph's application API: what an add-on (a command plugin, a runner) and a notebook may use
 beyond the plugin author's core modules.
 
-The command line's own add-ons are plugins (``lanegraph_tune``, ``lanegraph_report``,
-``lanegraph_dask`` in ``plugins/``) and import lanegraph only from here and from the core's public
-modules, as a third party's would (``tests/engine/test_layout.py`` checks it); everything else in
-lanegraph may change between releases. This module is a front end: it stands above every layer.
+The command line's own add-ons are plugins (``lanegraph_tune``, ``lanegraph_report`` with ``report``
+and ``eval``, ``lanegraph_dask``, and ``data kitti`` of ``lanegraph_io``, in ``plugins/``) and
+import lanegraph only from here and from the core's public modules, as a third party's would
+(``tests/engine/test_layout.py`` checks it); everything else in lanegraph may change between
+releases. This module is a front end: it stands above every layer, and only re-exports.
 
 - the run service: :class:`Session`, whose methods run, batch, ablate and report;
 - for a command (``lanegraph.commands`` entry points, :mod:`lanegraph.cli`): :func:`handled` (the one
   place errors become exit codes), :func:`session` (the service a command calls), the option sets
-  and types the core's commands use.
+  and types the core's commands use;
+- then, in a block each, the names the built-in add-ons use beyond those (commented with the add-on).
 """
 
 from __future__ import annotations
