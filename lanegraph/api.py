@@ -39,7 +39,7 @@ from .records.folder import check as check_folder
 from .records.provenance import write_resolved_graph
 from .records.record import TuneEntry
 from .records.results import LANES, find_result
-from .run.cache import digest
+from .run.cache import ResultCache, digest  # ResultCache: a batch's own cache (docs/distributed.md)
 from .run.task import describe_error
 from .service.keeping import command_kept, dataset_identity, result_cache
 
@@ -83,6 +83,7 @@ __all__ = [
     "BatchRun",
     "LANES",
     "POOLED",
+    "ResultCache",
     "TuneEntry",
     "check_folder",
     "command_kept",
