@@ -2,7 +2,7 @@
 beyond the plugin author's core modules.
 
 The command line's own add-ons are plugins (``lanegraph_tune``, ``lanegraph_report`` with ``report``
-and ``eval``, ``lanegraph_dask``, and ``data kitti`` of ``lanegraph_io``, in ``plugins/``) and
+and ``eval``, ``lanegraph_dask``, ``lanegraph_data`` with ``data kitti``, in ``plugins/``) and
 import lanegraph only from here and from the core's public modules, as a third party's would
 (``tests/engine/test_layout.py`` checks it); everything else in lanegraph may change between
 releases. This module is a front end: it stands above every layer, and only re-exports.
@@ -26,8 +26,8 @@ from .cli._common import (
     session,
 )
 from .cli._errors import handled
-from .evaluation.metrics import read_ground_truth  # lanegraph_io (data kitti)
-from .records import owned  # lanegraph_io (data kitti)
+from .evaluation.metrics import read_ground_truth  # lanegraph_data (data kitti)
+from .records import owned  # lanegraph_data (data kitti)
 from .service import Session
 
 # isort: split

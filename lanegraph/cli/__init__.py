@@ -9,7 +9,7 @@ group (``name = "module:click_command"``), loaded only when that command runs or
 them, honouring the allowlist of :mod:`lanegraph.plugins` (``LANEGRAPH_PLUGINS``,
 ``LANEGRAPH_DISABLE_PLUGIN_AUTOLOAD``). lanegraph's own add-ons (``tune``, ``report``) come the same
 way, from their plugin packages (``eval`` and ``report`` from ``lanegraph_report``), and ``data kitti``
-from the I/O plugin. A command plugin imports :mod:`lanegraph.api`.
+from ``lanegraph_data``. A command plugin imports :mod:`lanegraph.api`.
 
 Exit codes: 0 ok, 1 failure while running (or frames that failed), 2 invalid graph or usage, or an
 input that is unusable before any frame runs (no images, no calibration, an empty frame selection).

@@ -1,5 +1,5 @@
 """The newcomer's command ``lanegraph graphs`` (the built-in graph and dataset files); ``lanegraph
-data kitti`` is the I/O plugin's (:mod:`lanegraph_io.cli`). ``lanegraph.cli`` registers it."""
+data kitti`` is the plugin ``lanegraph_data``'s (:mod:`lanegraph_data.cli`). ``lanegraph.cli`` registers it."""
 
 from __future__ import annotations
 

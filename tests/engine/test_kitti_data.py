@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
+from lanegraph_data.kitti import GROUND_TRUTH, ground_truth_file
 
 from lanegraph.cli import main
-from lanegraph_io.kitti_layout import GROUND_TRUTH, ground_truth_file
 from lanegraph.evaluation.dataset import load_dataset
 
 from ..conftest import SHARED

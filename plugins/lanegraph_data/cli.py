@@ -1,6 +1,5 @@
 """``lanegraph data kitti``: KITTI downloads laid out as lanegraph's sources read them, with the lane
-ground truth this plugin ships (:mod:`lanegraph_io.kitti_layout`). A command of the
-``lanegraph.commands`` entry-point group, like a third party's."""
+ground truth this plugin ships (:mod:`lanegraph_data.kitti`)."""
 
 from __future__ import annotations
 
@@ -29,7 +28,7 @@ def kitti_cmd(sources: tuple[Path, ...], out_dir: Path, quiet: bool) -> None:
     data_odometry_gray.zip with data_odometry_calib.zip; zip files or the folders they unpack to.
     Writes the lane ground truth lanegraph ships for the frames it has (lanes_gt.jsonl beside the
     frames) and OUT/kitti.yaml, a dataset file of the sequences laid out."""
-    from .kitti_layout import prepare_kitti
+    from .kitti import prepare_kitti
 
     try:
         summary = prepare_kitti(list(sources), out_dir, progress=None if quiet else _say)
