@@ -26,7 +26,6 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
-import cv2
 import numpy as np
 
 from ..types import Calibration
@@ -34,6 +33,8 @@ from .metrics import match_frame, polyline_x_at
 
 
 def _lane_mask(points: Sequence[Sequence[float]], size: tuple[int, int], width: int) -> np.ndarray:
+    import cv2  # when a CULane figure is computed: importing this module (lanegraph --help) stays cheap
+
     w, h = size
     m = np.zeros((h, w), np.uint8)
     pts = np.round(np.asarray(points, dtype=np.float64).reshape(-1, 2)).astype(np.int32)

@@ -157,3 +157,27 @@ def test_lanegraph_s_add_on_commands_come_through_the_entry_point_group():
     found = command_entry_points()
     assert {"tune", "report", "data"} <= set(found)
     assert {found[n].dist.name for n in ("tune", "report", "data")} == {"lanegraph"}
+
+
+_HELP = """
+import sys
+from lanegraph.cli import main
+try:
+    main(["--help"])
+except SystemExit:
+    pass
+heavy = ("numba", "cv2", "dask", "distributed", "optuna", "matplotlib", "mlflow", "lanegraph_io", "lanegraph_lanes")
+print("HEAVY", sorted({m.split(".")[0] for m in sys.modules} & set(heavy)))
+"""
+
+
+def test_help_lists_every_command_and_loads_nothing_heavy():
+    """``lanegraph --help`` imports the add-ons' command modules for their help lines, and nothing
+    they import only to run: no numba, OpenCV, Dask, Optuna, matplotlib, MLflow or node plugin."""
+    import subprocess
+
+    p = subprocess.run([sys.executable, "-c", _HELP], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    listed = {line.split()[0] for line in p.stdout.splitlines() if line.startswith("  ") and line.split()}
+    assert {"run", "ablate", "tune", "report", "eval", "data", "graphs", "nodes"} <= listed
+    assert p.stdout.splitlines()[-1] == "HEAVY []"
