@@ -13,43 +13,12 @@ the road; an obstacle's side rises higher within the band beyond its foot.
 
 from __future__ import annotations
 
-import math
-
 import cv2
 import numpy as np
 
 from lanegraph.types import BevGeometry, Calibration, RoadModel
 
-
-def _heights_at(
-    geometry: BevGeometry,
-    disparity: np.ndarray,
-    road: RoadModel,
-    calib: Calibration,
-    rows: np.ndarray,
-    cols: np.ndarray,
-) -> np.ndarray:
-    """The height above the fitted road plane (metres, ``h (d - d_road) / d``, ``road.mask``'s eq. 4)
-    of what the image shows at the BEV pixels ``(rows, cols)``; NaN without a disparity there or
-    outside the image."""
-    out = np.full(rows.shape, np.nan)
-    if rows.size == 0:
-        return out
-    xy = geometry.bev_to_image(cols.astype(np.float64), rows.astype(np.float64))
-    h, w = disparity.shape
-    ok = np.isfinite(xy).all(axis=1)
-    u = np.zeros(rows.shape, np.int64)
-    v = np.zeros(rows.shape, np.int64)
-    u[ok] = np.rint(xy[ok, 0]).astype(np.int64)
-    v[ok] = np.rint(xy[ok, 1]).astype(np.int64)
-    ok &= (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    d = np.zeros(rows.shape)
-    d[ok] = disparity[v[ok], u[ok]]
-    ok &= (d > 0) & np.isfinite(d)
-    s, c = math.sin(road.roll) * calib.f_y / calib.f, math.cos(road.roll)
-    vr = calib.cy + s * (u[ok] - calib.cx) + c * (v[ok] - calib.cy)
-    out[ok] = road.height * (d[ok] - road.disparity_at(vr)) / d[ok]
-    return out
+from ._heights import heights_at
 
 
 def obstacle_border(
@@ -83,7 +52,7 @@ def obstacle_border(
     beyond = cv2.dilate(m8, cv2.getStructuringElement(cv2.MORPH_RECT, (kw, kw))).view(bool) & ~keep
     ring = keep & ~cv2.erode(m8, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)), borderValue=0).view(bool)
     r, c = np.nonzero(beyond)
-    hgt = _heights_at(geometry, disparity, road, calib, r, c)
+    hgt = heights_at(geometry, disparity, road, calib, r, c)
     valid = np.zeros(keep.shape, np.float32)
     tall = np.zeros(keep.shape, np.float32)
     fin = np.isfinite(hgt)

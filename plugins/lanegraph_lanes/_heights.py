@@ -10,6 +10,53 @@ import numpy as np
 from lanegraph.types import BevGeometry, Calibration, Lane, RoadModel
 
 
+def plane_fits(disparity: np.ndarray, road: RoadModel, calib: Calibration) -> bool:
+    """Whether heights above ``road``'s plane can be read from ``disparity``: a valid road model with
+    a camera height, and a map of the calibration's size (a reduced disparity: the road model is
+    not its)."""
+    if not road.valid or not road.height > 0:
+        return False
+    h, w = np.shape(disparity)
+    return not ((calib.width and w != calib.width) or (calib.height and h != calib.height))
+
+
+def heights_at(
+    geometry: BevGeometry,
+    disparity: np.ndarray,
+    road: RoadModel,
+    calib: Calibration,
+    rows: np.ndarray,
+    cols: np.ndarray,
+) -> np.ndarray:
+    """The height above the fitted road plane (metres, ``h (d - d_road) / d``, ``road.mask``'s eq. 4)
+    of what the image shows at the BEV pixels ``(rows, cols)``; NaN without a disparity there or
+    outside the image."""
+    out = np.full(rows.shape, np.nan)
+    if rows.size == 0:
+        return out
+    xy = geometry.bev_to_image(cols.astype(np.float64), rows.astype(np.float64))
+    h, w = disparity.shape
+    ok = np.isfinite(xy).all(axis=1)
+    u = np.zeros(rows.shape, np.int64)
+    v = np.zeros(rows.shape, np.int64)
+    u[ok] = np.rint(xy[ok, 0]).astype(np.int64)
+    v[ok] = np.rint(xy[ok, 1]).astype(np.int64)
+    ok &= (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    d = np.zeros(rows.shape)
+    d[ok] = disparity[v[ok], u[ok]]
+    ok &= (d > 0) & np.isfinite(d)
+    s, c = math.sin(road.roll) * calib.f_y / calib.f, math.cos(road.roll)
+    vr = calib.cy + s * (u[ok] - calib.cx) + c * (v[ok] - calib.cy)
+    out[ok] = road.height * (d[ok] - road.disparity_at(vr)) / d[ok]
+    return out
+
+
+def median_height(heights: np.ndarray) -> float:
+    """The median of the known ``heights`` (:func:`heights_at`); NaN where fewer than 5 are known."""
+    known = heights[~np.isnan(heights)]
+    return float(np.median(known)) if known.size >= 5 else math.nan
+
+
 def lane_heights(
     lane: Lane,
     geometry: BevGeometry,
@@ -26,7 +73,7 @@ def lane_heights(
     (+-5 cm) and right of it, sampled on every ``step``-th of its rows nearer than
     ``max_distance_m``; NaN where fewer than 5 samples have a disparity."""
     nan = (math.nan, math.nan, math.nan)
-    if not road.valid or not road.height > 0:
+    if not plane_fits(disparity, road, calib):
         return nan
     res = float(geometry.resolution)
     rows = geometry.rows
@@ -41,29 +88,11 @@ def lane_heights(
         "line": np.array([-1.0, 0.0, 1.0]),
         "right": np.arange(near_m, far_m + 1e-9, res) / res,
     }
-    h, w = disparity.shape
-    if (calib.width and w != calib.width) or (calib.height and h != calib.height):
-        return nan  # a map of another size (a reduced disparity): the road model is not its
-    s, c = math.sin(road.roll) * calib.f_y / calib.f, math.cos(road.roll)
     out = []
     for key in ("left", "line", "right"):
         cc = (col[:, None] + offsets[key][None, :]).ravel()
         rr = np.repeat(r, offsets[key].size).astype(np.float64)
-        xy = geometry.bev_to_image(cc, rr)
-        ok = np.isfinite(xy).all(axis=1)
-        u = np.rint(xy[ok, 0]).astype(np.int64)
-        v = np.rint(xy[ok, 1]).astype(np.int64)
-        inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-        u, v = u[inside], v[inside]
-        d = disparity[v, u].astype(np.float64)
-        valid = (d > 0) & (d < math.inf)
-        u, v, d = u[valid], v[valid], d[valid]
-        if d.size < 5:
-            out.append(math.nan)
-            continue
-        vr = calib.cy + s * (u - calib.cx) + c * (v - calib.cy)
-        d_road = road.disparity_at(vr)
-        out.append(float(np.median(road.height * (d - d_road) / d)))
+        out.append(median_height(heights_at(geometry, disparity, road, calib, rr, cc)))
     return out[0], out[1], out[2]
 
 

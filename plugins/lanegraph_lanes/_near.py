@@ -40,6 +40,8 @@ from pydantic import Field, model_validator
 from lanegraph import NodeParams, Port, node_type
 from lanegraph.types import BevGeometry, Calibration, Lane, RoadModel
 
+from ._heights import heights_at, median_height, plane_fits
+
 
 class NearPaintParams(NodeParams):
     """Params of ``lanes.near_paint``."""
@@ -265,36 +267,6 @@ def row_widths(strips: np.ndarray, band: int, gap: int, fraction: float) -> np.n
     return (b - a) + fl + fr
 
 
-def line_heights_at(
-    fine: BevGeometry,
-    r: np.ndarray,
-    c: np.ndarray,
-    disparity: np.ndarray,
-    road: RoadModel,
-    calib: Calibration,
-) -> float:
-    """The median height above the fitted road plane (metres) of the fine pixels ``(r, c)``, from
-    the disparity (eq. 4 of ``road.mask``); NaN where fewer than 5 of them have one."""
-    if not road.valid or not road.height > 0:
-        return math.nan
-    h, w = disparity.shape
-    if (calib.width and w != calib.width) or (calib.height and h != calib.height):
-        return math.nan
-    xy = fine.bev_to_image(c, r)
-    ok = np.isfinite(xy).all(axis=1)
-    u, v = np.rint(xy[ok, 0]).astype(np.int64), np.rint(xy[ok, 1]).astype(np.int64)
-    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    u, v = u[inside], v[inside]
-    d = disparity[v, u].astype(np.float64)
-    good = (d > 0) & np.isfinite(d)
-    u, v, d = u[good], v[good], d[good]
-    if d.size < 5:
-        return math.nan
-    s, co = math.sin(road.roll) * calib.f_y / calib.f, math.cos(road.roll)
-    d_road = road.disparity_at(calib.cy + s * (u - calib.cx) + co * (v - calib.cy))
-    return float(np.median(road.height * (d - d_road) / d))
-
-
 def line_measures(
     bev: np.ndarray,
     level: np.ndarray,
@@ -475,7 +447,10 @@ def near_paint_lanes(
             if not (params.min_offset_m <= off <= params.max_offset_m) or not _is_paint(m, params):
                 continue
             if params.max_line_height_m is not None and wired:
-                h = line_heights_at(fine, m["rows"], m["cols"], np.asarray(disparity), road, calib)
+                disp = np.asarray(disparity)
+                h = math.nan
+                if plane_fits(disp, road, calib):  # the dashes' median height above the road plane
+                    h = median_height(heights_at(fine, disp, road, calib, m["rows"], m["cols"]))
                 m["line_height_m"] = h
                 if not abs(h) <= params.max_line_height_m:  # NaN: not known to lie on the road
                     continue
