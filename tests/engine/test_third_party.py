@@ -33,15 +33,25 @@ PLUGIN = textwrap.dedent(
 )
 
 
-def test_third_party_distribution_on_path(tmp_path, monkeypatch):
+def _distribution(tmp_path, monkeypatch, module: str, text: str, entry_points: str) -> None:
+    """A distribution on ``sys.path``: the module ``module`` (``text``) and its metadata, named like
+    it (``lg_x`` -> ``lg-x``), with ``entry_points`` (the text of its ``entry_points.txt``)."""
     site = tmp_path / "site"
     site.mkdir()
-    (site / "lg_thirdparty.py").write_text(PLUGIN)
-    dist = site / "lg_thirdparty-0.1.dist-info"
+    (site / f"{module}.py").write_text(text)
+    dist = site / f"{module}-0.1.dist-info"
     dist.mkdir()
-    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: lg-thirdparty\nVersion: 0.1\n")
-    (dist / "entry_points.txt").write_text("[lanegraph.plugins]\nthirdparty = lg_thirdparty\n")
+    name = module.replace("_", "-")
+    (dist / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {name}\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text(entry_points)
     monkeypatch.syspath_prepend(str(site))
+    monkeypatch.delitem(sys.modules, module, raising=False)
+
+
+def test_third_party_distribution_on_path(tmp_path, monkeypatch):
+    _distribution(
+        tmp_path, monkeypatch, "lg_thirdparty", PLUGIN, "[lanegraph.plugins]\nthirdparty = lg_thirdparty\n"
+    )
 
     pm = PluginManager()
     pm.load_entrypoints()
@@ -88,17 +98,9 @@ COMMAND = textwrap.dedent(
 
 def _command_dist(tmp_path, monkeypatch, entries: str):
     """A distribution ``lg-hello`` on ``sys.path`` whose ``lanegraph.commands`` are ``entries``."""
-    site = tmp_path / "site"
-    site.mkdir()
-    (site / "lg_hello.py").write_text(COMMAND)
-    dist = site / "lg_hello-0.1.dist-info"
-    dist.mkdir()
-    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: lg-hello\nVersion: 0.1\n")
-    (dist / "entry_points.txt").write_text("[lanegraph.commands]\n" + entries)
-    monkeypatch.syspath_prepend(str(site))
+    _distribution(tmp_path, monkeypatch, "lg_hello", COMMAND, "[lanegraph.commands]\n" + entries)
     monkeypatch.delenv("LANEGRAPH_PLUGINS", raising=False)
     monkeypatch.delenv("LANEGRAPH_DISABLE_PLUGIN_AUTOLOAD", raising=False)
-    monkeypatch.delitem(sys.modules, "lg_hello", raising=False)
 
 
 def test_a_third_party_command_runs_as_lanegraph_s_own(tmp_path, monkeypatch):
