@@ -60,6 +60,15 @@ def command_entry_points() -> dict[str, Any]:
     return found
 
 
+def _entry_points(ctx: click.Context | None) -> dict[str, Any]:
+    """:func:`command_entry_points`, read once per invocation (``--help`` asks for every command)."""
+    if ctx is None:
+        return command_entry_points()
+    if COMMAND_GROUP not in ctx.meta:
+        ctx.meta[COMMAND_GROUP] = command_entry_points()
+    return ctx.meta[COMMAND_GROUP]
+
+
 def _broken(name: str, why: str) -> click.Command:
     """A command that could not be loaded: listed by ``--help`` as such; run, it exits 2 saying why."""
 
@@ -91,13 +100,13 @@ class _Lanegraph(click.Group):
         return super().main(args, *rest, **kwargs)
 
     def list_commands(self, ctx):  # noqa: D102 - click.Group.list_commands
-        return sorted(set(super().list_commands(ctx)) | set(command_entry_points()))
+        return sorted(set(super().list_commands(ctx)) | set(_entry_points(ctx)))
 
     def get_command(self, ctx, name):  # noqa: D102 - click.Group.get_command
         command = super().get_command(ctx, name)
         if command is not None:
             return command
-        ep = command_entry_points().get(name)
+        ep = _entry_points(ctx).get(name)
         if ep is None:
             return None
         where = f"the command {name!r} of {_dist(ep)} (entry point {ep.value!r} in {COMMAND_GROUP})"
